@@ -1,0 +1,411 @@
+"""Render a dataset: sequences in parallel processes, deterministic shards, resumable.
+
+Each sequence is independent and fully determined by ``(seed, sequence_index)``
+(`numpy.random.SeedSequence([seed, index])`), so shard ``k/N`` (the sequences with
+``index % N == k``) is identical whoever renders it, and shards rendered into one
+folder (or merged with `merge_datasets`) give exactly the full dataset. A sequence
+is written into ``<seq>.partial/`` and renamed when complete; a rerun skips complete
+sequences. ``manifest.json`` is written last, once every sequence is present.
+
+Example::
+
+    summary = render_dataset(load_data_config("configs/data/tiny.yaml"), "data/tiny", workers=2)
+"""
+from __future__ import annotations
+
+import math
+import multiprocessing as mp
+import os
+import shutil
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+
+from scenes.model import Mesh, Scene
+from scenes.textures import LAYER
+from synth import __version__
+from synth.config import DataConfig
+from synth.configlib import build_config, config_hash, config_to_dict
+from synth.dataset import (GENERATOR, MANIFEST, SCHEMA_VERSION, frame_stem, read_json, sha256_file,
+                           write_depth_exr, write_json, write_png)
+from synth.lighting import draw_sequence_lighting, frame_gains
+from synth.rig import Rig, build_rig, ego_body_mesh, seen_by
+
+MARKER_DIR = ".synth"
+RECORD = "record.json"
+
+
+class OutputFolderError(RuntimeError):
+    """The output folder holds something else (another dataset or unrelated files)."""
+
+
+def sequence_id(index: int) -> str:
+    return f"seq_{index:05d}"
+
+
+def make_rig(cfg: DataConfig) -> Rig:
+    return build_rig(cfg.rig, cfg.camera)
+
+
+def make_ego_mesh(cfg: DataConfig) -> Mesh:
+    return ego_body_mesh(LAYER["car_paint"], LAYER["car_glass"], LAYER["tyre"], cfg.rig.camera_height_m)
+
+
+def assign_splits(cfg: DataConfig) -> dict[str, list[str]]:
+    """Deterministic split of sequence ids: a permutation drawn from the seed."""
+    n = cfg.dataset.sequences
+    rng = np.random.default_rng(np.random.SeedSequence([cfg.seed, 0x5EED]))
+    perm = rng.permutation(n)
+    n_test = int(round(n * cfg.dataset.test_fraction))
+    n_val = int(round(n * cfg.dataset.val_fraction))
+    if n >= 3:
+        n_test = max(n_test, 1 if cfg.dataset.test_fraction > 0 else 0)
+        n_val = max(n_val, 1 if cfg.dataset.val_fraction > 0 else 0)
+    n_test, n_val = min(n_test, max(n - 1, 0)), min(n_val, max(n - 1 - n_test, 0))
+    test = sorted(sequence_id(int(i)) for i in perm[:n_test])
+    val = sorted(sequence_id(int(i)) for i in perm[n_test:n_test + n_val])
+    train = sorted(sequence_id(int(i)) for i in perm[n_test + n_val:])
+    return {"train": train, "val": val, "test": test}
+
+
+# ----------------------------------------------------------------------------- worker side
+
+_RENDERER = None
+_RENDERER_KEY = None
+
+
+def _get_renderer(cfg: DataConfig):
+    global _RENDERER, _RENDERER_KEY
+    from synth.gl_backend import Renderer  # imported in the worker: OpenGL never crosses a fork
+
+    key = (cfg.camera.width, cfg.camera.height, cfg.render.backend, cfg.render.shadow_map_size, cfg.rig.znear_m,
+           cfg.rig.zfar_m)
+    if _RENDERER is None or _RENDERER_KEY != key:
+        if _RENDERER is not None:
+            _RENDERER.close()
+        _RENDERER = Renderer(cfg.camera.width, cfg.camera.height, backend=cfg.render.backend,
+                             znear=cfg.rig.znear_m, zfar=cfg.rig.zfar_m, shadow_size=cfg.render.shadow_map_size)
+        _RENDERER_KEY = key
+    return _RENDERER
+
+
+def render_masks(cfg: DataConfig, rig: Rig) -> dict[str, np.ndarray]:
+    """Self-occlusion masks: (H, W) uint8, 255 = scene, 0 = ego body; exact, from the ego mesh alone."""
+    from synth.gl_backend import LightState
+
+    r = _get_renderer(cfg)
+    tex = np.full((1, 4, 4, 3), 128, np.uint8)
+    scene = Scene(Mesh.empty(), [], tex, ["flat"], np.eye(4)[None], "ego_only")
+    r.load_scene(scene, make_ego_mesh(cfg))
+    light = LightState((0, 0, 1), (1, 1, 1), (1, 1, 1), (1, 1, 1), (1, 1, 1), shadows=False)
+    masks = {}
+    for cam in rig.cameras:
+        out = r.render(cam.K, cam.T_ego_cam, 0, light)
+        masks[cam.name] = np.where(out["ego"], 0, 255).astype(np.uint8)
+    return masks
+
+
+def overlap_counts(depths: dict[str, np.ndarray], masks: dict[str, np.ndarray], rig: Rig) -> dict[str, list[int]]:
+    """For each ordered adjacent pair i->j: [pixels of i with valid depth (not ego), of those seen by j]."""
+    out = {}
+    cams = rig.cameras
+    for a, b in rig.neighbours:
+        for i, j in ((a, b), (b, a)):
+            ci, cj = cams[i], cams[j]
+            valid = (depths[ci.name] > 0) & (masks[ci.name] > 127)
+            inside = seen_by(np.where(valid, depths[ci.name], 0), ci, cj)
+            out[f"{ci.name}->{cj.name}"] = [int(valid.sum()), int(inside.sum())]
+    return out
+
+
+def render_sequence(cfg_dict: dict, out_dir: str, index: int, progress_queue=None) -> dict:
+    """Render sequence `index` into `out_dir/<seq>/` (via `<seq>.partial/`); returns its record."""
+    cfg = build_config(DataConfig, cfg_dict, "resolved config")
+    rig = make_rig(cfg)
+    seq = sequence_id(index)
+    out = Path(out_dir)
+    final, partial = out / seq, out / f"{seq}.partial"
+    if partial.exists():
+        shutil.rmtree(partial)
+    partial.mkdir(parents=True)
+    ss = np.random.SeedSequence([cfg.seed, index])
+    scene_ss, light_ss, flicker_ss = ss.spawn(3)
+    t0 = time.perf_counter()
+    from scenes import build_scene
+
+    scene = build_scene(cfg.scene, cfg.dataset.frames, cfg.dataset.fps, np.random.default_rng(scene_ss))
+    t_scene = time.perf_counter() - t0
+    seq_light = draw_sequence_lighting(cfg.lighting, rig.names, np.random.default_rng(light_ss))
+    flicker_rng = np.random.default_rng(flicker_ss)
+    masks = {name: None for name in rig.names}
+    mask_dir = out / "masks"
+    for name in rig.names:
+        from synth.dataset import read_png
+        masks[name] = read_png(mask_dir / f"{name}.png", gray=True)
+    r = _get_renderer(cfg)
+    r.load_scene(scene, make_ego_mesh(cfg))
+    files: dict[str, str] = {}
+    counts: dict[str, list[int]] = {}
+    frames_json = []
+    for name in rig.names:
+        (partial / name).mkdir()
+    for f in range(cfg.dataset.frames):
+        gains = frame_gains(seq_light, flicker_rng)
+        T_world_ego = scene.T_world_ego[f]
+        depths = {}
+        for cam in rig.cameras:
+            res = r.render(cam.K, T_world_ego @ cam.T_ego_cam, f, seq_light.light, gains[cam.name])
+            stem = frame_stem(f)
+            png = partial / cam.name / f"{stem}.png"
+            exr = partial / cam.name / f"{stem}.depth.exr"
+            write_png(png, res["rgb"], cfg.render.png_compression)
+            write_depth_exr(exr, res["depth"])
+            for p in (png, exr):
+                files[f"{seq}/{cam.name}/{p.name}"] = sha256_file(p)
+            depths[cam.name] = res["depth"]
+        for k, (n_valid, n_in) in overlap_counts(depths, masks, rig).items():
+            c = counts.setdefault(k, [0, 0])
+            c[0] += n_valid
+            c[1] += n_in
+        frames_json.append({"frame": f, "timestamp_s": f / cfg.dataset.fps, "T_world_ego": T_world_ego.tolist(),
+                            "lighting": {"camera_gain": {k: list(v) for k, v in gains.items()}}})
+        if progress_queue is not None:
+            progress_queue.put(1)
+    ego = {"sequence": seq, "index": index, "fps": cfg.dataset.fps, "scene": scene.info,
+           "lighting": seq_light.to_json(), "frames": frames_json}
+    write_json(partial / "ego.json", ego)
+    files[f"{seq}/ego.json"] = sha256_file(partial / "ego.json")
+    record = {"sequence": seq, "index": index, "frames": cfg.dataset.frames, "files": files,
+              "overlap_counts": counts, "scene": scene.info, "time_of_day": seq_light.time_of_day,
+              "seconds": time.perf_counter() - t0, "scene_seconds": t_scene}
+    write_json(partial / RECORD, record)
+    os.replace(partial, final)
+    return record
+
+
+def _pool_init() -> None:
+    # quieter workers; each builds its own renderer lazily
+    os.environ.setdefault("PYTHONWARNINGS", "ignore")
+
+
+# ----------------------------------------------------------------------------- driver
+
+def parse_shard(text: str | None) -> tuple[int, int]:
+    if text is None:
+        return 0, 1
+    try:
+        k, n = (int(x) for x in text.split("/"))
+    except ValueError:
+        raise ValueError(f"--shard must be K/N with integers 0 <= K < N, got {text!r}") from None
+    if n < 1 or not 0 <= k < n:
+        raise ValueError(f"--shard must be K/N with integers 0 <= K < N, got {text!r}")
+    return k, n
+
+
+def prepare_output(cfg: DataConfig, out: Path) -> None:
+    """Check that `out` is empty or a (partial) render of this same config; else raise, writing nothing."""
+    marker = out / MARKER_DIR / "config.json"
+    if out.exists() and not out.is_dir():
+        raise OutputFolderError(f"output {out} exists and is not a folder")
+    if out.is_dir() and any(out.iterdir()):
+        if not marker.is_file():
+            raise OutputFolderError(
+                f"output folder {out} is not empty and holds no synth dataset; choose an empty or new folder")
+        prev = read_json(marker)
+        if prev.get("config_hash") != config_hash(cfg):
+            from synth.configlib import diff_configs
+            keys = diff_configs(prev.get("config", {}), config_to_dict(cfg))
+            raise OutputFolderError(
+                f"output folder {out} holds another dataset (differs in: {', '.join(keys) or 'config hash'}); "
+                "choose another --out or render with the same config to resume")
+    out.mkdir(parents=True, exist_ok=True)
+    (out / MARKER_DIR).mkdir(exist_ok=True)
+    write_json(marker, {"config": config_to_dict(cfg), "config_hash": config_hash(cfg), "seed": cfg.seed})
+
+
+def _write_static(cfg: DataConfig, out: Path, rig: Rig) -> None:
+    write_json(out / "rig.json", rig.to_json())
+    (out / "masks").mkdir(exist_ok=True)
+    masks = render_masks(cfg, rig)
+    for name, m in masks.items():
+        write_png(out / "masks" / f"{name}.png", m, cfg.render.png_compression)
+
+
+def complete_sequences(out: Path, n: int) -> list[int]:
+    return [i for i in range(n) if (out / sequence_id(i) / RECORD).is_file()]
+
+
+def finalize(cfg: DataConfig, out: Path, rig: Rig) -> dict | None:
+    """Write manifest.json if every sequence is complete; returns the manifest (or None)."""
+    n = cfg.dataset.sequences
+    if len(complete_sequences(out, n)) != n:
+        return None
+    files: dict[str, str] = {"rig.json": sha256_file(out / "rig.json")}
+    for name in rig.names:
+        files[f"masks/{name}.png"] = sha256_file(out / "masks" / f"{name}.png")
+    totals: dict[str, list[int]] = {}
+    sequences = {}
+    families: dict[str, int] = {}
+    for i in range(n):
+        rec = read_json(out / sequence_id(i) / RECORD)
+        files.update(rec["files"])
+        sequences[rec["sequence"]] = {"frames": rec["frames"], "scene": rec["scene"],
+                                      "time_of_day": rec["time_of_day"]}
+        fam = rec["scene"].get("family", "?")
+        families[fam] = families.get(fam, 0) + 1
+        for k, (a, b) in rec["overlap_counts"].items():
+            t = totals.setdefault(k, [0, 0])
+            t[0] += a
+            t[1] += b
+    targets = rig.pair_target_overlap()
+    per_pair = {}
+    for i, j in rig.neighbours:
+        a, b = rig.names[i], rig.names[j]
+        fwd, bwd = totals.get(f"{a}->{b}", [0, 0]), totals.get(f"{b}->{a}", [0, 0])
+        m_ab = fwd[1] / fwd[0] if fwd[0] else float("nan")
+        m_ba = bwd[1] / bwd[0] if bwd[0] else float("nan")
+        per_pair[f"{a}-{b}"] = {"target": targets[f"{a}-{b}"], "measured": (m_ab + m_ba) / 2,
+                                f"{a}->{b}": m_ab, f"{b}->{a}": m_ba}
+    manifest = {
+        "schema_version": SCHEMA_VERSION, "generator": GENERATOR, "generator_version": __version__,
+        "config": config_to_dict(cfg), "config_hash": config_hash(cfg), "seed": cfg.seed,
+        "cameras": rig.names, "image_size": {"width": cfg.camera.width, "height": cfg.camera.height},
+        "fps": cfg.dataset.fps, "has_depth": True,
+        "splits": assign_splits(cfg), "sequences": sequences, "families": families,
+        "overlap": {"target": cfg.rig.overlap, "mode": cfg.rig.overlap_mode,
+                    "yaw_spacing_deg": rig.yaw_spacing_deg, "hfov_deg": rig.cameras[0].hfov_deg,
+                    "per_pair_measured": per_pair},
+        "files": files,
+    }
+    write_json(out / MANIFEST, manifest)
+    return manifest
+
+
+def render_dataset(cfg: DataConfig, out: str | Path, workers: int = 1, shard: tuple[int, int] = (0, 1),
+                   engine: str = "local", progress: bool = True, log=print) -> dict:
+    """Render (the shard of) a dataset into `out`; resume-safe. Returns a summary dict."""
+    out = Path(out)
+    k, N = shard
+    if workers < 1:
+        raise ValueError(f"--workers must be >= 1, got {workers}")
+    if engine not in ("local", "ray"):
+        raise ValueError(f"--engine must be local or ray, got {engine!r}")
+    rig = make_rig(cfg)  # validates geometry before anything is written
+    from synth.gl_backend import select_backend
+    backend = select_backend(cfg.render.backend)
+    prepare_output(cfg, out)
+    t0 = time.perf_counter()
+    if not (out / "rig.json").is_file() or not all((out / "masks" / f"{n}.png").is_file() for n in rig.names):
+        _write_static(cfg, out, rig)
+    for p in out.glob("*.partial"):
+        shutil.rmtree(p)
+    n = cfg.dataset.sequences
+    mine = [i for i in range(n) if i % N == k]
+    done = set(complete_sequences(out, n))
+    todo = [i for i in mine if i not in done]
+    skipped = len(mine) - len(todo)
+    cfg_dict = config_to_dict(cfg)
+    log(f"synth render: {len(todo)} sequence(s) to render, {skipped} already complete, shard {k}/{N}, "
+        f"backend {backend}, {workers} worker(s), {cfg.camera.width}x{cfg.camera.height}")
+    frames_total = len(todo) * cfg.dataset.frames
+    bar = None
+    if progress and frames_total:
+        from tqdm import tqdm
+        bar = tqdm(total=frames_total, unit="rig-frame", desc="render", file=sys.stderr, dynamic_ncols=True)
+    records = []
+    if engine == "ray":
+        records = _render_ray(cfg_dict, out, todo, bar)
+    elif workers == 1 or len(todo) <= 1:
+        q = _BarQueue(bar)
+        for i in todo:
+            records.append(render_sequence(cfg_dict, str(out), i, q))
+    else:
+        ctx = mp.get_context("spawn")
+        with ctx.Manager() as manager:
+            q = manager.Queue()
+            with ctx.Pool(min(workers, len(todo)), initializer=_pool_init) as pool:
+                results = [pool.apply_async(render_sequence, (cfg_dict, str(out), i, q)) for i in todo]
+                pending = len(todo) * cfg.dataset.frames
+                while pending:
+                    q.get()
+                    pending -= 1
+                    if bar is not None:
+                        bar.update(1)
+                records = [r.get() for r in results]
+    if bar is not None:
+        bar.close()
+    elapsed = time.perf_counter() - t0
+    manifest = finalize(cfg, out, rig)
+    rig_frames = len(records) * cfg.dataset.frames
+    summary = {"rendered_sequences": len(records), "skipped_sequences": skipped, "rig_frames": rig_frames,
+               "seconds": elapsed, "rig_frames_per_s": rig_frames / elapsed if elapsed > 0 else math.nan,
+               "complete": manifest is not None, "backend": backend}
+    if manifest is not None:
+        summary["overlap"] = manifest["overlap"]
+        summary["splits"] = {k2: len(v) for k2, v in manifest["splits"].items()}
+        summary["families"] = manifest["families"]
+    return summary
+
+
+class _BarQueue:
+    def __init__(self, bar) -> None:
+        self.bar = bar
+
+    def put(self, n: int) -> None:
+        if self.bar is not None:
+            self.bar.update(n)
+
+
+def _render_ray(cfg_dict: dict, out: Path, todo: list[int], bar) -> list[dict]:
+    try:
+        import ray
+    except ImportError:
+        raise RuntimeError("--engine ray needs Ray: pip install 'mcdp-synth[cluster]'") from None
+    if not ray.is_initialized():
+        ray.init(address=os.environ.get("RAY_ADDRESS"), include_dashboard=False)
+    task = ray.remote(num_cpus=1)(render_sequence)
+    futures = {task.remote(cfg_dict, str(out), i, None): i for i in todo}
+    records = []
+    while futures:
+        ready, _ = ray.wait(list(futures), num_returns=1)
+        for f in ready:
+            records.append(ray.get(f))
+            futures.pop(f)
+            if bar is not None:
+                bar.update(cfg_dict["dataset"]["frames"])
+    return records
+
+
+def merge_datasets(cfg_sources: list[Path], out: Path) -> dict:
+    """Merge shard folders (same config) into `out` and write the manifest when complete."""
+    if not cfg_sources:
+        raise ValueError("merge needs at least one shard folder")
+    first = read_json(cfg_sources[0] / MARKER_DIR / "config.json")
+    cfg = build_config(DataConfig, first["config"], str(cfg_sources[0]))
+    for src in cfg_sources[1:]:
+        other = read_json(src / MARKER_DIR / "config.json")
+        if other["config_hash"] != first["config_hash"]:
+            raise OutputFolderError(f"shard {src} was rendered with another config than {cfg_sources[0]}")
+    prepare_output(cfg, out)
+    rig = make_rig(cfg)
+    for src in cfg_sources:
+        for item in ["rig.json", "masks"]:
+            if not (out / item).exists():
+                if (src / item).is_dir():
+                    shutil.copytree(src / item, out / item)
+                else:
+                    shutil.copy2(src / item, out / item)
+        for i in complete_sequences(src, cfg.dataset.sequences):
+            dst = out / sequence_id(i)
+            if not dst.exists():
+                tmp = out / f"{sequence_id(i)}.partial"
+                if tmp.exists():
+                    shutil.rmtree(tmp)
+                shutil.copytree(src / sequence_id(i), tmp)
+                os.replace(tmp, dst)
+    manifest = finalize(cfg, out, rig)
+    return {"complete": manifest is not None,
+            "sequences": len(complete_sequences(out, cfg.dataset.sequences)), "expected": cfg.dataset.sequences}

@@ -1,0 +1,230 @@
+"""Six-camera surround rig: intrinsics, extrinsics, the overlap solver and the ego body.
+
+Conventions: ego frame x forward, y left, z up (origin on the road below the rear
+axle); camera frame OpenCV (x right, y down, z forward); `T_ego_cam` maps camera
+points into the ego frame; yaw is measured in the ego frame, counter-clockwise
+(to the left) from x; pitch is positive looking up. `K` is in pixels for the
+stored image size with pixel centres at +0.5.
+
+Overlap of adjacent cameras is the shared fraction of the horizontal field of
+view, ``o = (hfov - yaw_spacing) / hfov`` (DESIGN.md). Two ways to reach a target:
+
+* ``spacing``: fixed intrinsics (``camera.hfov_deg``); the yaw spacing of the four
+  front/back pairs is solved, ``s = hfov (1 - o)``. FRONT and BACK look along the
+  axis, so the two side pairs (FRONT_RIGHT-BACK_RIGHT, BACK_LEFT-FRONT_LEFT) get
+  what is left (``180 - 2 s``): the ring may not close. The clean experiment:
+  overlap is the only variable.
+* ``fov``: a closed 360 degree ring at 60 degree spacing, hfov solved,
+  ``hfov = 60 / (1 - o)``; all six pairs reach the target.
+
+Example::
+
+    rig = build_rig(RigConfig(overlap=0.3), CameraConfig(width=320, height=192))
+    rig.cameras[0].K, rig.pair_target_overlap()
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Literal
+
+import numpy as np
+from pydantic import Field
+
+from scenes.model import Mesh
+from synth.configlib import StrictModel
+
+CAMERA_NAMES = ("CAM_FRONT", "CAM_FRONT_RIGHT", "CAM_BACK_RIGHT", "CAM_BACK", "CAM_BACK_LEFT", "CAM_FRONT_LEFT")
+# adjacent pairs in ring order: (0,1) (1,2) ... (5,0)
+RING_PAIRS = tuple((i, (i + 1) % 6) for i in range(6))
+
+# OpenCV camera axes expressed in a "look along +x" body frame (x fwd, y left, z up):
+# camera x (right) = -y, camera y (down) = -z, camera z (forward) = +x.
+_R_BODY_CV = np.array([[0.0, 0.0, 1.0], [-1.0, 0.0, 0.0], [0.0, -1.0, 0.0]])
+
+
+class CameraConfig(StrictModel):
+    """Image size and lens. ``hfov_deg`` is used in ``spacing`` mode (solved in ``fov`` mode)."""
+
+    width: int = Field(320, ge=16, le=4096)
+    height: int = Field(192, ge=16, le=4096)
+    hfov_deg: float = Field(70.0, gt=20.0, le=150.0)
+
+
+class RigConfig(StrictModel):
+    """Rig geometry. ``overlap`` is the target shared fraction of hfov of adjacent cameras."""
+
+    overlap: float = Field(0.25, ge=0.10, le=0.60)
+    overlap_mode: Literal["spacing", "fov"] = "spacing"
+    camera_height_m: float = Field(1.6, ge=0.5, le=3.0)
+    side_pitch_deg: float = Field(-12.0, ge=-30.0, le=10.0)
+    znear_m: float = Field(0.5, ge=0.05, le=2.0)
+    zfar_m: float = Field(400.0, ge=50.0, le=5000.0)
+
+
+@dataclass(frozen=True)
+class CameraSpec:
+    """One camera: image size, pinhole `K` (pixels), `T_ego_cam` (camera -> ego), angles in degrees."""
+
+    name: str
+    width: int
+    height: int
+    K: np.ndarray
+    T_ego_cam: np.ndarray
+    hfov_deg: float
+    yaw_deg: float
+    pitch_deg: float
+
+    def to_json(self) -> dict:
+        return {
+            "name": self.name, "width": self.width, "height": self.height,
+            "K": self.K.tolist(), "T_ego_cam": self.T_ego_cam.tolist(),
+            "hfov_deg": self.hfov_deg, "yaw_deg": self.yaw_deg, "pitch_deg": self.pitch_deg,
+        }
+
+    @staticmethod
+    def from_json(d: dict) -> "CameraSpec":
+        return CameraSpec(d["name"], int(d["width"]), int(d["height"]), np.asarray(d["K"], np.float64),
+                          np.asarray(d["T_ego_cam"], np.float64), float(d["hfov_deg"]), float(d["yaw_deg"]),
+                          float(d.get("pitch_deg", 0.0)))
+
+
+@dataclass(frozen=True)
+class Rig:
+    cameras: tuple[CameraSpec, ...]
+    neighbours: tuple[tuple[int, int], ...]
+    overlap_target: float
+    overlap_mode: str
+    yaw_spacing_deg: float
+
+    @property
+    def names(self) -> list[str]:
+        return [c.name for c in self.cameras]
+
+    def pair_target_overlap(self) -> dict[str, float]:
+        """Geometric overlap (hfov fraction, may be negative = gap) of each adjacent pair."""
+        out = {}
+        for i, j in self.neighbours:
+            a, b = self.cameras[i], self.cameras[j]
+            d = abs((a.yaw_deg - b.yaw_deg + 180.0) % 360.0 - 180.0)
+            out[f"{a.name}-{b.name}"] = ((a.hfov_deg + b.hfov_deg) / 2 - d) / ((a.hfov_deg + b.hfov_deg) / 2)
+        return out
+
+    def to_json(self) -> dict:
+        return {"cameras": [c.to_json() for c in self.cameras], "neighbours": [list(p) for p in self.neighbours]}
+
+
+def intrinsics_from_hfov(width: int, height: int, hfov_deg: float) -> np.ndarray:
+    """Pinhole K with square pixels and the principal point at the image centre (pixel centres at +0.5)."""
+    fx = (width / 2.0) / math.tan(math.radians(hfov_deg) / 2.0)
+    return np.array([[fx, 0.0, width / 2.0], [0.0, fx, height / 2.0], [0.0, 0.0, 1.0]])
+
+
+def rotation_ego_cam(yaw_rad: float, pitch_rad: float) -> np.ndarray:
+    """R_ego_cam for a camera looking along yaw (CCW from x) and pitch (up positive)."""
+    cy, sy, cp, sp = math.cos(yaw_rad), math.sin(yaw_rad), math.cos(pitch_rad), math.sin(pitch_rad)
+    R_yaw = np.array([[cy, -sy, 0.0], [sy, cy, 0.0], [0.0, 0.0, 1.0]])
+    # pitch about the body's y axis; positive pitch tilts the optical axis (+x) up (+z)
+    R_pitch = np.array([[cp, 0.0, -sp], [0.0, 1.0, 0.0], [sp, 0.0, cp]])
+    return R_yaw @ R_pitch @ _R_BODY_CV
+
+
+def solve_layout(overlap: float, mode: str, hfov_deg: float) -> tuple[float, float]:
+    """(hfov_deg, yaw_spacing_deg) that reach `overlap` in `mode` (see module docstring)."""
+    if not 0.0 < overlap < 1.0:
+        raise ValueError(f"overlap must be in (0, 1), got {overlap}")
+    if mode == "spacing":
+        return hfov_deg, hfov_deg * (1.0 - overlap)
+    if mode == "fov":
+        return 60.0 / (1.0 - overlap), 60.0
+    raise ValueError(f"overlap_mode must be 'spacing' or 'fov', got {mode!r}")
+
+
+# Mount points in the ego frame (x, y, z offset from camera_height_m) per camera, on the roof.
+# FRONT sits at the top of the windscreen (the hood stays out of view); the rear-side cameras sit
+# inboard on the roof and look slightly down, so the roof and body shoulders are in their lower
+# image, as the rear cameras of DDAD see the car.
+_MOUNTS = {
+    "CAM_FRONT": (2.15, 0.0, 0.0),
+    "CAM_FRONT_RIGHT": (1.95, -0.55, 0.0),
+    "CAM_BACK_RIGHT": (0.2, -0.45, 0.0),
+    "CAM_BACK": (-0.45, 0.0, 0.0),
+    "CAM_BACK_LEFT": (0.2, 0.45, 0.0),
+    "CAM_FRONT_LEFT": (1.95, 0.55, 0.0),
+}
+
+
+def build_rig(rig: RigConfig, camera: CameraConfig) -> Rig:
+    """The six cameras for a rig config (see module docstring for the layout)."""
+    hfov, s = solve_layout(rig.overlap, rig.overlap_mode, camera.hfov_deg)
+    if hfov >= 179.0:
+        raise ValueError(f"rig.overlap={rig.overlap} in fov mode needs hfov {hfov:.1f} deg (max 179)")
+    if rig.overlap_mode == "spacing":
+        yaws = {"CAM_FRONT": 0.0, "CAM_FRONT_RIGHT": -s, "CAM_BACK_RIGHT": -(180.0 - s), "CAM_BACK": 180.0,
+                "CAM_BACK_LEFT": 180.0 - s, "CAM_FRONT_LEFT": s}
+    else:
+        yaws = {"CAM_FRONT": 0.0, "CAM_FRONT_RIGHT": -60.0, "CAM_BACK_RIGHT": -120.0, "CAM_BACK": 180.0,
+                "CAM_BACK_LEFT": 120.0, "CAM_FRONT_LEFT": 60.0}
+    pitches = {n: 0.0 for n in CAMERA_NAMES}
+    pitches["CAM_BACK_RIGHT"] = pitches["CAM_BACK_LEFT"] = rig.side_pitch_deg
+    K = intrinsics_from_hfov(camera.width, camera.height, hfov)
+    cams = []
+    for name in CAMERA_NAMES:
+        T = np.eye(4)
+        T[:3, :3] = rotation_ego_cam(math.radians(yaws[name]), math.radians(pitches[name]))
+        mx, my, mz = _MOUNTS[name]
+        T[:3, 3] = (mx, my, rig.camera_height_m + mz)
+        cams.append(CameraSpec(name, camera.width, camera.height, K.copy(), T, hfov, yaws[name], pitches[name]))
+    return Rig(tuple(cams), RING_PAIRS, rig.overlap, rig.overlap_mode, s)
+
+
+def ego_body_mesh(layer_body: int, layer_glass: int, layer_tyre: int, camera_height_m: float = 1.6) -> Mesh:
+    """The ego car in the ego frame: a sedan (4.7 x 1.85 m) whose rear axle is at x = 0.
+
+    The roof sits 0.12 m below the cameras so the roof-mounted rear-side cameras see it.
+    """
+    from scenes.primitives import box, cylinder
+
+    roof = camera_height_m - 0.12
+    tint_body = (0.55, 0.57, 0.6)
+    parts = [
+        box((4.7, 1.85, 0.62), layer_body, tint_body, T=_translate(1.35, 0.0, 0.33 + 0.31)),  # lower body
+        box((2.9, 1.6, roof - 0.95), layer_glass, (1, 1, 1), T=_translate(0.85, 0.0, 0.95 + (roof - 0.95) / 2)),
+        box((2.6, 1.62, 0.06), layer_body, tint_body, T=_translate(0.8, 0.0, roof - 0.03)),  # roof panel
+    ]
+    for x in (0.0, 2.8):
+        for y in (-0.8, 0.8):
+            parts.append(cylinder(0.33, 0.24, layer_tyre, segments=12, tint=(1, 1, 1),
+                                  T=_translate(x, y, 0.33) @ _rot_x(math.pi / 2) @ _translate(0, 0, -0.12)))
+    return Mesh.merge(parts)
+
+
+def _translate(x: float, y: float, z: float) -> np.ndarray:
+    T = np.eye(4)
+    T[:3, 3] = (x, y, z)
+    return T
+
+
+def _rot_x(a: float) -> np.ndarray:
+    T = np.eye(4)
+    c, s = math.cos(a), math.sin(a)
+    T[1:3, 1:3] = [[c, -s], [s, c]]
+    return T
+
+
+def seen_by(depth_i: np.ndarray, ci: CameraSpec, cj: CameraSpec) -> np.ndarray:
+    """(H, W) bool: pixels of camera i (z-depth `depth_i`, 0 = none) whose 3D point projects
+    inside camera j's image, in front of it. Occlusion in j is not checked."""
+    v, u = np.nonzero(depth_i > 0)
+    z = depth_i[v, u].astype(np.float64)
+    pts = (np.linalg.inv(ci.K) @ np.stack([u + 0.5, v + 0.5, np.ones_like(z)])) * z
+    T_j_i = np.linalg.inv(cj.T_ego_cam) @ ci.T_ego_cam
+    pj = T_j_i[:3, :3] @ pts + T_j_i[:3, 3:4]
+    front = pj[2] > 1e-6
+    uvw = cj.K @ pj
+    zs = np.where(front, pj[2], 1.0)
+    uj, vj = uvw[0] / zs, uvw[1] / zs
+    inside = front & (uj >= 0) & (uj < cj.width) & (vj >= 0) & (vj < cj.height)
+    out = np.zeros(depth_i.shape, bool)
+    out[v[inside], u[inside]] = True
+    return out

@@ -1,0 +1,27 @@
+"""Shared fixtures: one tiny dataset rendered once per test session (CPU, EGL/OSMesa llvmpipe)."""
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+TINY = ROOT / "configs" / "data" / "tiny.yaml"
+
+
+@pytest.fixture(scope="session")
+def tiny_config():
+    from synth.config import load_data_config
+
+    return load_data_config(TINY)
+
+
+@pytest.fixture(scope="session")
+def tiny_dataset(tmp_path_factory, tiny_config):
+    """Path of a finished tiny dataset (configs/data/tiny.yaml), rendered once."""
+    from synth.render import render_dataset
+
+    out = tmp_path_factory.mktemp("tiny") / "data"
+    render_dataset(tiny_config, out, workers=1, progress=False, log=lambda *a: None)
+    return out
