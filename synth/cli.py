@@ -20,8 +20,8 @@ def _parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="synth", description="Synthetic surround-view driving datasets.")
     sub = p.add_subparsers(dest="cmd", required=True)
     r = sub.add_parser("render", help="render a dataset from a preset (+ key=value overrides)")
-    r.add_argument("config", help="preset YAML, e.g. configs/data/tiny.yaml")
-    r.add_argument("overrides", nargs="*", help="dotted overrides, e.g. rig.overlap=0.3 seed=2")
+    r.add_argument("config", help="preset YAML, e.g. configs/data/tiny.yaml; then key=value overrides, "
+                   "e.g. rig.overlap=0.3 seed=2")
     r.add_argument("--out", required=True, help="output dataset folder (new, empty, or a partial render to resume)")
     r.add_argument("--workers", type=int, default=1, help="worker processes (default 1)")
     r.add_argument("--shard", default=None, help="K/N: render only sequences with index %% N == K")
@@ -45,7 +45,13 @@ def main(argv: list[str] | None = None) -> int:
     from synth.dataset import DatasetError
     from synth.render import OutputFolderError
 
-    args = _parser().parse_args(argv)
+    parser = _parser()
+    args, rest = parser.parse_known_args(argv)
+    # dotted key=value overrides may stand anywhere after the subcommand
+    bad = [a for a in rest if "=" not in a or a.startswith("-")]
+    if bad or (rest and args.cmd != "render"):
+        parser.error(f"unrecognized arguments: {' '.join(bad or rest)}")
+    args.overrides = rest
     try:
         if args.cmd == "render":
             return _render(args)

@@ -179,7 +179,9 @@ def build_rig(rig: RigConfig, camera: CameraConfig) -> Rig:
 
 
 def ego_body_mesh(layer_body: int, layer_glass: int, layer_tyre: int, camera_height_m: float = 1.6) -> Mesh:
-    """The ego car in the ego frame: a sedan (4.7 x 1.85 m) whose rear axle is at x = 0.
+    """The ego car in the ego frame: a sedan (4.6 x 1.85 m) whose rear axle is at x = 0.
+
+    The hood is low enough that CAM_FRONT does not see it (vertical fov up to ~55 deg).
 
     The roof sits 0.12 m below the cameras so the roof-mounted rear-side cameras see it.
     """
@@ -188,7 +190,8 @@ def ego_body_mesh(layer_body: int, layer_glass: int, layer_tyre: int, camera_hei
     roof = camera_height_m - 0.12
     tint_body = (0.55, 0.57, 0.6)
     parts = [
-        box((4.7, 1.85, 0.62), layer_body, tint_body, T=_translate(1.35, 0.0, 0.33 + 0.31)),  # lower body
+        box((3.3, 1.85, 0.62), layer_body, tint_body, T=_translate(0.65, 0.0, 0.33 + 0.31)),  # lower body
+        box((1.3, 1.8, 0.52), layer_body, tint_body, T=_translate(2.95, 0.0, 0.33 + 0.26)),  # hood, kept low
         box((2.9, 1.6, roof - 0.95), layer_glass, (1, 1, 1), T=_translate(0.85, 0.0, 0.95 + (roof - 0.95) / 2)),
         box((2.6, 1.62, 0.06), layer_body, tint_body, T=_translate(0.8, 0.0, roof - 0.03)),  # roof panel
     ]

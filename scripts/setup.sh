@@ -1,0 +1,20 @@
+#!/usr/bin/env bash
+# Set up mcdp-synth on a fresh Debian 12 machine: system GL libraries, a virtualenv in .venv,
+# and the package with its pinned dependencies. Safe to run again (idempotent).
+set -euo pipefail
+cd "$(dirname "$0")/.."
+SUDO=""
+[ "$(id -u)" -ne 0 ] && SUDO="sudo"
+pkgs="libegl1 libegl-mesa0 libgl1 libgl1-mesa-dri libosmesa6 libglib2.0-0"
+missing=""
+for p in $pkgs; do dpkg -s "$p" >/dev/null 2>&1 || missing="$missing $p"; done
+python3 -c "import venv, ensurepip" 2>/dev/null || missing="$missing python3-venv"
+if [ -n "$missing" ]; then
+  echo "setup: installing system packages:$missing"
+  $SUDO apt-get update -qq
+  DEBIAN_FRONTEND=noninteractive $SUDO apt-get install -y -qq $missing >/dev/null
+fi
+[ -x .venv/bin/python ] || python3 -m venv .venv
+.venv/bin/python -m pip install -q --upgrade pip
+.venv/bin/python -m pip install -q -e '.[dev]'
+echo "setup: done ($(.venv/bin/python -c 'import torch, OpenGL; print("torch", torch.__version__, "PyOpenGL", OpenGL.__version__)'))"
