@@ -1,0 +1,387 @@
+"""Model-agnostic evaluation of multi-camera depth on a synth dataset split -> metrics.json.
+
+``evaluate(ds, predict_fn, split, cfg)`` walks every rig sample (sequence,
+frame) of a split, asks ``predict_fn(seq, frame)`` for depth at the dataset
+resolution, and scores it against the rendered ground truth.
+
+Protocol (DESIGN.md, "Evaluation protocol"):
+
+- Valid pixels: ground truth in [min_depth, max_depth] and outside the ego-body
+  self-occlusion mask (``metrics.valid_gt_mask``).
+- Three scalings: ``none`` (metric), ``median`` (one scale per image),
+  ``rig_median`` (one scale per rig sample, shared by all cameras). The scaled
+  prediction is clamped to [min_depth, max_depth] afterwards (Monodepth2).
+- Accumulation: per-image metrics averaged over images (the Monodepth2
+  convention), per camera; "mean" = mean of the per-camera values.
+  Images with no valid pixel in a region (e.g. no overlap pixel) are skipped
+  for that region, not counted as zero.
+- Overlap / non-overlap: a pixel of camera i is "overlap" if its GROUND-TRUTH
+  3D point projects inside some neighbour's image in front of it (union over
+  the neighbours in ``ds.neighbours``; ``metrics.overlap_mask``). The split is
+  a property of rig and scene, not of the model. non_overlap = valid & ~overlap.
+- Dep Con (paper): for every adjacent pair, both directions, the neighbour's
+  prediction is splatted with the z-buffer (``geometry.splat_depth``, source
+  pixels outside the neighbour's ego mask dropped) into the target camera, and
+  mean |D^i - D_hat^i| / D_gt over target pixels that are valid and hit. It is
+  computed on UNSCALED (metric, scaling "none", clamped) predictions only:
+  median scaling per image would change the very consistency it measures.
+  Per pair: mean over images; per camera: mean of the pairs targeting it;
+  mean: mean over all ordered pairs.
+
+metrics.json layout (the returned dict; floats may be NaN where nothing was
+valid, e.g. a camera without neighbours has NaN overlap metrics)::
+
+    {"split": str, "n_samples": int, "min_depth": float, "max_depth": float,
+     "frame_stride": int, "skip_ends": bool, "cameras": [names in rig order],
+     "stages": {stage: {                     # predict_fn's stages + "final" (= last stage)
+        "none" | "median" | "rig_median": {
+            "mean": {abs_rel, sq_rel, rmse, rmse_log, a1, a2, a3},
+            "per_camera": {cam: {7 metrics}},
+            "overlap": {7 metrics}, "non_overlap": {7 metrics},         # mean over cameras
+            "overlap_per_camera": {cam: {7 metrics}},                   # extra detail
+            "non_overlap_per_camera": {cam: {7 metrics}}},
+        "dep_con": {"mean": float,
+                    "per_pair": {"SRC->TGT": float, ...},   # SRC's depth splatted into TGT
+                    "per_camera": {cam: float}}}}}          # mean of pairs "*->cam"
+
+Example::
+
+    ds = synth.dataset.open_dataset("data/tiny")
+    m = evaluate(ds, lambda seq, f: {"init": model_depth(seq, f)}, "test", EvalConfig())
+    print(format_tables(m))
+"""
+from __future__ import annotations
+
+from typing import Callable, Mapping
+
+import numpy as np
+import torch
+from pydantic import field_validator, model_validator
+
+from synth.configlib import StrictModel
+
+from . import geometry
+from .metrics import (
+    METRIC_NAMES,
+    _metric_terms,
+    _ratio_of_medians,
+    _reduce_terms,
+    clamp_depth,
+    dep_con,
+    nan_metrics,
+    overlap_mask,
+    valid_gt_mask,
+)
+
+__all__ = ["EvalConfig", "SCALINGS", "evaluate", "format_tables"]
+
+SCALINGS = ("none", "median", "rig_median")
+REGIONS = ("all", "overlap", "non_overlap")
+
+
+class EvalConfig(StrictModel):
+    """Evaluation settings (depths in metres)."""
+
+    min_depth: float = 0.5
+    max_depth: float = 80.0
+    frame_stride: int = 1  # evaluate every k-th frame
+    skip_ends: bool = True  # skip first and last frame of each sequence (no temporal neighbours)
+
+    @field_validator("min_depth")
+    @classmethod
+    def _min_pos(cls, v: float) -> float:
+        if not v > 0:
+            raise ValueError(f"must be > 0, got {v}")
+        return v
+
+    @field_validator("frame_stride")
+    @classmethod
+    def _stride_pos(cls, v: int) -> int:
+        if v < 1:
+            raise ValueError(f"must be >= 1, got {v}")
+        return v
+
+    @model_validator(mode="after")
+    def _range(self):
+        if not self.max_depth > self.min_depth:
+            raise ValueError(f"max_depth ({self.max_depth}) must be > min_depth ({self.min_depth})")
+        return self
+
+
+# --------------------------------------------------------------------------- helpers
+def _nanmean(values) -> float:
+    a = np.asarray(list(values), dtype=np.float64)
+    if a.size == 0 or np.all(np.isnan(a)):
+        return float("nan")
+    return float(np.nanmean(a))
+
+
+def _mean_dicts(dicts) -> dict:
+    dicts = list(dicts)
+    return {k: _nanmean(d[k] for d in dicts) for k in METRIC_NAMES} if dicts else nan_metrics()
+
+
+def _frames(n_frames: int, cfg: EvalConfig) -> range:
+    if cfg.skip_ends:
+        return range(1, n_frames - 1, cfg.frame_stride)
+    return range(0, n_frames, cfg.frame_stride)
+
+
+def _as_stack(pred, names, shapes, stage: str) -> list:
+    """predict_fn output for one stage -> list of (H_c, W_c) float64 arrays."""
+    if hasattr(pred, "detach"):
+        pred = pred.detach().cpu().numpy()
+    if isinstance(pred, np.ndarray):
+        if pred.ndim != 3 or pred.shape[0] != len(names):
+            raise ValueError(
+                f"predict_fn stage {stage!r} must be an array (Ncam={len(names)}, H, W), got shape {pred.shape}"
+            )
+        arrs = [pred[c] for c in range(len(names))]
+    else:
+        arrs = list(pred)
+        if len(arrs) != len(names):
+            raise ValueError(f"predict_fn stage {stage!r} has {len(arrs)} cameras, expected {len(names)}")
+    out = []
+    for c, (a, shp) in enumerate(zip(arrs, shapes)):
+        a = np.asarray(a.detach().cpu().numpy() if hasattr(a, "detach") else a, dtype=np.float64)
+        if a.shape != shp:
+            raise ValueError(
+                f"predict_fn stage {stage!r}, camera {names[c]}: depth must have the dataset resolution "
+                f"{shp} (upsample before returning), got {a.shape}"
+            )
+        out.append(a)
+    return out
+
+
+def _splat_pairs(depths, pairs, Ks, T_c_c, shapes, scene_masks):
+    """For each ordered pair (j, i): depths[j] splatted into camera i (float64 torch, one batched call).
+
+    Returns lists of (H_i, W_i) splatted depth and bool hit, in ``pairs`` order.
+    """
+    if not pairs:
+        return [], []
+    t = lambda a: torch.as_tensor(np.asarray(a, dtype=np.float64))  # noqa: E731
+    same = len({shapes[j] for j, _ in pairs}) == 1 and len({shapes[i] for _, i in pairs}) == 1
+    groups = [pairs] if same else [[p] for p in pairs]  # cameras of different sizes: one call per pair
+    d_out, h_out = [], []
+    for grp in groups:
+        Hi, Wi = shapes[grp[0][1]]
+        d, hit = geometry.splat_depth(
+            torch.stack([t(depths[j]) for j, _ in grp])[:, None],
+            torch.stack([t(Ks[j]) for j, _ in grp]),
+            torch.stack([t(Ks[i]) for _, i in grp]),
+            torch.stack([t(T_c_c[(i, j)]) for j, i in grp]),
+            Hi, Wi,
+            valid_src=torch.stack([t(scene_masks[j]) for j, _ in grp])[:, None],
+        )
+        d_out += list(d[:, 0].numpy())
+        h_out += list(hit[:, 0].numpy() > 0)
+    return d_out, h_out
+
+
+# --------------------------------------------------------------------------- evaluation
+def evaluate(
+    ds,
+    predict_fn: Callable[[str, int], Mapping[str, np.ndarray]],
+    split: str = "test",
+    cfg: EvalConfig | None = None,
+    progress: bool = True,
+) -> dict:
+    """Evaluate depth predictions over a dataset split; returns the metrics.json dict (module docstring).
+
+    Args:
+        ds: a ``synth.dataset`` Dataset (uses camera_names, cameras[.K .T_ego_cam
+            .width .height], neighbours, split, n_frames, read_depth, mask).
+        predict_fn: ``(seq, frame) -> {stage: (Ncam, H, W) float depth in metres}``
+            at the dataset resolution, cameras in rig order, stages in order
+            (the last one is also reported as "final").
+        split: "train" | "val" | "test".
+        cfg: EvalConfig (defaults if None).
+        progress: show a tqdm progress bar.
+
+    Returns:
+        dict, layout in the module docstring.
+
+    Raises:
+        ValueError: the split has no evaluable frame, or predict_fn returns the
+            wrong shapes / an inconsistent set of stages.
+    """
+    cfg = cfg if cfg is not None else EvalConfig()
+    names = list(ds.camera_names)
+    specs = list(ds.cameras)
+    n_cam = len(names)
+    shapes = [(int(s.height), int(s.width)) for s in specs]
+    Ks = [np.asarray(s.K, dtype=np.float64) for s in specs]
+    Ts = [np.asarray(s.T_ego_cam, dtype=np.float64) for s in specs]
+    scene_masks = [np.asarray(ds.mask(n), dtype=bool) for n in names]
+    for c, (m, shp) in enumerate(zip(scene_masks, shapes)):
+        if m.shape != shp:
+            raise ValueError(f"ds.mask({names[c]!r}) has shape {m.shape}, camera is {shp}")
+    pairs = []  # ordered (src j, tgt i)
+    for a, b in ds.neighbours:
+        pairs += [(int(a), int(b)), (int(b), int(a))]
+    nbrs = {i: sorted({j for j, t in pairs if t == i}) for i in range(n_cam)}
+    T_c_c = {(i, j): np.linalg.inv(Ts[i]) @ Ts[j] for j, i in pairs}  # T_ci_cj
+    pair_key = {(j, i): f"{names[j]}->{names[i]}" for j, i in pairs}
+
+    samples = [(seq, f) for seq in ds.split(split) for f in _frames(ds.n_frames(seq), cfg)]
+    if not samples:
+        raise ValueError(f"split {split!r} has no frame to evaluate (skip_ends={cfg.skip_ends})")
+
+    stages: list[str] | None = None
+    # acc[stage][scaling][region][cam] -> list of per-image metric dicts
+    acc: dict = {}
+    dc_acc: dict = {}
+    it = samples
+    if progress:
+        from tqdm import tqdm
+
+        it = tqdm(samples, desc=f"eval {split}", unit="sample")
+    for seq, f in it:
+        gts = [np.asarray(ds.read_depth(seq, n, f), dtype=np.float64) for n in names]
+        for c, g in enumerate(gts):
+            if g.shape != shapes[c]:
+                raise ValueError(f"ds.read_depth({seq!r}, {names[c]!r}, {f}) has shape {g.shape}, expected {shapes[c]}")
+        valids = [valid_gt_mask(g, m, cfg.min_depth, cfg.max_depth) for g, m in zip(gts, scene_masks)]
+        overlaps = []
+        for i in range(n_cam):
+            ov = np.zeros(shapes[i], dtype=bool)
+            for j in nbrs[i]:
+                ov |= overlap_mask(gts[i], Ks[i], Ts[i], Ks[j], Ts[j], shapes[j][1], shapes[j][0],
+                                   mask_j=scene_masks[j])
+            overlaps.append(ov)
+        # metrics only ever look at valid pixels: gather them once per camera (1-D, float64)
+        g_v = [g[v] for g, v in zip(gts, valids)]
+        lg_v = [np.log(g) for g in g_v]
+        ov_v = [o[v] for o, v in zip(overlaps, valids)]
+        region_sel = {"all": [None] * n_cam, "overlap": ov_v, "non_overlap": [~o for o in ov_v]}
+
+        raw = dict(predict_fn(seq, f))
+        if not raw:
+            raise ValueError(f"predict_fn({seq!r}, {f}) returned no stage")
+        keys = list(raw)
+        alias = None  # "final" added here = the last stage: copy its results instead of recomputing
+        if "final" not in raw:
+            alias = keys[-1]
+            keys.append("final")
+        if stages is None:
+            stages = keys
+            acc = {s: {sc: {r: [[] for _ in range(n_cam)] for r in region_sel} for sc in SCALINGS} for s in stages}
+            dc_acc = {s: {p: [] for p in pairs} for s in stages}
+        elif keys != stages:
+            raise ValueError(f"predict_fn({seq!r}, {f}) returned stages {keys}, earlier samples {stages}")
+
+        for stage in stages:
+            if stage == "final" and alias is not None:
+                for sc in SCALINGS:
+                    for r in REGIONS:
+                        for c in range(n_cam):
+                            acc[stage][sc][r][c].append(acc[alias][sc][r][c][-1])
+                for p in pairs:
+                    dc_acc[stage][p].append(dc_acc[alias][p][-1])
+                continue
+            preds = _as_stack(raw[stage], names, shapes, stage)
+            p_v = [p[v] for p, v in zip(preds, valids)]
+            rig = _ratio_of_medians(np.concatenate(g_v), np.concatenate(p_v))
+            scales = {
+                "none": [1.0] * n_cam,
+                "median": [_ratio_of_medians(g, p) for g, p in zip(g_v, p_v)],
+                "rig_median": [rig] * n_cam,
+            }
+            for sc in SCALINGS:
+                for c in range(n_cam):
+                    s_c = scales[sc][c]
+                    if g_v[c].size == 0 or np.isnan(s_c):
+                        for r in region_sel:
+                            acc[stage][sc][r][c].append(nan_metrics())
+                        continue
+                    terms = _metric_terms(g_v[c], clamp_depth(p_v[c] * s_c, cfg.min_depth, cfg.max_depth), lg_v[c])
+                    for r, sel in region_sel.items():
+                        acc[stage][sc][r][c].append(_reduce_terms(terms, sel[c]))
+            # Dep Con: unscaled (metric) predictions, clamped like the "none" metrics
+            metric_preds = [clamp_depth(p, cfg.min_depth, cfg.max_depth) for p in preds]
+            d_hats, hits = _splat_pairs(metric_preds, pairs, Ks, T_c_c, shapes, scene_masks)
+            for (j, i), d_hat, hit in zip(pairs, d_hats, hits):
+                dc_acc[stage][(j, i)].append(dep_con(metric_preds[i], d_hat, gts[i], valids[i] & hit))
+
+    out_stages = {}
+    for stage in stages:
+        st = {}
+        for sc in SCALINGS:
+            per = {r: {names[c]: _mean_dicts(acc[stage][sc][r][c]) for c in range(n_cam)} for r in REGIONS}
+            st[sc] = {
+                "mean": _mean_dicts(per["all"].values()),
+                "per_camera": per["all"],
+                "overlap": _mean_dicts(per["overlap"].values()),
+                "non_overlap": _mean_dicts(per["non_overlap"].values()),
+                "overlap_per_camera": per["overlap"],
+                "non_overlap_per_camera": per["non_overlap"],
+            }
+        per_pair = {pair_key[p]: _nanmean(v) for p, v in dc_acc[stage].items()}
+        per_cam = {names[i]: _nanmean(per_pair[pair_key[(j, i)]] for j in nbrs[i]) for i in range(n_cam)}
+        st["dep_con"] = {"mean": _nanmean(per_pair.values()), "per_pair": per_pair, "per_camera": per_cam}
+        out_stages[stage] = st
+
+    return {
+        "split": split,
+        "n_samples": len(samples),
+        "min_depth": float(cfg.min_depth),
+        "max_depth": float(cfg.max_depth),
+        "frame_stride": int(cfg.frame_stride),
+        "skip_ends": bool(cfg.skip_ends),
+        "cameras": names,
+        "stages": out_stages,
+    }
+
+
+# --------------------------------------------------------------------------- tables
+def _fmt(x: float) -> str:
+    return "   nan" if x is None or (isinstance(x, float) and np.isnan(x)) else f"{x:6.3f}"
+
+
+def format_tables(metrics: dict, stage: str = "final") -> str:
+    """Human-readable per-camera tables (like the paper's Tables 1/2) for one stage.
+
+    One table per scaling (none, median, rig_median): a row per camera, then
+    the camera mean and the overlap / non-overlap means; then Dep Con per camera
+    and per ordered pair (unscaled predictions).
+
+    Args:
+        metrics: the dict returned by :func:`evaluate` (or loaded from metrics.json).
+        stage: which stage to print.
+
+    Returns:
+        multi-line string.
+    """
+    if stage not in metrics.get("stages", {}):
+        raise ValueError(f"stage {stage!r} not in metrics (have {list(metrics.get('stages', {}))})")
+    st = metrics["stages"][stage]
+    cams = list(metrics["cameras"])
+    w = max([len(c) for c in cams] + [len("non_overlap"), 8])
+    header = f"{'camera':<{w}} " + " ".join(f"{k:>8}" for k in METRIC_NAMES)
+    lines = [
+        f"split={metrics['split']} samples={metrics['n_samples']} stage={stage} "
+        f"depth range [{metrics['min_depth']}, {metrics['max_depth']}] m"
+    ]
+    for sc in SCALINGS:
+        if sc not in st:
+            continue
+        s = st[sc]
+        lines += ["", f"scaling: {sc}", header, "-" * len(header)]
+        for c in cams:
+            lines.append(f"{c:<{w}} " + " ".join(f"  {_fmt(s['per_camera'][c][k])}" for k in METRIC_NAMES))
+        lines.append("-" * len(header))
+        for row in ("mean", "overlap", "non_overlap"):
+            lines.append(f"{row:<{w}} " + " ".join(f"  {_fmt(s[row][k])}" for k in METRIC_NAMES))
+    dc = st.get("dep_con")
+    if dc is not None:
+        lines += ["", "Dep Con (unscaled predictions; lower is better)", f"{'camera':<{w}}   dep_con"]
+        for c in cams:
+            lines.append(f"{c:<{w}}   {_fmt(dc['per_camera'].get(c, float('nan')))}")
+        lines.append(f"{'mean':<{w}}   {_fmt(dc['mean'])}")
+        if dc["per_pair"]:
+            lines.append("per pair (source -> target):")
+            pw = max(len(p) for p in dc["per_pair"])
+            for p, v in dc["per_pair"].items():
+                lines.append(f"  {p:<{pw}}   {_fmt(v)}")
+    return "\n".join(lines)

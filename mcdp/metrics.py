@@ -1,0 +1,268 @@
+"""Depth evaluation metrics (Monodepth2 definitions), scalings, Dep Con and overlap masks.
+
+All computations run in float64 numpy; inputs may be numpy arrays or torch
+tensors (converted with ``.detach().cpu()``). Depths are z-depth in metres,
+0 = no ground truth. Protocol (DESIGN.md): pixels with ground truth in
+[min_depth, max_depth] outside the self-occlusion mask; predictions are scaled
+(``none`` | ``median`` per image | ``rig_median`` one scale per rig sample) and
+THEN clamped to [min_depth, max_depth], as in Monodepth2.
+
+Example::
+
+    valid = valid_gt_mask(gt, scene_mask)
+    s = median_scale(gt, pred, valid)
+    m = depth_metrics(gt, clamp_depth(pred * s), valid)   # {'abs_rel': ..., 'a1': ...}
+"""
+from __future__ import annotations
+
+from typing import Sequence
+
+import numpy as np
+
+__all__ = [
+    "METRIC_NAMES",
+    "depth_metrics",
+    "nan_metrics",
+    "valid_gt_mask",
+    "clamp_depth",
+    "median_scale",
+    "rig_median_scale",
+    "dep_con",
+    "overlap_mask",
+]
+
+#: keys of every metrics dict, in table order
+METRIC_NAMES = ("abs_rel", "sq_rel", "rmse", "rmse_log", "a1", "a2", "a3")
+
+
+def _np(x, name: str, dtype=np.float64) -> np.ndarray:
+    if hasattr(x, "detach"):  # torch tensor, without importing torch here
+        x = x.detach().cpu().numpy()
+    try:
+        return np.asarray(x, dtype=dtype)
+    except (TypeError, ValueError) as exc:
+        raise TypeError(f"{name} must be an array or tensor, got {type(x).__name__}") from exc
+
+
+def _same_shape(ref: np.ndarray, ref_name: str, **others: np.ndarray) -> None:
+    for name, arr in others.items():
+        if arr.shape != ref.shape:
+            raise ValueError(f"{name} must have the shape of {ref_name} {ref.shape}, got {arr.shape}")
+
+
+def nan_metrics() -> dict:
+    """Metrics dict with every value NaN (for an empty evaluation set)."""
+    return {k: float("nan") for k in METRIC_NAMES}
+
+
+def depth_metrics(gt, pred, valid) -> dict:
+    """Standard depth metrics over the valid pixels.
+
+    abs_rel = mean |g - p| / g, sq_rel = mean (g - p)^2 / g, rmse = sqrt mean (g - p)^2,
+    rmse_log = sqrt mean (ln g - ln p)^2, a_k = fraction with max(g/p, p/g) < 1.25^k.
+
+    Args:
+        gt: (...) ground-truth depth in metres (> 0 on valid pixels).
+        pred: (...) predicted depth in metres, same shape (> 0 on valid pixels:
+            clamp it first, see ``clamp_depth``).
+        valid: (...) bool mask, same shape.
+
+    Returns:
+        dict with keys ``METRIC_NAMES`` (python floats); all NaN if no pixel is valid.
+
+    Raises:
+        ValueError: shapes differ, or gt/pred is not positive and finite on a valid pixel.
+    """
+    g = _np(gt, "gt")
+    p = _np(pred, "pred")
+    v = _np(valid, "valid", dtype=bool)
+    _same_shape(g, "gt", pred=p, valid=v)
+    if not v.any():
+        return nan_metrics()
+    g, p = g[v], p[v]
+    if not (np.all(g > 0) and np.all(np.isfinite(g))):
+        raise ValueError("gt must be positive and finite on valid pixels")
+    if not (np.all(p > 0) and np.all(np.isfinite(p))):
+        raise ValueError("pred must be positive and finite on valid pixels (clamp it to [min_depth, max_depth])")
+    return _reduce_terms(_metric_terms(g, p), None)
+
+
+def _metric_terms(g: np.ndarray, p: np.ndarray, log_g: np.ndarray | None = None) -> np.ndarray:
+    """Per-pixel terms (7, N) of every metric (``METRIC_NAMES`` order) for 1-D float64 g, p > 0."""
+    d = g - p
+    d2 = d * d
+    lg = np.log(g) if log_g is None else log_g
+    thresh = np.maximum(g / p, p / g)
+    return np.stack([
+        np.abs(d) / g,  # abs_rel
+        d2 / g,  # sq_rel
+        d2,  # rmse: sqrt after the mean
+        (lg - np.log(p)) ** 2,  # rmse_log: sqrt after the mean
+        thresh < 1.25,
+        thresh < 1.25 ** 2,
+        thresh < 1.25 ** 3,
+    ])
+
+
+def _reduce_terms(terms: np.ndarray, sel: np.ndarray | None) -> dict:
+    """Metrics dict from per-pixel terms (7, N) over the pixels selected by bool ``sel`` (None = all)."""
+    if terms.shape[1] == 0 or (sel is not None and not sel.any()):
+        return nan_metrics()
+    m = (terms if sel is None else terms[:, sel]).mean(axis=1)
+    m[2:4] = np.sqrt(m[2:4])
+    return {k: float(x) for k, x in zip(METRIC_NAMES, m)}
+
+
+def valid_gt_mask(gt, scene_mask, min_depth: float = 0.5, max_depth: float = 80.0) -> np.ndarray:
+    """Pixels that count in the evaluation: min_depth <= gt <= max_depth and scene_mask.
+
+    Args:
+        gt: (H, W) (or any shape) ground-truth depth in metres, 0 = none.
+        scene_mask: same shape, True = scene, False = ego body (or None: all scene).
+        min_depth, max_depth: evaluation range in metres.
+
+    Returns:
+        bool array of gt's shape.
+    """
+    g = _np(gt, "gt")
+    ok = (g >= min_depth) & (g <= max_depth) & np.isfinite(g)
+    if scene_mask is not None:
+        m = _np(scene_mask, "scene_mask", dtype=bool)
+        _same_shape(g, "gt", scene_mask=m)
+        ok &= m
+    return ok
+
+
+def clamp_depth(pred, min_depth: float = 0.5, max_depth: float = 80.0) -> np.ndarray:
+    """Clamp (scaled) predictions to [min_depth, max_depth] (float64 numpy); NaN -> max_depth."""
+    p = _np(pred, "pred")
+    return np.clip(np.nan_to_num(p, nan=max_depth), min_depth, max_depth)
+
+
+def median_scale(gt, pred, valid) -> float:
+    """Per-image median scaling factor median(gt[valid]) / median(pred[valid]).
+
+    Args:
+        gt, pred: (H, W) depths in metres; valid: (H, W) bool.
+
+    Returns:
+        float; NaN if no pixel is valid (or the prediction median is not positive).
+    """
+    g = _np(gt, "gt")
+    p = _np(pred, "pred")
+    v = _np(valid, "valid", dtype=bool)
+    _same_shape(g, "gt", pred=p, valid=v)
+    return _ratio_of_medians(g[v], p[v])
+
+
+def _ratio_of_medians(g: np.ndarray, p: np.ndarray) -> float:
+    if g.size == 0:
+        return float("nan")
+    mp = float(np.median(p))
+    if not mp > 0:
+        return float("nan")
+    return float(np.median(g)) / mp
+
+
+def rig_median_scale(gts: Sequence, preds: Sequence, valids: Sequence) -> float:
+    """One median scale for a whole rig sample: pixels of all cameras pooled together.
+
+    Args:
+        gts, preds, valids: equal-length lists (one entry per camera) of (H_c, W_c) arrays.
+
+    Returns:
+        float median(all gt) / median(all pred) over the valid pixels of every
+        camera; NaN if there are none.
+    """
+    if not (len(gts) == len(preds) == len(valids)):
+        raise ValueError(f"gts, preds and valids must have equal lengths, got {len(gts)}, {len(preds)}, {len(valids)}")
+    gs, ps = [], []
+    for c, (g, p, v) in enumerate(zip(gts, preds, valids)):
+        g, p, v = _np(g, f"gts[{c}]"), _np(p, f"preds[{c}]"), _np(v, f"valids[{c}]", dtype=bool)
+        _same_shape(g, f"gts[{c}]", **{f"preds[{c}]": p, f"valids[{c}]": v})
+        gs.append(g[v])
+        ps.append(p[v])
+    if not gs:
+        return float("nan")
+    return _ratio_of_medians(np.concatenate(gs), np.concatenate(ps))
+
+
+def dep_con(depth_i, depth_hat_i, gt_i, valid) -> float:
+    """Paper's Dep Con: mean over valid pixels of |D^i - D_hat^i| / D_gt^i.
+
+    D_hat^i is neighbour j's predicted depth forward-projected (z-buffered,
+    ``geometry.splat_depth``) into camera i. ``valid`` should be the evaluation
+    mask of camera i AND the splat's hit mask (the overlap as seen by the model).
+
+    Args:
+        depth_i: (H, W) camera i's predicted depth (m).
+        depth_hat_i: (H, W) neighbour's depth splatted into camera i (m).
+        gt_i: (H, W) camera i's ground truth (m, > 0 on valid).
+        valid: (H, W) bool.
+
+    Returns:
+        float; NaN if no pixel is valid.
+    """
+    d = _np(depth_i, "depth_i")
+    dh = _np(depth_hat_i, "depth_hat_i")
+    g = _np(gt_i, "gt_i")
+    v = _np(valid, "valid", dtype=bool)
+    _same_shape(d, "depth_i", depth_hat_i=dh, gt_i=g, valid=v)
+    if not v.any():
+        return float("nan")
+    if not np.all(g[v] > 0):
+        raise ValueError("gt_i must be positive on valid pixels")
+    return float(np.mean(np.abs(d[v] - dh[v]) / g[v]))
+
+
+def overlap_mask(gt_depth_i, K_i, T_ego_cam_i, K_j, T_ego_cam_j, W_j: int, H_j: int, mask_j=None,
+                 eps: float = 1e-6) -> np.ndarray:
+    """Pixels of camera i whose ground-truth 3D point projects into camera j's image, in front of it.
+
+    This is the geometric overlap (a property of rig and scene, independent of
+    any model). Occlusion in camera j is not tested: a point hidden from j
+    behind another object still counts. The target pixel rule is the one of
+    ``splat_depth``: 0 <= u < W_j, 0 <= v < H_j.
+
+    Args:
+        gt_depth_i: (H, W) ground-truth z-depth of camera i (m), 0 = no surface (never overlap).
+        K_i: (3, 3) intrinsics of camera i at (H, W).
+        T_ego_cam_i: (4, 4) camera i -> ego.
+        K_j: (3, 3) intrinsics of camera j at (H_j, W_j).
+        T_ego_cam_j: (4, 4) camera j -> ego.
+        W_j, H_j: camera j's image size.
+        mask_j: optional (H_j, W_j) bool scene mask of camera j; points landing on
+            j's ego-body pixels are not overlap.
+        eps: minimum z in camera j.
+
+    Returns:
+        (H, W) bool.
+    """
+    g = _np(gt_depth_i, "gt_depth_i")
+    if g.ndim != 2:
+        raise ValueError(f"gt_depth_i must have shape (H, W), got {g.shape}")
+    Ki, Kj = _np(K_i, "K_i"), _np(K_j, "K_j")
+    Ti, Tj = _np(T_ego_cam_i, "T_ego_cam_i"), _np(T_ego_cam_j, "T_ego_cam_j")
+    for a, n, s in ((Ki, "K_i", (3, 3)), (Kj, "K_j", (3, 3)), (Ti, "T_ego_cam_i", (4, 4)), (Tj, "T_ego_cam_j", (4, 4))):
+        if a.shape != s:
+            raise ValueError(f"{n} must have shape {s}, got {a.shape}")
+    H, W = g.shape
+    vv, uu = np.meshgrid(np.arange(H) + 0.5, np.arange(W) + 0.5, indexing="ij")
+    pix = np.stack([uu, vv, np.ones_like(uu)], 0).reshape(3, -1)  # (3, N)
+    pts_i = (np.linalg.inv(Ki) @ pix) * g.reshape(1, -1)
+    T_j_i = np.linalg.inv(Tj) @ Ti
+    pts_j = T_j_i[:3, :3] @ pts_i + T_j_i[:3, 3:4]
+    z = pts_j[2]
+    proj = Kj @ pts_j
+    with np.errstate(divide="ignore", invalid="ignore"):
+        u = proj[0] / np.where(z > eps, proj[2], 1.0)
+        v = proj[1] / np.where(z > eps, proj[2], 1.0)
+    ok = (g.reshape(-1) > 0) & (z > eps) & (u >= 0) & (u < W_j) & (v >= 0) & (v < H_j)
+    if mask_j is not None:
+        mj = _np(mask_j, "mask_j", dtype=bool)
+        if mj.shape != (H_j, W_j):
+            raise ValueError(f"mask_j must have shape ({H_j}, {W_j}), got {mj.shape}")
+        col = np.clip(np.floor(np.where(ok, u, 0)).astype(np.int64), 0, W_j - 1)
+        row = np.clip(np.floor(np.where(ok, v, 0)).astype(np.int64), 0, H_j - 1)
+        ok &= mj[row, col]
+    return ok.reshape(H, W)

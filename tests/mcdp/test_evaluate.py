@@ -1,0 +1,176 @@
+"""Tests for mcdp.evaluate on a fake two-camera dataset with an analytic wall (no rendering)."""
+import json
+import math
+from dataclasses import dataclass
+
+import numpy as np
+import pytest
+
+from mcdp import evaluate as E
+from mcdp.metrics import METRIC_NAMES
+
+H, W, F_PX, Z_WALL, SHIFT_PX = 12, 16, 20.0, 10.0, 3
+
+
+@dataclass
+class FakeCamera:
+    name: str
+    width: int
+    height: int
+    K: np.ndarray
+    T_ego_cam: np.ndarray
+    hfov_deg: float
+    yaw_deg: float
+
+
+class FakeDataset:
+    """Dataset-like object (synth.dataset API subset): two forward cameras, j = i shifted right.
+
+    The wall is fronto-parallel at z = 10 m for both cameras and the baseline gives an
+    exact 3-pixel disparity, so the z-buffered splat of the true depth is exact.
+    The bottom row of both cameras is ego body (mask False).
+    """
+
+    def __init__(self, n_frames=4):
+        K = np.array([[F_PX, 0, W / 2], [0, F_PX, H / 2], [0, 0, 1.0]])
+        R = np.array([[0.0, 0, 1], [-1, 0, 0], [0, -1, 0]])  # OpenCV camera axes in the ego frame
+        T0 = np.eye(4)
+        T0[:3, :3] = R
+        T0[:3, 3] = [1.0, 0.0, 1.5]
+        T1 = T0.copy()
+        T1[1, 3] = -SHIFT_PX * Z_WALL / F_PX  # to the right
+        hfov = math.degrees(2 * math.atan(W / 2 / F_PX))
+        self.cameras = [FakeCamera("CAM_FRONT", W, H, K, T0, hfov, 0.0),
+                        FakeCamera("CAM_FRONT_RIGHT", W, H, K.copy(), T1, hfov, 0.0)]
+        self.camera_names = [c.name for c in self.cameras]
+        self.neighbours = [(0, 1)]
+        self._n = n_frames
+        self.depth_reads = []
+
+    def split(self, name):
+        return {"train": ["s_train"], "val": [], "test": ["s0", "s1"]}[name]
+
+    def n_frames(self, seq):
+        return self._n
+
+    def read_depth(self, seq, cam_name, frame):
+        self.depth_reads.append((seq, cam_name, frame))
+        return np.full((H, W), Z_WALL, dtype=np.float32)
+
+    def mask(self, cam_name):
+        m = np.ones((H, W), bool)
+        m[-1, :] = False
+        return m
+
+
+def perfect(seq, frame):
+    d = np.full((2, H, W), Z_WALL, np.float32)
+    return {"init": d * 1.5, "refine1": d}
+
+
+def run(ds, fn, **cfg):
+    return E.evaluate(ds, fn, "test", E.EvalConfig(**cfg), progress=False)
+
+
+def test_layout_and_perfect_prediction():
+    ds = FakeDataset()
+    m = run(ds, perfect)
+    assert m["split"] == "test" and m["n_samples"] == 4  # 2 sequences x frames 1, 2 (ends skipped)
+    assert m["cameras"] == ["CAM_FRONT", "CAM_FRONT_RIGHT"]
+    assert m["min_depth"] == 0.5 and m["max_depth"] == 80.0
+    assert list(m["stages"]) == ["init", "refine1", "final"]
+    assert {f for _, _, f in ds.depth_reads} == {1, 2}
+    for stage in m["stages"].values():
+        assert set(stage) == {"none", "median", "rig_median", "dep_con"}
+        for sc in E.SCALINGS:
+            s = stage[sc]
+            assert {"mean", "per_camera", "overlap", "non_overlap"} <= set(s)
+            assert set(s["mean"]) == set(METRIC_NAMES)
+            assert set(s["per_camera"]) == set(m["cameras"])
+        assert set(stage["dep_con"]["per_pair"]) == {"CAM_FRONT->CAM_FRONT_RIGHT", "CAM_FRONT_RIGHT->CAM_FRONT"}
+        assert set(stage["dep_con"]["per_camera"]) == set(m["cameras"])
+    fin = m["stages"]["final"]
+    for sc in E.SCALINGS:
+        for region in ("mean", "overlap", "non_overlap"):
+            assert fin[sc][region]["abs_rel"] == pytest.approx(0.0, abs=1e-7)
+            assert fin[sc][region]["a1"] == 1.0
+    assert fin["dep_con"]["mean"] < 1e-6
+    assert fin == m["stages"]["refine1"]
+    # init is 1.5x too far: metric abs_rel 0.5, median-scaled 0; Dep Con stays 0 on a wall (both scaled)
+    assert m["stages"]["init"]["none"]["mean"]["abs_rel"] == pytest.approx(0.5)
+    assert m["stages"]["init"]["median"]["mean"]["abs_rel"] == pytest.approx(0.0, abs=1e-7)
+    json.dumps(m)  # serialisable
+
+
+def test_double_depth_none_vs_median():
+    m = run(FakeDataset(), lambda s, f: {"init": np.full((2, H, W), 2 * Z_WALL, np.float32)})
+    fin = m["stages"]["final"]
+    assert fin["none"]["mean"]["abs_rel"] == pytest.approx(1.0)
+    assert fin["none"]["mean"]["a3"] == 0.0
+    assert fin["median"]["mean"]["abs_rel"] == pytest.approx(0.0, abs=1e-7)
+    assert fin["rig_median"]["mean"]["abs_rel"] == pytest.approx(0.0, abs=1e-7)
+
+
+def test_rig_median_differs_from_median_and_dep_con_hand_value():
+    def fn(seq, frame):
+        d = np.full((2, H, W), Z_WALL, np.float32)
+        d[0] *= 2.0
+        d[1] *= 4.0
+        return {"init": d}
+
+    fin = run(FakeDataset(), fn)["stages"]["final"]
+    assert fin["none"]["per_camera"]["CAM_FRONT"]["abs_rel"] == pytest.approx(1.0)
+    assert fin["none"]["per_camera"]["CAM_FRONT_RIGHT"]["abs_rel"] == pytest.approx(3.0)
+    assert fin["none"]["mean"]["abs_rel"] == pytest.approx(2.0)  # mean of the per-camera values
+    assert fin["median"]["mean"]["abs_rel"] == pytest.approx(0.0, abs=1e-7)
+    # rig median: pooled preds are half 20 m, half 40 m -> median 30 -> scale 1/3: 6.67 m and 13.3 m
+    rm = fin["rig_median"]["per_camera"]
+    assert rm["CAM_FRONT"]["abs_rel"] == pytest.approx(1 / 3, rel=1e-5)
+    assert rm["CAM_FRONT_RIGHT"]["abs_rel"] == pytest.approx(1 / 3, rel=1e-5)
+    # Dep Con on unscaled predictions: |20 - 40| / 10 = 2 in both directions
+    assert fin["dep_con"]["per_pair"]["CAM_FRONT_RIGHT->CAM_FRONT"] == pytest.approx(2.0)
+    assert fin["dep_con"]["per_pair"]["CAM_FRONT->CAM_FRONT_RIGHT"] == pytest.approx(2.0)
+    assert fin["dep_con"]["mean"] == pytest.approx(2.0)
+
+
+def test_overlap_split_separates_regions():
+    # error only in the columns of CAM_FRONT that CAM_FRONT_RIGHT cannot see (0..2)
+    def fn(seq, frame):
+        d = np.full((2, H, W), Z_WALL, np.float32)
+        d[0, :, :SHIFT_PX] = 2 * Z_WALL
+        return {"init": d}
+
+    r = run(FakeDataset(), fn)["stages"]["final"]["none"]
+    assert r["overlap_per_camera"]["CAM_FRONT"]["abs_rel"] == pytest.approx(0.0, abs=1e-7)
+    assert r["non_overlap_per_camera"]["CAM_FRONT"]["abs_rel"] == pytest.approx(1.0)
+    assert r["per_camera"]["CAM_FRONT"]["abs_rel"] == pytest.approx(3 / 16)
+    assert r["per_camera"]["CAM_FRONT_RIGHT"]["abs_rel"] == pytest.approx(0.0, abs=1e-7)
+
+
+def test_frame_stride_and_skip_ends():
+    ds = FakeDataset(n_frames=6)
+    assert run(ds, perfect, frame_stride=2)["n_samples"] == 4  # frames 1, 3 of 0..5
+    assert run(ds, perfect, skip_ends=False)["n_samples"] == 12
+
+
+def test_errors():
+    with pytest.raises(ValueError, match="upsample"):
+        run(FakeDataset(), lambda s, f: {"init": np.ones((2, H, W // 2), np.float32)})
+    with pytest.raises(ValueError, match="Ncam=2"):
+        run(FakeDataset(), lambda s, f: {"init": np.ones((3, H, W), np.float32)})
+    with pytest.raises(ValueError, match="max_depth"):
+        E.EvalConfig(min_depth=10.0, max_depth=5.0)
+    with pytest.raises(ValueError, match="frame_stride"):
+        E.EvalConfig(frame_stride=0)
+    with pytest.raises(ValueError, match="no frame"):
+        E.evaluate(FakeDataset(), perfect, "val", progress=False)
+
+
+def test_format_tables():
+    m = run(FakeDataset(), perfect)
+    txt = E.format_tables(m)
+    for s in ("scaling: none", "scaling: median", "scaling: rig_median", "CAM_FRONT_RIGHT", "abs_rel",
+              "non_overlap", "Dep Con", "CAM_FRONT->CAM_FRONT_RIGHT"):
+        assert s in txt
+    with pytest.raises(ValueError, match="stage 'nope'"):
+        E.format_tables(m, "nope")
