@@ -135,3 +135,38 @@ def test_backend_selection_errors(monkeypatch):
     from synth.gl_backend import RenderBackendError
     with pytest.raises(RenderBackendError, match="PYOPENGL_PLATFORM"):
         select_backend("auto")
+
+
+def test_osmesa_fallback_renders_exact_depth():
+    """The OSMesa back end (PyOpenGL fixes its platform at import, hence a subprocess)."""
+    import os
+    import subprocess
+    import sys
+
+    snippet = r'''
+import math, sys
+import numpy as np
+sys.path.insert(0, sys.argv[1])
+from scenes.model import Scene
+from scenes.primitives import quad
+from synth.gl_backend import LightState, Renderer
+from synth.rig import intrinsics_from_hfov, rotation_ego_cam
+W, H = 64, 48
+r = Renderer(W, H, backend="osmesa")
+g = quad(np.array([[-400, -400, 0], [400, -400, 0], [400, 400, 0], [-400, 400, 0]], float), 0)
+r.load_scene(Scene(g, [], np.full((1, 8, 8, 3), 200, np.uint8), ["f"], np.eye(4)[None], "t"), None)
+K = intrinsics_from_hfov(W, H, 70.0)
+T = np.eye(4); T[:3, :3] = rotation_ego_cam(0.0, math.radians(-10)); T[2, 3] = 1.5
+d = r.render(K, T, 0, LightState((0, 0, 1), (1, 1, 1), (1, 1, 1), (1, 1, 1), (1, 1, 1), shadows=False))["depth"]
+u, v = np.meshgrid(np.arange(W) + 0.5, np.arange(H) + 0.5)
+ray = T[:3, :3] @ (np.linalg.inv(K) @ np.stack([u.ravel(), v.ravel(), np.ones(u.size)]))
+t = (-1.5 / ray[2]).reshape(H, W)
+sel = (ray[2].reshape(H, W) < 0) & (t < 150)
+print(r.platform, float(np.max(np.abs(d[sel] - t[sel]) / t[sel])), int(sel.sum()))
+'''
+    root = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
+    env = dict(os.environ, PYOPENGL_PLATFORM="osmesa")
+    proc = subprocess.run([sys.executable, "-c", snippet, root], env=env, capture_output=True, text=True, timeout=120)
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    platform, err, n = proc.stdout.split()
+    assert platform == "osmesa" and int(n) > 500 and float(err) <= 1e-3
