@@ -334,9 +334,9 @@ def quad(corners: np.ndarray, layer: int, uvs: np.ndarray | None = None, tint=(1
     """One planar quad from 4 corners (4, 3) in cyclic counter-clockwise order seen from the front.
 
     The normal is (c2 - c0) x (c3 - c1), normalised (the side the CCW order is seen from).
-    uvs: optional (4, 2); default = metres in the quad's plane (u along c0->c1, v along the
-    in-plane perpendicular towards c3... with v growing away from c0, i.e. c3 is "down" in the
-    texture) times uv_scale. `double_sided` adds the back face (for thin signs).
+    uvs: optional (4, 2); default = metres in the quad's plane from c0 (u along c0->c1, v along
+    normal x u, i.e. towards the c3 side, so c3 is "down" in the texture) times uv_scale.
+    `double_sided` adds the back face (for thin signs).
     """
     c = np.asarray(corners, dtype=np.float64)
     if c.shape != (4, 3) or not np.all(np.isfinite(c)):

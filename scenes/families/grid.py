@@ -81,8 +81,9 @@ def build_grid(kind: str, cfg: SceneConfig, n_frames: int, fps: float, rng: np.r
         parking = 2.3 if rng.random() < min(1.0, 0.6 * cfg.parked_density) else 0.0
         xs = CrossSection(lane_w, 1, 2.0, bike_w=1.5, parking_w=parking, sidewalk_w=rng.uniform(2.5, 3.5))
         bmin, bmax = 70.0, 130.0
-    bmin = max(bmin, 2 * xs.outer_hw + 25.0)
-    bmax = max(bmax, bmin + 10.0)
+    # block lengths are centre-to-centre: keep >= 40 m (urban) / 50 m (residential) between pads
+    bmin = max(bmin, 2 * xs.outer_hw + (40.0 if urban else 50.0))
+    bmax = max(bmax, bmin + 45.0)
     P = xs.outer_hw                      # pad half-size
     c = -xs.ego_offset                   # ego lane centre is at y = -c on a horizontal street
 
