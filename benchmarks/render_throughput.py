@@ -28,7 +28,7 @@ def rss_mb() -> float:
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser()
     ap.add_argument("--sequences", type=int, default=2)
-    ap.add_argument("--frames", type=int, default=10)
+    ap.add_argument("--frames", type=int, default=20)
     ap.add_argument("--renders", type=int, default=1000)
     ap.add_argument("--sizes", default="320x192,640x384")
     args = ap.parse_args(argv)

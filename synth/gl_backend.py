@@ -174,6 +174,13 @@ def _create_context(platform: str, width: int, height: int):
 
 # ----------------------------------------------------------------------------- shaders
 
+_GLSL_TO_SRGB = """
+vec3 to_srgb(vec3 c) {
+    c = clamp(c, 0.0, 1.0);
+    return mix(c * 12.92, 1.055 * pow(c, vec3(1.0 / 2.4)) - 0.055, step(vec3(0.0031308), c));
+}
+"""
+
 _VS_MAIN = """
 #version 330 core
 layout(location=0) in vec3 a_pos;
@@ -227,11 +234,7 @@ uniform float u_fog_dist;
 uniform float u_is_ego;
 layout(location=0) out vec4 o_color;
 layout(location=1) out vec2 o_depth;
-vec3 to_srgb(vec3 c) {
-    c = clamp(c, 0.0, 1.0);
-    return mix(c * 12.92, 1.055 * pow(c, vec3(1.0 / 2.4)) - 0.055, step(vec3(0.0031308), c));
-}
-void main() {
+%(to_srgb)svoid main() {
     vec3 n = normalize(v_nrm_w);
     if (!gl_FrontFacing) n = -n;
     vec3 albedo = texture(u_tex, vec3(v_uv, v_layer)).rgb * v_tint;
@@ -252,6 +255,8 @@ void main() {
     o_depth = vec2(v_zcam, u_is_ego);
 }
 """
+
+_FS_MAIN = _FS_MAIN % {"to_srgb": _GLSL_TO_SRGB}
 
 _VS_SHADOW = """
 #version 330 core
@@ -283,11 +288,7 @@ uniform vec3 u_sun_rgb;
 uniform vec3 u_gain;
 layout(location=0) out vec4 o_color;
 layout(location=1) out vec2 o_depth;
-vec3 to_srgb(vec3 c) {
-    c = clamp(c, 0.0, 1.0);
-    return mix(c * 12.92, 1.055 * pow(c, vec3(1.0 / 2.4)) - 0.055, step(vec3(0.0031308), c));
-}
-void main() {
+%(to_srgb)svoid main() {
     vec2 uv = vec2(gl_FragCoord.x, u_height - gl_FragCoord.y);   // OpenCV pixel coordinates
     vec3 d = normalize(u_R_world_cam * (u_K_inv * vec3(uv, 1.0)));
     float t = clamp(d.z, 0.0, 1.0);
@@ -299,6 +300,9 @@ void main() {
     o_depth = vec2(0.0, 0.0);
 }
 """
+
+
+_FS_SKY = _FS_SKY % {"to_srgb": _GLSL_TO_SRGB}
 
 
 # ----------------------------------------------------------------------------- renderer
