@@ -1,0 +1,185 @@
+"""Seconds per training step and peak memory of every training preset, with the ratio to mono2.
+
+One rig sample per step (6 cameras x 3 frames), random images on a synthetic
+six-camera ring (no dataset needed), the presets' own settings otherwise.
+Each (preset, size) runs in a fresh subprocess so that peak memory (CPU: max
+RSS; CUDA: max allocated) belongs to it alone; rounds are interleaved over
+presets and the median is reported, so load from other processes hits all
+presets alike. Also reports the share of a step spent in L_con (forward +
+backward of every stage's consistency loss, timed on its own).
+
+    python benchmarks/train_step.py                       # 96x160 and 192x320, 3 rounds
+    python benchmarks/train_step.py --sizes 96x160 --rounds 5 --steps 5 --device cpu
+
+Floors (2-core CPU): mcdp_m2 <= 1.5x mono2 per step (aim 1.3x); L_con <= 5 % of a step.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import os
+import statistics
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+PRESETS = ["mono2", "mcdp_m0", "mcdp_m1_nocon", "mcdp_m1", "mcdp_m2"]
+
+
+def synthetic_batch(H: int, W: int, n_cams: int = 6, seed: int = 0):
+    """A batch of the mcdp.data schema on a ring of cameras (60 deg spacing, 70 deg hfov)."""
+    import numpy as np
+    import torch
+
+    g = torch.Generator().manual_seed(seed)
+    f = W / 2 / math.tan(math.radians(70) / 2)
+    K = torch.tensor([[f, 0, W / 2], [0, f, H / 2], [0, 0, 1.0]])
+    R0 = np.array([[0, 0, 1.0], [-1, 0, 0], [0, -1, 0]])  # OpenCV camera looking along ego +x
+    T = torch.zeros(n_cams, 4, 4)
+    for i in range(n_cams):
+        yaw = -2 * math.pi * i / n_cams
+        Rz = np.array([[math.cos(yaw), -math.sin(yaw), 0], [math.sin(yaw), math.cos(yaw), 0], [0, 0, 1]])
+        T[i, :3, :3] = torch.from_numpy(Rz @ R0).float()
+        T[i, :3, 3] = torch.tensor([1.5 + math.cos(yaw), math.sin(yaw), 1.6])
+        T[i, 3, 3] = 1
+    # smooth random images (low-frequency noise, upsampled)
+    rgb = torch.nn.functional.interpolate(torch.rand(n_cams * 3, 3, H // 8, W // 8, generator=g), size=(H, W),
+                                          mode="bilinear", align_corners=False).view(1, n_cams, 3, 3, H, W)
+    Tw = torch.eye(4).repeat(1, 3, 1, 1)
+    Tw[0, :, 0, 3] = torch.tensor([-0.5, 0.0, 0.5])
+    mask = torch.ones(1, n_cams, 1, H, W)
+    mask[..., -H // 10:, :] = 0
+    return {
+        "rgb": rgb, "K": K.expand(1, n_cams, 3, 3).clone(), "T_ego_cam": T[None], "mask": mask,
+        "T_world_ego": Tw, "seq_index": torch.zeros(1, dtype=torch.long), "frame": torch.ones(1, dtype=torch.long),
+        "gt_median": torch.full((1, n_cams), 10.0),
+    }
+
+
+def worker(preset: str, H: int, W: int, steps: int, device: str, threads: int = 0) -> dict:
+    """Time `steps` optimiser steps (after 3 warm-up steps) of one preset; returns a result dict."""
+    import resource
+
+    import torch
+
+    if threads > 0:
+        torch.set_num_threads(threads)
+
+    sys.path.insert(0, str(ROOT))
+    from mcdp.config import RunConfig
+    from mcdp.trainer import SelfSupervisedSystem
+    from synth.configlib import load_config
+
+    cfg = load_config(RunConfig, ROOT / "configs" / "train" / f"{preset}.yaml",
+                      [f"train.height={H}", f"train.width={W}", "train.batch_size=1"])
+    dev = torch.device(device)
+    torch.manual_seed(0)
+    pairs = [(i, (i + 1) % 6) for i in range(6)]
+    system = SelfSupervisedSystem(cfg, pairs, 6).to(dev)
+    if dev.type == "cuda" and cfg.train.amp:
+        system.use_amp = True
+        system.amp_dtype = torch.bfloat16
+    opt = torch.optim.Adam(system.parameters(), lr=1e-4)
+    batch = {k: v.to(dev) for k, v in synthetic_batch(H, W).items()}
+
+    def sync():
+        if dev.type == "cuda":
+            torch.cuda.synchronize()
+
+    def one_step():
+        _, losses = system.process_batch(batch, 0, train=True)
+        opt.zero_grad(set_to_none=True)
+        losses["loss"].backward()
+        opt.step()
+
+    for _ in range(3):  # warm-up: allocator, oneDNN primitive caches
+        one_step()
+    if dev.type == "cuda":
+        torch.cuda.reset_peak_memory_stats()
+    sync()
+    times = []
+    for _ in range(steps):
+        t0 = time.perf_counter()
+        one_step()
+        sync()
+        times.append(time.perf_counter() - t0)
+
+    # L_con alone: forward + backward for every stage, on depth maps of the real shapes
+    con_s = 0.0
+    if cfg.loss.consistency_weight > 0:
+        n_stages = cfg.model.refine_steps + 1
+        depth = (torch.rand(6, 1, H, W, device=dev) * 20 + 2).requires_grad_(True)
+        ct = []
+        for _ in range(steps + 1):
+            sync()
+            t0 = time.perf_counter()
+            for _ in range(n_stages):
+                system.consistency(depth, batch).backward()
+            sync()
+            ct.append(time.perf_counter() - t0)
+        con_s = statistics.median(ct[1:])
+    if dev.type == "cuda":
+        peak_mb = torch.cuda.max_memory_allocated() / 2**20
+    else:
+        peak_mb = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024  # KiB on Linux
+    return {"preset": preset, "H": H, "W": W, "step_s": statistics.median(times), "con_s": con_s,
+            "peak_mb": peak_mb, "threads": torch.get_num_threads(), "device": device}
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("--sizes", nargs="+", default=["96x160", "192x320"], help="HxW training sizes")
+    ap.add_argument("--presets", nargs="+", default=PRESETS)
+    ap.add_argument("--rounds", type=int, default=3, help="interleaved rounds (median over rounds)")
+    ap.add_argument("--steps", type=int, default=5, help="timed steps per round (median within a round)")
+    ap.add_argument("--device", default="cpu", choices=["cpu", "cuda"])
+    ap.add_argument("--threads", type=int, default=0, help="torch CPU threads (0 = torch default)")
+    ap.add_argument("--json", default=None, help="also write the results here")
+    ap.add_argument("--_worker", nargs=4, metavar=("PRESET", "H", "W", "STEPS"), help=argparse.SUPPRESS)
+    args = ap.parse_args(argv)
+    if args._worker:
+        p, H, W, s = args._worker
+        print(json.dumps(worker(p, int(H), int(W), int(s), args.device, args.threads)))
+        return 0
+
+    results: dict = {}
+    for size in args.sizes:
+        H, W = (int(x) for x in size.lower().split("x"))
+        for r in range(args.rounds):
+            for p in args.presets:
+                cmd = [sys.executable, __file__, "--device", args.device, "--threads", str(args.threads),
+                       "--_worker", p, str(H), str(W), str(args.steps)]
+                out = subprocess.run(cmd, capture_output=True, text=True, cwd=ROOT, env=dict(os.environ))
+                if out.returncode != 0:
+                    print(out.stderr, file=sys.stderr)
+                    return 1
+                res = json.loads(out.stdout.strip().splitlines()[-1])
+                results.setdefault((p, H, W), []).append(res)
+                print(f"  round {r + 1}/{args.rounds} {p:14s} {H}x{W}: {res['step_s']:.3f} s/step", file=sys.stderr)
+
+    rows = []
+    print(f"\ntrain step, 1 rig sample (6 cameras x 3 frames), device {args.device}, "
+          f"torch threads {next(iter(results.values()))[0]['threads']}, median of {args.rounds} rounds")
+    hdr = f"{'preset':14s} {'size':>8s} {'s/step':>8s} {'x mono2':>8s} {'L_con %':>8s} {'peak MiB':>9s}"
+    print(hdr + "\n" + "-" * len(hdr))
+    for size in args.sizes:
+        H, W = (int(x) for x in size.lower().split("x"))
+        base = statistics.median(r["step_s"] for r in results.get(("mono2", H, W), [{"step_s": float("nan")}]))
+        for p in args.presets:
+            rs = results[(p, H, W)]
+            t = statistics.median(r["step_s"] for r in rs)
+            con = statistics.median(r["con_s"] for r in rs)
+            peak = max(r["peak_mb"] for r in rs)
+            rows.append({"preset": p, "H": H, "W": W, "step_s": t, "ratio_mono2": t / base,
+                         "lcon_share": con / t, "peak_mb": peak})
+            print(f"{p:14s} {size:>8s} {t:8.3f} {t / base:8.2f} {100 * con / t:8.1f} {peak:9.0f}")
+    if args.json:
+        Path(args.json).write_text(json.dumps(rows, indent=1))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,230 @@
+"""Configuration of an MCDP / Monodepth2 training run: every default in one place.
+
+A preset (``configs/train/<name>.yaml``) lists only what differs from these
+defaults; the command line overrides single keys::
+
+    mcdp train configs/train/mcdp_m1.yaml --data data/tiny --out runs/m1 train.steps=200 loss.consistency_weight=0.05
+
+The resolved `RunConfig` is saved as ``RUN/config.yaml`` and inside every
+checkpoint. Sections:
+
+- ``model``: networks (method, bases n, refinement steps m, neighbours, depth range).
+- ``loss``: photometric / smoothness / consistency weights.
+- ``scale``: where metric scale comes from (no ground truth unless the labelled oracle).
+- ``train``: optimisation, resolution, seeding, logging cadence.
+- ``eval``: evaluation settings (`mcdp.evaluate.EvalConfig`).
+"""
+from __future__ import annotations
+
+import re
+from typing import Annotated, Any, Literal
+
+from pydantic import BeforeValidator, Field, model_validator
+
+from mcdp.evaluate import EvalConfig
+from synth.configlib import StrictModel
+
+_SCI_FLOAT = re.compile(r"^[-+]?(\d+\.?\d*|\.\d+)[eE][-+]?\d+$")
+
+
+def _yaml12_float(v: Any) -> Any:
+    # PyYAML (YAML 1.1) reads `1e-4` as the *string* "1e-4"; YAML 1.2 and every
+    # user read it as a float. Only that exact scientific spelling is accepted,
+    # any other string still fails strict validation.
+    if isinstance(v, str) and _SCI_FLOAT.match(v.strip()):
+        return float(v)
+    return v
+
+
+Float = Annotated[float, BeforeValidator(_yaml12_float)]
+
+
+class ModelConfig(StrictModel):
+    """Depth, pose and weight networks.
+
+    method: ``mono2`` (Monodepth2: one sigmoid channel -> depth) or ``mcdp``
+        (n depth bases, initial weights 1/n, ``refine_steps`` weight networks).
+    bases: n, number of depth bases (mcdp only; mono2 always uses 1 channel).
+    refine_steps: m, refinement steps (0 = bases only, the "M0" row).
+    neighbours: which ring neighbours feed the weight network: ``left`` (i-1),
+        ``right`` (i+1) or ``both``. L_con always uses every adjacent pair in
+        both directions (see `mcdp.model`).
+    pretrained: path to a local torchvision ResNet-18 state dict (never downloaded), or null.
+    min_depth, max_depth: metres; the sigmoid output maps to disparity in
+        [1/max_depth, 1/min_depth] (`mcdp.model.disp_to_depth`).
+    init_depth: metres; the depth head's bias is initialised so that a fresh
+        network predicts about this depth everywhere. Metric training (odometry
+        or velocity scale, metres per frame of motion) needs a start near the
+        scene's scale: Monodepth2's sigmoid(0) start is 0.2 m for the default
+        range, from where warps with real camera motion leave the image and
+        training collapses to a constant depth. null = Monodepth2's init.
+    scales: decoder output scales used by the loss (Monodepth2: 4).
+    weight_channels: channels each encoder-feature pyramid is reduced to
+        before warping, inside each weight network (keeps refinement cheap).
+    weight_conv_channels, weight_fc: widths of the weight network's conv stack and FC layers.
+    """
+
+    method: Literal["mono2", "mcdp"] = "mcdp"
+    bases: int = Field(32, ge=1, le=256)
+    refine_steps: int = Field(0, ge=0, le=8)
+    neighbours: Literal["left", "right", "both"] = "both"
+    pretrained: str | None = None
+    min_depth: Float = Field(0.1, gt=0.0)
+    max_depth: Float = Field(100.0, gt=0.0)
+    init_depth: Float | None = Field(10.0, gt=0.0)
+    scales: int = Field(4, ge=1, le=4)
+    weight_channels: int = Field(32, ge=1)
+    weight_conv_channels: int = Field(64, ge=1)
+    weight_fc: int = Field(128, ge=1)
+
+    @model_validator(mode="after")
+    def _check(self) -> "ModelConfig":
+        if self.min_depth >= self.max_depth:
+            raise ValueError(f"model.min_depth ({self.min_depth}) must be < model.max_depth ({self.max_depth})")
+        if self.init_depth is not None and not self.min_depth < self.init_depth < self.max_depth:
+            raise ValueError(
+                f"model.init_depth ({self.init_depth}) must lie in (min_depth, max_depth) = "
+                f"({self.min_depth}, {self.max_depth})"
+            )
+        if self.method == "mono2" and self.refine_steps > 0:
+            raise ValueError("model.refine_steps must be 0 for model.method=mono2 (refinement needs depth bases)")
+        return self
+
+    @property
+    def n_out(self) -> int:
+        """Decoder output channels: n bases for mcdp, 1 for mono2."""
+        return self.bases if self.method == "mcdp" else 1
+
+
+class LossConfig(StrictModel):
+    """Loss weights.
+
+    ssim_alpha: pe = alpha/2 (1 - SSIM) + (1 - alpha) L1 (paper: 0.85).
+    smoothness_weight: edge-aware smoothness on mean-normalised disparity,
+        divided by 2^scale as in Monodepth2 (paper: 1e-3).
+    consistency_weight: lambda of L_con; 0 disables it. The paper's 1e-3 was
+        tuned for its median-scaled depths and a per-pixel-*sum*-like L1; here
+        L_con is the masked *mean* of |D_i - D_hat_i| in metres on the overlap,
+        typically 0.5-5 m early in training against L_p ~ 0.1-0.2, so the
+        default 0.02 makes lambda L_con 10-50 % of L_p at the start and a few %
+        once the cameras agree: large enough to shape the overlap, too small to
+        collapse depth towards the near plane (which also lowers the L1).
+    automask: Monodepth2 auto-masking of stationary pixels.
+    refine_scales: how many decoder scales the photometric loss of each
+        *refined* stage uses (the initial stage always uses all
+        ``model.scales``). Default 1 = full resolution only: a refined stage
+        differs from the initial one only by its n global basis weights, so
+        the coarse-scale terms (which in Monodepth2 keep the per-pixel decoder
+        out of local minima) would repeat the initial stage's signal at 4x the
+        cost of the full-resolution term. Set 4 for the literal paper loss.
+    """
+
+    ssim_alpha: Float = Field(0.85, ge=0.0, le=1.0)
+    smoothness_weight: Float = Field(1e-3, ge=0.0)
+    consistency_weight: Float = Field(0.02, ge=0.0)
+    automask: bool = True
+    refine_scales: int = Field(1, ge=1, le=4)
+
+
+class ScaleConfig(StrictModel):
+    """Where metric scale comes from (depth must be in metres for cross-camera warping).
+
+    source:
+      ``velocity``: pose network per camera; its translation norm is supervised
+        with the ego-odometry displacement transformed into the camera (PackNet).
+      ``odometry``: no pose network; camera motion from the ego odometry directly.
+      ``oracle_gt_median``: what the public reference code does: every depth is
+        rescaled by median(GT)/median(pred) per image, in training AND inference.
+        Reads ground truth; labelled ORACLE in every output.
+    velocity_weight: weight of |‖t_pred‖ - ‖t_odom‖| (PackNet: 0.05).
+    """
+
+    source: Literal["velocity", "odometry", "oracle_gt_median"] = "velocity"
+    velocity_weight: Float = Field(0.05, ge=0.0)
+
+    @property
+    def oracle(self) -> bool:
+        return self.source == "oracle_gt_median"
+
+
+class TrainConfig(StrictModel):
+    """Optimisation and bookkeeping.
+
+    steps: optimiser steps; batch_size: rig samples per step (each = 6 cameras x 3 frames).
+    lr: Adam learning rate; decayed by lr_decay_factor after lr_decay_at * steps
+        (paper: 1e-4, x0.1 after 15 of 20 epochs).
+    height, width: training resolution (multiples of 32, ResNet skips).
+    color_aug: Monodepth2 colour jitter (p=0.5) on the network input only.
+    val_every: steps between val-split evaluations of the self-supervised loss
+        (no ground truth); the lowest val loss is kept as checkpoints/best.pt.
+    val_samples: val rig samples used each time (evenly spaced, fixed).
+    ckpt_every: steps between checkpoints/last.pt writes (also written at the end).
+    log_every, image_every: TensorBoard scalar / image cadence.
+    amp: mixed precision on CUDA (ignored on CPU).
+    device: ``auto`` (CUDA if available), ``cpu`` or ``cuda``.
+    num_workers: DataLoader processes (0 = in the main process).
+    threads: torch intra-op CPU threads (0 = torch's default). On a shared
+        machine 1 avoids the heavy slow-down of oversubscribed OpenMP threads.
+    grad_clip: max global grad norm, or null.
+    """
+
+    steps: int = Field(20000, ge=1)
+    batch_size: int = Field(1, ge=1)
+    lr: Float = Field(1e-4, gt=0.0)
+    lr_decay_at: Float = Field(0.75, gt=0.0, le=1.0)
+    lr_decay_factor: Float = Field(0.1, gt=0.0, le=1.0)
+    height: int = Field(192, ge=32)
+    width: int = Field(320, ge=32)
+    seed: int = Field(0, ge=0)
+    color_aug: bool = True
+    val_every: int = Field(1000, ge=1)
+    val_samples: int = Field(16, ge=1)
+    ckpt_every: int = Field(1000, ge=1)
+    log_every: int = Field(50, ge=1)
+    image_every: int = Field(500, ge=1)
+    amp: bool = True
+    device: Literal["auto", "cpu", "cuda"] = "auto"
+    num_workers: int = Field(2, ge=0)
+    threads: int = Field(0, ge=0)
+    grad_clip: Float | None = None
+
+    @model_validator(mode="after")
+    def _check(self) -> "TrainConfig":
+        for key in ("height", "width"):
+            v = getattr(self, key)
+            if v % 32:
+                raise ValueError(f"train.{key}={v} must be a multiple of 32 (ResNet skip connections)")
+        return self
+
+
+class RunConfig(StrictModel):
+    """Everything that defines a run; saved with it."""
+
+    model: ModelConfig = ModelConfig()
+    loss: LossConfig = LossConfig()
+    scale: ScaleConfig = ScaleConfig()
+    train: TrainConfig = TrainConfig()
+    eval: EvalConfig = EvalConfig()
+
+
+# Keys that may change when a run is resumed (they do not change what is learned
+# up to the current step, or only extend it).
+RESUMABLE_KEYS = (
+    "train.steps",
+    "train.val_every",
+    "train.val_samples",
+    "train.ckpt_every",
+    "train.log_every",
+    "train.image_every",
+    "train.num_workers",
+    "train.threads",
+    "train.device",
+    "eval.",
+)
+
+
+def resume_conflicts(saved: dict[str, Any], requested: dict[str, Any]) -> list[str]:
+    """Dotted keys where a saved run config and a requested one differ in a way resume cannot honour."""
+    from synth.configlib import diff_configs
+
+    return [k for k in diff_configs(saved, requested) if not any(k == p or (p.endswith(".") and k.startswith(p)) for p in RESUMABLE_KEYS)]

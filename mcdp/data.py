@@ -1,0 +1,202 @@
+"""Rig samples for training: one sequence frame t (with t-1, t+1) of every camera.
+
+Batch schema (the only place it is defined; B = rig samples, N = cameras in rig
+order, frames in the order [-1, 0, +1], H x W = training size)::
+
+    rgb          (B, N, 3, 3, H, W) float32 in [0, 1]   images of frames t-1, t, t+1
+    K            (B, N, 3, 3)       float32             intrinsics scaled to H x W
+    T_ego_cam    (B, N, 4, 4)       float32             camera -> ego (rig extrinsics)
+    mask         (B, N, 1, H, W)    float32 0/1         1 = scene, 0 = ego body
+    T_world_ego  (B, 3, 4, 4)       float32             ego odometry at t-1, t, t+1
+    seq_index    (B,)               int64               index into `RigDataset.seqs`
+    frame        (B,)               int64               frame t
+    gt_median    (B, N)             float32             ONLY when oracle=True: median GT depth
+                                                        (metres) over scene pixels at dataset
+                                                        resolution; the oracle scale mode.
+
+Ground-truth depth never enters a batch otherwise. Images are resized with
+area interpolation; K follows exactly (diag(sx, sy, 1) @ K, pixel centres at +0.5);
+masks are resized with area interpolation and thresholded at 0.99, so a
+pixel counts as scene only if (almost) all of it is scene.
+
+Example::
+
+    ds = synth.dataset.open_dataset("data/tiny")
+    train = RigDataset(ds, "train", height=64, width=96)
+    batch = collate([train[0], train[1]])
+"""
+from __future__ import annotations
+
+from typing import Sequence
+
+import cv2
+import numpy as np
+import torch
+
+FRAME_OFFSETS = (-1, 0, 1)
+
+
+def resize_rgb(img: np.ndarray, height: int, width: int) -> np.ndarray:
+    """(h, w, 3) uint8 -> (height, width, 3) uint8 with area interpolation (identity if same size)."""
+    if img.shape[:2] == (height, width):
+        return img
+    interp = cv2.INTER_AREA if (height < img.shape[0] and width < img.shape[1]) else cv2.INTER_LINEAR
+    return cv2.resize(img, (width, height), interpolation=interp)
+
+
+def resize_mask(mask: np.ndarray, height: int, width: int) -> np.ndarray:
+    """(h, w) bool -> (height, width) bool: True only where >= 99 % of the area is scene."""
+    if mask.shape == (height, width):
+        return mask.astype(bool)
+    m = cv2.resize(mask.astype(np.float32), (width, height), interpolation=cv2.INTER_AREA)
+    return m >= 0.99
+
+
+def scaled_K(K: np.ndarray, src_hw: tuple[int, int], dst_hw: tuple[int, int]) -> np.ndarray:
+    """Intrinsics of an image resized from src_hw to dst_hw: diag(sx, sy, 1) @ K."""
+    sy = dst_hw[0] / src_hw[0]
+    sx = dst_hw[1] / src_hw[1]
+    return np.diag([sx, sy, 1.0]) @ np.asarray(K, dtype=np.float64)
+
+
+def neighbour_table(pairs: Sequence[Sequence[int]], n_cams: int) -> torch.Tensor:
+    """(N, 2) int64 [left, right] neighbour index of every camera, -1 where there is none.
+
+    ``pairs`` are the dataset's adjacent pairs (i, j) with j = i + 1 (mod N) in
+    rig order (CAM_FRONT, CAM_FRONT_RIGHT, ...): j is i's right neighbour and i
+    is j's left neighbour. A ring that does not close has one -1 per end.
+    """
+    tab = torch.full((n_cams, 2), -1, dtype=torch.long)
+    for i, j in pairs:
+        i, j = int(i), int(j)
+        tab[i, 1] = j
+        tab[j, 0] = i
+    return tab
+
+
+def directed_pairs(pairs: Sequence[Sequence[int]]) -> tuple[torch.Tensor, torch.Tensor]:
+    """Every adjacent pair in both directions: (tgt (P,), src (P,)) int64."""
+    tgt, src = [], []
+    for i, j in pairs:
+        tgt += [int(i), int(j)]
+        src += [int(j), int(i)]
+    return torch.tensor(tgt, dtype=torch.long), torch.tensor(src, dtype=torch.long)
+
+
+class RigReader:
+    """Reads rig images/masks of a `synth.dataset` dataset at a fixed size (no torch in the maths).
+
+    Masks and intrinsics are computed once per camera.
+    """
+
+    def __init__(self, ds, height: int, width: int):
+        self.ds = ds
+        self.height, self.width = int(height), int(width)
+        self.cam_names = list(ds.camera_names)
+        self.K = np.stack(
+            [scaled_K(c.K, (c.height, c.width), (self.height, self.width)) for c in ds.cameras]
+        ).astype(np.float32)  # (N, 3, 3)
+        self.T_ego_cam = np.stack([np.asarray(c.T_ego_cam, dtype=np.float64) for c in ds.cameras]).astype(np.float32)
+        self.mask_full = [np.asarray(ds.mask(n), dtype=bool) for n in self.cam_names]  # dataset resolution
+        self.mask = np.stack([resize_mask(m, self.height, self.width) for m in self.mask_full])[:, None].astype(
+            np.float32
+        )  # (N, 1, H, W)
+
+    def rgb(self, seq: str, frame: int) -> np.ndarray:
+        """(N, 3, H, W) float32 in [0, 1] of every camera at one frame."""
+        out = np.empty((len(self.cam_names), 3, self.height, self.width), dtype=np.float32)
+        for c, name in enumerate(self.cam_names):
+            img = resize_rgb(self.ds.read_rgb(seq, name, frame), self.height, self.width)
+            out[c] = img.transpose(2, 0, 1).astype(np.float32) / 255.0
+        return out
+
+    def gt_median(self, seq: str, frame: int) -> np.ndarray:
+        """(N,) median ground-truth depth over scene pixels at dataset resolution (ORACLE mode only)."""
+        med = np.zeros(len(self.cam_names), dtype=np.float32)
+        for c, name in enumerate(self.cam_names):
+            d = self.ds.read_depth(seq, name, frame)
+            v = d[(d > 0) & self.mask_full[c]]
+            med[c] = float(np.median(v)) if v.size else 1.0
+        return med
+
+
+class RigDataset(torch.utils.data.Dataset):
+    """Rig samples (seq, t) of one split with 1 <= t <= F-2 (t-1 and t+1 must exist).
+
+    Args:
+        ds: an opened `synth.dataset` dataset.
+        split: 'train' | 'val' | 'test'.
+        height, width: training size.
+        oracle: also return ``gt_median`` (the labelled oracle scale mode; reads ground truth).
+    """
+
+    def __init__(self, ds, split: str, height: int, width: int, oracle: bool = False):
+        self.reader = RigReader(ds, height, width)
+        self.split = split
+        self.oracle = oracle
+        self.seqs = list(ds.split(split))
+        self.T_world_ego = {s: np.asarray(ds.T_world_ego(s), dtype=np.float64) for s in self.seqs}
+        self.samples = [(k, t) for k, s in enumerate(self.seqs) for t in range(1, ds.n_frames(s) - 1)]
+
+    def __len__(self) -> int:
+        return len(self.samples)
+
+    def __getitem__(self, idx: int) -> dict:
+        k, t = self.samples[idx]
+        seq = self.seqs[k]
+        r = self.reader
+        rgb = np.stack([r.rgb(seq, t + o) for o in FRAME_OFFSETS], axis=1)  # (N, 3 frames, 3, H, W)
+        T = self.T_world_ego[seq][[t + o for o in FRAME_OFFSETS]].astype(np.float32)  # (3, 4, 4)
+        item = {
+            "rgb": torch.from_numpy(rgb),
+            "K": torch.from_numpy(r.K),
+            "T_ego_cam": torch.from_numpy(r.T_ego_cam),
+            "mask": torch.from_numpy(r.mask),
+            "T_world_ego": torch.from_numpy(T),
+            "seq_index": torch.tensor(k, dtype=torch.long),
+            "frame": torch.tensor(t, dtype=torch.long),
+        }
+        if self.oracle:
+            item["gt_median"] = torch.from_numpy(r.gt_median(seq, t))
+        return item
+
+
+def collate(items: list[dict]) -> dict:
+    """Stack rig samples into a batch (schema in the module docstring)."""
+    return {k: torch.stack([it[k] for it in items]) for k in items[0]}
+
+
+class StepBatchSampler(torch.utils.data.Sampler):
+    """Batches of sample indices as a pure function of (seed, step): exact resume for free.
+
+    The sample stream is the concatenation of per-epoch permutations, epoch e
+    drawn from ``torch.Generator().manual_seed(seed * 1_000_003 + e)``; step s
+    takes stream positions [s * B, (s + 1) * B). Yields the batches of steps
+    ``start_step .. end_step - 1``.
+    """
+
+    def __init__(self, n_samples: int, batch_size: int, seed: int, start_step: int, end_step: int):
+        if n_samples <= 0:
+            raise ValueError("the split has no rig samples (every sequence needs at least 3 frames)")
+        self.n, self.B, self.seed = n_samples, batch_size, seed
+        self.start, self.end = start_step, end_step
+        self._perm_cache: dict[int, torch.Tensor] = {}
+
+    def _perm(self, epoch: int) -> torch.Tensor:
+        if epoch not in self._perm_cache:
+            g = torch.Generator().manual_seed(self.seed * 1_000_003 + epoch)
+            self._perm_cache = {epoch: torch.randperm(self.n, generator=g)}
+        return self._perm_cache[epoch]
+
+    def batch(self, step: int) -> list[int]:
+        out = []
+        for pos in range(step * self.B, (step + 1) * self.B):
+            out.append(int(self._perm(pos // self.n)[pos % self.n]))
+        return out
+
+    def __iter__(self):
+        for s in range(self.start, self.end):
+            yield self.batch(s)
+
+    def __len__(self) -> int:
+        return max(0, self.end - self.start)

@@ -1,0 +1,303 @@
+"""The MCDP depth model (depth bases + iterative weight refinement) and its Monodepth2 baseline.
+
+One `DepthModel` serves every camera of the rig: the B x N images go through
+the encoder and decoder at once, and each refinement step's weight network is
+shared across cameras (and independent across steps, paper sec. 3.2).
+
+Output -> depth (the ONLY place): `disp_to_depth` maps a sigmoid value
+sig in (0, 1) to disparity disp = 1/max_depth + (1/min_depth - 1/max_depth) sig
+and depth = 1 / disp (metres), so depth lies in [min_depth, max_depth]
+(defaults 0.1 m and 100 m, `ModelConfig`).
+
+Bases are combined in sigmoid (i.e. affine-disparity) space with softmax
+weights: sig = sum_j w_j B_j, w = softmax(logits), initial logits 0 so
+w_init = 1/n (paper eq. 1). Why disparity and not depth: a convex combination
+of values in (0, 1) stays in (0, 1), so every weight vector gives a valid depth
+in [min_depth, max_depth] without clamping; the smoothness loss and Monodepth2
+already work on disparity; and far pixels (large depth) do not dominate the
+combination. Each refinement step k adds its weight network's output to the
+logits of step k-1 (residual refinement), so a fresh step starts from the
+previous weights.
+
+Stages are named "init", "refine1", ..., "refine{m}" (the evaluator adds
+"final" = the last one). Method ``mono2`` has one sigmoid channel and only
+"init".
+
+Example::
+
+    model = DepthModel(cfg.model)
+    out = model(rgb, K, T_ego_cam, mask, nbr)      # shapes in DepthModel.forward
+    depth = out["depth", "refine1", 0]             # (B*N, 1, H, W) metres
+"""
+from __future__ import annotations
+
+import torch
+import torch.nn as nn
+import torch.nn.functional as F
+
+from mcdp.config import ModelConfig
+from mcdp.geometry import scale_intrinsics, warp_by_depth
+from mcdp.networks import DepthDecoder, PoseNet, ResnetEncoder, WeightNet
+
+SLOTS = {"left": (0,), "right": (1,), "both": (0, 1)}
+
+
+def disp_to_depth(sig: torch.Tensor, min_depth: float, max_depth: float) -> tuple[torch.Tensor, torch.Tensor]:
+    """Network sigmoid output -> (disparity, depth in metres); the one output-to-depth map.
+
+    Args:
+        sig: (...) values in [0, 1].
+        min_depth, max_depth: depth range in metres (sig=1 -> min_depth, sig=0 -> max_depth).
+    Returns:
+        disp (...) in [1/max_depth, 1/min_depth] and depth = 1/disp (...).
+    """
+    min_disp, max_disp = 1.0 / max_depth, 1.0 / min_depth
+    disp = min_disp + (max_disp - min_disp) * sig
+    return disp, 1.0 / disp
+
+
+def combine_bases(bases: torch.Tensor, weights: torch.Tensor) -> torch.Tensor:
+    """Linear combination of bases: (B, n, h, w), (B, n) -> (B, 1, h, w) (paper eq. 1)."""
+    B, n, h, w = bases.shape
+    return torch.bmm(weights.to(bases.dtype).unsqueeze(1), bases.reshape(B, n, h * w)).view(B, 1, h, w)
+
+
+def stage_names(refine_steps: int) -> list[str]:
+    return ["init"] + [f"refine{k}" for k in range(1, refine_steps + 1)]
+
+
+def rotation_from_axisangle(axisangle: torch.Tensor) -> torch.Tensor:
+    """Rodrigues: (B, 3) axis * angle (radians) -> (B, 3, 3) rotation."""
+    angle = axisangle.norm(dim=1, keepdim=True).clamp(min=1e-7)  # (B, 1)
+    axis = axisangle / angle
+    x, y, z = axis[:, 0], axis[:, 1], axis[:, 2]
+    c, s = torch.cos(angle[:, 0]), torch.sin(angle[:, 0])
+    C = 1 - c
+    R = torch.stack(
+        [
+            c + x * x * C, x * y * C - z * s, x * z * C + y * s,
+            y * x * C + z * s, c + y * y * C, y * z * C - x * s,
+            z * x * C - y * s, z * y * C + x * s, c + z * z * C,
+        ],
+        dim=1,
+    ).view(-1, 3, 3)
+    return R
+
+
+def pose_from_axisangle(axisangle: torch.Tensor, translation: torch.Tensor, invert: bool = False) -> torch.Tensor:
+    """(B, 3), (B, 3) -> (B, 4, 4) rigid transform [R | t] (or its inverse)."""
+    R = rotation_from_axisangle(axisangle)
+    T = torch.zeros(axisangle.shape[0], 4, 4, dtype=axisangle.dtype, device=axisangle.device)
+    T[:, 3, 3] = 1.0
+    if invert:
+        Rt = R.transpose(1, 2)
+        T[:, :3, :3] = Rt
+        T[:, :3, 3] = -(Rt @ translation.unsqueeze(-1)).squeeze(-1)
+    else:
+        T[:, :3, :3] = R
+        T[:, :3, 3] = translation
+    return T
+
+
+def odometry_camera_motion(T_world_ego: torch.Tensor, T_ego_cam: torch.Tensor, offset: int) -> torch.Tensor:
+    """Camera motion from ego odometry: T_cam(t+n)_cam(t) for every camera.
+
+    T_cam(t+n)_cam(t) = inv(T_ego_cam) @ inv(T_world_ego[t+n]) @ T_world_ego[t] @ T_ego_cam
+    maps points in the camera frame at t into the same camera at t+n (the rig is rigid).
+
+    Args:
+        T_world_ego: (B, 3, 4, 4) ego poses at t-1, t, t+1.
+        T_ego_cam: (B, N, 4, 4).
+        offset: -1 or +1.
+    Returns:
+        (B, N, 4, 4) T_src_tgt with src = frame t+offset, tgt = frame t.
+    """
+    Tw = T_world_ego.double()
+    T_egon_ego0 = torch.linalg.inv(Tw[:, 1 + offset]) @ Tw[:, 1]  # (B, 4, 4)
+    Tc = T_ego_cam.double()
+    out = torch.linalg.inv(Tc) @ T_egon_ego0[:, None] @ Tc  # (B, N, 4, 4)
+    return out.to(T_ego_cam.dtype)
+
+
+def masked_median(x: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
+    """Per-image median over mask pixels: (B, 1, H, W), (B, 1, H, W) -> (B,)."""
+    v = torch.where(mask > 0, x, torch.full_like(x, float("nan"))).flatten(1)
+    med = v.nanmedian(dim=1).values
+    return torch.nan_to_num(med, nan=1.0)
+
+
+def resize_mask_to(mask: torch.Tensor, h: int, w: int) -> torch.Tensor:
+    """(B, 1, H, W) 0/1 -> (B, 1, h, w): 1 only where (almost) all covered pixels are scene."""
+    if mask.shape[-2:] == (h, w):
+        return mask
+    return (F.adaptive_avg_pool2d(mask, (h, w)) > 0.99).to(mask.dtype)
+
+
+class DepthModel(nn.Module):
+    """Depth network (+ bases and weight networks for MCDP), shared across cameras.
+
+    Args:
+        cfg: `ModelConfig`.
+    """
+
+    def __init__(self, cfg: ModelConfig):
+        super().__init__()
+        self.cfg = cfg
+        self.stages = stage_names(cfg.refine_steps)
+        self.slots = SLOTS[cfg.neighbours]
+        self.encoder = ResnetEncoder(1, cfg.pretrained)
+        init_sig = None
+        if cfg.init_depth is not None:  # invert disp_to_depth at init_depth
+            min_disp, max_disp = 1.0 / cfg.max_depth, 1.0 / cfg.min_depth
+            init_sig = (1.0 / cfg.init_depth - min_disp) / (max_disp - min_disp)
+        self.decoder = DepthDecoder(ResnetEncoder.num_ch_enc, n_out=cfg.n_out, scales=cfg.scales, init_sigmoid=init_sig)
+        c_levels = ResnetEncoder.num_ch_enc[:3]  # features at 1/2, 1/4, 1/8: 64, 64, 128 channels
+        self.weight_nets = nn.ModuleList(
+            [
+                WeightNet(
+                    c_levels,
+                    len(self.slots),
+                    cfg.n_out,
+                    c_red=cfg.weight_channels,
+                    c_conv=cfg.weight_conv_channels,
+                    c_fc=cfg.weight_fc,
+                )
+                for _ in range(cfg.refine_steps)
+            ]
+        )
+
+    def to_depth(self, sig: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """(disp, depth) of a (combined) sigmoid map with this model's depth range."""
+        return disp_to_depth(sig, self.cfg.min_depth, self.cfg.max_depth)
+
+    def forward(
+        self,
+        rgb: torch.Tensor,
+        K: torch.Tensor,
+        T_ego_cam: torch.Tensor,
+        mask: torch.Tensor,
+        nbr: torch.Tensor,
+        oracle_gt_median: torch.Tensor | None = None,
+        scales: int | None = None,
+        refine_scales: int | None = None,
+    ) -> dict:
+        """Predict every stage's depth for a batch of rigs.
+
+        Args:
+            rgb: (B, N, 3, H, W) frame-t images in [0, 1] (network input; may be colour-augmented).
+            K: (B, N, 3, 3) intrinsics at H x W.
+            T_ego_cam: (B, N, 4, 4).
+            mask: (B, N, 1, H, W) 1 = scene.
+            nbr: (N, 2) [left, right] neighbour indices, -1 = none (`mcdp.data.neighbour_table`).
+            oracle_gt_median: (B, N) ORACLE only: every depth is multiplied by
+                median(GT) / median(init depth) per image (the public reference code's scaling).
+            scales: decoder scales returned for "init" (default ``model.scales``; 1 = full resolution only).
+            refine_scales: scales returned for refined stages (default = ``scales``).
+
+        Returns:
+            dict with, for every stage name st and scale s (images flattened to B*N):
+              ("sig", st, s): (B*N, 1, H/2^s, W/2^s) combined sigmoid output,
+              ("disp", st, s): same shape, disparity of the *unscaled* depth,
+              ("depth", st, s): (B*N, 1, H, W) metres, upsampled from scale s,
+              ("weights", st): (B*N, n) basis weights,
+              "stages": list of stage names, "scale": (B*N,) depth scale applied (1 unless oracle).
+        """
+        B, N, _, H, W = rgb.shape
+        BN = B * N
+        feats = self.encoder(rgb.reshape(BN, 3, H, W))
+        bases = self.decoder(feats)  # {s: (BN, n, h, w)}
+        n_init = self.cfg.scales if scales is None else min(int(scales), self.cfg.scales)
+        n_ref = n_init if refine_scales is None else min(int(refine_scales), self.cfg.scales)
+        out: dict = {"stages": self.stages, "bases": bases}
+        n = self.cfg.n_out
+
+        def emit(stage: str, weights: torch.Tensor, scale: torch.Tensor) -> None:
+            out["weights", stage] = weights
+            for s in range(n_init if stage == "init" else n_ref):
+                sig = combine_bases(bases[s], weights) if n > 1 else bases[s]
+                disp, _ = self.to_depth(sig)
+                out["sig", stage, s] = sig
+                out["disp", stage, s] = disp
+                up = sig if s == 0 else F.interpolate(sig, size=(H, W), mode="bilinear", align_corners=False)
+                out["depth", stage, s] = self.to_depth(up)[1] * scale.view(BN, 1, 1, 1)
+
+        logits = torch.zeros(BN, n, device=rgb.device, dtype=bases[0].dtype)
+        scale = torch.ones(BN, device=rgb.device, dtype=torch.float32)
+        mask_f = mask.reshape(BN, 1, H, W)
+        if oracle_gt_median is not None:
+            with torch.no_grad():
+                sig0 = combine_bases(bases[0], torch.softmax(logits, 1)) if n > 1 else bases[0]
+                med = masked_median(self.to_depth(sig0.float())[1], mask_f.float())
+                scale = oracle_gt_median.reshape(BN).to(med.dtype) / med.clamp(min=1e-6)
+        out["scale"] = scale
+        emit("init", torch.softmax(logits, 1), scale)
+        if not self.weight_nets:
+            return out
+
+        # Feature pyramid at 1/2 resolution (paper: 1/2, 1/4, 1/8 resized to 1/2), reduced by each
+        # step's PyramidReduce; ego body zeroed.
+        h, w = feats[0].shape[-2:]
+        mask_h = resize_mask_to(mask_f, h, w)  # (BN, 1, h, w)
+        K_h = scale_intrinsics(K.reshape(BN, 3, 3), w / W, h / H).reshape(B, N, 3, 3)
+        T_ego_cam = T_ego_cam.float()
+        T_cam_ego = torch.linalg.inv(T_ego_cam)
+        has = (nbr >= 0).float()  # (N, 2)
+        idx = nbr.clamp(min=0)  # (N, 2)
+        for k, wnet in enumerate(self.weight_nets, start=1):
+            prev = self.stages[k - 1]
+            # The depth that places the neighbours' features is taken as given: the
+            # refinement loss should change the weights, not move the previous
+            # stage's depth through sampling coordinates.
+            if 1 in bases:  # the decoder's 1/2-scale output is at the feature resolution
+                sig_h = combine_bases(bases[1], out["weights", prev]) if n > 1 else bases[1]
+            else:
+                sig_h = F.interpolate(out["sig", prev, 0], size=(h, w), mode="bilinear", align_corners=False)
+            depth_h = (self.to_depth(sig_h)[1] * scale.view(BN, 1, 1, 1)).detach()
+            red = wnet.reduce(feats[:3]) * mask_h  # (BN, c, h, w)
+            c = red.shape[1]
+            red_src = torch.cat([red, mask_h], 1).reshape(B, N, c + 1, h, w)
+            parts, valids = [red], []
+            for slot in self.slots:
+                j = idx[:, slot]  # (N,)
+                src = red_src[:, j].reshape(BN, c + 1, h, w)
+                T_src_tgt = (T_cam_ego[:, j] @ T_ego_cam).reshape(BN, 4, 4)
+                with torch.autocast(rgb.device.type, enabled=False):  # geometry in float32 under AMP
+                    warped, valid = warp_by_depth(
+                        src.float(), depth_h.float(), K_h.reshape(BN, 3, 3).float(),
+                        K_h[:, j].reshape(BN, 3, 3).float(), T_src_tgt.float(),
+                    )
+                warped = warped.to(red.dtype)
+                valid = valid.to(red.dtype)
+                valid = valid * (warped[:, c:] > 0.99).to(valid.dtype) * has[:, slot].repeat(B).view(BN, 1, 1, 1)
+                valid = valid * mask_h
+                parts.append(warped[:, :c] * valid)
+                valids.append(valid)
+            logits = logits + wnet(torch.cat(parts + valids, 1))
+            emit(self.stages[k], torch.softmax(logits, 1), scale)
+        return out
+
+
+class PoseModel(nn.Module):
+    """Monodepth2 pose network shared across cameras (and frames).
+
+    forward(rgb (B, N, 3 frames, 3, H, W)) -> {offset: (B, N, 4, 4) T_src_tgt}
+    for offset in (-1, +1): maps frame-t camera points into the camera at t+offset.
+    Pairs are fed in temporal order ([t-1, t] and [t, t+1]); the -1 motion is inverted,
+    as in Monodepth2.
+    """
+
+    def __init__(self, pretrained: str | None = None):
+        super().__init__()
+        self.net = PoseNet(pretrained)
+
+    def forward(self, rgb: torch.Tensor) -> dict[int, torch.Tensor]:
+        B, N, _, C, H, W = rgb.shape
+        a = torch.cat([rgb[:, :, 0], rgb[:, :, 1]], 0).reshape(2 * B * N, C, H, W)  # earlier frames
+        b = torch.cat([rgb[:, :, 1], rgb[:, :, 2]], 0).reshape(2 * B * N, C, H, W)  # later frames
+        axisangle, translation = self.net(a, b)  # (2BN, 3) each
+        aa_m, aa_p = axisangle.float().split(B * N)
+        t_m, t_p = translation.float().split(B * N)
+        return {
+            -1: pose_from_axisangle(aa_m, t_m, invert=True).view(B, N, 4, 4),
+            1: pose_from_axisangle(aa_p, t_p, invert=False).view(B, N, 4, 4),
+        }

@@ -1,0 +1,200 @@
+"""Inference with a trained run: depth of every stage at the dataset resolution, plus outputs on disk.
+
+`Predictor(run_dir, ds)` loads a checkpoint and answers ``predict(seq, frame)
+-> {stage: (N, H, W) float32 metres}`` (the ``predict_fn`` of
+`mcdp.evaluate.evaluate`). The network runs at the training size; depth is
+upsampled bilinearly to each camera's dataset size. Only frame t is used (no
+temporal neighbours, no pose network). No ground truth is read, except by a
+run trained with ``scale.source=oracle_gt_median``, which rescales by the GT
+median exactly as in training and is labelled ORACLE (`Predictor.oracle`).
+
+`write_prediction` writes, per rig sample::
+
+    PRED/<seq>/<frame:06d>_grid.png          row 1 RGB, then one colour-mapped
+                                             disparity row per stage; 6 cameras side by side
+    PRED/<seq>/<CAM>/<frame:06d>.depth.exr   final-stage z-depth, metres (channel "Z")
+    PRED/<seq>/<frame:06d>.ply               optional: coloured point cloud of the rig, ego frame
+
+Example::
+
+    mcdp predict runs/m1 --data data/tiny --out pred --ply
+"""
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import torch
+import torch.nn.functional as F
+
+from mcdp.data import RigReader, neighbour_table
+from mcdp.model import DepthModel
+from mcdp.trainer import RunError, config_from_checkpoint, load_checkpoint, resolve_device
+
+
+def find_checkpoint(run_dir: str | Path, which: str = "auto") -> Path:
+    """``auto``: best.pt if present else last.pt; ``best`` | ``last``; or a path to a .pt file."""
+    run_dir = Path(run_dir)
+    if which not in ("auto", "best", "last"):
+        p = Path(which)
+        if not p.is_file():
+            raise RunError(f"checkpoint {p} does not exist")
+        return p
+    if not run_dir.is_dir():
+        raise RunError(f"run folder {run_dir} does not exist (train first: mcdp train PRESET --data DATA --out {run_dir})")
+    ck = run_dir / "checkpoints"
+    names = {"auto": ["best.pt", "last.pt"], "best": ["best.pt"], "last": ["last.pt"]}[which]
+    for n in names:
+        if (ck / n).is_file():
+            return ck / n
+    raise RunError(f"run folder {run_dir} has no checkpoint {' or '.join(names)} in {ck}")
+
+
+class Predictor:
+    """Depth of every stage for rig samples of a dataset, from a run's checkpoint.
+
+    Args:
+        run_dir: run folder (or None when ``checkpoint`` is a path).
+        ds: opened `synth.dataset` dataset with the same cameras as in training.
+        checkpoint: ``auto`` | ``best`` | ``last`` | path.
+        device: ``auto`` | ``cpu`` | ``cuda``.
+    """
+
+    def __init__(self, run_dir, ds, checkpoint: str = "auto", device: str = "auto"):
+        self.ckpt_path = find_checkpoint(run_dir, checkpoint) if run_dir is not None else Path(checkpoint)
+        ckpt = load_checkpoint(self.ckpt_path)
+        self.cfg = config_from_checkpoint(ckpt, source=str(self.ckpt_path))
+        self.step = int(ckpt["step"])
+        trained_cams = ckpt.get("cameras")
+        if trained_cams is not None and list(trained_cams) != list(ds.camera_names):
+            raise RunError(
+                f"dataset {ds.root} has cameras {list(ds.camera_names)}, the run was trained on {list(trained_cams)}"
+            )
+        self.ds = ds
+        self.device = resolve_device(device)
+        self.model = DepthModel(self.cfg.model).to(self.device)
+        self.model.load_state_dict(ckpt["depth_model"])
+        self.model.eval()
+        self.reader = RigReader(ds, self.cfg.train.height, self.cfg.train.width)
+        self.nbr = neighbour_table(ds.neighbours, len(ds.camera_names)).to(self.device)
+        self.K = torch.from_numpy(self.reader.K).to(self.device)[None]
+        self.T_ego_cam = torch.from_numpy(self.reader.T_ego_cam).to(self.device)[None]
+        self.mask = torch.from_numpy(self.reader.mask).to(self.device)[None]
+        self.oracle = self.cfg.scale.oracle
+        self.stages = list(self.model.stages)
+
+    @torch.no_grad()
+    def predict_train_size(self, seq: str, frame: int) -> tuple[dict, np.ndarray]:
+        """({stage: (N, 1, h, w) tensor metres at training size}, rgb (N, 3, h, w))."""
+        rgb = self.reader.rgb(seq, frame)
+        x = torch.from_numpy(rgb).to(self.device)[None]
+        gtm = None
+        if self.oracle:  # ORACLE: the reference code's ground-truth median scaling
+            gtm = torch.from_numpy(self.reader.gt_median(seq, frame)).to(self.device)[None]
+        out = self.model(x, self.K, self.T_ego_cam, self.mask, self.nbr, gtm, scales=1)
+        return {st: out["depth", st, 0].float() for st in self.stages}, rgb
+
+    def predict(self, seq: str, frame: int) -> dict[str, np.ndarray]:
+        """{stage: (N, H, W) float32 metres at the dataset resolution}, stages in order."""
+        small, _ = self.predict_train_size(seq, frame)
+        res = {}
+        for st, d in small.items():
+            cams = []
+            for c, spec in enumerate(self.ds.cameras):
+                up = F.interpolate(d[c : c + 1], size=(spec.height, spec.width), mode="bilinear", align_corners=False)
+                cams.append(up[0, 0].cpu().numpy().astype(np.float32))
+            shapes = {a.shape for a in cams}
+            res[st] = np.stack(cams) if len(shapes) == 1 else cams
+        return res
+
+    __call__ = predict
+
+
+# --------------------------------------------------------------------------- outputs
+def colorize_disparity(disp: np.ndarray, vmax_percentile: float = 95.0) -> np.ndarray:
+    """(..., H, W) disparity -> (..., H, W, 3) uint8 'magma' image, normalised per map (Monodepth2 style)."""
+    import matplotlib
+
+    cmap = matplotlib.colormaps["magma"]
+    d = np.asarray(disp, dtype=np.float64)
+    flat = d.reshape(-1, *d.shape[-2:]) if d.ndim > 2 else d[None]
+    out = np.empty(flat.shape + (3,), dtype=np.uint8)
+    for i, m in enumerate(flat):
+        lo, hi = float(m.min()), float(np.percentile(m, vmax_percentile))
+        n = np.clip((m - lo) / max(hi - lo, 1e-12), 0, 1)
+        out[i] = (cmap(n)[..., :3] * 255).astype(np.uint8)
+    return out.reshape(d.shape + (3,))
+
+
+def depth_grid(rgb: list[np.ndarray], depths: dict[str, list[np.ndarray]]) -> np.ndarray:
+    """Rows: RGB, then one colour-mapped disparity row per stage; cameras side by side -> (H', W', 3) uint8."""
+    rows = [np.concatenate(rgb, axis=1)]
+    for _, ds in depths.items():
+        rows.append(np.concatenate([colorize_disparity(1.0 / np.maximum(d, 1e-6)) for d in ds], axis=1))
+    return np.concatenate(rows, axis=0)
+
+
+def rig_point_cloud(
+    ds, depths: list[np.ndarray], rgbs: list[np.ndarray], stride: int = 2, max_depth: float = 80.0
+) -> tuple[np.ndarray, np.ndarray]:
+    """Points of every camera in the ego frame: (M, 3) float32 metres, (M, 3) uint8 colours.
+
+    Ego-body pixels (mask) and depths beyond max_depth are dropped; every
+    ``stride``-th pixel in each direction is used.
+    """
+    pts, cols = [], []
+    for c, spec in enumerate(ds.cameras):
+        d = depths[c]
+        H, W = d.shape
+        v, u = np.mgrid[0:H:stride, 0:W:stride]
+        z = d[v, u]
+        keep = (z > 0) & (z <= max_depth) & np.asarray(ds.mask(spec.name), bool)[v, u]
+        uv1 = np.stack([u[keep] + 0.5, v[keep] + 0.5, np.ones(keep.sum())], 0)  # pixel centres at +0.5
+        X = np.linalg.inv(np.asarray(spec.K, float)) @ uv1 * z[keep]
+        T = np.asarray(spec.T_ego_cam, float)
+        pts.append((T[:3, :3] @ X + T[:3, 3:4]).T)
+        cols.append(rgbs[c][v[keep], u[keep]])
+    return np.concatenate(pts).astype(np.float32), np.concatenate(cols).astype(np.uint8)
+
+
+def write_ply(path: str | Path, points: np.ndarray, colors: np.ndarray) -> None:
+    """Binary little-endian PLY with float xyz and uchar rgb."""
+    n = len(points)
+    header = (
+        "ply\nformat binary_little_endian 1.0\n"
+        f"element vertex {n}\nproperty float x\nproperty float y\nproperty float z\n"
+        "property uchar red\nproperty uchar green\nproperty uchar blue\nend_header\n"
+    )
+    rec = np.empty(n, dtype=[("x", "<f4"), ("y", "<f4"), ("z", "<f4"), ("r", "u1"), ("g", "u1"), ("b", "u1")])
+    rec["x"], rec["y"], rec["z"] = points[:, 0], points[:, 1], points[:, 2]
+    rec["r"], rec["g"], rec["b"] = colors[:, 0], colors[:, 1], colors[:, 2]
+    with open(path, "wb") as f:
+        f.write(header.encode("ascii"))
+        f.write(rec.tobytes())
+
+
+def write_prediction(pred: Predictor, seq: str, frame: int, out_dir: str | Path, ply: bool = False) -> list[Path]:
+    """Write the grid PNG, final-stage EXR depth per camera and (optionally) the PLY of one rig sample."""
+    from synth.dataset import frame_stem, write_depth_exr, write_png
+
+    out = Path(out_dir) / seq
+    out.mkdir(parents=True, exist_ok=True)
+    depths = pred.predict(seq, frame)
+    rgbs = [pred.ds.read_rgb(seq, n, frame) for n in pred.ds.camera_names]
+    final = depths[pred.stages[-1]]
+    written = []
+    grid = depth_grid(rgbs, {st: list(d) for st, d in depths.items()})
+    p = out / f"{frame_stem(frame)}_grid.png"
+    write_png(p, grid)
+    written.append(p)
+    for c, name in enumerate(pred.ds.camera_names):
+        (out / name).mkdir(exist_ok=True)
+        p = out / name / f"{frame_stem(frame)}.depth.exr"
+        write_depth_exr(p, np.ascontiguousarray(final[c], dtype=np.float32))
+        written.append(p)
+    if ply:
+        pts, cols = rig_point_cloud(pred.ds, list(final), rgbs)
+        p = out / f"{frame_stem(frame)}.ply"
+        write_ply(p, pts, cols)
+        written.append(p)
+    return written
