@@ -2,5 +2,7 @@
 
 Example::
 
-    mcdp eval --run runs/mcdp_tiny --data data/tiny
+    mcdp train configs/train/mcdp_m2.yaml --data data/default --out runs/m2
+    mcdp eval runs/m2 --data data/default --split test
+    mcdp sweep configs/sweep/ci.yaml --out sweeps/ci
 """

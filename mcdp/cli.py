@@ -1,0 +1,241 @@
+"""The ``mcdp`` command line: train, evaluate and run MCDP / Monodepth2 models on synth datasets.
+
+::
+
+    mcdp train configs/train/<preset>.yaml --data DATA --out RUN [key=value ...]   # resumes if RUN has a checkpoint
+    mcdp eval RUN --data DATA [--split test] [--out metrics.json] [--checkpoint auto|best|last|PATH] [eval.key=value ...]
+    mcdp predict RUN --data DATA --out PRED [--split test] [--max-samples N] [--ply]
+
+Exit codes: 0 success, 2 bad input (config, dataset, run folder; a message on
+stderr, no traceback), 3 training diverged (NaN/inf loss), 130 interrupted.
+
+Subcommands are registered in `COMMANDS` as (name, add_arguments, run); a new
+one (e.g. ``sweep``) is one more entry.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from pathlib import Path
+from typing import Callable
+
+EXIT_USAGE = 2
+EXIT_DIVERGED = 3
+
+
+def _user_errors() -> tuple[type[BaseException], ...]:
+    from mcdp.networks import NetworkError
+    from mcdp.trainer import RunError
+    from synth.configlib import ConfigError
+    from synth.dataset import DatasetError
+    from synth.render import OutputFolderError
+
+    return (ConfigError, DatasetError, RunError, NetworkError, OutputFolderError)
+
+
+def _open_dataset(path: str):
+    from synth.dataset import open_dataset
+
+    return open_dataset(path)
+
+
+# --------------------------------------------------------------------------- train
+def _train_args(p: argparse.ArgumentParser) -> None:
+    p.add_argument("preset", help="training preset YAML, e.g. configs/train/mcdp_m1.yaml")
+    p.add_argument("--data", required=True, help="dataset folder (synth render output)")
+    p.add_argument("--out", required=True, help="run folder; training resumes if it holds checkpoints/last.pt")
+    p.add_argument("--no-progress", action="store_true", help="no progress bar")
+    p.add_argument("overrides", nargs="*", help="config overrides key=value, e.g. train.steps=100 model.bases=16")
+
+
+def _train(args: argparse.Namespace) -> int:
+    from mcdp.config import RunConfig
+    from mcdp.trainer import Trainer
+    from synth.configlib import load_config
+
+    cfg = load_config(RunConfig, args.preset, args.overrides)
+    ds = _open_dataset(args.data)
+    trainer = Trainer(cfg, ds, args.out, progress=not args.no_progress)
+    m, tc = cfg.model, cfg.train
+    n_params = sum(p.numel() for p in trainer.depth.parameters())
+    print(
+        f"mcdp train: method={m.method} bases={m.n_out} refine_steps={m.refine_steps} neighbours={m.neighbours} "
+        f"lambda={cfg.loss.consistency_weight} scale={cfg.scale.source}"
+        + (" [ORACLE: uses ground-truth median scale]" if cfg.scale.oracle else ""),
+        file=sys.stderr,
+    )
+    print(
+        f"  {len(ds.camera_names)} cameras, {len(trainer.train_set)} train / {len(trainer.val_set)} val rig samples, "
+        f"{tc.height}x{tc.width}, batch {tc.batch_size}, depth net {n_params / 1e6:.2f} M params, "
+        f"device {trainer.device}" + (f", resuming at step {trainer.step}" if trainer.step else ""),
+        file=sys.stderr,
+    )
+    try:
+        summary = trainer.train()
+    finally:
+        trainer.close()
+    print(
+        f"mcdp train: step {summary['steps']} ({summary['trained']} this run), "
+        f"best val loss {summary['best_val']:.4f}, checkpoints in {Path(args.out) / 'checkpoints'}",
+        file=sys.stderr,
+    )
+    return 0
+
+
+# --------------------------------------------------------------------------- eval
+def _eval_args(p: argparse.ArgumentParser) -> None:
+    p.add_argument("run", help="run folder written by mcdp train")
+    p.add_argument("--data", required=True, help="dataset folder with ground-truth depth")
+    p.add_argument("--split", default="test", choices=["train", "val", "test"], help="split to evaluate (default test)")
+    p.add_argument("--out", default=None, help="metrics.json path (default RUN/metrics_<split>.json)")
+    p.add_argument(
+        "--checkpoint", default="auto", help="auto (best.pt by val loss, else last.pt) | best | last | path"
+    )
+    p.add_argument("--stage", default="final", help="stage whose tables are printed (all stages are saved)")
+    p.add_argument("--device", default="auto", choices=["auto", "cpu", "cuda"])
+    p.add_argument("--no-progress", action="store_true")
+    p.add_argument("overrides", nargs="*", help="evaluation overrides eval.key=value, e.g. eval.max_depth=60")
+
+
+def _eval_config(cfg, overrides: list[str]):
+    from mcdp.evaluate import EvalConfig
+    from synth.configlib import ConfigError, build_config, config_to_dict, deep_merge, parse_overrides
+
+    ov = parse_overrides(overrides)
+    bad = [k for k in ov if k != "eval"]
+    if bad:
+        raise ConfigError(f"eval accepts only eval.* overrides, got {', '.join(bad)}")
+    data = deep_merge(config_to_dict(cfg.eval), ov.get("eval", {}))
+    return build_config(EvalConfig, data, source="eval overrides " + " ".join(overrides))
+
+
+def _eval(args: argparse.Namespace) -> int:
+    from mcdp.evaluate import evaluate, format_tables
+    from mcdp.predict import Predictor
+    from mcdp.trainer import RunError
+    from synth.configlib import config_to_dict
+
+    ds = _open_dataset(args.data)
+    if not ds.has_depth:
+        raise RunError(f"dataset {args.data} has no ground-truth depth (manifest has_depth=false); eval needs it")
+    pred = Predictor(args.run, ds, args.checkpoint, args.device)
+    ecfg = _eval_config(pred.cfg, args.overrides)
+    seqs = ds.split(args.split)
+    if seqs:  # fail early, with the file name, if the depth layer is missing
+        probe = ds.depth_path(seqs[0], ds.camera_names[0], 0)
+        if not probe.is_file():
+            raise RunError(f"dataset {args.data} has no ground-truth depth ({probe} is missing); eval needs it")
+    label = " [ORACLE: ground-truth median scale at inference]" if pred.oracle else ""
+    print(f"mcdp eval: {pred.ckpt_path} (step {pred.step}) on {args.data} split {args.split}{label}", file=sys.stderr)
+    metrics = evaluate(ds, pred.predict, args.split, ecfg, progress=not args.no_progress)
+    metrics["run"] = {
+        "run_dir": str(Path(args.run)),
+        "checkpoint": str(pred.ckpt_path),
+        "step": pred.step,
+        "method": pred.cfg.model.method,
+        "refine_steps": pred.cfg.model.refine_steps,
+        "bases": pred.cfg.model.n_out,
+        "consistency_weight": pred.cfg.loss.consistency_weight,
+        "scale_source": pred.cfg.scale.source,
+        "oracle": pred.oracle,
+        "data": str(Path(args.data)),
+        "config": config_to_dict(pred.cfg),
+    }
+    out = Path(args.out) if args.out else Path(args.run) / f"metrics_{args.split}.json"
+    out.parent.mkdir(parents=True, exist_ok=True)
+    tmp = out.with_name(out.name + ".tmp")
+    tmp.write_text(json.dumps(metrics, indent=1, allow_nan=True))
+    tmp.replace(out)
+    if pred.oracle:
+        print("ORACLE RUN: depth scaled by the ground-truth median (scale.source=oracle_gt_median)")
+    print(format_tables(metrics, args.stage))
+    print(f"\nmetrics written to {out}", file=sys.stderr)
+    return 0
+
+
+# --------------------------------------------------------------------------- predict
+def _predict_args(p: argparse.ArgumentParser) -> None:
+    p.add_argument("run", help="run folder written by mcdp train")
+    p.add_argument("--data", required=True, help="dataset folder")
+    p.add_argument("--out", required=True, help="output folder")
+    p.add_argument("--split", default="test", choices=["train", "val", "test"])
+    p.add_argument("--max-samples", type=int, default=None, help="at most this many rig samples")
+    p.add_argument("--stride", type=int, default=1, help="every k-th frame")
+    p.add_argument("--ply", action="store_true", help="also write a coloured PLY point cloud of the rig (ego frame)")
+    p.add_argument("--checkpoint", default="auto", help="auto | best | last | path")
+    p.add_argument("--device", default="auto", choices=["auto", "cpu", "cuda"])
+
+
+def _predict(args: argparse.Namespace) -> int:
+    from mcdp.predict import Predictor, write_prediction
+    from mcdp.trainer import RunError
+
+    if args.stride < 1 or (args.max_samples is not None and args.max_samples < 1):
+        raise RunError("--stride and --max-samples must be >= 1")
+    ds = _open_dataset(args.data)
+    pred = Predictor(args.run, ds, args.checkpoint, args.device)
+    samples = [(s, f) for s in ds.split(args.split) for f in range(0, ds.n_frames(s), args.stride)]
+    if args.max_samples is not None:
+        samples = samples[: args.max_samples]
+    label = " [ORACLE]" if pred.oracle else ""
+    print(f"mcdp predict: {pred.ckpt_path} (step {pred.step}), {len(samples)} rig samples -> {args.out}{label}",
+          file=sys.stderr)
+    n = 0
+    for seq, f in samples:
+        n += len(write_prediction(pred, seq, f, args.out, ply=args.ply))
+    print(f"mcdp predict: wrote {n} files", file=sys.stderr)
+    return 0
+
+
+# --------------------------------------------------------------------------- main
+COMMANDS: list[tuple[str, str, Callable, Callable]] = [
+    ("train", "train a model (resumes if RUN has a checkpoint)", _train_args, _train),
+    ("eval", "evaluate a run on a split -> metrics.json and per-camera tables", _eval_args, _eval),
+    ("predict", "write depth grids, EXR depth and optional PLY for a split", _predict_args, _predict),
+]
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(prog="mcdp", description=__doc__.split("\n")[0])
+    sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
+    for name, help_, add_args, run in COMMANDS:
+        p = sub.add_parser(name, help=help_, description=help_)
+        add_args(p)
+        p.set_defaults(_run=run)
+    from mcdp.sweep import add_sweep_parser
+
+    add_sweep_parser(sub)  # mcdp sweep PRESET --out SWEEP [key=value ...]
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = build_parser()
+    try:
+        # key=value overrides may come before or after the options (argparse would only
+        # take positionals in one run), so unknown key=value words are collected here.
+        args, extra = parser.parse_known_args(argv)
+        stray = [e for e in extra if e.startswith("-") or "=" not in e]
+        if stray or (extra and not hasattr(args, "overrides")):
+            parser.error(f"unrecognized arguments: {' '.join(stray or extra)}")
+        if extra:
+            args.overrides = list(args.overrides) + extra
+    except SystemExit as exc:  # argparse already printed usage + error
+        return int(exc.code or 0)
+    from mcdp.trainer import TrainingDiverged
+
+    try:
+        return int(args._run(args) or 0)
+    except _user_errors() as exc:
+        print(f"mcdp {args.command}: error: {exc}", file=sys.stderr)
+        return EXIT_USAGE
+    except TrainingDiverged as exc:
+        print(f"mcdp {args.command}: training diverged: {exc}", file=sys.stderr)
+        return EXIT_DIVERGED
+    except KeyboardInterrupt:
+        print(f"mcdp {args.command}: interrupted", file=sys.stderr)
+        return 130
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,151 @@
+"""The overlap sweep: config validation, and configs/sweep/ci.yaml end to end (render, train, eval,
+report), then a rerun that skips everything, then a longer training that resumes from the checkpoint."""
+from __future__ import annotations
+
+import csv
+import json
+import math
+from pathlib import Path
+
+import pytest
+
+from mcdp import sweep
+from synth.configlib import ConfigError
+
+ROOT = Path(__file__).resolve().parents[2]
+CI = ROOT / "configs" / "sweep" / "ci.yaml"
+
+
+# --------------------------------------------------------------------------- config (fast)
+def test_presets_load():
+    for name in ("ci", "cpu", "gpu"):
+        cfg = sweep.load_sweep_config(ROOT / "configs" / "sweep" / f"{name}.yaml")
+        assert cfg.overlap_mode == "spacing"
+        assert all(0.10 <= o <= 0.60 for o in cfg.overlaps)
+        for m in cfg.methods:  # every method preset resolves
+            sweep.run_config_for(cfg, m, cfg.seeds[0])
+        sweep.data_config_for(cfg, cfg.overlaps[0])
+
+
+def test_default_overlaps_and_methods():
+    cfg = sweep.SweepConfig()
+    assert cfg.overlaps == pytest.approx([0.1, 0.2, 0.3, 0.4, 0.5, 0.6])
+    assert cfg.methods == ["mono2", "mcdp_m0", "mcdp_m1_nocon", "mcdp_m1", "mcdp_m2"]
+    assert cfg.seeds == [0]
+
+
+@pytest.mark.parametrize(
+    "override, key",
+    [
+        ("overlaps=[0.05,0.2]", "overlaps"),
+        ("overlaps=[0.7]", "overlaps"),
+        ("overlaps=[]", "overlaps"),
+        ("methods=[mono3]", "methods"),
+        ("data_overrides=[rig.overlap=0.3]", "data_overrides"),
+        ("train_overrides=[train.seed=3]", "train_overrides"),
+        ("seeds=[1,1]", "seeds"),
+        ("nonsense=1", "nonsense"),
+        ("eval.min_depth=90", "eval"),
+    ],
+)
+def test_bad_config_names_key(override, key):
+    with pytest.raises(ConfigError, match=key):
+        sweep.load_sweep_config(CI, [override])
+
+
+def test_overlaps_sorted_and_run_config_gets_seed_and_eval():
+    cfg = sweep.load_sweep_config(CI, ["overlaps=[0.5,0.2]", "seeds=[3]", "eval.max_depth=60.0"])
+    assert cfg.overlaps == [0.2, 0.5]
+    rcfg, _ = sweep.run_config_for(cfg, "mcdp_m1", 3)
+    assert rcfg.train.seed == 3 and rcfg.train.steps == 2 and rcfg.eval.max_depth == 60.0
+    dcfg = sweep.data_config_for(cfg, 0.5)
+    assert dcfg.rig.overlap == 0.5 and dcfg.rig.overlap_mode == "spacing" and dcfg.dataset.frames == 4
+
+
+def test_cli_usage_error_returns_2(tmp_path, capsys):
+    assert sweep.main([str(CI), "--out", str(tmp_path / "s"), "overlaps=[0.9]"]) == 2
+    err = capsys.readouterr().err
+    assert "overlaps must be in [0.10, 0.60]" in err and "unrecognized" not in err
+
+
+def test_overrides_may_follow_options():
+    import argparse
+
+    parser = argparse.ArgumentParser(prog="mcdp")
+    sub = parser.add_subparsers(dest="command", required=True)
+    sweep.add_sweep_parser(sub)
+    args = parser.parse_args(["sweep", "p.yaml", "a=1", "--out", "d", "--no-progress", "b=2", "c=[0.2,0.3]"])
+    assert (args.preset, args.out, args.no_progress, args.overrides) == ("p.yaml", "d", True, ["a=1", "b=2", "c=[0.2,0.3]"])
+    assert args._run is sweep.run_sweep_command
+
+
+# --------------------------------------------------------------------------- end to end (ci preset)
+def _finite(x) -> bool:
+    return isinstance(x, (int, float)) and math.isfinite(x)
+
+
+def test_ci_sweep_end_to_end_rerun_and_resume(tmp_path):
+    out = tmp_path / "sweep"
+    cfg = sweep.load_sweep_config(CI)
+    n = len(cfg.overlaps) * len(cfg.methods) * len(cfg.seeds)
+    assert sweep.main([str(CI), "--out", str(out), "--no-progress"]) == 0
+
+    for f in ["report.md", "results.csv", "results.json", "sweep_config.yaml",
+              "plots/abs_rel_vs_overlap.png", "plots/dep_con_vs_overlap.png",
+              "plots/overlap_vs_non_overlap_abs_rel.png", "plots/measured_overlap.png",
+              "preview_overlap_0.20.png", "preview_overlap_0.50.png"]:
+        assert (out / f).is_file() and (out / f).stat().st_size > 0, f
+
+    res = json.loads((out / "results.json").read_text())
+    c = res["counters"]
+    assert (c["rendered"], c["trained"], c["evaluated"], c["diverged"]) == (2, n, n, 0)
+    assert (c["render_skipped"], c["train_skipped"], c["eval_skipped"]) == (0, 0, 0)
+    assert res["seeds"] == [0]
+    for d in res["data"]:
+        assert _finite(d["measured"]["measured_mean"]) and d["measured"]["target"] == pytest.approx(d["overlap"])
+        assert _finite(d["render_s"])
+    seen = set()
+    for r in res["rows"]:
+        seen.add((r["overlap"], r["method"]))
+        assert r["status"] == "ok"
+        m = r["metrics"]
+        for sc in ("none", "median"):
+            assert _finite(m[sc]["mean"]["abs_rel"]), (r["overlap"], r["method"], sc)
+            assert _finite(m[sc]["non_overlap"]["abs_rel"]), (r["overlap"], r["method"], sc)
+        assert _finite(m["dep_con"]["mean"]), (r["overlap"], r["method"])
+        assert _finite(r["train_s"]) and _finite(r["eval_s"])
+        run = Path(r["run_dir"])
+        assert (run / "config.yaml").is_file() and (run / "metrics_test.json").is_file()
+        assert (run / "checkpoints" / "last.pt").is_file()
+    assert seen == {(o, m) for o in cfg.overlaps for m in cfg.methods}
+
+    rows = list(csv.DictReader((out / "results.csv").open()))
+    assert len(rows) == n
+    for row in rows:
+        for k in ("none.mean.abs_rel", "median.mean.abs_rel", "dep_con.mean", "measured_overlap"):
+            assert math.isfinite(float(row[k])), (row["overlap"], row["method"], k)
+
+    report = (out / "report.md").read_text()
+    for o in ("0.20", "0.50"):
+        assert f"## Overlap {o}" in report
+    for label in ("Mono2", "MCDP (m = 0)", "MCDP (w/o L_con, m = 1)", "MCDP (m = 1)", "MCDP (m = 2)"):
+        assert label in report
+    assert "Dep Con per camera" in report and "non-overlap" in report and "Time per stage" in report
+    assert "seeds: [0]" in report
+
+    # rerun: a no-op that skips every stage and reports the same numbers
+    assert sweep.main([str(CI), "--out", str(out), "--no-progress"]) == 0
+    res2 = json.loads((out / "results.json").read_text())
+    c2 = res2["counters"]
+    assert (c2["rendered"], c2["trained"], c2["evaluated"]) == (0, 0, 0)
+    assert (c2["render_skipped"], c2["train_skipped"], c2["eval_skipped"]) == (2, n, n)
+    assert [r["metrics"] for r in res2["rows"]] == [r["metrics"] for r in res["rows"]]
+
+    # more steps for one run: training resumes from its checkpoint (step 2 -> 3), nothing is re-rendered
+    steps3 = [s.replace("train.steps=2", "train.steps=3") for s in cfg.train_overrides]
+    assert sweep.main([str(CI), "--out", str(out), "--no-progress", "methods=[mono2]", "overlaps=[0.2]",
+                       "train_overrides=[" + ",".join(steps3) + "]"]) == 0
+    res3 = json.loads((out / "results.json").read_text())
+    c3 = res3["counters"]
+    assert (c3["render_skipped"], c3["trained"], c3["train_resumed"], c3["evaluated"]) == (1, 1, 1, 1)
+    assert res3["rows"][0]["steps"] == 3
