@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import hashlib
 import json
+import re
 from pathlib import Path
 from typing import Any, Iterable, Type, TypeVar
 
@@ -47,6 +48,27 @@ def _format_validation_error(err: ValidationError, source: str) -> str:
     return f"invalid config ({source}):\n" + "\n".join(lines)
 
 
+class _Loader(yaml.SafeLoader):
+    """SafeLoader that also reads ``1e-4`` / ``3E5`` as floats (YAML 1.2; PyYAML's 1.1
+    resolver needs a dot, so ``lr: 1e-4`` would otherwise arrive as a string)."""
+
+
+_Loader.add_implicit_resolver(
+    "tag:yaml.org,2002:float",
+    re.compile(r"""^(?:[-+]?(?:[0-9][0-9_]*)\.[0-9_]*(?:[eE][-+]?[0-9]+)?
+                 |[-+]?(?:[0-9][0-9_]*)(?:[eE][-+]?[0-9]+)
+                 |\.[0-9_]+(?:[eE][-+]?[0-9]+)?
+                 |[-+]?\.(?:inf|Inf|INF)
+                 |\.(?:nan|NaN|NAN))$""", re.X),
+    list("-+0123456789."),
+)
+
+
+def load_yaml_text(text: str) -> Any:
+    """Parse YAML text with the project's loader (safe, scientific floats)."""
+    return yaml.load(text, Loader=_Loader)
+
+
 def parse_overrides(overrides: Iterable[str]) -> dict[str, Any]:
     """Parse ``a.b=value`` strings into a nested dict; values are parsed as YAML scalars/lists."""
     out: dict[str, Any] = {}
@@ -58,7 +80,7 @@ def parse_overrides(overrides: Iterable[str]) -> dict[str, Any]:
         if not key or any(not part for part in key.split(".")):
             raise ConfigError(f"override {item!r} has an empty key")
         try:
-            value = yaml.safe_load(raw) if raw.strip() != "" else ""
+            value = load_yaml_text(raw) if raw.strip() != "" else ""
         except yaml.YAMLError as exc:
             raise ConfigError(f"override {key}: cannot parse value {raw!r}: {exc}") from None
         node = out
@@ -88,7 +110,7 @@ def read_yaml(path: str | Path) -> dict[str, Any]:
     if not p.is_file():
         raise ConfigError(f"config file {p} does not exist")
     try:
-        data = yaml.safe_load(p.read_text())
+        data = load_yaml_text(p.read_text())
     except yaml.YAMLError as exc:
         raise ConfigError(f"config file {p} is not valid YAML: {exc}") from None
     if data is None:

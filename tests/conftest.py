@@ -6,6 +6,14 @@ from pathlib import Path
 
 import pytest
 
+# Import torch (and the parts of it that load triton's LLVM) BEFORE any test renders in
+# this process: loading that LLVM after Mesa llvmpipe's has segfaulted `import torch.fx`.
+# The `synth` and `mcdp` CLIs never mix the two in one process order that triggers it
+# (mcdp imports torch first; render workers are spawned processes).
+import torch  # noqa: F401,E402
+import torch.fx  # noqa: F401,E402
+import torchvision  # noqa: F401,E402
+
 ROOT = Path(__file__).resolve().parents[1]
 TINY = ROOT / "configs" / "data" / "tiny.yaml"
 
