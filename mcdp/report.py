@@ -386,8 +386,10 @@ def format_report(results: dict, plots: list[str]) -> str:
             cells.append(" ; ".join(f"{_sec(r.get('train_s'))} / {_sec(r.get('eval_s'))}" for r in rs))
         add(f"| {o:.2f} | {_sec(d['render_s'])} | " + " | ".join(cells) + " |")
     t = results["timing"]
+    jobs = results.get("sweep_config", {}).get("jobs", 1)
     add(f"\nTotals: render {_sec(t['render_s'])}, train {_sec(t['train_s'])}, eval {_sec(t['eval_s'])}; "
-        f"latest invocation {_sec(t['this_invocation_s'])} wall.")
+        f"latest invocation {_sec(t['this_invocation_s'])} wall"
+        + (f" ({jobs} runs at a time, so train + eval seconds add up to more than the wall time)." if jobs > 1 else "."))
     c = results["counters"]
     add("Latest invocation: " + ", ".join(f"{k} {v}" for k, v in c.items()) + ".\n")
 

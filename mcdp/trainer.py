@@ -30,7 +30,8 @@ Run folder::
     RUN/config.yaml            resolved RunConfig
     RUN/run.json               dataset path, cameras, neighbours
     RUN/checkpoints/last.pt    model, optimiser, step, config (atomic: tmp + os.replace)
-    RUN/checkpoints/best.pt    lowest val loss
+    RUN/checkpoints/best.pt    lowest val loss: networks, step, config (no optimiser state: a
+                               third of the size; resuming always starts from last.pt)
     RUN/tensorboard/           scalars and six-camera image grids
 
 Example::
@@ -398,9 +399,14 @@ class Trainer:
             "torch_rng": torch.get_rng_state(),
         }
 
-    def save_checkpoint(self, name: str = "last.pt") -> Path:
+    def save_checkpoint(self, name: str = "last.pt", weights_only: bool = False) -> Path:
+        """Atomically write ``checkpoints/<name>``; `weights_only` drops optimiser/scaler/RNG state."""
         path = self.run_dir / "checkpoints" / name
-        atomic_torch_save(self.state(), path)
+        state = self.state()
+        if weights_only:
+            for k in ("optimizer", "scaler", "torch_rng"):
+                state.pop(k)
+        atomic_torch_save(state, path)
         return path
 
     def _restore(self, ckpt: dict) -> None:
@@ -568,7 +574,7 @@ class Trainer:
                         self.writer.add_scalar("val/loss", v, self.step)
                     if v < self.best_val:
                         self.best_val = v
-                        self.save_checkpoint("best.pt")
+                        self.save_checkpoint("best.pt", weights_only=True)
             if self.step % tc.ckpt_every == 0 or self.step == end:
                 self.save_checkpoint("last.pt")
         if bar is not None:

@@ -149,3 +149,17 @@ def test_ci_sweep_end_to_end_rerun_and_resume(tmp_path):
     c3 = res3["counters"]
     assert (c3["render_skipped"], c3["trained"], c3["train_resumed"], c3["evaluated"]) == (1, 1, 1, 1)
     assert res3["rows"][0]["steps"] == 3
+
+
+def test_parallel_jobs_give_the_same_numbers_as_sequential(tmp_path):
+    """jobs=2 (spawned processes) and jobs=1 (in process) train and evaluate identically."""
+    common = ["--no-progress", "overlaps=[0.3]", "methods=[mono2,mcdp_m1]"]
+    assert sweep.main([str(CI), "--out", str(tmp_path / "seq"), "jobs=1", *common]) == 0
+    assert sweep.main([str(CI), "--out", str(tmp_path / "par"), "jobs=2", *common]) == 0
+    seq = json.loads((tmp_path / "seq" / "results.json").read_text())
+    par = json.loads((tmp_path / "par" / "results.json").read_text())
+    assert [(r["method"], r["status"]) for r in par["rows"]] == [("mono2", "ok"), ("mcdp_m1", "ok")]
+    assert par["counters"]["trained"] == 2 and par["counters"]["evaluated"] == 2
+    for a, b in zip(seq["rows"], par["rows"]):
+        assert a["method"] == b["method"]
+        assert a["metrics"] == b["metrics"], a["method"]

@@ -92,7 +92,9 @@ def test_resume_is_exact_and_runs_are_seeded(ds, tmp_path):
     assert_same_state(a, c)  # 3 + 1 steps == 4 steps
     assert a["val_history"] == c["val_history"]
     assert not list((tmp_path / "straight" / "checkpoints").glob("*.tmp"))  # atomic writes leave no temp files
-    assert (tmp_path / "straight" / "checkpoints" / "best.pt").is_file()
+    best = torch.load(tmp_path / "straight" / "checkpoints" / "best.pt", map_location="cpu", weights_only=False)
+    assert "optimizer" not in best and "depth_model" in best  # best.pt: weights for inference only
+    assert best["step"] in [s for s, _ in a["val_history"]]
 
 
 def test_different_seed_gives_different_weights(ds, tmp_path):
