@@ -171,34 +171,37 @@ def make_plots(results: dict, plot_dir: Path) -> list[Path]:
         a = [_agg(results, o, method, key) for o in xs]
         return [x["mean"] for x in a], [x["std"] if x["n"] > 1 else 0.0 for x in a]
 
+    def save(fig, name: str) -> None:
+        fig.tight_layout()
+        paths.append(plot_dir / name)
+        fig.savefig(paths[-1], dpi=110)
+        plt.close(fig)
+
+    def style(ax, title: str, xlabel: str, ylabel: str, legend: bool = True) -> None:
+        ax.set_title(title)
+        ax.set_xlabel(xlabel)
+        ax.set_ylabel(ylabel)
+        ax.grid(alpha=0.3)
+        if legend:
+            ax.legend(fontsize=8)
+
     fig, axes = plt.subplots(1, 2, figsize=(11, 4))
     for ax, sc in zip(axes, ("none", "median")):
         for m in methods:
             y, e = series(m, f"{sc}.mean.abs_rel")
             ax.errorbar(xs, y, yerr=e, marker="o", capsize=3, label=LABELS[m])
-        ax.set_title(f"abs_rel ({SCALE_LABEL[sc]} scaling), test split")
-        ax.set_xlabel("target overlap (fraction of hfov)")
-        ax.set_ylabel("abs_rel (lower is better)")
-        ax.grid(alpha=0.3)
+        style(ax, f"abs_rel ({SCALE_LABEL[sc]} scaling), test split", "target overlap (fraction of hfov)",
+              "abs_rel (lower is better)", legend=False)
     axes[0].legend(fontsize=8)
-    fig.tight_layout()
-    paths.append(plot_dir / "abs_rel_vs_overlap.png")
-    fig.savefig(paths[-1], dpi=110)
-    plt.close(fig)
+    save(fig, "abs_rel_vs_overlap.png")
 
     fig, ax = plt.subplots(figsize=(6, 4))
     for m in methods:
         y, e = series(m, "dep_con.mean")
         ax.errorbar(xs, y, yerr=e, marker="o", capsize=3, label=LABELS[m])
-    ax.set_title("Dep Con (unscaled), mean over camera pairs")
-    ax.set_xlabel("target overlap (fraction of hfov)")
-    ax.set_ylabel("Dep Con (lower is better)")
-    ax.grid(alpha=0.3)
-    ax.legend(fontsize=8)
-    fig.tight_layout()
-    paths.append(plot_dir / "dep_con_vs_overlap.png")
-    fig.savefig(paths[-1], dpi=110)
-    plt.close(fig)
+    style(ax, "Dep Con (unscaled), mean over camera pairs", "target overlap (fraction of hfov)",
+          "Dep Con (lower is better)")
+    save(fig, "dep_con_vs_overlap.png")
 
     fig, axes = plt.subplots(1, 2, figsize=(11, 4))
     colors = plt.rcParams["axes.prop_cycle"].by_key()["color"]
@@ -209,29 +212,17 @@ def make_plots(results: dict, plot_dir: Path) -> list[Path]:
             ax.plot(xs, y, marker="o", color=c, label=f"{LABELS[m]} overlap")
             y, _ = series(m, f"{sc}.non_overlap.abs_rel")
             ax.plot(xs, y, marker="s", ls="--", color=c, label=f"{LABELS[m]} non-overlap")
-        ax.set_title(f"abs_rel on overlap (solid) / non-overlap (dashed), {SCALE_LABEL[sc]}")
-        ax.set_xlabel("target overlap (fraction of hfov)")
-        ax.set_ylabel("abs_rel")
-        ax.grid(alpha=0.3)
+        style(ax, f"abs_rel on overlap (solid) / non-overlap (dashed), {SCALE_LABEL[sc]}",
+              "target overlap (fraction of hfov)", "abs_rel", legend=False)
     axes[0].legend(fontsize=6, ncol=2)
-    fig.tight_layout()
-    paths.append(plot_dir / "overlap_vs_non_overlap_abs_rel.png")
-    fig.savefig(paths[-1], dpi=110)
-    plt.close(fig)
+    save(fig, "overlap_vs_non_overlap_abs_rel.png")
 
     fig, ax = plt.subplots(figsize=(5, 4))
     meas = [d["measured"]["measured_mean"] for d in results["data"]]
     ax.plot(xs, xs, "k:", label="target (geometric)")
     ax.plot(xs, meas, "o-", label="measured pixel overlap")
-    ax.set_xlabel("target overlap")
-    ax.set_ylabel("overlap")
-    ax.set_title("measured vs target overlap\n(pairs at the target)")
-    ax.grid(alpha=0.3)
-    ax.legend(fontsize=8)
-    fig.tight_layout()
-    paths.append(plot_dir / "measured_overlap.png")
-    fig.savefig(paths[-1], dpi=110)
-    plt.close(fig)
+    style(ax, "measured vs target overlap\n(pairs at the target)", "target overlap", "overlap")
+    save(fig, "measured_overlap.png")
     return paths
 
 

@@ -22,16 +22,10 @@ from mcdp.model import (
 from mcdp.trainer import SelfSupervisedSystem
 from synth.configlib import build_config
 
+pytestmark = pytest.mark.usefixtures("one_thread")
+
 H, W, N = 64, 96, 6
 RING = [(i, (i + 1) % N) for i in range(N)]
-
-
-@pytest.fixture(autouse=True)
-def _one_thread():
-    n = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(n)
 
 
 def rig_batch(B: int = 1, seed: int = 0) -> dict:

@@ -8,13 +8,7 @@ import torchvision
 
 from mcdp.networks import DepthDecoder, NetworkError, PoseNet, PyramidReduce, ResnetEncoder, WeightNet
 
-
-@pytest.fixture(autouse=True)
-def _one_thread():
-    n = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(n)
+pytestmark = pytest.mark.usefixtures("one_thread")
 
 
 def test_encoder_feature_pyramid_shapes():
