@@ -32,6 +32,8 @@ __all__ = [
     "SmoothnessLoss",
     "ConsistencyLoss",
     "INVALID_ERROR",
+    "min_reprojection",
+    "used_pixels",
 ]
 
 #: photometric error given to pixels whose warp is invalid, so any valid source wins the minimum
@@ -134,17 +136,19 @@ def reprojection_loss(
 ):
     """Monodepth2 photometric loss: per-pixel minimum over sources, with auto-masking.
 
-    For each source s, e_s = photometric_error(warped_s, target), replaced by
-    ``INVALID_ERROR`` where valid_s == 0, so another source wins the minimum.
-    Auto-masking (Monodepth2): a pixel is used only if the minimum reprojection
-    error is strictly below the minimum identity error
-    photometric_error(source_s, target) over the unwarped sources; this drops
-    pixels that move with the camera (and static frames). Ties are dropped, so
-    no random tie-breaking noise is needed.
+    For each source s, e_s = photometric_error(warped_s, target). A source counts
+    at a pixel where valid_s > 0 (in front of it, inside its image, off its ego
+    body), so another source wins the minimum there. Where NO source is valid
+    the pixel keeps the minimum of the border-padded errors e_s, as in
+    Monodepth2. Auto-masking (Monodepth2): a pixel that some source sees is
+    used only if its reprojection error is strictly below the identity error
+    min_s photometric_error(source_s, target) (static scene, objects moving
+    with the camera); a pixel no source sees is always used (`used_pixels`).
+    The loss is the mean over the used pixels (ego body never counted).
 
     Args:
         target: (B, 3, H, W) target image.
-        warped_list: S tensors (B, 3, H, W): sources warped into the target.
+        warped_list: S tensors (B, 3, H, W): sources warped into the target (border padding).
         valid_list: S tensors (B, 1, H, W) float 0/1 from ``warp_by_depth``.
         sources_list: S tensors (B, 3, H, W) unwarped sources (may be None if automask=False).
         mask: (B, 1, H, W) scene mask (0 = ego body / not to be used).
@@ -153,8 +157,8 @@ def reprojection_loss(
 
     Returns:
         loss: scalar, masked_mean(per_pixel, used).
-        per_pixel: (B, 1, H, W) minimum reprojection error (INVALID_ERROR where no source is valid).
-        used: (B, 1, H, W) float 0/1: mask & at least one valid source & auto-mask.
+        per_pixel: (B, 1, H, W) minimum reprojection error.
+        used: (B, 1, H, W) float 0/1 (`used_pixels`).
     """
     _check4(target, "target", doc="(B, C, H, W)")
     B, C, H, W = target.shape
@@ -168,24 +172,45 @@ def reprojection_loss(
             raise ValueError(f"sources_list must hold {len(warped_list)} source images for auto-masking, got {n}")
     _check4(mask, "mask", channels=1, like=target, doc=f"({B}, 1, {H}, {W})")
 
-    errs = []
     for s, (w, v) in enumerate(zip(warped_list, valid_list)):
         _check4(w, f"warped_list[{s}]", channels=C, like=target, doc=f"({B}, {C}, {H}, {W})")
         _check4(v, f"valid_list[{s}]", channels=1, like=target, doc=f"({B}, 1, {H}, {W})")
-        e = photometric_error(w, target, alpha)
-        errs.append(torch.where(v > 0, e, torch.full_like(e, INVALID_ERROR)))
-    reproj = torch.cat(errs, 1).min(1, keepdim=True).values  # (B, 1, H, W)
-    any_valid = torch.stack([v > 0 for v in valid_list], 0).any(0)
-    used = (mask > 0) & any_valid
+    reproj, seen = min_reprojection([photometric_error(w, target, alpha) for w in warped_list], valid_list)
+    ident = None
     if automask:
         idents = []
         for s, src in enumerate(sources_list):
             _check4(src, f"sources_list[{s}]", channels=C, like=target, doc=f"({B}, {C}, {H}, {W})")
             idents.append(photometric_error(src, target, alpha))
         ident = torch.cat(idents, 1).min(1, keepdim=True).values
-        used = used & (reproj.detach() < ident.detach())
-    used_f = used.to(target.dtype)
-    return masked_mean(reproj, used_f), reproj, used_f
+    used = used_pixels(reproj, seen, ident, mask)
+    return masked_mean(reproj, used), reproj, used
+
+
+def min_reprojection(errors: Sequence[torch.Tensor], valid_list: Sequence[torch.Tensor]):
+    """(reproj, seen): per-pixel minimum of S (B, 1, H, W) errors over the valid sources and
+    whether any source is valid; where none is, the minimum over all of them (border-padded
+    warps, as Monodepth2 samples them)."""
+    e = torch.cat(list(errors), 1)
+    v = torch.cat([x > 0 for x in valid_list], 1)
+    seen = v.any(1, keepdim=True)
+    best_valid = torch.where(v, e, torch.full_like(e, INVALID_ERROR)).min(1, keepdim=True).values
+    return torch.where(seen, best_valid, e.min(1, keepdim=True).values), seen
+
+
+def used_pixels(reproj: torch.Tensor, seen: torch.Tensor, ident: Optional[torch.Tensor], mask: torch.Tensor):
+    """Float 0/1 (B, 1, H, W): scene pixels that the loss averages over.
+
+    Auto-masking drops pixels whose reprojection error does not beat the identity
+    error - but only pixels that some source sees: a pixel warped out of every
+    source's view is always counted with its border error. Otherwise a depth
+    that sends every pixel out of view would score 0 (observed: CPU runs
+    collapsed to a constant depth and their val loss read 0.0).
+    """
+    used = mask > 0
+    if ident is not None:
+        used = used & (~seen | (reproj.detach() < ident.detach()))
+    return used.to(reproj.dtype)
 
 
 # --------------------------------------------------------------------------- smoothness

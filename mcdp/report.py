@@ -321,7 +321,7 @@ def format_report(results: dict, plots: list[str]) -> str:
         add(f"Target overlap {mo['target']:.2f}, measured pixel overlap {mo['measured_mean']:.3f} (mean over the "
             f"{mo['pairs_at_target']} of {mo['pairs']} adjacent pairs whose geometric target is {mo['target']:.2f}; "
             f"over all pairs {mo['measured_all']:.3f}); hfov {_num(mo.get('hfov_deg'))}°, yaw spacing {_num(mo.get('yaw_spacing_deg'))}°. "
-            f"Dataset `{Path(d['path']).name}` ({d['splits']}), render {_sec(d['render_s'])}"
+            f"Dataset `{Path(d['path']).name}` ({d['splits']}), render {_sec(d['render_s'])} s"
             + (" (reused)" if d["render_skipped"] else "") + ".\n")
         add("| pair | target | measured |")
         add("|---|---|---|")
@@ -378,7 +378,7 @@ def format_report(results: dict, plots: list[str]) -> str:
         add(f"| {o:.2f} | {_sec(d['render_s'])} | " + " | ".join(cells) + " |")
     t = results["timing"]
     jobs = results.get("sweep_config", {}).get("jobs", 1)
-    add(f"\nTotals: render {_sec(t['render_s'])}, train {_sec(t['train_s'])}, eval {_sec(t['eval_s'])}; "
+    add(f"\nTotals (seconds): render {_sec(t['render_s'])}, train {_sec(t['train_s'])}, eval {_sec(t['eval_s'])}; "
         f"latest invocation {_sec(t['this_invocation_s'])} wall"
         + (f" ({jobs} runs at a time, so train + eval seconds add up to more than the wall time)." if jobs > 1 else "."))
     c = results["counters"]

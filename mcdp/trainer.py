@@ -54,7 +54,14 @@ import yaml
 from mcdp.config import RunConfig, resume_conflicts
 from mcdp.data import RigDataset, StepBatchSampler, collate, directed_pairs, neighbour_table
 from mcdp.geometry import splat_depth, warp_by_depth
-from mcdp.losses import consistency_loss, masked_mean, photometric_error, reprojection_loss, smoothness_loss
+from mcdp.losses import (
+    consistency_loss,
+    masked_mean,
+    min_reprojection,
+    photometric_error,
+    smoothness_loss,
+    used_pixels,
+)
 from mcdp.model import DepthModel, PoseModel, odometry_camera_motion, resize_mask_to
 from synth.configlib import build_config, config_to_dict
 
@@ -253,18 +260,15 @@ class SelfSupervisedSystem(torch.nn.Module):
             st_scales = scales if stage == "init" else scales[: cfg.loss.refine_scales]
             for s in st_scales:
                 depth = outputs["depth", stage, s].float()
-                warped, valid = [], []
+                errors, valid = [], []
                 for o, sm in zip((-1, 1), src_and_mask):
                     w, v = warp_by_depth(sm, depth, K, K, poses[o], padding_mode="border")
-                    warped.append(w[:, :C])
+                    errors.append(photometric_error(w[:, :C], target, cfg.loss.ssim_alpha))
                     valid.append(v * (w[:, C:] > 0.99).to(v.dtype))
                 # == reprojection_loss(..., automask=True), with the identity error computed
-                # once per batch instead of once per stage and scale (it does not depend on depth)
-                _, per_pixel, used = reprojection_loss(
-                    target, warped, valid, None, mask, automask=False, alpha=cfg.loss.ssim_alpha
-                )
-                if ident is not None:
-                    used = used * (per_pixel.detach() < ident).to(used.dtype)
+                # once per batch instead of once per stage and scale (it does not depend on depth);
+                per_pixel, seen = min_reprojection(errors, valid)
+                used = used_pixels(per_pixel, seen, ident, mask)
                 rep = masked_mean(per_pixel, used)
                 smooth = smoothness_loss(outputs["disp", stage, s].float(), img_s[s], mask_s[s])
                 lp_sum = lp_sum + rep + cfg.loss.smoothness_weight * smooth / (2**s)

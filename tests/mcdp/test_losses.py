@@ -77,13 +77,33 @@ def test_reprojection_min_over_sources_and_invalid_source_loses():
     assert loss.item() == pytest.approx(e_bad[..., :4].sum().item() / 64, rel=1e-5)
 
 
-def test_reprojection_no_valid_source_not_used():
+def test_reprojection_no_valid_source_is_counted_with_its_border_error():
+    """Monodepth2: a pixel that no source sees keeps its (border-padded) error and is counted."""
     tgt = rand(1, 3, 4, 4)
+    w = rand(1, 3, 4, 4, seed=5)
     valid = torch.ones(1, 1, 4, 4)
     valid[0, 0, 0, 0] = 0
-    _, per_pixel, used = L.reprojection_loss(tgt, [tgt], [valid], None, torch.ones(1, 1, 4, 4), automask=False)
-    assert used[0, 0, 0, 0] == 0 and used.sum() == 15
-    assert per_pixel[0, 0, 0, 0] == L.INVALID_ERROR
+    loss, per_pixel, used = L.reprojection_loss(tgt, [w], [valid], None, torch.ones(1, 1, 4, 4), automask=False)
+    e = L.photometric_error(w, tgt)
+    assert used.sum() == 16
+    assert torch.allclose(per_pixel, e)
+    assert loss.item() == pytest.approx(e.mean().item(), rel=1e-6)
+
+
+def test_sending_every_pixel_out_of_view_is_not_rewarded():
+    """Regression: pixels no source saw were dropped, so a depth that warps everything out of
+    view scored 0 and CPU training collapsed to a constant depth. They count now, automask or not."""
+    tgt = rand(1, 3, 8, 8, seed=0)
+    src = rand(1, 3, 8, 8, seed=1)
+    ones = torch.ones(1, 1, 8, 8)
+    nowhere = torch.zeros(1, 1, 8, 8)
+    border = src[..., :1].expand_as(src).contiguous()  # what a warp far out of view samples
+    loss_out, per_pixel, used = L.reprojection_loss(tgt, [border], [nowhere], [src], ones)
+    assert torch.all(used == 1)
+    assert loss_out.item() == pytest.approx(L.photometric_error(border, tgt).mean().item(), rel=1e-6)
+    # a correct warp (target reproduced) scores far lower than the collapse
+    loss_good, _, _ = L.reprojection_loss(tgt, [tgt.clone()], [ones], [src], ones)
+    assert loss_good.item() < 0.01 * loss_out.item()
 
 
 def test_automask_drops_static_pixels():
