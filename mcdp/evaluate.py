@@ -73,7 +73,7 @@ from .metrics import (
     valid_gt_mask,
 )
 
-__all__ = ["EvalConfig", "SCALINGS", "evaluate", "format_tables"]
+__all__ = ["EvalConfig", "SCALINGS", "constant_depth_predictor", "evaluate", "format_tables", "median_gt_depth"]
 
 SCALINGS = ("none", "median", "rig_median")
 REGIONS = ("all", "overlap", "non_overlap")
@@ -332,6 +332,41 @@ def evaluate(
         "cameras": names,
         "stages": out_stages,
     }
+
+
+# --------------------------------------------------------------------------- reference predictor
+def median_gt_depth(ds, split: str = "train", cfg: EvalConfig | None = None) -> float:
+    """Median ground-truth depth over a split's evaluable pixels (the constant of the reference predictor).
+
+    Uses the same pixels as `evaluate` (depth range, self-occlusion masks, frame stride,
+    skip_ends). It reads ground truth, so the constant-depth predictor built on it is a
+    *reference* for reading tables (what a depth map without any structure scores), never a
+    method; `mcdp.sweep` takes it from the train split and evaluates it on the test split.
+
+    Raises:
+        ValueError: the split has no evaluable pixel.
+    """
+    cfg = cfg if cfg is not None else EvalConfig()
+    names = list(ds.camera_names)
+    masks = [np.asarray(ds.mask(n), dtype=bool) for n in names]
+    vals = []
+    for seq in ds.split(split):
+        for f in _frames(ds.n_frames(seq), cfg):
+            for n, m in zip(names, masks):
+                g = np.asarray(ds.read_depth(seq, n, f), dtype=np.float64)
+                vals.append(g[valid_gt_mask(g, m, cfg.min_depth, cfg.max_depth)])
+    v = np.concatenate(vals) if vals else np.zeros(0)
+    if v.size == 0:
+        raise ValueError(f"split {split!r} has no ground-truth pixel in [{cfg.min_depth}, {cfg.max_depth}] m")
+    return float(np.median(v))
+
+
+def constant_depth_predictor(ds, depth_m: float) -> Callable[[str, int], Mapping[str, np.ndarray]]:
+    """A `predict_fn` for `evaluate` that predicts `depth_m` metres at every pixel of every camera."""
+    if not (np.isfinite(depth_m) and depth_m > 0):
+        raise ValueError(f"depth_m must be a positive finite depth in metres, got {depth_m}")
+    maps = [np.full((int(c.height), int(c.width)), depth_m, dtype=np.float32) for c in ds.cameras]
+    return lambda seq, frame: {"constant": maps}
 
 
 # --------------------------------------------------------------------------- tables

@@ -130,6 +130,22 @@ def _agg(results: dict, overlap: float, method: str, key: str) -> dict:
     return {"mean": float("nan"), "std": float("nan"), "n": 0}
 
 
+REF_LABEL = "Constant depth (ref.)"
+
+
+def _ref_flat(results: dict, overlap: float) -> dict:
+    for d in results["data"]:
+        if d["overlap"] == overlap and d.get("reference"):
+            return flat_row({"metrics": d["reference"]["metrics"]})
+    return {}
+
+
+def _ref(results: dict, overlap: float, key: str) -> dict:
+    """The constant-depth reference's value of `key` at one overlap, in `_agg`'s shape (NaN if absent)."""
+    v = _ref_flat(results, overlap).get(key, float("nan"))
+    return {"mean": v, "std": 0.0, "n": 1 if math.isfinite(v) else 0}
+
+
 # --------------------------------------------------------------------------- files
 def write_all(results: dict, out: str | Path) -> None:
     out = Path(out)
@@ -154,6 +170,13 @@ def write_csv(results: dict, path: Path) -> None:
         for f in flats:
             m = meas.get(f["overlap"], {})
             w.writerow({**f, "target_overlap": m.get("target"), "measured_overlap": m.get("measured_mean")})
+        for d in results["data"]:  # the constant-depth reference, one row per overlap
+            ref = _ref_flat(results, d["overlap"])
+            if ref:
+                w.writerow({**{k: v for k, v in ref.items() if k in keys}, "overlap": d["overlap"],
+                            "method": "constant_reference", "status": "reference",
+                            "target_overlap": d["measured"].get("target"),
+                            "measured_overlap": d["measured"].get("measured_mean")})
 
 
 def make_plots(results: dict, plot_dir: Path) -> list[Path]:
@@ -190,6 +213,7 @@ def make_plots(results: dict, plot_dir: Path) -> list[Path]:
         for m in methods:
             y, e = series(m, f"{sc}.mean.abs_rel")
             ax.errorbar(xs, y, yerr=e, marker="o", capsize=3, label=LABELS[m])
+        ax.plot(xs, [_ref(results, o, f"{sc}.mean.abs_rel")["mean"] for o in xs], "k--", label=REF_LABEL)
         style(ax, f"abs_rel ({SCALE_LABEL[sc]} scaling), test split", "target overlap (fraction of hfov)",
               "abs_rel (lower is better)", legend=False)
     axes[0].legend(fontsize=8)
@@ -199,6 +223,7 @@ def make_plots(results: dict, plot_dir: Path) -> list[Path]:
     for m in methods:
         y, e = series(m, "dep_con.mean")
         ax.errorbar(xs, y, yerr=e, marker="o", capsize=3, label=LABELS[m])
+    ax.plot(xs, [_ref(results, o, "dep_con.mean")["mean"] for o in xs], "k--", label=REF_LABEL)
     style(ax, "Dep Con (unscaled), mean over camera pairs", "target overlap (fraction of hfov)",
           "Dep Con (lower is better)")
     save(fig, "dep_con_vs_overlap.png")
@@ -278,6 +303,12 @@ def format_report(results: dict, plots: list[str]) -> str:
     ev = cfg["eval"]
     add(f"- evaluation: depth range [{ev['min_depth']}, {ev['max_depth']}] m, frame stride {ev['frame_stride']}, "
         f"skip_ends={ev['skip_ends']}; self-occlusion (ego body) pixels excluded; Dep Con on unscaled predictions")
+    refs = [d["reference"] for d in results["data"] if d.get("reference")]
+    if refs:
+        add(f"- reference row **{REF_LABEL}**: every pixel of every camera at one depth, the median ground-truth "
+            f"depth of the train split ({', '.join(format(r['depth_m'], '.1f') for r in refs)} m per overlap). It uses "
+            "ground truth, so it is a yardstick, not a method: with median scaling it scores what a depth map "
+            "with no structure at all scores. A method above it has not learnt usable depth structure")
     oracle = [r for r in results["rows"] if r.get("oracle")]
     if oracle:
         add(f"- **ORACLE**: {len(oracle)} run(s) use ground-truth median scaling (scale.source=oracle_gt_median)")
@@ -295,8 +326,8 @@ def format_report(results: dict, plots: list[str]) -> str:
     add("## Summary: abs_rel vs overlap\n")
     for sc in ("none", "median"):
         add(f"**{SCALE_LABEL[sc]} scaling** (abs_rel, lower is better; in brackets: change vs Mono2)\n")
-        add("| overlap | measured | " + " | ".join(LABELS[m] for m in methods) + " |")
-        add("|---|---|" + "---|" * len(methods))
+        add("| overlap | measured | " + " | ".join(LABELS[m] for m in methods) + f" | {REF_LABEL} |")
+        add("|---|---|" + "---|" * (len(methods) + 1))
         for d in results["data"]:
             o = d["overlap"]
             ref = _agg(results, o, "mono2", f"{sc}.mean.abs_rel")["mean"] if "mono2" in methods else float("nan")
@@ -307,7 +338,8 @@ def format_report(results: dict, plots: list[str]) -> str:
                 if m != "mono2" and "mono2" in methods:
                     c += f" ({_pct(_rel(a['mean'], ref))})"
                 cells.append(c)
-            add(f"| {o:.2f} | {d['measured']['measured_mean']:.3f} | " + " | ".join(cells) + " |")
+            add(f"| {o:.2f} | {d['measured']['measured_mean']:.3f} | " + " | ".join(cells)
+                + f" | {_fmt(_ref(results, o, f'{sc}.mean.abs_rel'))} |")
         add("")
     add("### Verdicts (abs_rel, mean over seeds)\n")
     add(_verdicts(results))
@@ -337,6 +369,9 @@ def format_report(results: dict, plots: list[str]) -> str:
                 cells = [_fmt(_agg(results, o, m, f"{sc}.mean.{k}")) for k in METRIC_NAMES]
                 delta = "—" if m == "mono2" else _pct(_rel(_agg(results, o, m, f"{sc}.mean.abs_rel")["mean"], ref))
                 add(f"| {LABELS[m]} | {SCALE_LABEL[sc]} | " + " | ".join(cells) + f" | {delta} |")
+            cells = [_fmt(_ref(results, o, f"{sc}.mean.{k}")) for k in METRIC_NAMES]
+            add(f"| *{REF_LABEL}* | {SCALE_LABEL[sc]} | " + " | ".join(cells)
+                + f" | {_pct(_rel(_ref(results, o, f'{sc}.mean.abs_rel')['mean'], ref))} |")
         add("")
         if cams:
             add("**Table 2 layout: Dep Con per camera** (unscaled predictions, lower is better; Δ = mean vs Mono2)\n")
@@ -348,6 +383,9 @@ def format_report(results: dict, plots: list[str]) -> str:
                 a = _agg(results, o, m, "dep_con.mean")
                 delta = "—" if m == "mono2" else _pct(_rel(a["mean"], ref))
                 add(f"| {LABELS[m]} | " + " | ".join(cells) + f" | {_fmt(a)} | {delta} |")
+            a = _ref(results, o, "dep_con.mean")
+            add(f"| *{REF_LABEL}* | " + " | ".join(_fmt(_ref(results, o, f"dep_con.camera.{c}")) for c in cams)
+                + f" | {_fmt(a)} | {_pct(_rel(a['mean'], ref))} |")
             add("")
         add("**Overlap vs non-overlap pixels** (abs_rel; Δ vs Mono2 on the same region, negative = better)\n")
         add("| Method | Scale | overlap | non-overlap | Δ overlap | Δ non-overlap |")
@@ -361,6 +399,9 @@ def format_report(results: dict, plots: list[str]) -> str:
                 d_ov = "—" if m == "mono2" else _pct(_rel(a_ov["mean"], r_ov))
                 d_no = "—" if m == "mono2" else _pct(_rel(a_no["mean"], r_no))
                 add(f"| {LABELS[m]} | {SCALE_LABEL[sc]} | {_fmt(a_ov)} | {_fmt(a_no)} | {d_ov} | {d_no} |")
+            a_ov, a_no = _ref(results, o, f"{sc}.overlap.abs_rel"), _ref(results, o, f"{sc}.non_overlap.abs_rel")
+            add(f"| *{REF_LABEL}* | {SCALE_LABEL[sc]} | {_fmt(a_ov)} | {_fmt(a_no)} | "
+                f"{_pct(_rel(a_ov['mean'], r_ov))} | {_pct(_rel(a_no['mean'], r_no))} |")
         add("")
 
     # ---- timing
@@ -421,6 +462,13 @@ def _verdicts(results: dict) -> str:
                 entry = f"{LABELS[m]} {v:.3f} vs {ref:.3f}" + (" (tie)" if v == ref else "") + f", {no}"
                 (beat if v < ref else lost).append(entry)
             head = f"- overlap {o:.2f}, {SCALE_LABEL[sc]}: "
+            cref = _ref(results, o, f"{sc}.mean.abs_rel")["mean"]
+            if math.isfinite(cref):
+                worse = [LABELS[m] for m in methods
+                         if not _agg(results, o, m, f"{sc}.mean.abs_rel")["mean"] < cref]
+                lines.append(head + (f"**not better than the constant-depth reference** ({cref:.3f}): "
+                                     + ", ".join(worse) if worse else
+                                     f"every method beats the constant-depth reference ({cref:.3f})"))
             if not lost:
                 lines.append(head + "every MCDP variant beats Mono2 (" + "; ".join(beat) + ")")
             elif not beat:

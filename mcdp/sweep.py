@@ -13,6 +13,7 @@ Layout of SWEEP::
 
     sweep_config.yaml                          resolved SweepConfig (+ its hash)
     data/overlap_0.10/                         dataset (synth contract v1)
+    data/overlap_0.10.reference.json           constant-depth reference evaluated on its test split
     runs/overlap_0.10/<method>_s<seed>/        training run (config.yaml, checkpoints/, tensorboard/)
         metrics_test.json                      mcdp.evaluate layout + "run" + "sweep" keys
         sweep_status.json                      what this sweep finished for the run, with stage timings
@@ -303,6 +304,40 @@ def render_stage(cfg: SweepConfig, overlap: float, sweep_dir: Path, counters: Co
             "measured": ov, "splits": {k: len(v) for k, v in manifest["splits"].items()}}
 
 
+def reference_stage(cfg: SweepConfig, d: dict, sweep_dir: Path, counters: Counters, log) -> dict:
+    """Evaluate the constant-depth reference on one overlap's test split (cached beside the dataset).
+
+    The constant is the median ground-truth depth of the train split
+    (`mcdp.evaluate.median_gt_depth`): a depth map with no structure at all. With median
+    scaling its value does not matter (every image is scaled to its ground-truth median).
+    A method worse than this reference has learnt no usable depth structure.
+    """
+    from mcdp.evaluate import EvalConfig, constant_depth_predictor, evaluate, median_gt_depth
+    from synth.configlib import build_config
+    from synth.dataset import open_dataset
+
+    o = d["overlap"]
+    path = sweep_dir / "data" / f"{overlap_key(o)}.reference.json"
+    key = config_hash({"data": d["config_hash"], "eval": config_to_dict(cfg.eval), "reference": "constant_train_median"})
+    cached = _read_json(path)
+    if cached is not None and cached.get("key") == key:
+        counters.bump("reference_skipped")
+        return cached["reference"]
+    ds = open_dataset(d["path"])
+    ecfg = build_config(EvalConfig, config_to_dict(cfg.eval), "sweep eval")
+    t0 = time.perf_counter()
+    depth = median_gt_depth(ds, "train", ecfg)
+    metrics = evaluate(ds, constant_depth_predictor(ds, depth), SPLIT, ecfg, progress=False)
+    ref = {"kind": "constant depth = median ground-truth depth of the train split", "depth_m": depth,
+           "metrics": summarize_metrics(metrics), "eval_s": time.perf_counter() - t0}
+    _write_json(path, {"key": key, "reference": ref})
+    counters.bump("reference_evaluated")
+    log(f"[sweep] overlap {o:.2f}: constant-depth reference ({depth:.2f} m): abs_rel metric "
+        f"{ref['metrics']['none']['mean']['abs_rel']:.4f}, median {ref['metrics']['median']['mean']['abs_rel']:.4f}, "
+        f"dep_con {ref['metrics']['dep_con']['mean']:.4f}")
+    return ref
+
+
 def _eval_key(run_hash: str, step: int, eval_cfg: dict, data_hash: str, checkpoint: str, ckpt_name: str) -> str:
     return config_hash({"run": run_hash, "step": step, "eval": eval_cfg, "data": data_hash, "checkpoint": checkpoint,
                         "file": ckpt_name})
@@ -437,9 +472,11 @@ def run_sweep(cfg: SweepConfig, out: str | Path, progress: bool = True, log: Cal
     log(f"[sweep] {len(cfg.overlaps)} overlap(s) {', '.join(f'{o:.2f}' for o in cfg.overlaps)} ({cfg.overlap_mode}), "
         f"methods {', '.join(cfg.methods)}, seeds {cfg.seeds}: {n_runs} run(s) -> {out}")
     counters = Counters(rendered=0, render_skipped=0, render_resumed=0, trained=0, train_skipped=0, train_resumed=0,
-                        evaluated=0, eval_skipped=0, diverged=0)
+                        evaluated=0, eval_skipped=0, diverged=0, reference_evaluated=0, reference_skipped=0)
     t_start = time.perf_counter()
     data = [render_stage(cfg, o, out, counters, log, progress) for o in cfg.overlaps]
+    for d in data:
+        d["reference"] = reference_stage(cfg, d, out, counters, log)
     todo = [(d, method, seed) for d in data for method in cfg.methods for seed in cfg.seeds]
     if cfg.jobs == 1 or len(todo) == 1:
         rows = [run_stage(cfg, d["overlap"], d, method, seed, out, counters, log, progress) for d, method, seed in todo]

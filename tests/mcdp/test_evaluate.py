@@ -174,3 +174,33 @@ def test_format_tables():
         assert s in txt
     with pytest.raises(ValueError, match="stage 'nope'"):
         E.format_tables(m, "nope")
+
+
+class RampDataset(FakeDataset):
+    """Depth rises with the row (5 m at the top ... 16 m at the bottom), all sequences alike."""
+
+    def read_depth(self, seq, cam_name, frame):
+        return np.repeat(np.linspace(5.0, 16.0, H, dtype=np.float32)[:, None], W, axis=1)
+
+
+def test_constant_depth_reference_hand_values():
+    ds = RampDataset()
+    g = np.linspace(5.0, 16.0, H)[:-1]  # the bottom row is ego body: never counted
+    g = np.repeat(g[:, None], W, axis=1).ravel()
+    c = E.median_gt_depth(ds, "train")
+    assert c == pytest.approx(np.median(g))
+    m = run(ds, E.constant_depth_predictor(ds, c))
+    fin = m["stages"]["final"]
+    assert list(m["stages"]) == ["constant", "final"]
+    assert fin["none"]["mean"]["abs_rel"] == pytest.approx(np.mean(np.abs(c - g) / g))
+    # median scaling: the constant becomes each image's gt median, whatever its value
+    m2 = run(ds, E.constant_depth_predictor(ds, 3.0 * c))
+    assert m2["stages"]["final"]["median"]["mean"]["abs_rel"] == pytest.approx(fin["median"]["mean"]["abs_rel"])
+    assert m2["stages"]["final"]["none"]["mean"]["abs_rel"] == pytest.approx(np.mean(np.abs(3 * c - g) / g))
+
+
+def test_constant_depth_reference_errors():
+    with pytest.raises(ValueError, match="depth_m"):
+        E.constant_depth_predictor(RampDataset(), 0.0)
+    with pytest.raises(ValueError, match="no ground-truth pixel"):
+        E.median_gt_depth(RampDataset(), "train", E.EvalConfig(min_depth=50.0, max_depth=80.0))

@@ -119,8 +119,15 @@ def test_ci_sweep_end_to_end_rerun_and_resume(tmp_path):
         assert (run / "checkpoints" / "last.pt").is_file()
     assert seen == {(o, m) for o in cfg.overlaps for m in cfg.methods}
 
+    for d in res["data"]:  # the constant-depth reference of every overlap
+        ref = d["reference"]
+        assert ref["depth_m"] > 0.5 and _finite(ref["metrics"]["median"]["mean"]["abs_rel"])
+        assert _finite(ref["metrics"]["none"]["mean"]["abs_rel"]) and _finite(ref["metrics"]["dep_con"]["mean"])
+    assert (c["reference_evaluated"], c["reference_skipped"]) == (2, 0)
+
     rows = list(csv.DictReader((out / "results.csv").open()))
-    assert len(rows) == n
+    assert len(rows) == n + len(cfg.overlaps)
+    assert [r["method"] for r in rows[n:]] == ["constant_reference"] * len(cfg.overlaps)
     for row in rows:
         for k in ("none.mean.abs_rel", "median.mean.abs_rel", "dep_con.mean", "measured_overlap"):
             assert math.isfinite(float(row[k])), (row["overlap"], row["method"], k)
@@ -132,13 +139,14 @@ def test_ci_sweep_end_to_end_rerun_and_resume(tmp_path):
         assert label in report
     assert "Dep Con per camera" in report and "non-overlap" in report and "Time per stage" in report
     assert "seeds: [0]" in report
+    assert report.count("Constant depth (ref.)") >= 1 + 4 * len(cfg.overlaps)  # setup + summary/Table 1/2/regions
 
     # rerun: a no-op that skips every stage and reports the same numbers
     assert sweep.main([str(CI), "--out", str(out), "--no-progress"]) == 0
     res2 = json.loads((out / "results.json").read_text())
     c2 = res2["counters"]
     assert (c2["rendered"], c2["trained"], c2["evaluated"]) == (0, 0, 0)
-    assert (c2["render_skipped"], c2["train_skipped"], c2["eval_skipped"]) == (2, n, n)
+    assert (c2["render_skipped"], c2["train_skipped"], c2["eval_skipped"], c2["reference_skipped"]) == (2, n, n, 2)
     assert [r["metrics"] for r in res2["rows"]] == [r["metrics"] for r in res["rows"]]
 
     # more steps for one run: training resumes from its checkpoint (step 2 -> 3), nothing is re-rendered
