@@ -56,15 +56,30 @@ def assert_same_state(a: dict, b: dict) -> None:
 
 # --------------------------------------------------------------------------- learning
 def test_short_training_lowers_the_loss_and_beats_a_constant_depth(ds, tmp_path):
-    """mcdp_m1 (metric scale from odometry, no ground truth) for 60 steps on the tiny render."""
+    """mcdp_m1 (metric scale from odometry, no ground truth) for 60 steps on the tiny render.
+
+    The loss is the held-out val loss (eval mode, fixed samples) before and after training: the
+    running training loss over 60 single-sample steps is too noisy to compare (sample to sample it
+    varies by +-10%). lr 7e-4 instead of the preset's 5e-4: at 5e-4 60 steps move the median-scaled
+    abs_rel only from 0.55 (constant) to 0.51; at 1e-3 one seed in three collapsed to a constant
+    depth. Measured at 7e-4 (seeds 0/1/2): val loss x0.90, abs_rel 0.34-0.40 (none) and 0.30-0.31
+    (median) against 0.89 and 0.55 for a constant 10 m.
+    """
     from mcdp.evaluate import EvalConfig, evaluate
     from mcdp.predict import Predictor
 
     run = tmp_path / "run"
-    summary = train(ds, run, "mcdp_m1", "scale.source=odometry", "train.steps=60", "train.ckpt_every=1000",
-                    "train.val_every=1000", "train.log_every=1000")
-    L = summary["losses"]
-    assert np.mean(L[-8:]) < 0.9 * np.mean(L[:4]), f"loss did not go down: {L}"
+    cfg = cfg_of("mcdp_m1", "scale.source=odometry", "train.steps=60", "train.lr=7e-4", "train.ckpt_every=1000",
+                 "train.val_every=1000", "train.log_every=1000")
+    tr = Trainer(cfg, ds, run, progress=False, tensorboard=False)
+    try:
+        before = tr.validate()
+        summary = tr.train()
+        after = tr.validate()
+    finally:
+        tr.close()
+    assert summary["steps"] == 60 and all(np.isfinite(summary["losses"]))
+    assert after < 0.95 * before, f"val loss did not go down: {before:.4f} -> {after:.4f}"
 
     pred = Predictor(run, ds, "last")
     m = evaluate(ds, pred.predict, "test", EvalConfig(), progress=False)
@@ -73,7 +88,7 @@ def test_short_training_lowers_the_loss_and_beats_a_constant_depth(ds, tmp_path)
     for sc in ("none", "median"):
         ours = m["stages"]["final"][sc]["mean"]["abs_rel"]
         base = const["stages"]["final"][sc]["mean"]["abs_rel"]
-        assert ours < 0.9 * base, f"{sc}: abs_rel {ours:.3f} vs constant depth {base:.3f}"
+        assert ours < 0.8 * base, f"{sc}: abs_rel {ours:.3f} vs constant depth {base:.3f}"
     assert list(m["stages"]) == ["init", "refine1", "final"]
 
 
