@@ -84,6 +84,11 @@ class SweepConfig(StrictModel):
         ``train.threads`` cores (jobs x threads <= cores). Progress bars are off when > 1.
     device: training / inference device.
     preview: write a preview sheet of one rig at the smallest and largest overlap.
+    keep_last: keep every run's ``checkpoints/last.pt`` (weights + Adam state: about three
+        quarters of a run's disk). ``false`` removes it once the run is trained and its
+        ``best.pt`` has been evaluated (only then); the results, ``best.pt`` and rerun skipping
+        are unaffected, but such a run can no longer be resumed with more steps (the sweep
+        refuses, naming the run folder to delete).
     """
 
     data: str = "configs/data/tiny.yaml"
@@ -101,6 +106,7 @@ class SweepConfig(StrictModel):
     jobs: int = Field(1, ge=1, le=64)
     device: Literal["auto", "cpu", "cuda"] = "auto"
     preview: bool = True
+    keep_last: bool = True
 
     @field_validator("overlaps")
     @classmethod
@@ -373,6 +379,10 @@ def run_stage(cfg: SweepConfig, overlap: float, data: dict, method: str, seed: i
     else:
         if status.get("data_hash") not in (None, data["config_hash"]):
             raise ConfigError(f"{run_dir} was trained on another dataset; delete it or use a new --out")
+        if status.get("last_removed") and not (run_dir / "checkpoints" / "last.pt").exists():
+            raise ConfigError(f"{run_dir}: the resolved config of {method} changed since this run was trained, and "
+                              "its checkpoints/last.pt was removed after evaluation (keep_last: false), so it "
+                              f"cannot resume; delete {run_dir} to retrain it, or use a new --out")
         t0 = time.perf_counter()
         try:
             trainer = Trainer(rcfg, ds, run_dir, progress=progress)
@@ -435,6 +445,8 @@ def run_stage(cfg: SweepConfig, overlap: float, data: dict, method: str, seed: i
         _write_json(status_path, status)
         counters.bump("evaluated")
         row.update(eval_s=eval_s, eval_skipped=False)
+    if not cfg.keep_last:
+        status = _remove_last(run_dir, status, status_path)
     row["checkpoint"] = status.get("checkpoint")
     row["checkpoint_step"] = status.get("checkpoint_step")
     row["oracle"] = bool(metrics.get("run", {}).get("oracle", False))
@@ -443,6 +455,17 @@ def run_stage(cfg: SweepConfig, overlap: float, data: dict, method: str, seed: i
     log(f"{tag}: abs_rel metric {m['none']['mean']['abs_rel']:.4f}, median {m['median']['mean']['abs_rel']:.4f}, "
         f"dep_con {m['dep_con']['mean']:.4f}")
     return row
+
+
+def _remove_last(run_dir: Path, status: dict, status_path: Path) -> dict:
+    """keep_last=false: delete last.pt of a trained run whose evaluated checkpoint is best.pt."""
+    last, best = run_dir / "checkpoints" / "last.pt", run_dir / "checkpoints" / "best.pt"
+    evaluated = Path(status.get("checkpoint") or "")
+    if status.get("trained") and last.is_file() and best.is_file() and evaluated.resolve() == best.resolve():
+        status = {**status, "last_removed": True}
+        _write_json(status_path, status)  # first: an interruption between the two leaves a last.pt, not a lie
+        last.unlink()
+    return status
 
 
 # --------------------------------------------------------------------------- driver

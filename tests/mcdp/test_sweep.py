@@ -171,3 +171,26 @@ def test_parallel_jobs_give_the_same_numbers_as_sequential(tmp_path):
     for a, b in zip(seq["rows"], par["rows"]):
         assert a["method"] == b["method"]
         assert a["metrics"] == b["metrics"], a["method"]
+
+
+def test_keep_last_false_removes_last_pt_after_eval_and_refuses_to_extend(tmp_path, capsys):
+    out = tmp_path / "sweep"
+    common = ["--out", str(out), "--no-progress", "overlaps=[0.5]", "methods=[mono2]", "jobs=1", "keep_last=false"]
+    assert sweep.main([str(CI), *common]) == 0
+    run = out / "runs" / "overlap_0.50" / "mono2_s0"
+    assert not (run / "checkpoints" / "last.pt").exists() and (run / "checkpoints" / "best.pt").is_file()
+    assert json.loads((run / sweep.STATUS).read_text())["last_removed"] is True
+    first = json.loads((out / "results.json").read_text())
+    assert first["rows"][0]["checkpoint"].endswith("best.pt")
+
+    assert sweep.main([str(CI), *common]) == 0  # rerun: skipped, same numbers from the kept files
+    again = json.loads((out / "results.json").read_text())
+    assert (again["counters"]["train_skipped"], again["counters"]["eval_skipped"]) == (1, 1)
+    assert again["rows"][0]["metrics"] == first["rows"][0]["metrics"]
+
+    cfg = sweep.load_sweep_config(CI)
+    steps3 = [s.replace("train.steps=2", "train.steps=3") for s in cfg.train_overrides]
+    capsys.readouterr()
+    assert sweep.main([str(CI), *common, "train_overrides=[" + ",".join(steps3) + "]"]) == 2
+    err = capsys.readouterr().err
+    assert str(run) in err and "keep_last: false" in err and "cannot resume" in err
