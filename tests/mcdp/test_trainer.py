@@ -171,5 +171,5 @@ def test_velocity_scale_supervises_the_pose_translation(ds, tmp_path):
     tr.close()
     # the tiny render drives ~2 m per frame; a fresh pose net predicts ~0 m
     assert float(losses["pose/t_norm_odom"]) > 0.5
-    assert float(losses["pose/velocity"]) == pytest.approx(
+    assert float(losses["pose/velocity"].detach()) == pytest.approx(
         abs(float(losses["pose/t_norm_odom"]) - float(losses["pose/t_norm_pred"])), rel=0.2)
