@@ -215,6 +215,14 @@ def run_config_for(cfg: SweepConfig, method: str, seed: int):
     return load_config(RunConfig, preset, ov), preset
 
 
+def eval_config_for(cfg: SweepConfig):
+    """The `mcdp.evaluate.EvalConfig` every run and the reference are evaluated with."""
+    from mcdp.evaluate import EvalConfig
+    from synth.configlib import build_config
+
+    return build_config(EvalConfig, config_to_dict(cfg.eval), "sweep eval")
+
+
 def measured_overlap(manifest: dict) -> dict:
     """Target and measured pixel overlap of a dataset (from its manifest).
 
@@ -321,8 +329,7 @@ def reference_stage(cfg: SweepConfig, d: dict, sweep_dir: Path, counters: Counte
     scaling its value does not matter (every image is scaled to its ground-truth median).
     A method worse than this reference has learnt no usable depth structure.
     """
-    from mcdp.evaluate import EvalConfig, constant_depth_predictor, evaluate, median_gt_depth
-    from synth.configlib import build_config
+    from mcdp.evaluate import constant_depth_predictor, evaluate, median_gt_depth
     from synth.dataset import open_dataset
 
     o = d["overlap"]
@@ -333,7 +340,7 @@ def reference_stage(cfg: SweepConfig, d: dict, sweep_dir: Path, counters: Counte
         counters.bump("reference_skipped")
         return cached["reference"]
     ds = open_dataset(d["path"])
-    ecfg = build_config(EvalConfig, config_to_dict(cfg.eval), "sweep eval")
+    ecfg = eval_config_for(cfg)
     t0 = time.perf_counter()
     depth = median_gt_depth(ds, "train", ecfg)
     metrics = evaluate(ds, constant_depth_predictor(ds, depth), SPLIT, ecfg, progress=False)
@@ -355,10 +362,9 @@ def _eval_key(run_hash: str, step: int, eval_cfg: dict, data_hash: str, checkpoi
 def run_stage(cfg: SweepConfig, overlap: float, data: dict, method: str, seed: int, sweep_dir: Path,
               counters: Counters, log, progress: bool) -> dict:
     """Train (or reuse / resume) and evaluate one (overlap, method, seed); returns its result row."""
-    from mcdp.evaluate import EvalConfig, evaluate
+    from mcdp.evaluate import evaluate
     from mcdp.predict import Predictor
     from mcdp.trainer import RunError, Trainer, TrainingDiverged
-    from synth.configlib import build_config
     from synth.dataset import open_dataset
 
     rcfg, preset = run_config_for(cfg, method, seed)
@@ -415,7 +421,7 @@ def run_stage(cfg: SweepConfig, overlap: float, data: dict, method: str, seed: i
 
     # ---- eval
     metrics_path = run_dir / f"metrics_{SPLIT}.json"
-    ecfg = build_config(EvalConfig, config_to_dict(cfg.eval), "sweep eval")
+    ecfg = eval_config_for(cfg)
     pred = None
     from mcdp.predict import find_checkpoint
 

@@ -65,7 +65,7 @@ def test_short_training_lowers_the_loss_and_beats_a_constant_depth(ds, tmp_path)
     depth. Measured at 7e-4 (seeds 0/1/2): val loss x0.90, abs_rel 0.34-0.40 (none) and 0.30-0.31
     (median) against 0.89 and 0.55 for a constant 10 m.
     """
-    from mcdp.evaluate import EvalConfig, evaluate
+    from mcdp.evaluate import EvalConfig, constant_depth_predictor, evaluate
     from mcdp.predict import Predictor
 
     run = tmp_path / "run"
@@ -83,8 +83,7 @@ def test_short_training_lowers_the_loss_and_beats_a_constant_depth(ds, tmp_path)
 
     pred = Predictor(run, ds, "last")
     m = evaluate(ds, pred.predict, "test", EvalConfig(), progress=False)
-    const = evaluate(ds, lambda s, f: {"c": np.full((6, ds.height, ds.width), 10.0, np.float32)}, "test",
-                     EvalConfig(), progress=False)
+    const = evaluate(ds, constant_depth_predictor(ds, 10.0), "test", EvalConfig(), progress=False)
     for sc in ("none", "median"):
         ours = m["stages"]["final"][sc]["mean"]["abs_rel"]
         base = const["stages"]["final"][sc]["mean"]["abs_rel"]
