@@ -5,6 +5,8 @@
     mcdp train configs/train/<preset>.yaml --data DATA --out RUN [key=value ...]   # resumes if RUN has a checkpoint
     mcdp eval RUN --data DATA [--split test] [--out metrics.json] [--checkpoint auto|best|last|PATH] [eval.key=value ...]
     mcdp predict RUN --data DATA --out PRED [--split test] [--max-samples N] [--ply]
+    mcdp pretrain configs/pretrain/tiny.yaml --out DIR [key=value ...]           # cached by its config hash
+    mcdp sweep configs/sweep/cpu.yaml --out SWEEP [key=value ...]
 
 Exit codes: 0 success, 2 bad input (config, dataset, run folder; a message on
 stderr, no traceback), 3 training diverged (NaN/inf loss), 130 interrupted.
@@ -27,11 +29,12 @@ EXIT_DIVERGED = 3
 def _user_errors() -> tuple[type[BaseException], ...]:
     from mcdp.networks import NetworkError
     from mcdp.trainer import RunError
+    from mcdp.warmstart import WarmStartError
     from synth.configlib import ConfigError
     from synth.dataset import DatasetError
     from synth.render import OutputFolderError
 
-    return (ConfigError, DatasetError, RunError, NetworkError, OutputFolderError)
+    return (ConfigError, DatasetError, RunError, NetworkError, OutputFolderError, WarmStartError)
 
 
 def _open_dataset(path: str):
@@ -203,8 +206,10 @@ def build_parser() -> argparse.ArgumentParser:
         p = sub.add_parser(name, help=help_, description=help_)
         add_args(p)
         p.set_defaults(_run=run)
+    from mcdp.pretrain import add_pretrain_parser
     from mcdp.sweep import add_sweep_parser
 
+    add_pretrain_parser(sub)  # mcdp pretrain CONFIG --out DIR [key=value ...]
     add_sweep_parser(sub)  # mcdp sweep PRESET --out SWEEP [key=value ...]
     return parser
 

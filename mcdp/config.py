@@ -62,6 +62,12 @@ class ModelConfig(StrictModel):
     weight_channels: channels each encoder-feature pyramid is reduced to
         before warping, inside each weight network (keeps refinement cheap).
     weight_conv_channels, weight_fc: widths of the weight network's conv stack and FC layers.
+    mono_head: pretraining only (`mcdp.pretrain`): a one-channel Monodepth2 head beside the
+        n bases on the same encoder and decoder trunk (stages "mono" and "init").
+    init_from: path to a shared pretraining's ``pretrained.pt`` (`mcdp.pretrain`), or null. A
+        fresh run copies the encoder and decoder from it (mono2 takes the mono head, mcdp the
+        n basis channels); weight networks start fresh. Refused, naming the layer, when the
+        architecture differs. The run records the file's path and sha256.
     """
 
     method: Literal["mono2", "mcdp"] = "mcdp"
@@ -76,6 +82,8 @@ class ModelConfig(StrictModel):
     weight_channels: int = Field(32, ge=1)
     weight_conv_channels: int = Field(64, ge=1)
     weight_fc: int = Field(128, ge=1)
+    mono_head: bool = False
+    init_from: str | None = None
 
     @model_validator(mode="after")
     def _check(self) -> "ModelConfig":
@@ -86,6 +94,9 @@ class ModelConfig(StrictModel):
                 f"model.init_depth ({self.init_depth}) must lie in (min_depth, max_depth) = "
                 f"({self.min_depth}, {self.max_depth})"
             )
+        if self.mono_head and (self.method != "mcdp" or self.refine_steps > 0):
+            raise ValueError("model.mono_head (the shared pretraining's extra head) needs model.method=mcdp and "
+                             "model.refine_steps=0")
         if self.method == "mono2" and self.refine_steps > 0:
             raise ValueError("model.refine_steps must be 0 for model.method=mono2 (refinement needs depth bases)")
         return self
@@ -110,6 +121,14 @@ class LossConfig(StrictModel):
         once the cameras agree: large enough to shape the overlap, too small to
         collapse depth towards the near plane (which also lowers the L1).
     automask: Monodepth2 auto-masking of stationary pixels.
+    out_of_view: what a pixel that no source frame sees (warped outside every source image
+        or behind it) scores. ``identity`` (default; `mcdp.losses.identity_floored_error`):
+        its identity error, and with auto-masking every pixel scores min(reprojection,
+        identity), averaged over ALL scene pixels as Monodepth2 does, so no depth can lower
+        the loss by sending pixels out of view. ``border``: the earlier rule (the border-padded
+        reprojection error, averaged over the auto-mask's pixels only); measured in
+        docs/results/learning.md: at lr 1e-3 it left training stuck at a near-constant depth
+        (median abs_rel 0.86 vs 0.84 for a constant after 300 steps) where ``identity`` reached 0.41.
     refine_scales: how many decoder scales the photometric loss of each
         *refined* stage uses (the initial stage always uses all
         ``model.scales``). Default 1 = full resolution only: a refined stage
@@ -123,6 +142,7 @@ class LossConfig(StrictModel):
     smoothness_weight: Float = Field(1e-3, ge=0.0)
     consistency_weight: Float = Field(0.02, ge=0.0)
     automask: bool = True
+    out_of_view: Literal["identity", "border"] = "identity"
     refine_scales: int = Field(1, ge=1, le=4)
 
 

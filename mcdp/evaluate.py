@@ -42,7 +42,9 @@ valid, e.g. a camera without neighbours has NaN overlap metrics)::
             "non_overlap_per_camera": {cam: {7 metrics}}},
         "dep_con": {"mean": float,
                     "per_pair": {"SRC->TGT": float, ...},   # SRC's depth splatted into TGT
-                    "per_camera": {cam: float}}}}}          # mean of pairs "*->cam"
+                    "per_camera": {cam: float}},            # mean of pairs "*->cam"
+        "spread": {"ratio": float}}}}         # median over images of the prediction's p90/p10
+                                              # on valid pixels (mcdp.diagnostics: < 1.25 = collapsed)
 
 Example::
 
@@ -268,6 +270,7 @@ def evaluate(
             stages = keys
             acc = {s: {sc: {r: [[] for _ in range(n_cam)] for r in region_sel} for sc in SCALINGS} for s in stages}
             dc_acc = {s: {p: [] for p in pairs} for s in stages}
+            spread_acc = {s: [] for s in stages}
         elif keys != stages:
             raise ValueError(f"predict_fn({seq!r}, {f}) returned stages {keys}, earlier samples {stages}")
 
@@ -279,9 +282,14 @@ def evaluate(
                             acc[stage][sc][r][c].append(acc[alias][sc][r][c][-1])
                 for p in pairs:
                     dc_acc[stage][p].append(dc_acc[alias][p][-1])
+                spread_acc[stage] = spread_acc[alias]
                 continue
             preds = _as_stack(raw[stage], names, shapes, stage)
             p_v = [p[v] for p, v in zip(preds, valids)]
+            for p in p_v:  # collapse diagnostic (mcdp.diagnostics): p90/p10 of the prediction
+                if p.size >= 10:
+                    q10, q90 = np.percentile(p, [10, 90])
+                    spread_acc[stage].append(float(q90 / max(q10, 1e-6)))
             rig = _ratio_of_medians(np.concatenate(g_v), np.concatenate(p_v))
             scales = {
                 "none": [1.0] * n_cam,
@@ -320,6 +328,7 @@ def evaluate(
         per_pair = {pair_key[p]: _nanmean(v) for p, v in dc_acc[stage].items()}
         per_cam = {names[i]: _nanmean(per_pair[pair_key[(j, i)]] for j in nbrs[i]) for i in range(n_cam)}
         st["dep_con"] = {"mean": _nanmean(per_pair.values()), "per_pair": per_pair, "per_camera": per_cam}
+        st["spread"] = {"ratio": float(np.median(spread_acc[stage])) if spread_acc[stage] else float("nan")}
         out_stages[stage] = st
 
     return {

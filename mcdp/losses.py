@@ -198,6 +198,40 @@ def min_reprojection(errors: Sequence[torch.Tensor], valid_list: Sequence[torch.
     return torch.where(seen, best_valid, e.min(1, keepdim=True).values), seen
 
 
+def identity_floored_error(errors: Sequence[torch.Tensor], valid_list: Sequence[torch.Tensor], ident: torch.Tensor,
+                           automask: bool = True):
+    """Monodepth2's per-pixel loss with out-of-view pixels scored at their identity error.
+
+    e = min over the sources that see the pixel of their reprojection error; a pixel
+    that no source sees gets the identity error ``ident`` (the error of the unwarped
+    source: what "no motion" explains), and with auto-masking every pixel gets
+    min(e, ident), as Monodepth2 does by concatenating the identity errors into the
+    minimum. The loss is then the mean over ALL scene pixels, so no depth can lower
+    it by sending pixels out of view or by making them worse than the identity: both
+    score ident, the largest value a pixel can contribute.
+
+    Args:
+        errors: S tensors (B, 1, H, W), reprojection error per source.
+        valid_list: S tensors (B, 1, H, W) 0/1, the source sees the pixel.
+        ident: (B, 1, H, W) min over sources of the identity error (no gradient needed).
+        automask: take the minimum with ``ident`` at seen pixels too.
+
+    Returns:
+        per_pixel (B, 1, H, W) and used (B, 1, H, W) float 0/1: pixels where the
+        reprojection (not the identity) gives the value, i.e. those that carry gradient.
+    """
+    e = torch.cat(list(errors), 1)
+    v = torch.cat([x > 0 for x in valid_list], 1)
+    best = torch.where(v, e, torch.full_like(e, INVALID_ERROR)).min(1, keepdim=True).values
+    seen = v.any(1, keepdim=True)
+    ident = ident.detach().to(best.dtype)
+    if automask:
+        use = seen & (best < ident)
+    else:
+        use = seen
+    return torch.where(use, best, ident), use.to(best.dtype)
+
+
 def used_pixels(reproj: torch.Tensor, seen: torch.Tensor, ident: Optional[torch.Tensor], mask: torch.Tensor):
     """Float 0/1 (B, 1, H, W): scene pixels that the loss averages over.
 

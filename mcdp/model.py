@@ -21,7 +21,9 @@ previous weights.
 
 Stages are named "init", "refine1", ..., "refine{m}" (the evaluator adds
 "final" = the last one). Method ``mono2`` has one sigmoid channel and only
-"init".
+"init". The shared pretraining (``model.mono_head``, `mcdp.pretrain`) adds a
+one-channel Monodepth2 head as the decoder's last channel: stages "mono" (that
+head) and "init" (the n bases at weights 1/n), trained together on one trunk.
 
 Example::
 
@@ -64,6 +66,11 @@ def combine_bases(bases: torch.Tensor, weights: torch.Tensor) -> torch.Tensor:
 
 def stage_names(refine_steps: int) -> list[str]:
     return ["init"] + [f"refine{k}" for k in range(1, refine_steps + 1)]
+
+
+def is_refined(stage: str) -> bool:
+    """A refinement stage ("refine1", ...): its loss uses ``loss.refine_scales`` scales."""
+    return stage.startswith("refine")
 
 
 def rotation_from_axisangle(axisangle: torch.Tensor) -> torch.Tensor:
@@ -143,14 +150,15 @@ class DepthModel(nn.Module):
     def __init__(self, cfg: ModelConfig):
         super().__init__()
         self.cfg = cfg
-        self.stages = stage_names(cfg.refine_steps)
+        self.stages = (["mono"] if cfg.mono_head else []) + stage_names(cfg.refine_steps)
         self.slots = SLOTS[cfg.neighbours]
         self.encoder = ResnetEncoder(1, cfg.pretrained)
         init_sig = None
         if cfg.init_depth is not None:  # invert disp_to_depth at init_depth
             min_disp, max_disp = 1.0 / cfg.max_depth, 1.0 / cfg.min_depth
             init_sig = (1.0 / cfg.init_depth - min_disp) / (max_disp - min_disp)
-        self.decoder = DepthDecoder(ResnetEncoder.num_ch_enc, n_out=cfg.n_out, scales=cfg.scales, init_sigmoid=init_sig)
+        n_dec = cfg.n_out + (1 if cfg.mono_head else 0)  # the mono head is the last channel
+        self.decoder = DepthDecoder(ResnetEncoder.num_ch_enc, n_out=n_dec, scales=cfg.scales, init_sigmoid=init_sig)
         c_levels = ResnetEncoder.num_ch_enc[:3]  # features at 1/2, 1/4, 1/8: 64, 64, 128 channels
         self.weight_nets = nn.ModuleList(
             [
@@ -206,15 +214,22 @@ class DepthModel(nn.Module):
         BN = B * N
         feats = self.encoder(rgb.reshape(BN, 3, H, W))
         bases = self.decoder(feats)  # {s: (BN, n, h, w)}
+        n = self.cfg.n_out
+        mono = None
+        if self.cfg.mono_head:  # pretraining: a Monodepth2 head beside the n bases, same trunk
+            mono = {s: b[:, n:] for s, b in bases.items()}
+            bases = {s: b[:, :n] for s, b in bases.items()}
         n_init = self.cfg.scales if scales is None else min(int(scales), self.cfg.scales)
         n_ref = n_init if refine_scales is None else min(int(refine_scales), self.cfg.scales)
         out: dict = {"stages": self.stages, "bases": bases}
-        n = self.cfg.n_out
 
-        def emit(stage: str, weights: torch.Tensor, scale: torch.Tensor) -> None:
+        def emit(stage: str, weights: torch.Tensor | None, scale: torch.Tensor) -> None:
             out["weights", stage] = weights
-            for s in range(n_init if stage == "init" else n_ref):
-                sig = combine_bases(bases[s], weights) if n > 1 else bases[s]
+            for s in range(n_ref if is_refined(stage) else n_init):
+                if weights is None:
+                    sig = mono[s]
+                else:
+                    sig = combine_bases(bases[s], weights) if n > 1 else bases[s]
                 disp, _ = self.to_depth(sig)
                 out["sig", stage, s] = sig
                 out["disp", stage, s] = disp
@@ -230,6 +245,8 @@ class DepthModel(nn.Module):
                 med = masked_median(self.to_depth(sig0.float())[1], mask_f.float())
                 scale = oracle_gt_median.reshape(BN).to(med.dtype) / med.clamp(min=1e-6)
         out["scale"] = scale
+        if mono is not None:
+            emit("mono", None, scale)
         emit("init", torch.softmax(logits, 1), scale)
         if not self.weight_nets:
             return out
@@ -243,8 +260,9 @@ class DepthModel(nn.Module):
         T_cam_ego = torch.linalg.inv(T_ego_cam)
         has = (nbr >= 0).float()  # (N, 2)
         idx = nbr.clamp(min=0)  # (N, 2)
+        refine_stages = stage_names(self.cfg.refine_steps)
         for k, wnet in enumerate(self.weight_nets, start=1):
-            prev = self.stages[k - 1]
+            prev = refine_stages[k - 1]
             # The depth that places the neighbours' features is taken as given: the
             # refinement loss should change the weights, not move the previous
             # stage's depth through sampling coordinates.
@@ -273,7 +291,7 @@ class DepthModel(nn.Module):
                 parts.append(warped[:, :c] * valid)
                 valids.append(valid)
             logits = logits + wnet(torch.cat(parts + valids, 1))
-            emit(self.stages[k], torch.softmax(logits, 1), scale)
+            emit(refine_stages[k], torch.softmax(logits, 1), scale)
         return out
 
 

@@ -27,6 +27,7 @@ import time
 from pathlib import Path
 from typing import Any
 
+from mcdp.diagnostics import COLLAPSE_RATIO
 from mcdp.metrics import METRIC_NAMES
 
 LABELS = {
@@ -61,6 +62,7 @@ def flat_row(row: dict) -> dict[str, Any]:
         for cam, v in m[sc]["per_camera_abs_rel"].items():
             out[f"{sc}.camera.{cam}.abs_rel"] = _f(v)
     out["dep_con.mean"] = _f(m["dep_con"]["mean"])
+    out["spread.ratio"] = _f(m.get("spread", {}).get("ratio"))
     for cam, v in m["dep_con"]["per_camera"].items():
         out[f"dep_con.camera.{cam}"] = _f(v)
     for pair, v in m["dep_con"]["per_pair"].items():
@@ -68,14 +70,45 @@ def flat_row(row: dict) -> dict[str, Any]:
     return out
 
 
+#: two-sided 95 % Student-t quantiles t_{0.975, df} for df = 1..30 (larger df: 1.96)
+T975 = (12.706, 4.303, 3.182, 2.776, 2.571, 2.447, 2.365, 2.306, 2.262, 2.228, 2.201, 2.179, 2.160, 2.145,
+        2.131, 2.120, 2.110, 2.101, 2.093, 2.086, 2.080, 2.074, 2.069, 2.064, 2.060, 2.056, 2.052, 2.048,
+        2.045, 2.042)
+
+
+def t_halfwidth(sd: float, n: int) -> float:
+    """Half-width of the 95 % t-interval of a mean of n values with sample std sd (NaN for n < 2)."""
+    if n < 2 or not math.isfinite(sd):
+        return float("nan")
+    t = T975[n - 2] if n - 1 <= len(T975) else 1.96
+    return t * sd / math.sqrt(n)
+
+
 def _mean_std(values: list[float]) -> dict:
     v = [x for x in values if isinstance(x, (int, float)) and math.isfinite(x)]
     n_nan = len(values) - len(v)
     if not v:
-        return {"mean": float("nan"), "std": float("nan"), "n": 0, "n_nan": n_nan, "values": values}
+        return {"mean": float("nan"), "std": float("nan"), "ci95": float("nan"), "n": 0, "n_nan": n_nan,
+                "values": values}
     mu = sum(v) / len(v)
     sd = math.sqrt(sum((x - mu) ** 2 for x in v) / (len(v) - 1)) if len(v) > 1 else 0.0
-    return {"mean": mu, "std": sd, "n": len(v), "n_nan": n_nan, "values": values}
+    return {"mean": mu, "std": sd, "ci95": t_halfwidth(sd, len(v)), "n": len(v), "n_nan": n_nan, "values": values}
+
+
+def paired_difference(results: dict, overlap: float, a: str, b: str, key: str) -> dict:
+    """Mean and 95 % t-interval over seeds of (a - b) for the same seed (seeds pair the runs:
+    same data order and pretraining); {"mean", "ci95", "n", "differs"} where differs is
+    -1 (a lower), +1 (a higher) or 0 (the interval contains 0)."""
+    va = {f["seed"]: f.get(key) for f in results["flat"] if f["overlap"] == overlap and f["method"] == a}
+    vb = {f["seed"]: f.get(key) for f in results["flat"] if f["overlap"] == overlap and f["method"] == b}
+    d = [va[s] - vb[s] for s in va if s in vb and all(isinstance(x, (int, float)) and math.isfinite(x)
+                                                      for x in (va[s], vb[s]))]
+    ms = _mean_std(d)
+    mu, hw = ms["mean"], ms["ci95"]
+    differs = 0
+    if math.isfinite(mu) and math.isfinite(hw):
+        differs = -1 if mu + hw < 0 else (1 if mu - hw > 0 else 0)
+    return {"mean": mu, "ci95": hw, "n": ms["n"], "differs": differs}
 
 
 def build_results(cfg, data: list[dict], rows: list[dict], counters: dict, total_s: float,
@@ -131,18 +164,22 @@ def _agg(results: dict, overlap: float, method: str, key: str) -> dict:
 
 
 REF_LABEL = "Constant depth (ref.)"
+PRIOR_LABEL = "Flat-road prior (ref.)"
+#: the yardstick rows: (results["data"] key, table label, csv method name)
+YARDSTICKS = (("reference", REF_LABEL, "constant_reference"), ("prior", PRIOR_LABEL, "flat_road_prior"))
 
 
-def _ref_flat(results: dict, overlap: float) -> dict:
+def _ref_flat(results: dict, overlap: float, which: str = "reference") -> dict:
     for d in results["data"]:
-        if d["overlap"] == overlap and d.get("reference"):
-            return flat_row({"metrics": d["reference"]["metrics"]})
+        if d["overlap"] == overlap and d.get(which):
+            return flat_row({"metrics": d[which]["metrics"]})
     return {}
 
 
-def _ref(results: dict, overlap: float, key: str) -> dict:
-    """The constant-depth reference's value of `key` at one overlap, in `_agg`'s shape (NaN if absent)."""
-    v = _ref_flat(results, overlap).get(key, float("nan"))
+def _ref(results: dict, overlap: float, key: str, which: str = "reference") -> dict:
+    """A yardstick's value of `key` at one overlap (``which``: reference = constant, prior = flat road),
+    in `_agg`'s shape (NaN if absent)."""
+    v = _ref_flat(results, overlap, which).get(key, float("nan"))
     return {"mean": v, "std": 0.0, "n": 1 if math.isfinite(v) else 0}
 
 
@@ -170,13 +207,14 @@ def write_csv(results: dict, path: Path) -> None:
         for f in flats:
             m = meas.get(f["overlap"], {})
             w.writerow({**f, "target_overlap": m.get("target"), "measured_overlap": m.get("measured_mean")})
-        for d in results["data"]:  # the constant-depth reference, one row per overlap
-            ref = _ref_flat(results, d["overlap"])
-            if ref:
-                w.writerow({**{k: v for k, v in ref.items() if k in keys}, "overlap": d["overlap"],
-                            "method": "constant_reference", "status": "reference",
-                            "target_overlap": d["measured"].get("target"),
-                            "measured_overlap": d["measured"].get("measured_mean")})
+        for which, _, name in YARDSTICKS:  # the yardsticks, one row per overlap each
+            for d in results["data"]:
+                ref = _ref_flat(results, d["overlap"], which)
+                if ref:
+                    w.writerow({**{k: v for k, v in ref.items() if k in keys}, "overlap": d["overlap"],
+                                "method": name, "status": "reference",
+                                "target_overlap": d["measured"].get("target"),
+                                "measured_overlap": d["measured"].get("measured_mean")})
 
 
 def make_plots(results: dict, plot_dir: Path) -> list[Path]:
@@ -190,9 +228,9 @@ def make_plots(results: dict, plot_dir: Path) -> list[Path]:
     methods = results["methods"]
     paths = []
 
-    def series(method, key):
+    def series(method, key):  # mean and 95 % t half-width over seeds
         a = [_agg(results, o, method, key) for o in xs]
-        return [x["mean"] for x in a], [x["std"] if x["n"] > 1 else 0.0 for x in a]
+        return [x["mean"] for x in a], [x.get("ci95", 0.0) if x["n"] > 1 else 0.0 for x in a]
 
     def save(fig, name: str) -> None:
         fig.tight_layout()
@@ -214,6 +252,7 @@ def make_plots(results: dict, plot_dir: Path) -> list[Path]:
             y, e = series(m, f"{sc}.mean.abs_rel")
             ax.errorbar(xs, y, yerr=e, marker="o", capsize=3, label=LABELS[m])
         ax.plot(xs, [_ref(results, o, f"{sc}.mean.abs_rel")["mean"] for o in xs], "k--", label=REF_LABEL)
+        ax.plot(xs, [_ref(results, o, f"{sc}.mean.abs_rel", "prior")["mean"] for o in xs], "k:", label=PRIOR_LABEL)
         style(ax, f"abs_rel ({SCALE_LABEL[sc]} scaling), test split", "target overlap (fraction of hfov)",
               "abs_rel (lower is better)", legend=False)
     axes[0].legend(fontsize=8)
@@ -258,7 +297,8 @@ def _fmt(a: dict, digits: int = 3) -> str:
         return "nan"
     s = f"{mu:.{digits}f}"
     if a.get("n", 0) > 1:
-        s += f" ± {a['std']:.{digits}f}"
+        hw = a.get("ci95", float("nan"))
+        s += f" ± {hw:.{digits}f}" if math.isfinite(hw) else f" ± {a['std']:.{digits}f} (sd)"
     if a.get("n_nan"):
         s += f" ({a['n_nan']} nan)"
     return s
@@ -296,10 +336,18 @@ def format_report(results: dict, plots: list[str]) -> str:
     add(f"- training presets: `{cfg['train_presets_dir']}/<method>.yaml`"
         + (f", overrides `{' '.join(cfg['train_overrides'])}`" if cfg["train_overrides"] else ""))
     add(f"- methods: {', '.join(LABELS[m] for m in methods)}")
-    add(f"- training seeds: {seeds}" + (" (values are mean ± sample std over seeds)" if len(seeds) > 1 else
+    add(f"- training seeds: {seeds}" + (" (values are mean ± half-width of the 95 % Student-t interval of the "
+                                        "mean over seeds)" if len(seeds) > 1 else
                                         " (one seed: no spread available; differences may be within seed noise)"))
-    add("- every (overlap, method, seed) is trained from scratch on its own dataset; no pretraining is shared between "
-        "overlaps or methods")
+    pre = results.get("pretrain")
+    if pre:
+        add(f"- every run starts from one shared self-supervised pretraining (no ground truth; its own world, data "
+            f"seed {cfg['pretrain']['data_overrides']}): `{pre['weights']}`, config hash `{pre['config_hash'][:12]}`, "
+            f"{pre['step']} steps, render {_sec(pre.get('render_s'))} s + train {_sec(pre.get('train_s'))} s; "
+            "mono2 starts from its mono head, every MCDP variant from its bases; weight networks start fresh")
+    else:
+        add("- every (overlap, method, seed) is trained from scratch on its own dataset; no pretraining is shared "
+            "between overlaps or methods")
     ev = cfg["eval"]
     add(f"- evaluation: depth range [{ev['min_depth']}, {ev['max_depth']}] m, frame stride {ev['frame_stride']}, "
         f"skip_ends={ev['skip_ends']}; self-occlusion (ego body) pixels excluded; Dep Con on unscaled predictions")
@@ -309,6 +357,17 @@ def format_report(results: dict, plots: list[str]) -> str:
             f"depth of the train split ({', '.join(format(r['depth_m'], '.1f') for r in refs)} m per overlap). It uses "
             "ground truth, so it is a yardstick, not a method: with median scaling it scores what a depth map "
             "with no structure at all scores. A method above it has not learnt usable depth structure")
+    if any(d.get("prior") for d in results["data"]):
+        add(f"- reference row **{PRIOR_LABEL}**: no training; knows the rig (camera height and pitch) and that the road "
+            "is flat: the road plane's depth where a ray meets it, the constant above elsewhere. A method above it "
+            "has learnt less than the ground plane")
+    collapsed = [f for f in results["flat"] if isinstance(f.get("spread.ratio"), (int, float))
+                 and math.isfinite(f["spread.ratio"]) and f["spread.ratio"] < COLLAPSE_RATIO]
+    if collapsed:
+        add(f"- **COLLAPSED** ({len(collapsed)} run(s): test depth p90/p10 < {COLLAPSE_RATIO}, a near-constant map): "
+            + ", ".join(f"{f['overlap']:.2f} {f['method']} s{f['seed']} ({f['spread.ratio']:.2f})" for f in collapsed))
+    else:
+        add(f"- no run ended collapsed (every run's test depth has p90/p10 >= {COLLAPSE_RATIO})")
     oracle = [r for r in results["rows"] if r.get("oracle")]
     if oracle:
         add(f"- **ORACLE**: {len(oracle)} run(s) use ground-truth median scaling (scale.source=oracle_gt_median)")
@@ -326,8 +385,8 @@ def format_report(results: dict, plots: list[str]) -> str:
     add("## Summary: abs_rel vs overlap\n")
     for sc in ("none", "median"):
         add(f"**{SCALE_LABEL[sc]} scaling** (abs_rel, lower is better; in brackets: change vs Mono2)\n")
-        add("| overlap | measured | " + " | ".join(LABELS[m] for m in methods) + f" | {REF_LABEL} |")
-        add("|---|---|" + "---|" * (len(methods) + 1))
+        add("| overlap | measured | " + " | ".join(LABELS[m] for m in methods) + f" | {REF_LABEL} | {PRIOR_LABEL} |")
+        add("|---|---|" + "---|" * (len(methods) + 2))
         for d in results["data"]:
             o = d["overlap"]
             ref = _agg(results, o, "mono2", f"{sc}.mean.abs_rel")["mean"] if "mono2" in methods else float("nan")
@@ -339,8 +398,15 @@ def format_report(results: dict, plots: list[str]) -> str:
                     c += f" ({_pct(_rel(a['mean'], ref))})"
                 cells.append(c)
             add(f"| {o:.2f} | {d['measured']['measured_mean']:.3f} | " + " | ".join(cells)
-                + f" | {_fmt(_ref(results, o, f'{sc}.mean.abs_rel'))} |")
+                + f" | {_fmt(_ref(results, o, f'{sc}.mean.abs_rel'))}"
+                + f" | {_fmt(_ref(results, o, f'{sc}.mean.abs_rel', 'prior'))} |")
         add("")
+    add("### Verdict per overlap: MCDP (m = 2) vs Mono2\n")
+    add("Paired over seeds (same seed = same data order and start): mean difference MCDP (m = 2) − Mono2 with "
+        "its 95 % Student-t interval; *differs* only when the interval excludes 0. Median-scaled abs_rel "
+        "(accuracy) and Dep Con in metres (consistency), on all, overlap and non-overlap pixels.\n")
+    add(_pair_verdicts(results))
+    add("")
     add("### Verdicts (abs_rel, mean over seeds)\n")
     add(_verdicts(results))
     add("")
@@ -369,9 +435,10 @@ def format_report(results: dict, plots: list[str]) -> str:
                 cells = [_fmt(_agg(results, o, m, f"{sc}.mean.{k}")) for k in METRIC_NAMES]
                 delta = "—" if m == "mono2" else _pct(_rel(_agg(results, o, m, f"{sc}.mean.abs_rel")["mean"], ref))
                 add(f"| {LABELS[m]} | {SCALE_LABEL[sc]} | " + " | ".join(cells) + f" | {delta} |")
-            cells = [_fmt(_ref(results, o, f"{sc}.mean.{k}")) for k in METRIC_NAMES]
-            add(f"| *{REF_LABEL}* | {SCALE_LABEL[sc]} | " + " | ".join(cells)
-                + f" | {_pct(_rel(_ref(results, o, f'{sc}.mean.abs_rel')['mean'], ref))} |")
+            for which, label, _ in YARDSTICKS:
+                cells = [_fmt(_ref(results, o, f"{sc}.mean.{k}", which)) for k in METRIC_NAMES]
+                add(f"| *{label}* | {SCALE_LABEL[sc]} | " + " | ".join(cells)
+                    + f" | {_pct(_rel(_ref(results, o, f'{sc}.mean.abs_rel', which)['mean'], ref))} |")
         add("")
         if cams:
             add("**Table 2 layout: Dep Con per camera** (unscaled predictions, lower is better; Δ = mean vs Mono2)\n")
@@ -399,9 +466,11 @@ def format_report(results: dict, plots: list[str]) -> str:
                 d_ov = "—" if m == "mono2" else _pct(_rel(a_ov["mean"], r_ov))
                 d_no = "—" if m == "mono2" else _pct(_rel(a_no["mean"], r_no))
                 add(f"| {LABELS[m]} | {SCALE_LABEL[sc]} | {_fmt(a_ov)} | {_fmt(a_no)} | {d_ov} | {d_no} |")
-            a_ov, a_no = _ref(results, o, f"{sc}.overlap.abs_rel"), _ref(results, o, f"{sc}.non_overlap.abs_rel")
-            add(f"| *{REF_LABEL}* | {SCALE_LABEL[sc]} | {_fmt(a_ov)} | {_fmt(a_no)} | "
-                f"{_pct(_rel(a_ov['mean'], r_ov))} | {_pct(_rel(a_no['mean'], r_no))} |")
+            for which, label, _ in YARDSTICKS:
+                a_ov = _ref(results, o, f"{sc}.overlap.abs_rel", which)
+                a_no = _ref(results, o, f"{sc}.non_overlap.abs_rel", which)
+                add(f"| *{label}* | {SCALE_LABEL[sc]} | {_fmt(a_ov)} | {_fmt(a_no)} | "
+                    f"{_pct(_rel(a_ov['mean'], r_ov))} | {_pct(_rel(a_no['mean'], r_no))} |")
         add("")
 
     # ---- timing
@@ -434,6 +503,27 @@ def format_report(results: dict, plots: list[str]) -> str:
             add(f"![{Path(p).stem}]({p})\n")
     add("Every number: `results.csv` (one row per overlap × method × seed) and `results.json`.")
     return "\n".join(L) + "\n"
+
+
+def _pair_verdicts(results: dict, a: str = "mcdp_m2", b: str = "mono2") -> str:
+    """One line per overlap: does method a differ from b beyond the paired 95 % interval?"""
+    if a not in results["methods"] or b not in results["methods"]:
+        return f"- {a} or {b} is not part of this sweep: no verdict.\n"
+    if len(results["seeds"]) < 2:
+        return "- One seed only: no interval, no verdict.\n"
+    lines = []
+    word = {-1: "**lower (better)**", 1: "**higher (worse)**", 0: "no difference beyond the interval"}
+    for d in results["data"]:
+        o = d["overlap"]
+        parts = []
+        for key, name, unit in (("median.mean.abs_rel", "accuracy", ""),
+                                ("median.overlap.abs_rel", "overlap px", ""),
+                                ("median.non_overlap.abs_rel", "non-overlap px", ""),
+                                ("dep_con.mean", "Dep Con", " m")):
+            pd = paired_difference(results, o, a, b, key)
+            parts.append(f"{name} {pd['mean']:+.3f} ± {pd['ci95']:.3f}{unit}: {word[pd['differs']]}")
+        lines.append(f"- overlap {o:.2f}: " + "; ".join(parts))
+    return "\n".join(lines)
 
 
 def _verdicts(results: dict) -> str:

@@ -44,6 +44,7 @@ from typing import Any, Callable, Literal
 import yaml
 from pydantic import Field, field_validator, model_validator
 
+from mcdp.pretrain import PretrainConfig
 from synth.configlib import ConfigError, StrictModel, config_hash, config_to_dict, load_config
 
 METHODS = ("mono2", "mcdp_m0", "mcdp_m1_nocon", "mcdp_m1", "mcdp_m2")
@@ -84,6 +85,9 @@ class SweepConfig(StrictModel):
         ``train.threads`` cores (jobs x threads <= cores). Progress bars are off when > 1.
     device: training / inference device.
     preview: write a preview sheet of one rig at the smallest and largest overlap.
+    pretrain: a shared self-supervised pretraining (`mcdp.pretrain.PretrainConfig`) that every
+        run starts from (``model.init_from``), made once into ``SWEEP/pretrain/<hash>/`` and
+        reused by its config hash; null = every run from scratch.
     keep_last: keep every run's ``checkpoints/last.pt`` (weights + Adam state: about three
         quarters of a run's disk). ``false`` removes it once the run is trained and its
         ``best.pt`` has been evaluated (only then); the results, ``best.pt`` and rerun skipping
@@ -107,6 +111,7 @@ class SweepConfig(StrictModel):
     device: Literal["auto", "cpu", "cuda"] = "auto"
     preview: bool = True
     keep_last: bool = True
+    pretrain: PretrainConfig | None = None
 
     @field_validator("overlaps")
     @classmethod
@@ -205,12 +210,15 @@ def data_config_for(cfg: SweepConfig, overlap: float):
     return load_data_config(resolve_path(cfg.data, "data preset"), ov)
 
 
-def run_config_for(cfg: SweepConfig, method: str, seed: int):
-    """The resolved RunConfig of one (method, seed): preset + train_overrides + seed + eval + device."""
+def run_config_for(cfg: SweepConfig, method: str, seed: int, init_from: str | None = None):
+    """The resolved RunConfig of one (method, seed): preset + train_overrides + seed + eval + device
+    (+ ``model.init_from``, the sweep's pretraining)."""
     from mcdp.config import RunConfig
 
     preset = resolve_path(Path(cfg.train_presets_dir) / f"{method}.yaml", "training preset")
     ov = list(cfg.train_overrides) + [f"train.seed={seed}", f"train.device={cfg.device}"]
+    if init_from is not None:
+        ov.append(f"model.init_from={json.dumps(init_from)}")
     ov += [f"eval.{k}={json.dumps(v)}" for k, v in config_to_dict(cfg.eval).items()]
     return load_config(RunConfig, preset, ov), preset
 
@@ -271,6 +279,7 @@ def summarize_metrics(metrics: dict, stage: str = "final") -> dict:
         }
     dc = st["dep_con"]
     out["dep_con"] = {"mean": dc["mean"], "per_camera": dict(dc["per_camera"]), "per_pair": dict(dc["per_pair"])}
+    out["spread"] = dict(st.get("spread", {}))
     out["n_samples"] = metrics.get("n_samples")
     out["stages"] = list(metrics["stages"])
     return out
@@ -332,13 +341,16 @@ def reference_stage(cfg: SweepConfig, d: dict, sweep_dir: Path, counters: Counte
     from mcdp.evaluate import constant_depth_predictor, evaluate, median_gt_depth
     from synth.dataset import open_dataset
 
+    from mcdp.priors import flat_road_predictor
+
     o = d["overlap"]
     path = sweep_dir / "data" / f"{overlap_key(o)}.reference.json"
-    key = config_hash({"data": d["config_hash"], "eval": config_to_dict(cfg.eval), "reference": "constant_train_median"})
+    key = config_hash({"data": d["config_hash"], "eval": config_to_dict(cfg.eval),
+                       "reference": "constant_train_median+flat_road"})
     cached = _read_json(path)
     if cached is not None and cached.get("key") == key:
         counters.bump("reference_skipped")
-        return cached["reference"]
+        return cached["reference"], cached["prior"]
     ds = open_dataset(d["path"])
     ecfg = eval_config_for(cfg)
     t0 = time.perf_counter()
@@ -346,12 +358,30 @@ def reference_stage(cfg: SweepConfig, d: dict, sweep_dir: Path, counters: Counte
     metrics = evaluate(ds, constant_depth_predictor(ds, depth), SPLIT, ecfg, progress=False)
     ref = {"kind": "constant depth = median ground-truth depth of the train split", "depth_m": depth,
            "metrics": summarize_metrics(metrics), "eval_s": time.perf_counter() - t0}
-    _write_json(path, {"key": key, "reference": ref})
+    t0 = time.perf_counter()
+    metrics = evaluate(ds, flat_road_predictor(ds, depth), SPLIT, ecfg, progress=False)
+    prior = {"kind": "flat-road prior: road-plane depth from the rig geometry, capped at the constant", "far_m": depth,
+             "metrics": summarize_metrics(metrics), "eval_s": time.perf_counter() - t0}
+    _write_json(path, {"key": key, "reference": ref, "prior": prior})
     counters.bump("reference_evaluated")
-    log(f"[sweep] overlap {o:.2f}: constant-depth reference ({depth:.2f} m): abs_rel metric "
-        f"{ref['metrics']['none']['mean']['abs_rel']:.4f}, median {ref['metrics']['median']['mean']['abs_rel']:.4f}, "
-        f"dep_con {ref['metrics']['dep_con']['mean']:.4f}")
-    return ref
+    for name, r in (("constant-depth reference", ref), ("flat-road prior", prior)):
+        log(f"[sweep] overlap {o:.2f}: {name} ({depth:.2f} m): abs_rel metric "
+            f"{r['metrics']['none']['mean']['abs_rel']:.4f}, median {r['metrics']['median']['mean']['abs_rel']:.4f}, "
+            f"dep_con {r['metrics']['dep_con']['mean']:.4f}")
+    return ref, prior
+
+
+def pretrain_stage(cfg: SweepConfig, sweep_dir: Path, progress: bool, log) -> dict | None:
+    """Make (or reuse) the sweep's shared pretraining; its record with ``weights`` (the path runs start from)."""
+    if cfg.pretrain is None:
+        return None
+    from mcdp.pretrain import WEIGHTS, resolved_configs, run_pretrain
+
+    _, _, h = resolved_configs(cfg.pretrain)
+    pdir = sweep_dir / "pretrain" / h[:12]
+    rec = run_pretrain(cfg.pretrain, pdir, progress=progress, log=log)
+    return {"weights": str(pdir / WEIGHTS), "config_hash": h, "sha256": rec["sha256"], "step": rec["step"],
+            "render_s": rec.get("render_s"), "train_s": rec.get("train_s"), "depth_spread": rec.get("depth_spread")}
 
 
 def _eval_key(run_hash: str, step: int, eval_cfg: dict, data_hash: str, checkpoint: str, ckpt_name: str) -> str:
@@ -360,14 +390,14 @@ def _eval_key(run_hash: str, step: int, eval_cfg: dict, data_hash: str, checkpoi
 
 
 def run_stage(cfg: SweepConfig, overlap: float, data: dict, method: str, seed: int, sweep_dir: Path,
-              counters: Counters, log, progress: bool) -> dict:
+              counters: Counters, log, progress: bool, init_from: str | None = None) -> dict:
     """Train (or reuse / resume) and evaluate one (overlap, method, seed); returns its result row."""
     from mcdp.evaluate import evaluate
     from mcdp.predict import Predictor
     from mcdp.trainer import RunError, Trainer, TrainingDiverged
     from synth.dataset import open_dataset
 
-    rcfg, preset = run_config_for(cfg, method, seed)
+    rcfg, preset = run_config_for(cfg, method, seed, init_from)
     rhash = config_hash(rcfg)
     run_dir = sweep_dir / "runs" / overlap_key(overlap) / f"{method}_s{seed}"
     status_path = run_dir / STATUS
@@ -506,34 +536,39 @@ def run_sweep(cfg: SweepConfig, out: str | Path, progress: bool = True, log: Cal
     counters = Counters(rendered=0, render_skipped=0, render_resumed=0, trained=0, train_skipped=0, train_resumed=0,
                         evaluated=0, eval_skipped=0, diverged=0, reference_evaluated=0, reference_skipped=0)
     t_start = time.perf_counter()
+    pre = pretrain_stage(cfg, out, progress, log)
+    init_from = pre["weights"] if pre else None
     data = [render_stage(cfg, o, out, counters, log, progress) for o in cfg.overlaps]
     for d in data:
-        d["reference"] = reference_stage(cfg, d, out, counters, log)
+        d["reference"], d["prior"] = reference_stage(cfg, d, out, counters, log)
     todo = [(d, method, seed) for d in data for method in cfg.methods for seed in cfg.seeds]
     if cfg.jobs == 1 or len(todo) == 1:
-        rows = [run_stage(cfg, d["overlap"], d, method, seed, out, counters, log, progress) for d, method, seed in todo]
+        rows = [run_stage(cfg, d["overlap"], d, method, seed, out, counters, log, progress, init_from)
+                for d, method, seed in todo]
     else:
-        rows = _run_parallel(cfg, todo, out, counters, log)
+        rows = _run_parallel(cfg, todo, out, counters, log, init_from)
     previews = []
     if cfg.preview:
         previews = _previews(data, out, log)
     total_s = time.perf_counter() - t_start
     results = report.build_results(cfg, data, rows, dict(counters), total_s, previews)
+    results["pretrain"] = pre
     report.write_all(results, out)
     log(f"[sweep] done in {total_s:.1f} s: " + ", ".join(f"{k}={v}" for k, v in counters.items()))
     log(f"[sweep] report: {out / 'report.md'}")
     return results
 
 
-def _stage_job(cfg: SweepConfig, d: dict, method: str, seed: int, out: Path) -> tuple[dict, dict]:
+def _stage_job(cfg: SweepConfig, d: dict, method: str, seed: int, out: Path, init_from: str | None) -> tuple[dict, dict]:
     """One run in a worker process (``jobs`` > 1): no progress bars, log lines to stderr."""
     counters = Counters()
     row = run_stage(cfg, d["overlap"], d, method, seed, out, counters,
-                    lambda s: print(s, file=sys.stderr, flush=True), False)
+                    lambda s: print(s, file=sys.stderr, flush=True), False, init_from)
     return row, dict(counters)
 
 
-def _run_parallel(cfg: SweepConfig, todo: list, out: Path, counters: Counters, log) -> list[dict]:
+def _run_parallel(cfg: SweepConfig, todo: list, out: Path, counters: Counters, log,
+                  init_from: str | None = None) -> list[dict]:
     """Run the (overlap, method, seed) stages ``cfg.jobs`` at a time in spawned processes.
 
     Rows come back in the order of `todo` (the table order) whatever finishes first; the
@@ -546,7 +581,7 @@ def _run_parallel(cfg: SweepConfig, todo: list, out: Path, counters: Counters, l
     log(f"[sweep] {len(todo)} run(s), {cfg.jobs} at a time (one process each; progress bars off)")
     rows: list[dict | None] = [None] * len(todo)
     with ProcessPoolExecutor(max_workers=cfg.jobs, mp_context=mp.get_context("spawn")) as pool:
-        futures = [pool.submit(_stage_job, cfg, d, method, seed, out) for d, method, seed in todo]
+        futures = [pool.submit(_stage_job, cfg, d, method, seed, out, init_from) for d, method, seed in todo]
         try:
             for i, fut in enumerate(futures):
                 row, c = fut.result()

@@ -43,6 +43,7 @@ from __future__ import annotations
 import json
 import math
 import os
+import sys
 import time
 from pathlib import Path
 
@@ -53,19 +54,24 @@ import yaml
 
 from mcdp.config import RunConfig, resume_conflicts
 from mcdp.data import RigDataset, StepBatchSampler, collate, directed_pairs, neighbour_table
+from mcdp.diagnostics import collapse_reason, depth_spread
 from mcdp.geometry import splat_depth, warp_by_depth
 from mcdp.losses import (
     consistency_loss,
+    identity_floored_error,
     masked_mean,
     min_reprojection,
     photometric_error,
     smoothness_loss,
     used_pixels,
 )
-from mcdp.model import DepthModel, PoseModel, odometry_camera_motion, resize_mask_to
+from mcdp.model import DepthModel, PoseModel, is_refined, odometry_camera_motion, resize_mask_to
+from mcdp.warmstart import warm_start
 from synth.configlib import build_config, config_to_dict
 
 CHECKPOINT_VERSION = 1
+#: steps a fresh network may stay a constant map before the collapse guard warns
+COLLAPSE_GRACE_STEPS = 100
 
 
 class RunError(ValueError):
@@ -249,7 +255,8 @@ class SelfSupervisedSystem(torch.nn.Module):
         need_con = lam > 0 if need_con is None else need_con
 
         ident = None
-        if cfg.loss.automask:
+        mono2_mask = cfg.loss.out_of_view == "identity"
+        if cfg.loss.automask or mono2_mask:
             with torch.no_grad():
                 ident = torch.cat([photometric_error(sc, target, cfg.loss.ssim_alpha) for sc in sources], 1)
                 ident = ident.min(1, keepdim=True).values  # (BN, 1, H, W)
@@ -257,7 +264,7 @@ class SelfSupervisedSystem(torch.nn.Module):
         total = 0.0
         for stage in outputs["stages"]:
             lp_sum = 0.0
-            st_scales = scales if stage == "init" else scales[: cfg.loss.refine_scales]
+            st_scales = scales[: cfg.loss.refine_scales] if is_refined(stage) else scales
             for s in st_scales:
                 depth = outputs["depth", stage, s].float()
                 errors, valid = [], []
@@ -267,9 +274,14 @@ class SelfSupervisedSystem(torch.nn.Module):
                     valid.append(v * (w[:, C:] > 0.99).to(v.dtype))
                 # == reprojection_loss(..., automask=True), with the identity error computed
                 # once per batch instead of once per stage and scale (it does not depend on depth);
-                per_pixel, seen = min_reprojection(errors, valid)
-                used = used_pixels(per_pixel, seen, ident, mask)
-                rep = masked_mean(per_pixel, used)
+                if mono2_mask:
+                    per_pixel, used = identity_floored_error(errors, valid, ident, cfg.loss.automask)
+                    rep = masked_mean(per_pixel, mask)
+                    used = used * mask
+                else:
+                    per_pixel, seen = min_reprojection(errors, valid)
+                    used = used_pixels(per_pixel, seen, ident, mask)
+                    rep = masked_mean(per_pixel, used)
                 smooth = smoothness_loss(outputs["disp", stage, s].float(), img_s[s], mask_s[s])
                 lp_sum = lp_sum + rep + cfg.loss.smoothness_weight * smooth / (2**s)
                 if s == 0:
@@ -361,7 +373,13 @@ class Trainer:
         self.scaler = torch.amp.GradScaler("cuda", enabled=self.use_amp and self.amp_dtype == torch.float16)
         self.system.use_amp, self.system.amp_dtype = self.use_amp, self.amp_dtype
 
+        self.init_from: dict | None = None
+        if ckpt is None and cfg.model.init_from is not None:
+            self.init_from = warm_start(self.depth, cfg.model.init_from)
         self.step = 0
+        self.spread: dict = {}
+        self.collapsed_at: int | None = None
+        self.spread_armed = False
         self.best_val = math.inf
         self.val_history: list[tuple[int, float]] = []
         if ckpt is not None:
@@ -376,6 +394,7 @@ class Trainer:
                     "cameras": list(ds.camera_names),
                     "neighbours": [list(p) for p in ds.neighbours],
                     "oracle": oracle,
+                    "init_from": self.init_from,
                 },
                 indent=1,
             )
@@ -401,6 +420,8 @@ class Trainer:
             "cameras": list(self.ds.camera_names),
             "neighbours": [list(p) for p in self.ds.neighbours],
             "torch_rng": torch.get_rng_state(),
+            "depth_spread": dict(self.spread),
+            "init_from": self.init_from,
         }
 
     def save_checkpoint(self, name: str = "last.pt", weights_only: bool = False) -> Path:
@@ -423,6 +444,8 @@ class Trainer:
         self.step = int(ckpt["step"])
         self.best_val = float(ckpt.get("best_val", math.inf))
         self.val_history = [tuple(x) for x in ckpt.get("val_history", [])]
+        self.spread = dict(ckpt.get("depth_spread") or {})
+        self.init_from = ckpt.get("init_from")
         torch.set_rng_state(ckpt["torch_rng"])
 
     # ------------------------------------------------------------------ schedule
@@ -491,6 +514,30 @@ class Trainer:
 
         grid = torchvision.utils.make_grid(torch.cat(rows, 0), nrow=N, padding=2)
         self.writer.add_image("rig/rgb_depth_per_stage_masks", grid, self.step)
+
+    def check_spread(self, outputs: dict, batch: dict) -> dict:
+        """Spread of the final stage's depth on this batch (`mcdp.diagnostics`); warns once per collapse."""
+        m = self.cfg.model
+        final = self.depth.stages[-1]
+        depth = outputs["depth", final, 0]
+        mask = batch["mask"].reshape(depth.shape)
+        spread = depth_spread(depth, mask, m.min_depth, m.max_depth)
+        reason = collapse_reason(spread)
+        if reason is None:
+            self.spread_armed = True
+        # a fresh network starts as a constant (model.init_depth): warn only once the depth has
+        # spread out, or after COLLAPSE_GRACE_STEPS steps that never left the constant start
+        armed = self.spread_armed or self.step >= COLLAPSE_GRACE_STEPS
+        if reason is not None and armed and self.collapsed_at is None:
+            self.collapsed_at = self.step
+            print(f"mcdp train: WARNING step {self.step}: depth collapsed: {reason}", file=sys.stderr)
+        elif reason is None:
+            self.collapsed_at = None
+        self.spread = dict(spread, collapsed=reason)
+        if self.writer is not None:
+            for k in ("ratio", "at_min", "at_max"):
+                self.writer.add_scalar(f"depth_spread/{k}", spread[k], self.step)
+        return spread
 
     # ------------------------------------------------------------------ loop
     def train(self, until: int | None = None) -> dict:
@@ -561,6 +608,7 @@ class Trainer:
             dt_step = time.perf_counter() - t0
 
             if self.step % tc.log_every == 0 or self.step == tc.steps:
+                self.check_spread(outputs, batch)
                 now = time.perf_counter()
                 rate = n_last / max(now - t_last, 1e-9)
                 t_last, n_last = now, 0
@@ -592,6 +640,7 @@ class Trainer:
             "loss_last": history[-1] if history else None,
             "losses": history,
             "best_val": self.best_val,
+            "depth_spread": dict(self.spread),
         }
 
     def close(self) -> None:

@@ -125,9 +125,19 @@ def test_ci_sweep_end_to_end_rerun_and_resume(tmp_path):
         assert _finite(ref["metrics"]["none"]["mean"]["abs_rel"]) and _finite(ref["metrics"]["dep_con"]["mean"])
     assert (c["reference_evaluated"], c["reference_skipped"]) == (2, 0)
 
+    for d in res["data"]:  # and the flat-road prior
+        assert d["prior"]["far_m"] == d["reference"]["depth_m"]
+        assert _finite(d["prior"]["metrics"]["median"]["mean"]["abs_rel"])
+    pre = res["pretrain"]  # the shared pretraining every run started from
+    assert Path(pre["weights"]).is_file() and pre["step"] == 2
+    for r in res["rows"]:
+        rec = json.loads((Path(r["run_dir"]) / "run.json").read_text())["init_from"]
+        assert rec["path"] == str(Path(pre["weights"]).resolve()) and rec["sha256"] == pre["sha256"]
+
     rows = list(csv.DictReader((out / "results.csv").open()))
-    assert len(rows) == n + len(cfg.overlaps)
-    assert [r["method"] for r in rows[n:]] == ["constant_reference"] * len(cfg.overlaps)
+    assert len(rows) == n + 2 * len(cfg.overlaps)
+    assert [r["method"] for r in rows[n:]] == (["constant_reference"] * len(cfg.overlaps)
+                                                + ["flat_road_prior"] * len(cfg.overlaps))
     for row in rows:
         for k in ("none.mean.abs_rel", "median.mean.abs_rel", "dep_con.mean", "measured_overlap"):
             assert math.isfinite(float(row[k])), (row["overlap"], row["method"], k)
@@ -140,6 +150,8 @@ def test_ci_sweep_end_to_end_rerun_and_resume(tmp_path):
     assert "Dep Con per camera" in report and "non-overlap" in report and "Time per stage" in report
     assert "seeds: [0]" in report
     assert report.count("Constant depth (ref.)") >= 1 + 4 * len(cfg.overlaps)  # setup + summary/Table 1/2/regions
+    assert report.count("Flat-road prior (ref.)") >= 1 + 3 * len(cfg.overlaps)
+    assert "Verdict per overlap: MCDP (m = 2) vs Mono2" in report and "shared self-supervised pretraining" in report
 
     # rerun: a no-op that skips every stage and reports the same numbers
     assert sweep.main([str(CI), "--out", str(out), "--no-progress"]) == 0

@@ -1,0 +1,179 @@
+"""Shared self-supervised pretraining: this project's stand-in for the paper's ImageNet initialisation.
+
+One monocular, self-supervised training (no ground truth, no cross-camera term) on
+a world of its own (its data config has its own seed, so no street of it is in a
+sweep's test split) trains an encoder and decoder trunk with two heads: n depth
+bases (read at weights 1/n) and a one-channel Monodepth2 head (``model.mono_head``).
+Every run of a sweep then starts from it (``model.init_from``, `mcdp.warmstart`):
+mono2 from the mono head, every MCDP variant from the bases, so both methods start
+from the same encoder and trunk trained for the same steps.
+
+::
+
+    mcdp pretrain configs/pretrain/tiny.yaml --out pretrain/tiny [key=value ...]
+
+Layout of DIR::
+
+    pretrain.json      resolved config, its hash, sha256 of pretrained.pt (written last)
+    pretrained.pt      {"format": "mcdp-pretrain", "version", "config_hash", "model", "depth_model", "step"}
+    data/              the rendered pretraining world (synth contract v1)
+    run/               the training run (checkpoints, tensorboard)
+
+It is cached by its resolved config hash: a rerun with the same config returns at
+once; a folder that holds another pretraining, or anything else, is refused. An
+interrupted pretraining resumes (render and training both resume).
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import time
+from pathlib import Path
+from typing import Callable
+
+from pydantic import Field
+
+from synth.configlib import ConfigError, StrictModel, config_hash, config_to_dict, load_config
+
+MARKER = "pretrain.json"
+WEIGHTS = "pretrained.pt"
+ROOT = Path(__file__).resolve().parents[1]
+
+
+class PretrainConfig(StrictModel):
+    """A shared pretraining: its world (data preset + overrides) and its training (preset + overrides).
+
+    data: data preset YAML; data_overrides: dotted overrides (give it its own ``seed``).
+    train_preset: training preset with ``model.mono_head: true``; train_overrides: dotted overrides.
+    workers: rendering processes.
+    """
+
+    data: str = "configs/data/tiny.yaml"
+    data_overrides: list[str] = Field(default_factory=lambda: ["seed=1000"])
+    train_preset: str = "configs/train/tiny/pretrain.yaml"
+    train_overrides: list[str] = Field(default_factory=list)
+    workers: int = Field(2, ge=1, le=256)
+
+
+def _resolve(p: str) -> Path:
+    q = Path(p)
+    if q.is_absolute() or q.exists():
+        return q
+    if (ROOT / q).exists():
+        return ROOT / q
+    raise ConfigError(f"{p} does not exist (looked in {Path.cwd()} and {ROOT})")
+
+
+def resolved_configs(cfg: PretrainConfig):
+    """(DataConfig, RunConfig, hash) of a pretraining; the hash names what it learns from and how."""
+    from mcdp.config import RunConfig
+    from synth.config import load_data_config
+
+    dcfg = load_data_config(_resolve(cfg.data), cfg.data_overrides)
+    rcfg = load_config(RunConfig, _resolve(cfg.train_preset), cfg.train_overrides)
+    if not rcfg.model.mono_head:
+        raise ConfigError(f"{cfg.train_preset}: a pretraining needs model.mono_head: true (both heads)")
+    if rcfg.model.init_from is not None:
+        raise ConfigError("model.init_from: a pretraining starts from scratch")
+    if rcfg.scale.oracle:
+        raise ConfigError("scale.source=oracle_gt_median reads ground truth; a pretraining must not")
+    h = config_hash({"data": config_to_dict(dcfg), "run": config_to_dict(rcfg)})
+    return dcfg, rcfg, h
+
+
+def cached(out: Path, h: str) -> dict | None:
+    """The record of a finished pretraining in ``out`` with hash ``h``, or None if there is none yet."""
+    from mcdp.warmstart import sha256_file
+
+    marker = out / MARKER
+    if not marker.is_file():
+        return None
+    try:
+        rec = json.loads(marker.read_text())
+    except (OSError, ValueError):
+        raise ConfigError(f"{marker} is unreadable; delete {out} to pretrain again") from None
+    if rec.get("config_hash") != h:
+        raise ConfigError(f"{out} holds another pretraining (config hash {str(rec.get('config_hash'))[:12]}, "
+                          f"requested {h[:12]}); use a new --out or delete {out}")
+    w = out / WEIGHTS
+    if not w.is_file() or sha256_file(w) != rec.get("sha256"):
+        raise ConfigError(f"{w} is missing or does not match its sha256 in {marker}; delete {out} to pretrain again")
+    return rec
+
+
+def run_pretrain(cfg: PretrainConfig, out: str | Path, progress: bool = True,
+                 log: Callable[[str], None] | None = None) -> dict:
+    """Render + train + export a pretraining into ``out`` (or return the cached one). Returns its record."""
+    import torch
+
+    from mcdp.trainer import Trainer, atomic_torch_save
+    from mcdp.warmstart import FORMAT, VERSION, sha256_file
+    from synth.dataset import open_dataset
+    from synth.render import render_dataset
+
+    log = log or (lambda s: print(s, file=sys.stderr, flush=True))
+    out = Path(out)
+    dcfg, rcfg, h = resolved_configs(cfg)
+    rec = cached(out, h)
+    if rec is not None:
+        log(f"[pretrain] {out}: pretraining {h[:12]} is complete (step {rec['step']}), reused")
+        return rec
+    if out.exists():
+        foreign = [p.name for p in out.iterdir() if p.name not in ("data", "run", "pretrain.config.json")]
+        if foreign:
+            raise ConfigError(f"{out} is not empty and holds no pretraining ({', '.join(sorted(foreign)[:5])}); "
+                              "use a new --out")
+        started = out / "pretrain.config.json"
+        if started.is_file() and json.loads(started.read_text()).get("config_hash") != h:
+            raise ConfigError(f"{out} holds an unfinished pretraining with another config; use a new --out "
+                              f"or delete {out}")
+    out.mkdir(parents=True, exist_ok=True)
+    resolved = {"pretrain": config_to_dict(cfg), "data": config_to_dict(dcfg), "run": config_to_dict(rcfg)}
+    (out / "pretrain.config.json").write_text(json.dumps({"config_hash": h, "config": resolved}, indent=1))
+    t0 = time.perf_counter()
+    log(f"[pretrain] rendering {dcfg.dataset.sequences} sequences x {dcfg.dataset.frames} frames "
+        f"(seed {dcfg.seed}) into {out / 'data'}")
+    summary = render_dataset(dcfg, out / "data", workers=cfg.workers, progress=progress,
+                             log=lambda *a: log("[pretrain]   " + " ".join(str(x) for x in a)))
+    if not summary["complete"]:
+        raise RuntimeError(f"render of {out / 'data'} did not complete: {summary}")
+    render_s = time.perf_counter() - t0
+    ds = open_dataset(str(out / "data"))
+    t1 = time.perf_counter()
+    log(f"[pretrain] training {rcfg.train.steps} steps ({rcfg.model.n_out} bases + mono head) -> {out / 'run'}")
+    trainer = Trainer(rcfg, ds, out / "run", progress=progress)
+    try:
+        trainer.train()
+    finally:
+        trainer.close()
+    train_s = time.perf_counter() - t1
+    # the last state, not best.pt: the val loss of a monocular run says little about which
+    # step transfers best, and the last state is what "pretrained for N steps" means
+    state = {"format": FORMAT, "version": VERSION, "config_hash": h, "model": config_to_dict(rcfg.model),
+             "depth_model": trainer.depth.state_dict(), "step": trainer.step}
+    atomic_torch_save(state, out / WEIGHTS)
+    rec = {"config_hash": h, "sha256": sha256_file(out / WEIGHTS), "path": str((out / WEIGHTS).resolve()),
+           "step": trainer.step, "render_s": render_s, "train_s": train_s,
+           "depth_spread": trainer.spread, "config": resolved}
+    tmp = out / (MARKER + ".tmp")
+    tmp.write_text(json.dumps(rec, indent=1))
+    tmp.replace(out / MARKER)
+    log(f"[pretrain] done: {out / WEIGHTS} (step {trainer.step}, render {render_s:.0f} s, train {train_s:.0f} s)")
+    return rec
+
+
+def load_pretrain_config(path: str | Path | None, overrides=()) -> PretrainConfig:
+    return load_config(PretrainConfig, path, overrides)
+
+
+def add_pretrain_parser(subparsers) -> argparse.ArgumentParser:
+    p = subparsers.add_parser("pretrain", help="shared self-supervised pretraining (cached by its config hash)",
+                              description=__doc__.split("\n")[0])
+    p.add_argument("config", help="pretraining config YAML, e.g. configs/pretrain/tiny.yaml")
+    p.add_argument("--out", required=True, help="pretraining folder (reused when its config hash matches)")
+    p.add_argument("--no-progress", action="store_true")
+    p.add_argument("overrides", nargs="*", help="overrides of the pretraining config, e.g. 'train_overrides=[train.steps=50]'")
+    p.set_defaults(_run=lambda a: (run_pretrain(load_pretrain_config(a.config, a.overrides), a.out,
+                                                progress=not a.no_progress), 0)[1])
+    return p

@@ -1,0 +1,50 @@
+"""Yardsticks that need no training: a constant depth and a flat-road prior.
+
+A number without a yardstick says nothing: every learning table and the sweep
+report print these next to the trained methods.
+
+- constant: `mcdp.evaluate.constant_depth_predictor` with the train split's median
+  ground-truth depth (what a depth map without any structure scores).
+- flat road: `flat_road_depth` knows the rig (intrinsics, extrinsics, so camera
+  height and pitch) and that the road is the plane z = 0 of the ego frame, nothing
+  else: a pixel whose ray meets the road gets the road's z-depth, capped at
+  ``far``; every other pixel gets ``far``. With ``far`` = the train median depth it
+  is "the constant, plus a flat road": what a network must beat to have learned
+  more than the ground plane.
+
+Example::
+
+    const = median_gt_depth(ds, "train", cfg)
+    metrics = evaluate(ds, flat_road_predictor(ds, const), "test", cfg)
+"""
+from __future__ import annotations
+
+from typing import Callable, Mapping
+
+import numpy as np
+
+
+def flat_road_depth(K: np.ndarray, T_ego_cam: np.ndarray, height: int, width: int, far: float) -> np.ndarray:
+    """(height, width) float32 z-depth of the road plane z_ego = 0 seen by one camera, capped at ``far``.
+
+    Args:
+        K: (3, 3) intrinsics at (height, width), pixel centres at +0.5.
+        T_ego_cam: (4, 4) camera -> ego; ego frame z up, the road at z = 0.
+        far: metres, depth of every pixel whose ray does not meet the road nearer than it.
+    """
+    if not (np.isfinite(far) and far > 0):
+        raise ValueError(f"far must be a positive finite depth in metres, got {far}")
+    u, v = np.meshgrid(np.arange(width) + 0.5, np.arange(height) + 0.5)
+    rays = np.linalg.inv(np.asarray(K, np.float64)) @ np.stack([u.ravel(), v.ravel(), np.ones(u.size)])  # z = 1
+    T = np.asarray(T_ego_cam, np.float64)
+    d = T[:3, :3] @ rays  # ego-frame direction per unit of z-depth
+    c_z = T[2, 3]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        t = np.where(d[2] < -1e-9, -c_z / d[2], np.inf)  # z-depth where the ray meets z_ego = 0
+    return np.minimum(t, far).reshape(height, width).astype(np.float32)
+
+
+def flat_road_predictor(ds, far: float) -> Callable[[str, int], Mapping[str, list]]:
+    """A `predict_fn` for `mcdp.evaluate.evaluate`: the flat-road depth of every camera, every frame."""
+    maps = [flat_road_depth(c.K, c.T_ego_cam, int(c.height), int(c.width), far) for c in ds.cameras]
+    return lambda seq, frame: {"flat_road": maps}
