@@ -72,6 +72,8 @@ from synth.configlib import build_config, config_to_dict
 CHECKPOINT_VERSION = 1
 #: steps a fresh network may stay a constant map before the collapse guard warns
 COLLAPSE_GRACE_STEPS = 100
+#: logged checks in a row that must show a collapse before the guard warns
+COLLAPSE_STREAK = 5
 
 
 class RunError(ValueError):
@@ -380,6 +382,7 @@ class Trainer:
         self.spread: dict = {}
         self.collapsed_at: int | None = None
         self.spread_armed = False
+        self.collapse_streak = 0
         self.best_val = math.inf
         self.val_history: list[tuple[int, float]] = []
         if ckpt is not None:
@@ -525,10 +528,14 @@ class Trainer:
         reason = collapse_reason(spread)
         if reason is None:
             self.spread_armed = True
+            self.collapse_streak = 0
+        else:
+            self.collapse_streak += 1
         # a fresh network starts as a constant (model.init_depth): warn only once the depth has
-        # spread out, or after COLLAPSE_GRACE_STEPS steps that never left the constant start
+        # spread out, or after COLLAPSE_GRACE_STEPS steps that never left the constant start; and
+        # only when COLLAPSE_STREAK logged checks in a row agree (one odd batch is not a collapse)
         armed = self.spread_armed or self.step >= COLLAPSE_GRACE_STEPS
-        if reason is not None and armed and self.collapsed_at is None:
+        if reason is not None and armed and self.collapse_streak == COLLAPSE_STREAK:
             self.collapsed_at = self.step
             print(f"mcdp train: WARNING step {self.step}: depth collapsed: {reason}", file=sys.stderr)
         elif reason is None:
