@@ -1,9 +1,10 @@
-"""Trainer on the tiny render: learning, exact resume, determinism, config conflicts, NaN guard, checkpoints."""
+"""Trainer on the tiny render: exact resume, determinism, config conflicts, NaN guard, checkpoints.
+
+Learning itself is tested without a long trajectory in test_learning.py (the signal, one overfit)."""
 from __future__ import annotations
 
 from pathlib import Path
 
-import numpy as np
 import pytest
 import torch
 
@@ -52,43 +53,6 @@ def assert_same_state(a: dict, b: dict) -> None:
     for k in oa:
         for kk in ("exp_avg", "exp_avg_sq"):
             assert torch.equal(oa[k][kk], ob[k][kk]), f"optimizer state {k}.{kk} differs"
-
-
-# --------------------------------------------------------------------------- learning
-def test_short_training_lowers_the_loss_and_beats_a_constant_depth(ds, tmp_path):
-    """mcdp_m1 (metric scale from odometry, no ground truth) for 60 steps on the tiny render.
-
-    The loss is the held-out val loss (eval mode, fixed samples) before and after training: the
-    running training loss over 60 single-sample steps is too noisy to compare (sample to sample it
-    varies by +-10%). lr 7e-4 instead of the preset's 5e-4: at 5e-4 60 steps move the median-scaled
-    abs_rel only from 0.55 (constant) to 0.51; at 1e-3 one seed in three collapsed to a constant
-    depth. Measured at 7e-4 (seeds 0/1/2): val loss x0.90, abs_rel 0.34-0.40 (none) and 0.30-0.31
-    (median) against 0.89 and 0.55 for a constant 10 m.
-    """
-    from mcdp.evaluate import EvalConfig, constant_depth_predictor, evaluate
-    from mcdp.predict import Predictor
-
-    run = tmp_path / "run"
-    cfg = cfg_of("mcdp_m1", "scale.source=odometry", "train.steps=60", "train.lr=7e-4", "train.ckpt_every=1000",
-                 "train.val_every=1000", "train.log_every=1000")
-    tr = Trainer(cfg, ds, run, progress=False, tensorboard=False)
-    try:
-        before = tr.validate()
-        summary = tr.train()
-        after = tr.validate()
-    finally:
-        tr.close()
-    assert summary["steps"] == 60 and all(np.isfinite(summary["losses"]))
-    assert after < 0.95 * before, f"val loss did not go down: {before:.4f} -> {after:.4f}"
-
-    pred = Predictor(run, ds, "last")
-    m = evaluate(ds, pred.predict, "test", EvalConfig(), progress=False)
-    const = evaluate(ds, constant_depth_predictor(ds, 10.0), "test", EvalConfig(), progress=False)
-    for sc in ("none", "median"):
-        ours = m["stages"]["final"][sc]["mean"]["abs_rel"]
-        base = const["stages"]["final"][sc]["mean"]["abs_rel"]
-        assert ours < 0.8 * base, f"{sc}: abs_rel {ours:.3f} vs constant depth {base:.3f}"
-    assert list(m["stages"]) == ["init", "refine1", "final"]
 
 
 # --------------------------------------------------------------------------- resume and determinism
@@ -172,3 +136,22 @@ def test_velocity_scale_supervises_the_pose_translation(ds, tmp_path):
     assert float(losses["pose/t_norm_odom"]) > 0.5
     assert float(losses["pose/velocity"].detach()) == pytest.approx(
         abs(float(losses["pose/t_norm_odom"]) - float(losses["pose/t_norm_pred"])), rel=0.2)
+
+
+class _RunsCode:
+    def __init__(self, marker):
+        self.marker = str(marker)
+
+    def __reduce__(self):
+        import os
+
+        return (os.system, (f"touch {self.marker}",))
+
+
+def test_a_checkpoint_whose_pickle_runs_code_is_refused_and_the_code_does_not_run(tmp_path):
+    bad = tmp_path / "last.pt"
+    torch.save({"version": 1, "config": {}, "payload": _RunsCode(tmp_path / "pwned")}, bad)
+    with pytest.raises(RunError, match="not a plain weights file") as err:
+        load_checkpoint(bad)
+    assert str(bad) in str(err.value) and len(str(err.value)) < 400
+    assert not (tmp_path / "pwned").exists()
