@@ -12,3 +12,11 @@ def one_thread():
     torch.set_num_threads(1)
     yield
     torch.set_num_threads(n)
+
+
+@pytest.fixture(scope="module")
+def ds(tiny_dataset):
+    """The tiny dataset (tests/conftest.py), opened."""
+    from synth.dataset import open_dataset
+
+    return open_dataset(tiny_dataset)

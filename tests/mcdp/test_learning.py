@@ -23,13 +23,6 @@ ROOT = Path(__file__).resolve().parents[2]
 TINY = ROOT / "configs" / "train" / "tiny"
 
 
-@pytest.fixture(scope="module")
-def ds(tiny_dataset):
-    from synth.dataset import open_dataset
-
-    return open_dataset(tiny_dataset)
-
-
 def cfg_of(preset: str, *overrides: str) -> RunConfig:
     return load_config(RunConfig, TINY / f"{preset}.yaml", list(overrides))
 
