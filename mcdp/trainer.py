@@ -548,6 +548,21 @@ class Trainer:
                 self.writer.add_scalar(f"depth_spread/{k}", spread[k], self.step)
         return spread
 
+    def _last_good(self) -> str:
+        last = self.run_dir / "checkpoints" / "last.pt"
+        return f"; the last good checkpoint is {last}" if last.exists() else ""
+
+    def _check_gradients(self) -> None:
+        """TrainingDiverged naming the step and the first parameter whose gradient is NaN/inf."""
+        grads = [p.grad for p in self.system.parameters() if p.grad is not None]
+        if not grads or torch.isfinite(torch.nn.utils.get_total_norm(grads)):
+            return
+        name = next((n for n, p in self.system.named_parameters()
+                     if p.grad is not None and not torch.isfinite(p.grad).all()), "?")
+        raise TrainingDiverged(f"the gradient of {name} is not finite at step {self.step} (loss was finite); "
+                               "the weights were not updated" + self._last_good()
+                               + "; try a lower train.lr or train.grad_clip=1.0")
+
     # ------------------------------------------------------------------ loop
     def train(self, until: int | None = None) -> dict:
         """Train from the current step to ``train.steps`` (or stop early at step ``until``).
@@ -602,6 +617,8 @@ class Trainer:
                 )
             self.optimizer.zero_grad(set_to_none=True)
             self.scaler.scale(loss).backward()
+            if not self.scaler.is_enabled():  # (fp16's GradScaler skips non-finite steps itself)
+                self._check_gradients()
             if tc.grad_clip is not None:
                 self.scaler.unscale_(self.optimizer)
                 torch.nn.utils.clip_grad_norm_(
@@ -629,6 +646,10 @@ class Trainer:
                 bar.update(1)
             if self.step % tc.val_every == 0 or self.step == tc.steps:
                 v = self.validate()
+                if v is not None and not math.isfinite(v):
+                    raise TrainingDiverged(
+                        f"validation loss is {v} at step {self.step}; nothing of this step was saved"
+                        + self._last_good() + "; try a lower train.lr or train.grad_clip=1.0")
                 if v is not None:
                     self.val_history.append((self.step, v))
                     if self.writer is not None:

@@ -64,8 +64,29 @@ _Loader.add_implicit_resolver(
 )
 
 
+#: the largest config file read (bytes); presets are a few KB
+MAX_CONFIG_BYTES = 1 << 20
+
+
+def _no_alias(loader, parent, index):
+    if loader.check_event(yaml.AliasEvent):
+        ev = loader.peek_event()
+        raise yaml.YAMLError(f"YAML aliases (*{str(ev.anchor)[:40]}) are not allowed in configs, line "
+                             f"{ev.start_mark.line + 1}")
+    return yaml.SafeLoader.compose_node(loader, parent, index)
+
+
+_Loader.compose_node = _no_alias  # an alias bomb cannot expand: aliases are refused while composing
+
+
+def _short(exc: Exception, limit: int = 300) -> str:
+    """An exception's message cut to a few lines (a config error never floods the terminal)."""
+    text = " ".join(str(exc).split())
+    return text if len(text) <= limit else text[:limit] + " ..."
+
+
 def load_yaml_text(text: str) -> Any:
-    """Parse YAML text with the project's loader (safe, scientific floats)."""
+    """Parse YAML text with the project's loader (safe, scientific floats, no aliases)."""
     return yaml.load(text, Loader=_Loader)
 
 
@@ -82,7 +103,7 @@ def parse_overrides(overrides: Iterable[str]) -> dict[str, Any]:
         try:
             value = load_yaml_text(raw) if raw.strip() != "" else ""
         except yaml.YAMLError as exc:
-            raise ConfigError(f"override {key}: cannot parse value {raw!r}: {exc}") from None
+            raise ConfigError(f"override {key}: cannot parse value {raw[:80]!r}: {_short(exc)}") from None
         node = out
         parts = key.split(".")
         for p in parts[:-1]:
@@ -109,10 +130,13 @@ def read_yaml(path: str | Path) -> dict[str, Any]:
     p = Path(path)
     if not p.is_file():
         raise ConfigError(f"config file {p} does not exist")
+    size = p.stat().st_size
+    if size > MAX_CONFIG_BYTES:
+        raise ConfigError(f"config file {p} is {size} bytes, more than the {MAX_CONFIG_BYTES} a config may have")
     try:
         data = load_yaml_text(p.read_text())
-    except yaml.YAMLError as exc:
-        raise ConfigError(f"config file {p} is not valid YAML: {exc}") from None
+    except (yaml.YAMLError, UnicodeDecodeError) as exc:
+        raise ConfigError(f"config file {p} is not valid YAML: {_short(exc)}") from None
     if data is None:
         data = {}
     if not isinstance(data, dict):

@@ -26,6 +26,7 @@ from __future__ import annotations
 import hashlib
 import json
 import os
+import re
 from pathlib import Path
 from typing import Iterable
 
@@ -193,6 +194,44 @@ class Dataset:
         return bool(self.manifest.get("has_depth", True))
 
 
+_PLAIN_NAME = re.compile(r"^[A-Za-z0-9][A-Za-z0-9._-]{0,127}$")
+
+
+def _plain(name, field: str, mpath: Path) -> str:
+    if not isinstance(name, str) or not _PLAIN_NAME.match(name) or name in (".", ".."):
+        raise DatasetError(f"{mpath}: {field} {str(name)[:80]!r} is not a plain name (letters, digits, . _ -; "
+                           "no path separators, no '..')")
+    return name
+
+
+def check_manifest_names(root: Path, manifest: dict, mpath: Path) -> None:
+    """Every name a manifest gives (sequences, splits, cameras, files) is a plain relative name, and every
+    sequence / camera folder resolves inside the dataset root (symlinks too); DatasetError naming the field."""
+    seqs = manifest.get("sequences", {})
+    if not isinstance(seqs, dict):
+        raise DatasetError(f"{mpath}: sequences must be a mapping")
+    for seq in seqs:
+        _plain(seq, "sequence name", mpath)
+    for split, names in (manifest.get("splits") or {}).items():
+        _plain(split, "split name", mpath)
+        for seq in names if isinstance(names, list) else [names]:
+            if _plain(seq, f"splits.{split} entry", mpath) not in seqs:
+                raise DatasetError(f"{mpath}: splits.{split} names {seq!r}, which is not in sequences")
+    cams = manifest.get("cameras", [])
+    for cam in cams:
+        _plain(cam, "camera name", mpath)
+    for rel in manifest.get("files", {}):
+        parts = rel.split("/") if isinstance(rel, str) else [rel]
+        for part in parts:
+            _plain(part, "files entry", mpath)
+    base = root.resolve()
+    for seq in seqs:
+        for sub in [Path(seq)] + [Path(seq) / c for c in cams]:
+            p = (root / sub)
+            if p.exists() and not p.resolve().is_relative_to(base):
+                raise DatasetError(f"{p}: resolves to {p.resolve()}, outside the dataset root {base}")
+
+
 def open_dataset(path: str | Path, verify: bool = False) -> Dataset:
     """Open a dataset folder; `verify=True` also checks every file's sha256."""
     root = Path(path)
@@ -205,6 +244,7 @@ def open_dataset(path: str | Path, verify: bool = False) -> Dataset:
     ver = manifest.get("schema_version")
     if ver != SCHEMA_VERSION:
         raise DatasetError(f"{mpath}: schema_version {ver!r} is not supported (this reader knows {SCHEMA_VERSION})")
+    check_manifest_names(root, manifest, mpath)
     rig = read_json(root / "rig.json")
     if verify:
         problems = verify_dataset(root)
@@ -225,6 +265,10 @@ def verify_dataset(root: str | Path, progress: bool = False) -> list[str]:
         return [str(exc)]
     if manifest.get("schema_version") != SCHEMA_VERSION:
         return [f"{mpath}: schema_version {manifest.get('schema_version')!r} is not {SCHEMA_VERSION}"]
+    try:
+        check_manifest_names(root, manifest, mpath)
+    except DatasetError as exc:
+        return [str(exc)]
     problems = []
     files: dict[str, str] = manifest.get("files", {})
     items: Iterable = files.items()

@@ -1,0 +1,183 @@
+"""Untrusted input (issue: hardening): what a user hands the tools cannot run code, escape a root or
+flood the terminal; divergence stops training and keeps only finite checkpoints.
+
+Covered here: manifest names and symlinks, YAML aliases and oversized configs, NaN gradients and
+validation losses, a lr = 1e3 run. The pickle checkpoint probe is in tests/mcdp/test_trainer.py.
+"""
+from __future__ import annotations
+
+import hashlib
+import json
+import math
+import shutil
+from pathlib import Path
+
+import pytest
+import torch
+
+ROOT = Path(__file__).resolve().parents[1]
+TINY_TRAIN = ROOT / "configs" / "train" / "tiny"
+
+
+def tree_hash(path: Path) -> str:
+    h = hashlib.sha256()
+    for p in sorted(path.rglob("*")):
+        h.update(str(p.relative_to(path)).encode())
+        if p.is_file():
+            h.update(p.read_bytes())
+    return h.hexdigest()
+
+
+def _copy(tiny_dataset, tmp_path) -> Path:
+    d = tmp_path / "data"
+    shutil.copytree(tiny_dataset, d)
+    return d
+
+
+def _edit_manifest(d: Path, fn) -> None:
+    m = json.loads((d / "manifest.json").read_text())
+    fn(m)
+    (d / "manifest.json").write_text(json.dumps(m))
+
+
+def _rename_seq(m, new):
+    old = m["splits"]["test"][0]
+    m["sequences"][new] = m["sequences"].pop(old)
+    m["splits"]["test"] = [new]
+
+
+# --------------------------------------------------------------------------- manifests
+@pytest.mark.parametrize("edit, field", [
+    (lambda m: _rename_seq(m, "../outside/x"), "sequence name"),
+    (lambda m: _rename_seq(m, "/etc"), "sequence name"),
+    (lambda m: m["splits"].update(test=["seq_99999"]), "splits.test"),
+    (lambda m: m["cameras"].__setitem__(0, "../CAM"), "camera name"),
+    (lambda m: m["files"].update({"../../evil.png": "0" * 64}), "files entry"),
+])
+def test_a_manifest_name_that_is_not_plain_is_refused_naming_the_field(tiny_dataset, tmp_path, capsys, edit, field):
+    from synth.cli import main as synth_main
+    from synth.dataset import DatasetError, open_dataset
+
+    d = _copy(tiny_dataset, tmp_path)
+    _edit_manifest(d, edit)
+    with pytest.raises(DatasetError, match=field):
+        open_dataset(d)
+    before = tree_hash(tmp_path)
+    capsys.readouterr()
+    assert synth_main(["verify", str(d)]) != 0
+    out = capsys.readouterr()
+    text = out.out + out.err
+    assert field in text and len(text.splitlines()) <= 5
+    assert tree_hash(tmp_path) == before
+
+
+def test_mcdp_predict_refuses_a_manifest_whose_sequence_leaves_the_root(tiny_dataset, tmp_path, capsys):
+    from mcdp.cli import main
+
+    d = _copy(tiny_dataset, tmp_path)
+    _edit_manifest(d, lambda m: _rename_seq(m, "../outside/x"))
+    run = tmp_path / "run"  # a run trained on the clean copy
+    assert main(["train", str(TINY_TRAIN / "mono2.yaml"), "--data", str(tiny_dataset), "--out", str(run),
+                 "--no-progress", "train.steps=1"]) == 0
+    capsys.readouterr()
+    assert main(["predict", str(run), "--data", str(d), "--out", str(tmp_path / "pred")]) == 2
+    assert "sequence name" in capsys.readouterr().err
+    assert not (tmp_path / "outside").exists()
+
+
+def test_a_sequence_folder_symlinked_outside_the_root_is_refused(tiny_dataset, tmp_path):
+    from synth.dataset import DatasetError, open_dataset
+
+    d = _copy(tiny_dataset, tmp_path / "in")
+    seq = json.loads((d / "manifest.json").read_text())["splits"]["test"][0]
+    outside = tmp_path / "elsewhere"
+    shutil.move(str(d / seq), outside)
+    (d / seq).symlink_to(outside, target_is_directory=True)
+    with pytest.raises(DatasetError, match="outside the dataset root"):
+        open_dataset(d)
+
+
+# --------------------------------------------------------------------------- configs
+def test_a_yaml_alias_bomb_is_refused_in_a_few_lines(tmp_path, capsys):
+    from mcdp.cli import main
+
+    bomb = ["a: &a [x, x, x, x, x, x, x, x, x, x]"]
+    for i in range(1, 9):
+        bomb.append(f"{chr(97 + i)}: &{chr(97 + i)} [" + ", ".join([f"*{chr(96 + i)}"] * 10) + "]")
+    bomb.append("model: {method: mono2}")
+    cfg = tmp_path / "bomb.yaml"
+    cfg.write_text("\n".join(bomb) + "\n")
+    assert main(["train", str(cfg), "--data", str(tmp_path), "--out", str(tmp_path / "run")]) == 2
+    err = capsys.readouterr().err
+    assert "aliases" in err and str(cfg) in err and len(err) < 600 and len(err.splitlines()) <= 3
+    assert not (tmp_path / "run").exists()
+
+
+def test_an_oversized_config_is_refused_before_it_is_parsed(tmp_path, capsys):
+    from mcdp.cli import main
+
+    big = tmp_path / "big.yaml"
+    big.write_text("model: {method: mono2}\n" + "# " + "x" * (2 << 20) + "\n")
+    assert main(["train", str(big), "--data", str(tmp_path), "--out", str(tmp_path / "run")]) == 2
+    err = capsys.readouterr().err
+    assert "bytes" in err and str(big) in err and len(err) < 400
+
+
+def test_a_long_bad_override_gives_a_bounded_message(capsys):
+    from mcdp.cli import main
+
+    assert main(["train", str(TINY_TRAIN / "mono2.yaml"), "--data", "x", "--out", "y", "train.lr=[" + "1," * 5000]) == 2
+    assert len(capsys.readouterr().err) < 800
+
+
+# --------------------------------------------------------------------------- divergence
+def test_lr_1e3_stops_naming_the_step_and_keeps_only_finite_checkpoints(tiny_dataset, tmp_path, capsys):
+    from mcdp.cli import main
+    from mcdp.trainer import load_checkpoint
+
+    run = tmp_path / "run"
+    code = main(["train", str(TINY_TRAIN / "mono2.yaml"), "--data", str(tiny_dataset), "--out", str(run),
+                 "--no-progress", "train.lr=1e3", "train.steps=30", "train.ckpt_every=1", "train.val_every=1"])
+    err = capsys.readouterr().err
+    assert code == 3 and "at step" in err
+    for name in ("last.pt", "best.pt"):
+        p = run / "checkpoints" / name
+        if p.exists():
+            sd = load_checkpoint(p)["depth_model"]
+            assert all(torch.isfinite(v).all() for v in sd.values() if v.is_floating_point()), name
+
+
+def test_a_non_finite_gradient_stops_before_the_weights_change(tiny_dataset, tmp_path):
+    from mcdp.config import RunConfig
+    from mcdp.trainer import Trainer, TrainingDiverged
+    from synth.configlib import load_config
+    from synth.dataset import open_dataset
+
+    cfg = load_config(RunConfig, TINY_TRAIN / "mono2.yaml", ["train.steps=3"])
+    tr = Trainer(cfg, open_dataset(tiny_dataset), tmp_path / "run", progress=False, tensorboard=False)
+    try:
+        p = tr.depth.decoder.dispconv[0].weight
+        before = p.detach().clone()
+        p.register_hook(lambda g: g * float("nan"))
+        with pytest.raises(TrainingDiverged, match=r"gradient of .*dispconv\.0\.weight is not finite at step 0"):
+            tr.train()
+        assert torch.equal(p.detach(), before)
+    finally:
+        tr.close()
+
+
+def test_a_nan_validation_loss_stops_training(tiny_dataset, tmp_path, monkeypatch):
+    from mcdp.config import RunConfig
+    from mcdp.trainer import Trainer, TrainingDiverged
+    from synth.configlib import load_config
+    from synth.dataset import open_dataset
+
+    cfg = load_config(RunConfig, TINY_TRAIN / "mono2.yaml", ["train.steps=4", "train.val_every=2"])
+    tr = Trainer(cfg, open_dataset(tiny_dataset), tmp_path / "run", progress=False, tensorboard=False)
+    monkeypatch.setattr(tr, "validate", lambda: math.nan)
+    try:
+        with pytest.raises(TrainingDiverged, match="validation loss is nan at step 2"):
+            tr.train()
+        assert not (tmp_path / "run" / "checkpoints" / "best.pt").exists()
+    finally:
+        tr.close()
