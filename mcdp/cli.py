@@ -28,13 +28,14 @@ EXIT_DIVERGED = 3
 
 def _user_errors() -> tuple[type[BaseException], ...]:
     from mcdp.networks import NetworkError
+    from mcdp.rundir import FolderError
     from mcdp.trainer import RunError
     from mcdp.warmstart import WarmStartError
     from synth.configlib import ConfigError
     from synth.dataset import DatasetError
     from synth.render import OutputFolderError
 
-    return (ConfigError, DatasetError, RunError, NetworkError, OutputFolderError, WarmStartError)
+    return (ConfigError, DatasetError, RunError, NetworkError, OutputFolderError, WarmStartError, FolderError)
 
 
 def _open_dataset(path: str):
@@ -184,9 +185,15 @@ def _predict(args: argparse.Namespace) -> int:
     label = " [ORACLE]" if pred.oracle else ""
     print(f"mcdp predict: {pred.ckpt_path} (step {pred.step}), {len(samples)} rig samples -> {args.out}{label}",
           file=sys.stderr)
+    from mcdp.rundir import claim
+
+    lock = claim(args.out, "predict")  # a folder of the user's own files is refused, nothing written
     n = 0
-    for seq, f in samples:
-        n += len(write_prediction(pred, seq, f, args.out, ply=args.ply))
+    try:
+        for seq, f in samples:
+            n += len(write_prediction(pred, seq, f, args.out, ply=args.ply))
+    finally:
+        lock.release()
     print(f"mcdp predict: wrote {n} files", file=sys.stderr)
     return 0
 

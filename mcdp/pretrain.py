@@ -105,12 +105,7 @@ def cached(out: Path, h: str) -> dict | None:
 def run_pretrain(cfg: PretrainConfig, out: str | Path, progress: bool = True,
                  log: Callable[[str], None] | None = None) -> dict:
     """Render + train + export a pretraining into ``out`` (or return the cached one). Returns its record."""
-    import torch
-
-    from mcdp.trainer import Trainer, atomic_torch_save
-    from mcdp.warmstart import FORMAT, VERSION, sha256_file
-    from synth.dataset import open_dataset
-    from synth.render import render_dataset
+    from mcdp.rundir import claim
 
     log = log or (lambda s: print(s, file=sys.stderr, flush=True))
     out = Path(out)
@@ -119,16 +114,25 @@ def run_pretrain(cfg: PretrainConfig, out: str | Path, progress: bool = True,
     if rec is not None:
         log(f"[pretrain] {out}: pretraining {h[:12]} is complete (step {rec['step']}), reused")
         return rec
-    if out.exists():
-        foreign = [p.name for p in out.iterdir() if p.name not in ("data", "run", "pretrain.config.json")]
-        if foreign:
-            raise ConfigError(f"{out} is not empty and holds no pretraining ({', '.join(sorted(foreign)[:5])}); "
-                              "use a new --out")
-        started = out / "pretrain.config.json"
-        if started.is_file() and json.loads(started.read_text()).get("config_hash") != h:
-            raise ConfigError(f"{out} holds an unfinished pretraining with another config; use a new --out "
-                              f"or delete {out}")
-    out.mkdir(parents=True, exist_ok=True)
+    lock = claim(out, "pretrain", legacy=("pretrain.config.json",))
+    try:
+        return _pretrain(cfg, out, dcfg, rcfg, h, progress, log)
+    finally:
+        lock.release()
+
+
+def _pretrain(cfg: PretrainConfig, out: Path, dcfg, rcfg, h: str, progress: bool, log) -> dict:
+    import torch
+
+    from mcdp.trainer import Trainer, atomic_torch_save
+    from mcdp.warmstart import FORMAT, VERSION, sha256_file
+    from synth.dataset import open_dataset
+    from synth.render import render_dataset
+
+    started = out / "pretrain.config.json"
+    if started.is_file() and json.loads(started.read_text()).get("config_hash") != h:
+        raise ConfigError(f"{out} holds an unfinished pretraining with another config; use a new --out "
+                          f"or delete {out}")
     resolved = {"pretrain": config_to_dict(cfg), "data": config_to_dict(dcfg), "run": config_to_dict(rcfg)}
     (out / "pretrain.config.json").write_text(json.dumps({"config_hash": h, "config": resolved}, indent=1))
     t0 = time.perf_counter()

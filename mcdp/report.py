@@ -341,8 +341,8 @@ def format_report(results: dict, plots: list[str]) -> str:
                                         " (one seed: no spread available; differences may be within seed noise)"))
     pre = results.get("pretrain")
     if pre:
-        add(f"- every run starts from one shared self-supervised pretraining (no ground truth; its own world, data "
-            f"seed {cfg['pretrain']['data_overrides']}): `{pre['weights']}`, config hash `{pre['config_hash'][:12]}`, "
+        add(f"- every run starts from one shared self-supervised pretraining (no ground truth; its own world: "
+            f"`{' '.join(cfg['pretrain']['data_overrides'])}`): `{pre['weights']}`, config hash `{pre['config_hash'][:12]}`, "
             f"{pre['step']} steps, render {_sec(pre.get('render_s'))} s + train {_sec(pre.get('train_s'))} s; "
             "mono2 starts from its mono head, every MCDP variant from its bases; weight networks start fresh")
     else:
@@ -553,6 +553,15 @@ def _verdicts(results: dict) -> str:
                 (beat if v < ref else lost).append(entry)
             head = f"- overlap {o:.2f}, {SCALE_LABEL[sc]}: "
             cref = _ref(results, o, f"{sc}.mean.abs_rel")["mean"]
+            pref = _ref(results, o, f"{sc}.mean.abs_rel", "prior")["mean"]
+            if sc == "median" and math.isfinite(cref) and math.isfinite(pref):
+                means = {m: _agg(results, o, m, f"{sc}.mean.abs_rel")["mean"] for m in methods}
+                short = [f"{LABELS[m]} {v:.3f}" for m, v in means.items() if not (v <= 0.5 * cref and v < pref)]
+                lines.append(head + (f"**not all methods reach <= 0.5 x constant ({0.5 * cref:.3f}) and below the "
+                                     f"flat-road prior ({pref:.3f})**: " + ", ".join(short) if short else
+                                     f"every method (mean over seeds) is at <= 0.5 x constant ({0.5 * cref:.3f}) "
+                                     f"and below the flat-road prior ({pref:.3f}); worst "
+                                     f"{max(means.values()):.3f}"))
             if math.isfinite(cref):
                 worse = [LABELS[m] for m in methods
                          if not _agg(results, o, m, f"{sc}.mean.abs_rel")["mean"] < cref]

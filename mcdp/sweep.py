@@ -514,11 +514,20 @@ def run_sweep(cfg: SweepConfig, out: str | Path, progress: bool = True, log: Cal
     diverged), ``data`` (per overlap), ``rows`` (per overlap x method x seed),
     ``aggregate`` (mean/std over seeds) and ``timing``.
     """
-    from mcdp import report
+    from mcdp.rundir import claim
 
     log = log or (lambda s: print(s, file=sys.stderr, flush=True))
     out = Path(out)
-    out.mkdir(parents=True, exist_ok=True)
+    lock = claim(out, "sweep", legacy=("sweep_config.yaml",))
+    try:
+        return _run_sweep(cfg, out, progress, log, config_source)
+    finally:
+        lock.release()
+
+
+def _run_sweep(cfg: SweepConfig, out: Path, progress: bool, log, config_source: str | None) -> dict:
+    from mcdp import report
+
     resolved = config_to_dict(cfg)
     prev = out / "sweep_config.yaml"
     if prev.is_file():

@@ -14,12 +14,23 @@ Loss (paper eq. 9), with masks excluded from every mean::
 
 - reprojection: 0.85 SSIM + 0.15 L1, per-pixel minimum over frames t-1/t+1,
   Monodepth2 auto-masking; a source pixel that lands on the ego body of the
-  source image is invalid; ego-body target pixels never count.
+  source image is invalid; ego-body target pixels never count. With
+  ``loss.out_of_view=identity`` (default) a pixel no source sees scores its
+  identity error and the mean is over all scene pixels
+  (`mcdp.losses.identity_floored_error`).
+- the shared pretraining's stage "mono" (``model.mono_head``) is a stage like
+  "init": all decoder scales, no refinement.
 - L_con: every adjacent camera pair in both directions; the source camera's
   full-resolution depth is forward-projected into the target camera with a
   z-buffer; L1 in metres on pixels both cameras see (outside both ego masks).
 - L_vel (PackNet): | ||t_pred|| - ||t_odom|| | per camera and source frame, with
   the ego odometry motion transformed into each camera.
+
+Guards: a NaN/inf loss or gradient (before the update) or validation loss stops
+training with `TrainingDiverged` naming the step (checkpoints stay the last finite
+state); the depth's spread (`mcdp.diagnostics`) is logged and a collapse to a
+constant or to a bound of the depth range is warned about, naming the step.
+A fresh run may start from a shared pretraining (``model.init_from``, `mcdp.warmstart`).
 
 Model selection uses the val split only and no ground truth: every
 ``train.val_every`` steps the final stage's L_p + lambda L_con on fixed val
@@ -66,6 +77,7 @@ from mcdp.losses import (
     used_pixels,
 )
 from mcdp.model import DepthModel, PoseModel, is_refined, odometry_camera_motion, resize_mask_to
+from mcdp.rundir import claim
 from mcdp.warmstart import warm_start
 from synth.configlib import build_config, config_to_dict
 
@@ -347,6 +359,16 @@ class Trainer:
         self.ds = ds
         self.run_dir = Path(run_dir)
         self.progress = progress
+        self.writer = None
+        # the run folder is ours (marker) and ours alone (flock) before anything is read or written
+        self._lock = claim(self.run_dir, "run", legacy=("run.json", "checkpoints"))
+        try:
+            self._setup(cfg, ds, tensorboard)
+        except BaseException:
+            self._lock.release()
+            raise
+
+    def _setup(self, cfg: RunConfig, ds, tensorboard: bool) -> None:
         self.device = resolve_device(cfg.train.device)
         tc = cfg.train
         ckpt = check_resume(self.run_dir, cfg)
@@ -676,4 +698,6 @@ class Trainer:
     def close(self) -> None:
         if self.writer is not None:
             self.writer.close()
-        torch.set_num_threads(self._threads_before)
+        if hasattr(self, "_threads_before"):
+            torch.set_num_threads(self._threads_before)
+        self._lock.release()

@@ -181,3 +181,60 @@ def test_a_nan_validation_loss_stops_training(tiny_dataset, tmp_path, monkeypatc
         assert not (tmp_path / "run" / "checkpoints" / "best.pt").exists()
     finally:
         tr.close()
+
+
+# --------------------------------------------------------------------------- output folders
+def test_train_refuses_a_folder_of_the_users_own_files(tiny_dataset, tmp_path, capsys):
+    from mcdp.cli import main
+
+    mine = tmp_path / "mine"
+    mine.mkdir()
+    (mine / "config.yaml").write_text("my: own\n")
+    before = tree_hash(mine)
+    assert main(["train", str(TINY_TRAIN / "mono2.yaml"), "--data", str(tiny_dataset), "--out", str(mine),
+                 "--no-progress", "train.steps=1"]) == 2
+    err = capsys.readouterr().err
+    assert "not empty and is not an mcdp run folder" in err and "config.yaml" in err
+    assert tree_hash(mine) == before
+
+
+@pytest.mark.parametrize("command", ["predict", "sweep"])
+def test_predict_and_sweep_refuse_a_folder_of_the_users_own_files(tiny_dataset, tmp_path, capsys, command):
+    from mcdp.cli import main
+
+    mine = tmp_path / "mine"
+    mine.mkdir()
+    (mine / "notes.txt").write_text("mine")
+    before = tree_hash(mine)
+    if command == "predict":
+        run = tmp_path / "run"
+        assert main(["train", str(TINY_TRAIN / "mono2.yaml"), "--data", str(tiny_dataset), "--out", str(run),
+                     "--no-progress", "train.steps=1"]) == 0
+        args = ["predict", str(run), "--data", str(tiny_dataset), "--out", str(mine)]
+    else:
+        args = ["sweep", str(ROOT / "configs/sweep/ci.yaml"), "--out", str(mine), "--no-progress"]
+    capsys.readouterr()
+    assert main(args) == 2
+    assert "not empty and is not an mcdp" in capsys.readouterr().err
+    assert tree_hash(mine) == before
+
+
+def test_a_second_writer_of_the_same_folder_is_refused_naming_the_pid(tiny_dataset, tmp_path):
+    import os
+
+    from mcdp.config import RunConfig
+    from mcdp.rundir import FolderError
+    from mcdp.trainer import Trainer
+    from synth.configlib import load_config
+    from synth.dataset import open_dataset
+
+    ds = open_dataset(tiny_dataset)
+    cfg = load_config(RunConfig, TINY_TRAIN / "mono2.yaml", ["train.steps=1"])
+    first = Trainer(cfg, ds, tmp_path / "run", progress=False, tensorboard=False)
+    try:
+        with pytest.raises(FolderError, match=f"another process \\(pid {os.getpid()}\\)"):
+            Trainer(cfg, ds, tmp_path / "run", progress=False, tensorboard=False)
+    finally:
+        first.close()
+    again = Trainer(cfg, ds, tmp_path / "run", progress=False, tensorboard=False)  # released: fine now
+    again.close()

@@ -1,0 +1,89 @@
+"""Output folders the tools own: a marker written first, and an exclusive lock while a process writes.
+
+`claim(folder, kind)` is called by every command that writes a folder (``mcdp train``'s run
+folder, ``mcdp predict --out``, ``mcdp sweep --out``):
+
+- a folder that does not exist or is empty is created and marked (``.mcdp``: its kind, written
+  first, atomically);
+- a non-empty folder is accepted only when it carries the marker of the same kind (or, for
+  folders written before markers existed, one of the kind's own files, ``legacy``); anything
+  else, such as a folder with the user's own files, is refused before a byte is written;
+- an exclusive ``flock`` on ``.lock`` is held until `FolderLock.release` (or process exit): a
+  second process writing the same folder is refused at once, naming the holder's pid.
+
+Example::
+
+    lock = claim(Path("runs/m2"), "run", legacy=("run.json",))
+    try:
+        ...
+    finally:
+        lock.release()
+"""
+from __future__ import annotations
+
+import fcntl
+import json
+import os
+from pathlib import Path
+
+MARKER = ".mcdp"
+LOCK = ".lock"
+
+
+class FolderError(ValueError):
+    """An output folder that is not ours, or is being written by another process; the message says which."""
+
+
+class FolderLock:
+    def __init__(self, folder: Path, fh):
+        self.folder, self._fh = folder, fh
+
+    def release(self) -> None:
+        if self._fh is not None:
+            try:
+                fcntl.flock(self._fh, fcntl.LOCK_UN)
+            finally:
+                self._fh.close()
+                self._fh = None
+
+
+def _kind_of(folder: Path) -> str | None:
+    try:
+        return str(json.loads((folder / MARKER).read_text()).get("kind"))
+    except (OSError, ValueError, AttributeError):
+        return None
+
+
+def claim(folder: str | Path, kind: str, legacy: tuple[str, ...] = ()) -> FolderLock:
+    """Create or accept ``folder`` as an mcdp ``kind`` folder and lock it (module docstring)."""
+    folder = Path(folder)
+    if folder.exists() and not folder.is_dir():
+        raise FolderError(f"{folder} is a file, not a folder; use a new --out")
+    entries = sorted(p.name for p in folder.iterdir()) if folder.is_dir() else []
+    ours = [e for e in entries if e not in (MARKER, LOCK)]
+    if ours:
+        have = _kind_of(folder)
+        if have is None and not any((folder / name).exists() for name in legacy):
+            raise FolderError(f"{folder} is not empty and is not an mcdp {kind} folder ({', '.join(ours[:4])}"
+                              + (", ..." if len(ours) > 4 else "") + "); nothing was written: use a new --out")
+        if have is not None and have != kind:
+            raise FolderError(f"{folder} is an mcdp {have} folder, not a {kind} folder; use a new --out")
+    folder.mkdir(parents=True, exist_ok=True)
+    fh = open(folder / LOCK, "a+")
+    try:
+        fcntl.flock(fh, fcntl.LOCK_EX | fcntl.LOCK_NB)
+    except OSError:
+        fh.seek(0)
+        holder = fh.read().strip()[:20] or "?"
+        fh.close()
+        raise FolderError(f"{folder} is being written by another process (pid {holder}); wait for it or use "
+                          "another --out") from None
+    fh.seek(0)
+    fh.truncate()
+    fh.write(str(os.getpid()))
+    fh.flush()
+    if _kind_of(folder) is None:
+        tmp = folder / (MARKER + ".tmp")
+        tmp.write_text(json.dumps({"kind": kind}))
+        tmp.replace(folder / MARKER)
+    return FolderLock(folder, fh)
