@@ -133,8 +133,13 @@ def reprojection_loss(
     mask: torch.Tensor,
     automask: bool = True,
     alpha: float = 0.85,
+    out_of_view: str = "border",
 ):
     """Monodepth2 photometric loss: per-pixel minimum over sources, with auto-masking.
+
+    ``out_of_view="identity"`` (the trainer's default, `LossConfig.out_of_view`) is
+    `identity_floored_error` averaged over all scene pixels; the rest of this docstring
+    describes ``"border"``.
 
     For each source s, e_s = photometric_error(warped_s, target). A source counts
     at a pixel where valid_s > 0 (in front of it, inside its image, off its ego
@@ -166,7 +171,9 @@ def reprojection_loss(
         raise ValueError("warped_list must hold at least one warped source")
     if len(valid_list) != len(warped_list):
         raise ValueError(f"valid_list has {len(valid_list)} entries, warped_list {len(warped_list)}")
-    if automask:
+    if out_of_view not in ("identity", "border"):
+        raise ValueError(f"out_of_view must be 'identity' or 'border', got {out_of_view!r}")
+    if automask or out_of_view == "identity":
         if sources_list is None or len(sources_list) != len(warped_list):
             n = None if sources_list is None else len(sources_list)
             raise ValueError(f"sources_list must hold {len(warped_list)} source images for auto-masking, got {n}")
@@ -175,14 +182,19 @@ def reprojection_loss(
     for s, (w, v) in enumerate(zip(warped_list, valid_list)):
         _check4(w, f"warped_list[{s}]", channels=C, like=target, doc=f"({B}, {C}, {H}, {W})")
         _check4(v, f"valid_list[{s}]", channels=1, like=target, doc=f"({B}, 1, {H}, {W})")
-    reproj, seen = min_reprojection([photometric_error(w, target, alpha) for w in warped_list], valid_list)
+    errors = [photometric_error(w, target, alpha) for w in warped_list]
     ident = None
-    if automask:
+    if automask or out_of_view == "identity":
         idents = []
         for s, src in enumerate(sources_list):
             _check4(src, f"sources_list[{s}]", channels=C, like=target, doc=f"({B}, {C}, {H}, {W})")
             idents.append(photometric_error(src, target, alpha))
         ident = torch.cat(idents, 1).min(1, keepdim=True).values
+    if out_of_view == "identity":
+        per_pixel, used = identity_floored_error(errors, valid_list, ident, automask)
+        used = used * (mask > 0).to(used.dtype)
+        return masked_mean(per_pixel, mask), per_pixel, used
+    reproj, seen = min_reprojection(errors, valid_list)
     used = used_pixels(reproj, seen, ident, mask)
     return masked_mean(reproj, used), reproj, used
 

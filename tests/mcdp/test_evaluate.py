@@ -81,7 +81,8 @@ def test_layout_and_perfect_prediction():
     assert list(m["stages"]) == ["init", "refine1", "final"]
     assert {f for _, _, f in ds.depth_reads} == {1, 2}
     for stage in m["stages"].values():
-        assert set(stage) == {"none", "median", "rig_median", "dep_con"}
+        assert set(stage) == {"none", "median", "rig_median", "dep_con", "spread"}
+        assert stage["spread"]["ratio"] == pytest.approx(1.0)  # a flat wall predicted flat: p90/p10 = 1
         for sc in E.SCALINGS:
             s = stage[sc]
             assert {"mean", "per_camera", "overlap", "non_overlap"} <= set(s)

@@ -235,10 +235,11 @@ def test_pose_model_shapes_and_inverse_convention():
     assert torch.allclose(P[1][..., 3, :], torch.tensor([0, 0, 0, 1.0]).expand(1, N, 4))
 
 
-def test_cached_automask_equals_the_loss_module_automask():
+@pytest.mark.parametrize("out_of_view", ["identity", "border"])
+def test_cached_automask_equals_the_loss_module_automask(out_of_view):
     """The trainer computes the identity error once per batch; the result must equal reprojection_loss's."""
     torch.manual_seed(0)
-    cfg = run_cfg({"refine_steps": 0, "method": "mono2"}, loss={"consistency_weight": 0.0},
+    cfg = run_cfg({"refine_steps": 0, "method": "mono2"}, loss={"consistency_weight": 0.0, "out_of_view": out_of_view},
                   scale={"source": "odometry"})
     system = SelfSupervisedSystem(cfg, RING, N)
     b = rig_batch()
@@ -258,5 +259,5 @@ def test_cached_automask_equals_the_loss_module_automask():
             w, v = warp_by_depth(torch.cat([s, mask], 1), out["depth", "init", 0], K, K, T, padding_mode="border")
             warped.append(w[:, :3])
             valid.append(v * (w[:, 3:] > 0.99).float())
-        ref, _, _ = reprojection_loss(tgt, warped, valid, srcs, mask, automask=True)
+        ref, _, _ = reprojection_loss(tgt, warped, valid, srcs, mask, automask=True, out_of_view=out_of_view)
     assert torch.allclose(losses["reprojection/init"], ref, rtol=1e-5, atol=1e-7)
