@@ -27,15 +27,23 @@ class NetworkError(ValueError):
     """A network could not be built (e.g. unreadable pretrained weights); the message names the file."""
 
 
+def read_weights_file(path: str | Path, field: str, hint: str, error: type[Exception] = NetworkError):
+    """``torch.load(weights_only=True)`` of a user-given file (no code in it can run); ``error`` naming
+    the config field and the file when it is missing (``hint`` says what to do) or unreadable."""
+    p = Path(path)
+    if not p.is_file():
+        raise error(f"{field}: weights file {p} does not exist ({hint})")
+    try:
+        return torch.load(p, map_location="cpu", weights_only=True)
+    except Exception as exc:  # noqa: BLE001 - any unreadable file is a user error
+        first = str(exc).strip().splitlines()[0][:200] if str(exc).strip() else type(exc).__name__
+        raise error(f"{field}: cannot read {p} as a plain weights file: {first}") from None
+
+
 def load_resnet18_weights(path: str | Path) -> dict:
     """Read a local torchvision ResNet-18 state dict (``.pth``); raises NetworkError naming the file."""
     p = Path(path)
-    if not p.is_file():
-        raise NetworkError(f"model.pretrained: weights file {p} does not exist (weights are never downloaded)")
-    try:
-        sd = torch.load(p, map_location="cpu", weights_only=True)
-    except Exception as exc:  # noqa: BLE001 - any unreadable file is a user error
-        raise NetworkError(f"model.pretrained: cannot read {p} as a torch state dict: {exc}") from None
+    sd = read_weights_file(p, "model.pretrained", "weights are never downloaded")
     if isinstance(sd, dict) and "state_dict" in sd:
         sd = sd["state_dict"]
     if not isinstance(sd, dict) or "conv1.weight" not in sd:

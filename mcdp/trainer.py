@@ -404,7 +404,6 @@ class Trainer:
             self.init_from = warm_start(self.depth, cfg.model.init_from)
         self.step = 0
         self.spread: dict = {}
-        self.collapsed_at: int | None = None
         self.spread_armed = False
         self.collapse_streak = 0
         self.best_val = math.inf
@@ -560,10 +559,7 @@ class Trainer:
         # only when COLLAPSE_STREAK logged checks in a row agree (one odd batch is not a collapse)
         armed = self.spread_armed or self.step >= COLLAPSE_GRACE_STEPS
         if reason is not None and armed and self.collapse_streak == COLLAPSE_STREAK:
-            self.collapsed_at = self.step
             print(f"mcdp train: WARNING step {self.step}: depth collapsed: {reason}", file=sys.stderr)
-        elif reason is None:
-            self.collapsed_at = None
         self.spread = dict(spread, collapsed=reason)
         if self.writer is not None:
             for k in ("ratio", "at_min", "at_max"):

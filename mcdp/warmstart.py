@@ -20,7 +20,7 @@ from __future__ import annotations
 import hashlib
 from pathlib import Path
 
-import torch
+from mcdp.networks import read_weights_file
 
 FORMAT = "mcdp-pretrain"
 VERSION = 1
@@ -41,12 +41,7 @@ def sha256_file(path: str | Path) -> str:
 def read_pretraining(path: str | Path) -> dict:
     """The pretraining file's dict (format checked); WarmStartError naming the file otherwise."""
     p = Path(path)
-    if not p.is_file():
-        raise WarmStartError(f"model.init_from: {p} does not exist (make it with: mcdp pretrain CONFIG --out DIR)")
-    try:
-        obj = torch.load(p, map_location="cpu", weights_only=True)
-    except Exception as exc:  # noqa: BLE001 - any unreadable file is a user error
-        raise WarmStartError(f"model.init_from: {p} is not a readable weights file: {str(exc)[:200]}") from None
+    obj = read_weights_file(p, "model.init_from", "make it with: mcdp pretrain CONFIG --out DIR", WarmStartError)
     if not isinstance(obj, dict) or obj.get("format") != FORMAT or obj.get("version") != VERSION:
         raise WarmStartError(f"model.init_from: {p} is not an {FORMAT} v{VERSION} file (written by mcdp pretrain)")
     if not isinstance(obj.get("depth_model"), dict) or not isinstance(obj.get("model"), dict):
