@@ -3,8 +3,10 @@
     .venv/bin/python benchmarks/overlap_table.py [--sequences 2 --frames 3 --width 320 --height 192]
 
 Renders a small dataset per (mode, overlap) into a temporary folder and prints, per mode, the
-target and the measured fraction of camera pixels seen by the neighbour (mean of both directions,
-summed over all frames) for every adjacent pair, from the manifest the renderer writes.
+geometric target and the measured overlap (`synth.overlap`: the neighbour sees the pixel's point,
+ego masks and z-test included; mean of both directions, summed over all frames) for every adjacent
+pair, from the manifest the renderer writes; in brackets the frustum-only fraction (no ego mask in
+the neighbour, no z-test: the definition before issue #11) from the same depth files.
 """
 from __future__ import annotations
 
@@ -14,6 +16,32 @@ import tempfile
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+
+def frustum_only(path: Path) -> dict[str, float]:
+    """Per pair, mean of both directions: valid pixels of i whose point is in front of j and inside its
+    image (no ego mask in j, no z-test), as the manifest measured it before the one definition."""
+    import numpy as np
+
+    from synth.dataset import open_dataset
+    from synth.overlap import overlap_mask
+
+    ds = open_dataset(path)
+    cams, tot = ds.cameras, {}
+    for seq in ds.sequences:
+        for f in range(ds.n_frames(seq)):
+            depth = {c.name: ds.read_depth(seq, c.name, f) for c in cams}
+            for a, b in ds.neighbours:
+                for i, j in ((a, b), (b, a)):
+                    ci, cj = cams[i], cams[j]
+                    far = np.full_like(depth[cj.name], 1e12)  # nothing in j is nearer: no z-test
+                    ov = overlap_mask(depth[ci.name], ci.K, ci.T_ego_cam, far, cj.K, cj.T_ego_cam,
+                                      mask_i=ds.mask(ci.name))
+                    t = tot.setdefault((a, b), [0, 0, 0, 0])
+                    k = 0 if (i, j) == (a, b) else 2
+                    t[k] += int(((depth[ci.name] > 0) & ds.mask(ci.name)).sum())
+                    t[k + 1] += int(ov.sum())
+    return {f"{cams[a].name}-{cams[b].name}": (t[1] / t[0] + t[3] / t[2]) / 2 for (a, b), t in tot.items()}
 
 
 def main(argv=None) -> int:
@@ -37,19 +65,20 @@ def main(argv=None) -> int:
                 f"dataset.frames={args.frames}", f"camera.width={args.width}", f"camera.height={args.height}"])
             with tempfile.TemporaryDirectory() as tmp:
                 s = render_dataset(cfg, Path(tmp) / "d", progress=False, log=lambda *a: None)
-            rows.append((o, s["overlap"]))
+                frustum = frustum_only(Path(tmp) / "d")
+            rows.append((o, s["overlap"], frustum))
         pairs = list(rows[0][1]["per_pair_measured"])
         names = ["-".join(short[n] for n in p.split("-")) for p in pairs]
         print(f"\nmode={mode}  ({args.sequences} seq x {args.frames} frames, {args.width}x{args.height}); "
               "each cell: geometric target / measured pixel overlap")
-        print(f"{'overlap':>7} | {'hfov':>5} | " + " | ".join(f"{n:>13}" for n in names))
-        print("-" * (18 + 16 * len(names)))
-        for o, ov in rows:
+        print(f"{'overlap':>7} | {'hfov':>5} | " + " | ".join(f"{n:>21}" for n in names))
+        print("-" * (18 + 24 * len(names)))
+        for o, ov, fr in rows:
             cells = []
             for p in pairs:
                 d = ov["per_pair_measured"][p]
-                cells.append(f"{d['target']:+.2f} / {d['measured']:.3f}")
-            print(f"{o:7.2f} | {ov['hfov_deg']:5.1f} | " + " | ".join(f"{c:>13}" for c in cells))
+                cells.append(f"{d['target']:+.2f} / {d['measured']:.3f} ({fr[p]:.3f})")
+            print(f"{o:7.2f} | {ov['hfov_deg']:5.1f} | " + " | ".join(f"{c:>21}" for c in cells))
     return 0
 
 

@@ -15,10 +15,12 @@ Protocol (DESIGN.md, "Evaluation protocol"):
   convention), per camera; "mean" = mean of the per-camera values.
   Images with no valid pixel in a region (e.g. no overlap pixel) are skipped
   for that region, not counted as zero.
-- Overlap / non-overlap: a pixel of camera i is "overlap" if its GROUND-TRUTH
-  3D point projects inside some neighbour's image in front of it (union over
-  the neighbours in ``ds.neighbours``; ``metrics.overlap_mask``). The split is
-  a property of rig and scene, not of the model. non_overlap = valid & ~overlap.
+- Overlap / non-overlap: a pixel of camera i is "overlap" if some neighbour
+  (``ds.neighbours``) sees its GROUND-TRUTH 3D point: in front, inside the
+  image, on a scene pixel of its mask, passing a z-test against its ground
+  truth (``synth.overlap.overlap_mask``, the one definition the manifest uses
+  too). The split is a property of rig and scene, not of the model.
+  non_overlap = valid & ~overlap.
 - Dep Con (paper): for every adjacent pair, both directions, the neighbour's
   prediction is splatted with the z-buffer (``geometry.splat_depth``, source
   pixels outside the neighbour's ego mask dropped) into the target camera, and
@@ -61,6 +63,7 @@ import torch
 from pydantic import field_validator, model_validator
 
 from synth.configlib import StrictModel
+from synth.overlap import overlap_mask
 
 from . import geometry
 from .metrics import (
@@ -71,7 +74,6 @@ from .metrics import (
     clamp_depth,
     dep_con,
     nan_metrics,
-    overlap_mask,
     valid_gt_mask,
 )
 
@@ -249,7 +251,7 @@ def evaluate(
         for i in range(n_cam):
             ov = np.zeros(shapes[i], dtype=bool)
             for j in nbrs[i]:
-                ov |= overlap_mask(gts[i], Ks[i], Ts[i], Ks[j], Ts[j], shapes[j][1], shapes[j][0],
+                ov |= overlap_mask(gts[i], Ks[i], Ts[i], gts[j], Ks[j], Ts[j], mask_i=scene_masks[i],
                                    mask_j=scene_masks[j])
             overlaps.append(ov)
         # metrics only ever look at valid pixels: gather them once per camera (1-D, float64)

@@ -28,7 +28,6 @@ __all__ = [
     "median_scale",
     "rig_median_scale",
     "dep_con",
-    "overlap_mask",
 ]
 
 #: keys of every metrics dict, in table order
@@ -213,56 +212,3 @@ def dep_con(depth_i, depth_hat_i, gt_i, valid) -> float:
     if not np.all(g[v] > 0):
         raise ValueError("gt_i must be positive on valid pixels")
     return float(np.mean(np.abs(d[v] - dh[v]) / g[v]))
-
-
-def overlap_mask(gt_depth_i, K_i, T_ego_cam_i, K_j, T_ego_cam_j, W_j: int, H_j: int, mask_j=None,
-                 eps: float = 1e-6) -> np.ndarray:
-    """Pixels of camera i whose ground-truth 3D point projects into camera j's image, in front of it.
-
-    This is the geometric overlap (a property of rig and scene, independent of
-    any model). Occlusion in camera j is not tested: a point hidden from j
-    behind another object still counts. The target pixel rule is the one of
-    ``splat_depth``: 0 <= u < W_j, 0 <= v < H_j.
-
-    Args:
-        gt_depth_i: (H, W) ground-truth z-depth of camera i (m), 0 = no surface (never overlap).
-        K_i: (3, 3) intrinsics of camera i at (H, W).
-        T_ego_cam_i: (4, 4) camera i -> ego.
-        K_j: (3, 3) intrinsics of camera j at (H_j, W_j).
-        T_ego_cam_j: (4, 4) camera j -> ego.
-        W_j, H_j: camera j's image size.
-        mask_j: optional (H_j, W_j) bool scene mask of camera j; points landing on
-            j's ego-body pixels are not overlap.
-        eps: minimum z in camera j.
-
-    Returns:
-        (H, W) bool.
-    """
-    g = _np(gt_depth_i, "gt_depth_i")
-    if g.ndim != 2:
-        raise ValueError(f"gt_depth_i must have shape (H, W), got {g.shape}")
-    Ki, Kj = _np(K_i, "K_i"), _np(K_j, "K_j")
-    Ti, Tj = _np(T_ego_cam_i, "T_ego_cam_i"), _np(T_ego_cam_j, "T_ego_cam_j")
-    for a, n, s in ((Ki, "K_i", (3, 3)), (Kj, "K_j", (3, 3)), (Ti, "T_ego_cam_i", (4, 4)), (Tj, "T_ego_cam_j", (4, 4))):
-        if a.shape != s:
-            raise ValueError(f"{n} must have shape {s}, got {a.shape}")
-    H, W = g.shape
-    vv, uu = np.meshgrid(np.arange(H) + 0.5, np.arange(W) + 0.5, indexing="ij")
-    pix = np.stack([uu, vv, np.ones_like(uu)], 0).reshape(3, -1)  # (3, N)
-    pts_i = (np.linalg.inv(Ki) @ pix) * g.reshape(1, -1)
-    T_j_i = np.linalg.inv(Tj) @ Ti
-    pts_j = T_j_i[:3, :3] @ pts_i + T_j_i[:3, 3:4]
-    z = pts_j[2]
-    proj = Kj @ pts_j
-    with np.errstate(divide="ignore", invalid="ignore"):
-        u = proj[0] / np.where(z > eps, proj[2], 1.0)
-        v = proj[1] / np.where(z > eps, proj[2], 1.0)
-    ok = (g.reshape(-1) > 0) & (z > eps) & (u >= 0) & (u < W_j) & (v >= 0) & (v < H_j)
-    if mask_j is not None:
-        mj = _np(mask_j, "mask_j", dtype=bool)
-        if mj.shape != (H_j, W_j):
-            raise ValueError(f"mask_j must have shape ({H_j}, {W_j}), got {mj.shape}")
-        col = np.clip(np.floor(np.where(ok, u, 0)).astype(np.int64), 0, W_j - 1)
-        row = np.clip(np.floor(np.where(ok, v, 0)).astype(np.int64), 0, H_j - 1)
-        ok &= mj[row, col]
-    return ok.reshape(H, W)

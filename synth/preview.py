@@ -15,7 +15,7 @@ import cv2
 import numpy as np
 
 from synth.dataset import Dataset, write_png
-from synth.rig import seen_by
+from synth.overlap import overlap_mask
 
 
 def colorize_depth(depth: np.ndarray, max_depth: float = 80.0) -> np.ndarray:
@@ -50,8 +50,8 @@ def make_preview(ds: Dataset, out: str | Path, seq: str | None = None, frame: in
         rgb = ds.read_rgb(seq, cam.name, frame)
         mask = ds.mask(cam.name)
         prev_c, next_c = ds.cameras[(i - 1) % len(names)], ds.cameras[(i + 1) % len(names)]
-        d = np.where(mask, depths[cam.name], 0)
-        by_prev, by_next = seen_by(d, cam, prev_c), seen_by(d, cam, next_c)
+        by_prev, by_next = (overlap_mask(depths[cam.name], cam.K, cam.T_ego_cam, depths[o.name], o.K, o.T_ego_cam,
+                                         mask_i=mask, mask_j=ds.mask(o.name)) for o in (prev_c, next_c))
         gray = rgb.mean(axis=2, keepdims=True).repeat(3, axis=2)
         ov = gray.copy()
         ov[by_prev] = 0.5 * ov[by_prev] + 0.5 * np.array([40, 90, 255])

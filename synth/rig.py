@@ -213,21 +213,3 @@ def _rot_x(a: float) -> np.ndarray:
     c, s = math.cos(a), math.sin(a)
     T[1:3, 1:3] = [[c, -s], [s, c]]
     return T
-
-
-def seen_by(depth_i: np.ndarray, ci: CameraSpec, cj: CameraSpec) -> np.ndarray:
-    """(H, W) bool: pixels of camera i (z-depth `depth_i`, 0 = none) whose 3D point projects
-    inside camera j's image, in front of it. Occlusion in j is not checked."""
-    v, u = np.nonzero(depth_i > 0)
-    z = depth_i[v, u].astype(np.float64)
-    pts = (np.linalg.inv(ci.K) @ np.stack([u + 0.5, v + 0.5, np.ones_like(z)])) * z
-    T_j_i = np.linalg.inv(cj.T_ego_cam) @ ci.T_ego_cam
-    pj = T_j_i[:3, :3] @ pts + T_j_i[:3, 3:4]
-    front = pj[2] > 1e-6
-    uvw = cj.K @ pj
-    zs = np.where(front, pj[2], 1.0)
-    uj, vj = uvw[0] / zs, uvw[1] / zs
-    inside = front & (uj >= 0) & (uj < cj.width) & (vj >= 0) & (vj < cj.height)
-    out = np.zeros(depth_i.shape, bool)
-    out[v[inside], u[inside]] = True
-    return out

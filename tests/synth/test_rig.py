@@ -3,8 +3,9 @@ import math
 import numpy as np
 import pytest
 
+from synth.overlap import overlap_mask
 from synth.rig import (CAMERA_NAMES, CameraConfig, RigConfig, build_rig, intrinsics_from_hfov, rotation_ego_cam,
-                       seen_by, solve_layout)
+                       solve_layout)
 
 
 def test_rotation_conventions():
@@ -42,11 +43,12 @@ def test_overlap_solver(o):
     assert rig.names == list(CAMERA_NAMES)
 
 
-def test_seen_by_geometric_overlap():
+def test_overlap_of_a_far_wall_is_the_geometric_overlap():
     # a far wall of constant depth: the pixel fraction seen by the neighbour ~ the hfov overlap
     rig = build_rig(RigConfig(overlap=0.3, overlap_mode="fov"), CameraConfig(width=200, height=100))
     a, b = rig.cameras[0], rig.cameras[1]
-    frac = seen_by(np.full((100, 200), 1e4, np.float32), a, b).mean()
+    far = np.full((100, 200), 1e4, np.float32)
+    frac = overlap_mask(far, a.K, a.T_ego_cam, np.full((100, 200), 1e9), b.K, b.T_ego_cam).mean()
     # far wall: translation is negligible, the boundary is where FR's left edge (yaw -60 + hfov/2) falls
     u_edge = a.K[0, 2] + a.K[0, 0] * math.tan(math.radians(60.0 - a.hfov_deg / 2))
     assert frac == pytest.approx((a.width - u_edge) / a.width, abs=0.02)
