@@ -26,6 +26,8 @@ import json
 import os
 from pathlib import Path
 
+from corelib.atomic import atomic_write_json
+
 MARKER = ".mcdp"
 LOCK = ".lock"
 
@@ -69,7 +71,17 @@ def claim(folder: str | Path, kind: str, legacy: tuple[str, ...] = ()) -> Folder
         if have is not None and have != kind:
             raise FolderError(f"{folder} is an mcdp {have} folder, not a {kind} folder; use a new --out")
     folder.mkdir(parents=True, exist_ok=True)
-    fh = open(folder / LOCK, "a+")
+    lock = lock_folder(folder)
+    if _kind_of(folder) is None:
+        atomic_write_json(folder / MARKER, {"kind": kind})
+    return lock
+
+
+def lock_folder(folder: str | Path, lock_file: str | Path = LOCK) -> FolderLock:
+    """An exclusive, non-blocking flock on ``folder/lock_file`` (created; it holds the pid). FolderError
+    naming the holder's pid when another process has it; released by `FolderLock.release` or exit."""
+    folder = Path(folder)
+    fh = open(folder / lock_file, "a+")
     try:
         fcntl.flock(fh, fcntl.LOCK_EX | fcntl.LOCK_NB)
     except OSError:
@@ -82,8 +94,4 @@ def claim(folder: str | Path, kind: str, legacy: tuple[str, ...] = ()) -> Folder
     fh.truncate()
     fh.write(str(os.getpid()))
     fh.flush()
-    if _kind_of(folder) is None:
-        tmp = folder / (MARKER + ".tmp")
-        tmp.write_text(json.dumps({"kind": kind}))
-        tmp.replace(folder / MARKER)
     return FolderLock(folder, fh)

@@ -22,13 +22,16 @@ import sys
 from pathlib import Path
 from typing import Callable
 
+from corelib.atomic import atomic_write_json, disk_full_message, is_disk_full
+
 EXIT_USAGE = 2
 EXIT_DIVERGED = 3
+EXIT_DISK_FULL = 4
 
 
 def _user_errors() -> tuple[type[BaseException], ...]:
     from mcdp.networks import NetworkError
-    from mcdp.rundir import FolderError
+    from corelib.rundir import FolderError
     from mcdp.trainer import RunError
     from mcdp.warmstart import WarmStartError
     from synth.configlib import ConfigError
@@ -36,6 +39,23 @@ def _user_errors() -> tuple[type[BaseException], ...]:
     from synth.render import OutputFolderError
 
     return (ConfigError, DatasetError, RunError, NetworkError, OutputFolderError, WarmStartError, FolderError)
+
+
+def _check_metrics_target(out: Path) -> None:
+    """`eval --out` names a file: new, or a metrics file an earlier `mcdp eval` wrote; anything else is the
+    user's and is refused before the evaluation starts."""
+    from mcdp.trainer import RunError
+
+    if out.is_dir():
+        raise RunError(f"--out {out} is a folder; --out names the metrics JSON file to write")
+    if out.exists():
+        try:
+            ours = isinstance(json.loads(out.read_text()[:1 << 26]).get("run", {}).get("checkpoint"), str)
+        except (OSError, ValueError, UnicodeDecodeError, AttributeError):
+            ours = False
+        if not ours:
+            raise RunError(f"--out {out} exists and is not a metrics file written by mcdp eval; nothing was "
+                           "written: choose a new file name")
 
 
 def _open_dataset(path: str):
@@ -120,6 +140,8 @@ def _eval(args: argparse.Namespace) -> int:
     from mcdp.trainer import RunError
     from synth.configlib import config_to_dict
 
+    out = Path(args.out) if args.out else Path(args.run) / f"metrics_{args.split}.json"
+    _check_metrics_target(out)  # before the (long) evaluation
     ds = _open_dataset(args.data)
     if not ds.has_depth:
         raise RunError(f"dataset {args.data} has no ground-truth depth (manifest has_depth=false); eval needs it")
@@ -146,11 +168,8 @@ def _eval(args: argparse.Namespace) -> int:
         "data": str(Path(args.data)),
         "config": config_to_dict(pred.cfg),
     }
-    out = Path(args.out) if args.out else Path(args.run) / f"metrics_{args.split}.json"
     out.parent.mkdir(parents=True, exist_ok=True)
-    tmp = out.with_name(out.name + ".tmp")
-    tmp.write_text(json.dumps(metrics, indent=1, allow_nan=True))
-    tmp.replace(out)
+    atomic_write_json(out, metrics, allow_nan=True)
     if pred.oracle:
         print("ORACLE RUN: depth scaled by the ground-truth median (scale.source=oracle_gt_median)")
     print(format_tables(metrics, args.stage))
@@ -185,7 +204,7 @@ def _predict(args: argparse.Namespace) -> int:
     label = " [ORACLE]" if pred.oracle else ""
     print(f"mcdp predict: {pred.ckpt_path} (step {pred.step}), {len(samples)} rig samples -> {args.out}{label}",
           file=sys.stderr)
-    from mcdp.rundir import claim
+    from corelib.rundir import claim
 
     lock = claim(args.out, "predict")  # a folder of the user's own files is refused, nothing written
     n = 0
@@ -244,6 +263,11 @@ def main(argv: list[str] | None = None) -> int:
     except TrainingDiverged as exc:
         print(f"mcdp {args.command}: training diverged: {exc}", file=sys.stderr)
         return EXIT_DIVERGED
+    except OSError as exc:
+        if not is_disk_full(exc):
+            raise
+        print(f"mcdp {args.command}: error: {disk_full_message(exc)}", file=sys.stderr)
+        return EXIT_DISK_FULL
     except KeyboardInterrupt:
         print(f"mcdp {args.command}: interrupted", file=sys.stderr)
         return 130

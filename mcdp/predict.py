@@ -27,6 +27,7 @@ import numpy as np
 import torch
 import torch.nn.functional as F
 
+from corelib.atomic import atomic_write_bytes
 from mcdp.data import RigReader, neighbour_table
 from mcdp.model import DepthModel
 from mcdp.trainer import RunError, config_from_checkpoint, load_checkpoint, resolve_device
@@ -168,9 +169,7 @@ def write_ply(path: str | Path, points: np.ndarray, colors: np.ndarray) -> None:
     rec = np.empty(n, dtype=[("x", "<f4"), ("y", "<f4"), ("z", "<f4"), ("r", "u1"), ("g", "u1"), ("b", "u1")])
     rec["x"], rec["y"], rec["z"] = points[:, 0], points[:, 1], points[:, 2]
     rec["r"], rec["g"], rec["b"] = colors[:, 0], colors[:, 1], colors[:, 2]
-    with open(path, "wb") as f:
-        f.write(header.encode("ascii"))
-        f.write(rec.tobytes())
+    atomic_write_bytes(path, header.encode("ascii") + rec.tobytes())
 
 
 def write_prediction(pred: Predictor, seq: str, frame: int, out_dir: str | Path, ply: bool = False) -> list[Path]:

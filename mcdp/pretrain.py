@@ -34,6 +34,7 @@ from typing import Callable
 
 from pydantic import Field
 
+from corelib.atomic import atomic_write_json
 from synth.configlib import ConfigError, StrictModel, config_hash, config_to_dict, load_config
 
 MARKER = "pretrain.json"
@@ -84,7 +85,7 @@ def resolved_configs(cfg: PretrainConfig):
 
 def cached(out: Path, h: str) -> dict | None:
     """The record of a finished pretraining in ``out`` with hash ``h``, or None if there is none yet."""
-    from mcdp.warmstart import sha256_file
+    from corelib.hashing import sha256_file
 
     marker = out / MARKER
     if not marker.is_file():
@@ -105,7 +106,7 @@ def cached(out: Path, h: str) -> dict | None:
 def run_pretrain(cfg: PretrainConfig, out: str | Path, progress: bool = True,
                  log: Callable[[str], None] | None = None) -> dict:
     """Render + train + export a pretraining into ``out`` (or return the cached one). Returns its record."""
-    from mcdp.rundir import claim
+    from corelib.rundir import claim
 
     log = log or (lambda s: print(s, file=sys.stderr, flush=True))
     out = Path(out)
@@ -122,10 +123,9 @@ def run_pretrain(cfg: PretrainConfig, out: str | Path, progress: bool = True,
 
 
 def _pretrain(cfg: PretrainConfig, out: Path, dcfg, rcfg, h: str, progress: bool, log) -> dict:
-    import torch
-
     from mcdp.trainer import Trainer, atomic_torch_save
-    from mcdp.warmstart import FORMAT, VERSION, sha256_file
+    from corelib.hashing import sha256_file
+    from mcdp.warmstart import FORMAT, VERSION
     from synth.dataset import open_dataset
     from synth.render import render_dataset
 
@@ -134,7 +134,7 @@ def _pretrain(cfg: PretrainConfig, out: Path, dcfg, rcfg, h: str, progress: bool
         raise ConfigError(f"{out} holds an unfinished pretraining with another config; use a new --out "
                           f"or delete {out}")
     resolved = {"pretrain": config_to_dict(cfg), "data": config_to_dict(dcfg), "run": config_to_dict(rcfg)}
-    (out / "pretrain.config.json").write_text(json.dumps({"config_hash": h, "config": resolved}, indent=1))
+    atomic_write_json(out / "pretrain.config.json", {"config_hash": h, "config": resolved})
     t0 = time.perf_counter()
     log(f"[pretrain] rendering {dcfg.dataset.sequences} sequences x {dcfg.dataset.frames} frames "
         f"(seed {dcfg.seed}) into {out / 'data'}")
@@ -160,9 +160,7 @@ def _pretrain(cfg: PretrainConfig, out: Path, dcfg, rcfg, h: str, progress: bool
     rec = {"config_hash": h, "sha256": sha256_file(out / WEIGHTS), "path": str((out / WEIGHTS).resolve()),
            "step": trainer.step, "render_s": render_s, "train_s": train_s,
            "depth_spread": trainer.spread, "config": resolved}
-    tmp = out / (MARKER + ".tmp")
-    tmp.write_text(json.dumps(rec, indent=1))
-    tmp.replace(out / MARKER)
+    atomic_write_json(out / MARKER, rec)
     log(f"[pretrain] done: {out / WEIGHTS} (step {trainer.step}, render {render_s:.0f} s, train {train_s:.0f} s)")
     return rec
 

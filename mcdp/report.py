@@ -21,11 +21,13 @@ Example::
 from __future__ import annotations
 
 import csv
-import json
+import io
 import math
 import time
 from pathlib import Path
 from typing import Any
+
+from corelib.atomic import atomic_write_json, atomic_write_text
 
 from mcdp.diagnostics import COLLAPSE_RATIO
 from mcdp.metrics import METRIC_NAMES
@@ -186,10 +188,10 @@ def _ref(results: dict, overlap: float, key: str, which: str = "reference") -> d
 # --------------------------------------------------------------------------- files
 def write_all(results: dict, out: str | Path) -> None:
     out = Path(out)
-    (out / "results.json").write_text(json.dumps(results, indent=1, allow_nan=True))
+    atomic_write_json(out / "results.json", results, allow_nan=True)
     write_csv(results, out / "results.csv")
     plots = make_plots(results, out / "plots")
-    (out / "report.md").write_text(format_report(results, [p.relative_to(out).as_posix() for p in plots]))
+    atomic_write_text(out / "report.md", format_report(results, [p.relative_to(out).as_posix() for p in plots]))
 
 
 def write_csv(results: dict, path: Path) -> None:
@@ -201,7 +203,8 @@ def write_csv(results: dict, path: Path) -> None:
             if k not in keys:
                 keys.append(k)
     keys = keys[:3] + ["target_overlap", "measured_overlap"] + keys[3:]
-    with open(path, "w", newline="") as fh:
+    fh = io.StringIO(newline="")
+    with fh:
         w = csv.DictWriter(fh, fieldnames=keys, restval="")
         w.writeheader()
         for f in flats:
@@ -215,6 +218,7 @@ def write_csv(results: dict, path: Path) -> None:
                                 "method": name, "status": "reference",
                                 "target_overlap": d["measured"].get("target"),
                                 "measured_overlap": d["measured"].get("measured_mean")})
+        atomic_write_text(path, fh.getvalue())
 
 
 def make_plots(results: dict, plot_dir: Path) -> list[Path]:

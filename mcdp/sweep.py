@@ -44,6 +44,7 @@ from typing import Any, Callable, Literal
 import yaml
 from pydantic import Field, field_validator, model_validator
 
+from corelib.atomic import atomic_write_json
 from mcdp.pretrain import PretrainConfig
 from synth.configlib import ConfigError, StrictModel, config_hash, config_to_dict, load_config
 
@@ -197,9 +198,7 @@ def _read_json(path: Path) -> dict | None:
 
 def _write_json(path: Path, obj) -> None:
     path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(path.name + ".tmp")
-    tmp.write_text(json.dumps(obj, indent=1, allow_nan=True))
-    tmp.replace(path)
+    atomic_write_json(path, obj, allow_nan=True)
 
 
 def data_config_for(cfg: SweepConfig, overlap: float):
@@ -514,7 +513,7 @@ def run_sweep(cfg: SweepConfig, out: str | Path, progress: bool = True, log: Cal
     diverged), ``data`` (per overlap), ``rows`` (per overlap x method x seed),
     ``aggregate`` (mean/std over seeds) and ``timing``.
     """
-    from mcdp.rundir import claim
+    from corelib.rundir import claim
 
     log = log or (lambda s: print(s, file=sys.stderr, flush=True))
     out = Path(out)

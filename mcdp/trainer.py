@@ -51,9 +51,8 @@ Example::
 """
 from __future__ import annotations
 
-import json
+import io
 import math
-import os
 import sys
 import time
 from pathlib import Path
@@ -63,6 +62,7 @@ import torch
 import torch.nn.functional as F
 import yaml
 
+from corelib.atomic import atomic_write_bytes, atomic_write_json, atomic_write_text
 from mcdp.config import RunConfig, resume_conflicts
 from mcdp.data import RigDataset, StepBatchSampler, collate, directed_pairs, neighbour_table
 from mcdp.diagnostics import collapse_reason, depth_spread
@@ -77,7 +77,7 @@ from mcdp.losses import (
     used_pixels,
 )
 from mcdp.model import DepthModel, PoseModel, is_refined, odometry_camera_motion, resize_mask_to
-from mcdp.rundir import claim
+from corelib.rundir import claim
 from mcdp.warmstart import warm_start
 from synth.configlib import build_config, config_to_dict
 
@@ -101,9 +101,9 @@ def atomic_torch_save(obj, path: Path) -> None:
     """torch.save to ``path.tmp`` then os.replace: a crash never leaves a half-written checkpoint."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(path.name + ".tmp")
-    torch.save(obj, tmp)
-    os.replace(tmp, path)
+    buf = io.BytesIO()  # serialised in memory: a full disk then fails in one plain write, not inside torch
+    torch.save(obj, buf)
+    atomic_write_bytes(path, buf.getbuffer())
 
 
 def load_checkpoint(path: Path) -> dict:
@@ -412,19 +412,14 @@ class Trainer:
             self._restore(ckpt)
         self.run_dir.mkdir(parents=True, exist_ok=True)
         (self.run_dir / "checkpoints").mkdir(exist_ok=True)
-        (self.run_dir / "config.yaml").write_text(yaml.safe_dump(config_to_dict(cfg), sort_keys=False))
-        (self.run_dir / "run.json").write_text(
-            json.dumps(
-                {
-                    "data": str(Path(ds.root).resolve()),
-                    "cameras": list(ds.camera_names),
-                    "neighbours": [list(p) for p in ds.neighbours],
-                    "oracle": oracle,
-                    "init_from": self.init_from,
-                },
-                indent=1,
-            )
-        )
+        atomic_write_text(self.run_dir / "config.yaml", yaml.safe_dump(config_to_dict(cfg), sort_keys=False))
+        atomic_write_json(self.run_dir / "run.json", {
+            "data": str(Path(ds.root).resolve()),
+            "cameras": list(ds.camera_names),
+            "neighbours": [list(p) for p in ds.neighbours],
+            "oracle": oracle,
+            "init_from": self.init_from,
+        })
         self.writer = None
         if tensorboard:
             from torch.utils.tensorboard import SummaryWriter

@@ -17,9 +17,9 @@ Example::
 """
 from __future__ import annotations
 
-import hashlib
 from pathlib import Path
 
+from corelib.hashing import sha256_file
 from mcdp.networks import read_weights_file
 
 FORMAT = "mcdp-pretrain"
@@ -29,13 +29,6 @@ VERSION = 1
 class WarmStartError(ValueError):
     """The pretraining file cannot initialise this network; the message names the file and the layer."""
 
-
-def sha256_file(path: str | Path) -> str:
-    h = hashlib.sha256()
-    with open(path, "rb") as f:
-        for chunk in iter(lambda: f.read(1 << 20), b""):
-            h.update(chunk)
-    return h.hexdigest()
 
 
 def read_pretraining(path: str | Path) -> dict:

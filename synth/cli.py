@@ -74,6 +74,13 @@ def main(argv: list[str] | None = None) -> int:
     except (ConfigError, DatasetError, OutputFolderError, ValueError) as exc:
         print(f"synth {args.cmd}: error: {exc}", file=sys.stderr)
         return 2
+    except OSError as exc:
+        from corelib.atomic import disk_full_message, is_disk_full
+
+        if not is_disk_full(exc):
+            raise
+        print(f"synth {args.cmd}: error: {disk_full_message(exc)}", file=sys.stderr)
+        return 4
     except RuntimeError as exc:  # back end missing, etc.
         print(f"synth {args.cmd}: error: {exc}", file=sys.stderr)
         return 3

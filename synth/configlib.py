@@ -12,14 +12,14 @@ silently: the string "3" is not an int, 1.5 is not an int.
 """
 from __future__ import annotations
 
-import hashlib
-import json
 import re
 from pathlib import Path
 from typing import Any, Iterable, Type, TypeVar
 
 import yaml
 from pydantic import BaseModel, ConfigDict, ValidationError
+
+from corelib.hashing import json_sha256
 
 T = TypeVar("T", bound="StrictModel")
 
@@ -171,7 +171,7 @@ def config_to_dict(cfg: BaseModel) -> dict[str, Any]:
 def config_hash(cfg: BaseModel | dict[str, Any]) -> str:
     """sha256 of the canonical JSON of a config: same resolved config, same hash."""
     d = config_to_dict(cfg) if isinstance(cfg, BaseModel) else cfg
-    return hashlib.sha256(json.dumps(d, sort_keys=True, separators=(",", ":")).encode()).hexdigest()
+    return json_sha256(d)
 
 
 def diff_configs(a: dict[str, Any], b: dict[str, Any], prefix: str = "") -> list[str]:

@@ -23,9 +23,8 @@ Example::
 """
 from __future__ import annotations
 
-import hashlib
+import errno
 import json
-import os
 import re
 from pathlib import Path
 from typing import Iterable
@@ -33,6 +32,8 @@ from typing import Iterable
 import cv2
 import numpy as np
 
+from corelib.atomic import atomic_path, atomic_write_bytes, atomic_write_json
+from corelib.hashing import changed_sections, json_sha256, section_digests, sha256_file
 from synth.rig import CameraSpec
 
 SCHEMA_VERSION = 1
@@ -47,23 +48,9 @@ class DatasetError(RuntimeError):
 
 # ----------------------------------------------------------------------------- file I/O
 
-def sha256_file(path: str | Path, chunk: int = 1 << 20) -> str:
-    h = hashlib.sha256()
-    with open(path, "rb") as f:
-        while True:
-            b = f.read(chunk)
-            if not b:
-                break
-            h.update(b)
-    return h.hexdigest()
-
-
 def write_json(path: str | Path, obj) -> None:
-    """Atomic JSON write (tmp file + rename)."""
-    path = Path(path)
-    tmp = path.with_name(path.name + ".tmp")
-    tmp.write_text(json.dumps(obj, indent=1, sort_keys=False))
-    os.replace(tmp, path)
+    """JSON written whole or not at all (`corelib.atomic`)."""
+    atomic_write_json(path, obj)
 
 
 def read_json(path: str | Path):
@@ -76,13 +63,16 @@ def read_json(path: str | Path):
         raise DatasetError(f"{path}: not valid JSON ({exc})") from None
 
 
-def write_png(path: str | Path, img: np.ndarray, compression: int = 3) -> None:
-    """Write uint8 RGB (H, W, 3) or gray (H, W) as PNG."""
+def write_png(path: str | Path, img: np.ndarray, compression: int = 3, fsync: bool = True) -> None:
+    """Write uint8 RGB (H, W, 3) or gray (H, W) as PNG, whole or not at all (`fsync=False` inside a
+    folder that is itself sealed by a rename, see `render_sequence`)."""
     if img.dtype != np.uint8:
         raise ValueError(f"write_png: expected uint8, got {img.dtype}")
     arr = img[:, :, ::-1] if img.ndim == 3 else img
-    if not cv2.imwrite(str(path), np.ascontiguousarray(arr), [cv2.IMWRITE_PNG_COMPRESSION, int(compression)]):
-        raise OSError(f"could not write {path}")
+    ok, buf = cv2.imencode(".png", np.ascontiguousarray(arr), [cv2.IMWRITE_PNG_COMPRESSION, int(compression)])
+    if not ok:
+        raise ValueError(f"write_png: could not encode {path}")
+    atomic_write_bytes(path, buf.tobytes(), fsync=fsync)
 
 
 def read_png(path: str | Path, gray: bool = False) -> np.ndarray:
@@ -93,15 +83,21 @@ def read_png(path: str | Path, gray: bool = False) -> np.ndarray:
     return img if gray else np.ascontiguousarray(img[:, :, ::-1])
 
 
-def write_depth_exr(path: str | Path, depth: np.ndarray) -> None:
-    """Write (H, W) float32 z-depth in metres as a single-channel ("Z") ZIP-compressed OpenEXR."""
+def write_depth_exr(path: str | Path, depth: np.ndarray, fsync: bool = True) -> None:
+    """Write (H, W) float32 z-depth in metres as a single-channel ("Z") ZIP-compressed OpenEXR, whole or
+    not at all."""
     import OpenEXR
 
     if depth.ndim != 2 or depth.dtype != np.float32:
         raise ValueError(f"write_depth_exr: expected (H, W) float32, got {depth.shape} {depth.dtype}")
     header = {"compression": OpenEXR.ZIP_COMPRESSION, "type": OpenEXR.scanlineimage}
-    with OpenEXR.File(header, {DEPTH_CHANNEL: np.ascontiguousarray(depth)}) as f:
-        f.write(str(path))
+    with atomic_path(path, fsync=fsync) as tmp, OpenEXR.File(header, {DEPTH_CHANNEL: np.ascontiguousarray(depth)}) as f:
+        try:
+            f.write(str(tmp))
+        except RuntimeError as exc:  # OpenEXR reports I/O errors as RuntimeError text
+            if "No space left" in str(exc):
+                raise OSError(errno.ENOSPC, "no space left on device", str(tmp)) from None
+            raise
 
 
 def read_depth_exr(path: str | Path) -> np.ndarray:
@@ -112,8 +108,12 @@ def read_depth_exr(path: str | Path) -> np.ndarray:
         with OpenEXR.File(str(path)) as f:
             ch = f.channels()
             if DEPTH_CHANNEL not in ch:
-                raise DatasetError(f"{path}: no '{DEPTH_CHANNEL}' channel (has {sorted(ch)})")
-            return np.ascontiguousarray(ch[DEPTH_CHANNEL].pixels, dtype=np.float32)
+                raise DatasetError(f"{path}: no '{DEPTH_CHANNEL}' channel (has {sorted(ch)[:8]})")
+            px = ch[DEPTH_CHANNEL].pixels
+            if px.dtype != np.float32 or px.ndim != 2:
+                raise DatasetError(f"{path}: channel '{DEPTH_CHANNEL}' is {px.dtype} with shape {px.shape}; the "
+                                   "contract is one float32 (FLOAT) channel of shape (H, W)")
+            return np.ascontiguousarray(px)
     except DatasetError:
         raise
     except Exception as exc:
@@ -132,7 +132,7 @@ class Dataset:
     def __init__(self, root: Path, manifest: dict, rig: dict) -> None:
         self.root = root
         self.manifest = manifest
-        self.cameras = [CameraSpec.from_json(c) for c in rig["cameras"]]
+        self.cameras = [CameraSpec.from_json(c) for c in rig["cameras"]]  # checked by check_rig
         self.camera_names = [c.name for c in self.cameras]
         self.neighbours = [tuple(p) for p in rig["neighbours"]]
         self._ego_cache: dict[str, list] = {}
@@ -177,16 +177,31 @@ class Dataset:
     def depth_path(self, seq: str, cam: str, frame: int) -> Path:
         return self.root / seq / cam / f"{frame_stem(frame)}.depth.exr"
 
+    def _sized(self, arr: np.ndarray, path: Path, what: str) -> np.ndarray:
+        if arr.shape[:2] != (self.height, self.width):
+            raise DatasetError(f"{path}: {what} is {arr.shape[1]}x{arr.shape[0]}, the dataset's images are "
+                               f"{self.width}x{self.height}")
+        return arr
+
     def read_rgb(self, seq: str, cam: str, frame: int) -> np.ndarray:
-        return read_png(self.rgb_path(seq, cam, frame))
+        """(H, W, 3) uint8 RGB."""
+        p = self.rgb_path(seq, cam, frame)
+        return self._sized(read_png(p), p, "the image")
 
     def read_depth(self, seq: str, cam: str, frame: int) -> np.ndarray:
-        return read_depth_exr(self.depth_path(seq, cam, frame))
+        """(H, W) float32 z-depth in metres, 0 = no surface; finite and >= 0, else DatasetError."""
+        p = self.depth_path(seq, cam, frame)
+        d = self._sized(read_depth_exr(p), p, "the depth map")
+        if not np.isfinite(d).all() or (d < 0).any():
+            raise DatasetError(f"{p}: depth holds non-finite or negative values (the contract: finite, >= 0, "
+                               "0 = no surface)")
+        return d
 
     def mask(self, cam: str) -> np.ndarray:
         """(H, W) bool, True = scene, False = ego body."""
         if cam not in self._mask_cache:
-            self._mask_cache[cam] = read_png(self.root / "masks" / f"{cam}.png", gray=True) > 127
+            p = self.root / "masks" / f"{cam}.png"
+            self._mask_cache[cam] = self._sized(read_png(p, gray=True), p, "the mask") > 127
         return self._mask_cache[cam]
 
     @property
@@ -232,6 +247,111 @@ def check_manifest_names(root: Path, manifest: dict, mpath: Path) -> None:
                 raise DatasetError(f"{p}: resolves to {p.resolve()}, outside the dataset root {base}")
 
 
+INTEGRITY = "integrity"
+_MANIFEST_DEPTH, _RIG_DEPTH = 2, 3  # "splits.train", "sequences.seq_0003"; "cameras[CAM_FRONT].K"
+
+
+def integrity_record(manifest: dict, rig: dict) -> dict:
+    """What `verify` checks the manifest and rig.json against: per-section sha256 of both (so a
+    change is named, e.g. ``splits.test`` or ``cameras[CAM_BACK].K``) and of the whole manifest."""
+    body = {k: v for k, v in manifest.items() if k != INTEGRITY}
+    return {"algorithm": "sha256 of canonical JSON (sorted keys, no spaces)",
+            "manifest_sha256": json_sha256(body),
+            "manifest_sections": section_digests(body, _MANIFEST_DEPTH),
+            "rig_sections": section_digests(rig, _RIG_DEPTH)}
+
+
+def _short_list(items: list[str], n: int = 6) -> str:
+    return ", ".join(items[:n]) + (f" (+{len(items) - n} more)" if len(items) > n else "")
+
+
+def integrity_problems(root: Path, manifest: dict) -> list[str]:
+    """The manifest's and rig.json's content against the integrity record written with them."""
+    mpath = root / MANIFEST
+    rec = manifest.get(INTEGRITY)
+    if not isinstance(rec, dict) or not isinstance(rec.get("manifest_sections"), dict):
+        return [f"{mpath}: no integrity record (written by an older mcdp-synth); its content cannot be "
+                "checked: render the dataset again"]
+    problems = []
+    body = {k: v for k, v in manifest.items() if k != INTEGRITY}
+    changed = changed_sections(rec["manifest_sections"], section_digests(body, _MANIFEST_DEPTH))
+    if changed:
+        problems.append(f"{mpath}: changed since the render: {_short_list(changed)}")
+    elif json_sha256(body) != rec.get("manifest_sha256"):
+        problems.append(f"{mpath}: content hash does not match its integrity record (the record was edited)")
+    try:
+        rig = read_json(root / "rig.json")
+    except DatasetError as exc:
+        return problems + [str(exc)]
+    try:
+        check_rig(rig, manifest, root / "rig.json")
+    except DatasetError as exc:
+        problems.append(str(exc))
+    changed = changed_sections(rec.get("rig_sections") or {}, section_digests(rig, _RIG_DEPTH))
+    if changed:
+        problems.append(f"{root / 'rig.json'}: changed since the render: {_short_list(changed)}")
+    return problems
+
+
+_REQUIRED_KEYS = {"schema_version": int, "generator": str, "cameras": list, "image_size": dict, "fps": (int, float),
+                  "splits": dict, "sequences": dict, "files": dict}
+_OPTIONAL_KEYS = {"generator_version", "config", "config_hash", "seed", "has_depth", "families", "overlap", INTEGRITY}
+
+
+def check_manifest_keys(manifest, mpath: Path) -> None:
+    """The manifest's top-level keys are those of schema 1 with the right types; DatasetError naming the key."""
+    if not isinstance(manifest, dict):
+        raise DatasetError(f"{mpath}: must be a JSON object")
+    for key, typ in _REQUIRED_KEYS.items():
+        if key not in manifest:
+            raise DatasetError(f"{mpath}: missing key {key!r}")
+        if not isinstance(manifest[key], typ) or isinstance(manifest[key], bool):
+            raise DatasetError(f"{mpath}: key {key!r} has the wrong type ({type(manifest[key]).__name__})")
+    extra = sorted(set(manifest) - set(_REQUIRED_KEYS) - _OPTIONAL_KEYS)
+    if extra:
+        raise DatasetError(f"{mpath}: unknown key(s) {_short_list([repr(k[:40]) for k in extra], 4)} "
+                           f"(schema {SCHEMA_VERSION} knows {_short_list(sorted(_REQUIRED_KEYS), 20)} and "
+                           f"{_short_list(sorted(_OPTIONAL_KEYS), 20)})")
+    for seq, info in manifest["sequences"].items():
+        frames = info.get("frames") if isinstance(info, dict) else None
+        if not isinstance(frames, int) or isinstance(frames, bool) or frames < 1:
+            raise DatasetError(f"{mpath}: sequences.{str(seq)[:40]}.frames must be a positive integer")
+
+
+def _matrix(v, n: int) -> bool:
+    try:
+        a = np.asarray(v, dtype=np.float64)
+    except (TypeError, ValueError):
+        return False
+    return a.shape == (n, n) and bool(np.isfinite(a).all())
+
+
+def check_rig(rig, manifest: dict, rpath: Path) -> None:
+    """rig.json agrees with the contract and the manifest (camera names, sizes, K, T_ego_cam, neighbours)."""
+    if not isinstance(rig, dict) or not isinstance(rig.get("cameras"), list) or not rig["cameras"]:
+        raise DatasetError(f"{rpath}: 'cameras' must be a non-empty list")
+    names = [c.get("name") if isinstance(c, dict) else None for c in rig["cameras"]]
+    if names != manifest["cameras"]:
+        raise DatasetError(f"{rpath}: camera names {_short_list([str(n)[:20] for n in names])} differ from the "
+                           f"manifest's cameras {_short_list(manifest['cameras'])}")
+    size = manifest["image_size"]
+    for c in rig["cameras"]:
+        field = f"cameras[{c['name']}]"
+        for key in ("width", "height"):
+            if c.get(key) != size.get(key):
+                raise DatasetError(f"{rpath}: {field}.{key} is {str(c.get(key))[:20]}, the manifest's "
+                                   f"image_size.{key} is {str(size.get(key))[:20]}")
+        if not _matrix(c.get("K"), 3):
+            raise DatasetError(f"{rpath}: {field}.K must be a finite 3x3 matrix")
+        if not _matrix(c.get("T_ego_cam"), 4):
+            raise DatasetError(f"{rpath}: {field}.T_ego_cam must be a finite 4x4 matrix")
+    n = len(names)
+    nb = rig.get("neighbours")
+    if not isinstance(nb, list) or not all(isinstance(p, list) and len(p) == 2 and all(
+            isinstance(i, int) and 0 <= i < n for i in p) for p in nb):
+        raise DatasetError(f"{rpath}: 'neighbours' must be a list of [i, j] camera indices below {n}")
+
+
 def open_dataset(path: str | Path, verify: bool = False) -> Dataset:
     """Open a dataset folder; `verify=True` also checks every file's sha256."""
     root = Path(path)
@@ -241,11 +361,14 @@ def open_dataset(path: str | Path, verify: bool = False) -> Dataset:
     if not mpath.is_file():
         raise DatasetError(f"{mpath}: missing; the dataset is incomplete (interrupted render?) or not a dataset")
     manifest = read_json(mpath)
-    ver = manifest.get("schema_version")
+    ver = manifest.get("schema_version") if isinstance(manifest, dict) else None
     if ver != SCHEMA_VERSION:
-        raise DatasetError(f"{mpath}: schema_version {ver!r} is not supported (this reader knows {SCHEMA_VERSION})")
+        raise DatasetError(f"{mpath}: schema_version {repr(ver)[:40]} is not supported (this reader knows "
+                           f"{SCHEMA_VERSION})")
+    check_manifest_keys(manifest, mpath)
     check_manifest_names(root, manifest, mpath)
     rig = read_json(root / "rig.json")
+    check_rig(rig, manifest, root / "rig.json")
     if verify:
         problems = verify_dataset(root)
         if problems:
@@ -263,13 +386,15 @@ def verify_dataset(root: str | Path, progress: bool = False) -> list[str]:
         manifest = read_json(mpath)
     except DatasetError as exc:
         return [str(exc)]
-    if manifest.get("schema_version") != SCHEMA_VERSION:
-        return [f"{mpath}: schema_version {manifest.get('schema_version')!r} is not {SCHEMA_VERSION}"]
+    ver = manifest.get("schema_version") if isinstance(manifest, dict) else None
+    if ver != SCHEMA_VERSION:
+        return [f"{mpath}: schema_version {repr(ver)[:40]} is not {SCHEMA_VERSION}"]
     try:
+        check_manifest_keys(manifest, mpath)
         check_manifest_names(root, manifest, mpath)
     except DatasetError as exc:
         return [str(exc)]
-    problems = []
+    problems = integrity_problems(root, manifest)
     files: dict[str, str] = manifest.get("files", {})
     items: Iterable = files.items()
     if progress:

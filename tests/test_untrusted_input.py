@@ -223,7 +223,7 @@ def test_a_second_writer_of_the_same_folder_is_refused_naming_the_pid(tiny_datas
     import os
 
     from mcdp.config import RunConfig
-    from mcdp.rundir import FolderError
+    from corelib.rundir import FolderError
     from mcdp.trainer import Trainer
     from synth.configlib import load_config
     from synth.dataset import open_dataset

@@ -188,7 +188,8 @@ def _fake_pretraining(path: Path, bases: int = 8, mono_head: bool = True) -> dic
 
 def test_warm_start_copies_the_trunk_and_the_matching_head(tmp_path):
     from mcdp.model import DepthModel
-    from mcdp.warmstart import sha256_file, warm_start
+    from corelib.hashing import sha256_file
+    from mcdp.warmstart import warm_start
 
     p = tmp_path / "pretrained.pt"
     src = _fake_pretraining(p)
