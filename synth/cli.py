@@ -7,6 +7,7 @@ Examples::
     synth verify data/tiny
     synth preview data/tiny --out sheet.png
     synth merge --out data/full shard0 shard1
+    synth export data/tiny --format nuscenes --out data/tiny_ns [--version v1.0-synth] [lidar.azimuth_res_deg=0.4]
 """
 from __future__ import annotations
 
@@ -37,19 +38,29 @@ def _parser() -> argparse.ArgumentParser:
     m = sub.add_parser("merge", help="merge shard folders rendered with one config into one dataset")
     m.add_argument("shards", nargs="+")
     m.add_argument("--out", required=True)
+    e = sub.add_parser("export", help="write a dataset in another format (nuScenes dataroot; docs/NUSCENES.md)")
+    e.add_argument("data", help="finished synth dataset folder")
+    e.add_argument("--format", required=True, choices=["nuscenes"])
+    e.add_argument("--out", required=True, help="dataroot to write (new, empty, or a previous export of this dataset)")
+    e.add_argument("--version", default="v1.0-synth", help="table folder name (NuScenes(version=...)); "
+                   "default v1.0-synth")
+    e.add_argument("--no-lidar", action="store_true", help="cameras only, no synthetic LIDAR_TOP")
+    e.add_argument("--jpeg-quality", type=int, default=95)
+    e.add_argument("--no-progress", action="store_true")
     return p
 
 
 def main(argv: list[str] | None = None) -> int:
     from synth.configlib import ConfigError
     from synth.dataset import DatasetError
+    from synth.nuscenes_export import ExportError
     from synth.render import OutputFolderError
 
     parser = _parser()
     args, rest = parser.parse_known_args(argv)
     # dotted key=value overrides may stand anywhere after the subcommand
     bad = [a for a in rest if "=" not in a or a.startswith("-")]
-    if bad or (rest and args.cmd != "render"):
+    if bad or (rest and args.cmd not in ("render", "export")):
         parser.error(f"unrecognized arguments: {' '.join(bad or rest)}")
     args.overrides = rest
     try:
@@ -65,13 +76,15 @@ def main(argv: list[str] | None = None) -> int:
             path = make_preview(ds, args.out, args.sequence, args.frame)
             print(f"wrote {path}")
             return 0
+        if args.cmd == "export":
+            return _export(args)
         if args.cmd == "merge":
             from synth.render import merge_datasets
 
             res = merge_datasets([Path(s) for s in args.shards], Path(args.out))
             print(json.dumps(res))
             return 0 if res["complete"] else 1
-    except (ConfigError, DatasetError, OutputFolderError, ValueError) as exc:
+    except (ConfigError, DatasetError, OutputFolderError, ExportError, ValueError) as exc:
         print(f"synth {args.cmd}: error: {exc}", file=sys.stderr)
         return 2
     except OSError as exc:
@@ -106,6 +119,28 @@ def _render(args) -> int:
             print(f"  {pair:32s} geometric {d['target']:+.3f}  measured {d['measured']:.3f}")
     else:
         print(f"shard done; the manifest is written once every sequence of {args.out} is complete")
+    return 0
+
+
+def _export(args) -> int:
+    """key=value overrides after `export` set the LiDAR model: lidar.KEY=VALUE (synth.lidar.LidarConfig)."""
+    from synth.configlib import ConfigError, build_config, parse_overrides
+    from synth.lidar import LidarConfig
+    from synth.nuscenes_export import export_nuscenes
+
+    ov = parse_overrides(args.overrides)
+    unknown = sorted(k for k in ov if k != "lidar")
+    if unknown:
+        raise ConfigError(f"export overrides must be lidar.KEY=VALUE, got {', '.join(unknown)}")
+    if args.no_lidar and ov:
+        raise ConfigError("--no-lidar and lidar.* overrides together")
+    lidar = None if args.no_lidar else build_config(LidarConfig, ov.get("lidar", {}),
+                                                    "lidar overrides " + " ".join(args.overrides))
+    s = export_nuscenes(args.data, args.out, version=args.version, lidar=lidar, jpeg_quality=args.jpeg_quality,
+                        progress=not args.no_progress and sys.stderr.isatty())
+    pts = "" if s["lidar_points_per_sweep"] is None else f", {s['lidar_points_per_sweep']:.0f} lidar points/sweep"
+    print(f"exported {s['scenes']} scene(s), {s['samples']} samples, {s['sample_data']} sample_data{pts} to "
+          f"{s['out']} (NuScenes(version={s['version']!r}, dataroot={s['out']!r}))")
     return 0
 
 

@@ -1,0 +1,422 @@
+"""Export a finished synth dataset as a nuScenes dataroot (docs/NUSCENES.md).
+
+The official devkit loads the result: ``NuScenes(version="v1.0-synth", dataroot=NS_ROOT)``.
+Layout written (and nothing outside ``NS_ROOT``)::
+
+    NS_ROOT/
+      <version>/*.json                  the 13 tables the devkit loads, written LAST (into
+                                        <version>.partial/, each file tmp + rename, then the folder
+                                        is renamed); annotation tables are empty lists
+      samples/<CHANNEL>/<seq>__<CHANNEL>__<timestamp_us>.jpg      every frame is a key frame
+      samples/LIDAR_TOP/<seq>__LIDAR_TOP__<timestamp_us>.pcd.bin  float32 (x, y, z, intensity, ring)
+      maps/<token>.png                  placeholder semantic-prior mask (all background): the devkit
+                                        needs one map record with an existing file
+      mcdp_synth/export.json            what was exported from what: source dataset, channel map,
+                                        LiDAR config, pixel-centre convention, per sample_data the
+                                        sequence / frame / camera and the exact depth file
+      mcdp_synth/splits.json            {train, val, test: [scene names]} (our sequence ids)
+      mcdp_synth/masks/<CHANNEL>.png    self-occlusion masks (255 = scene, 0 = ego body)
+      mcdp_synth/depth/<CHANNEL>/<seq>__<CHANNEL>__<timestamp_us>.depth.exr   exact z-depth (copied bytes)
+
+Conventions: calibrated_sensor is sensor -> ego (translation, rotation quaternion [w, x, y, z]),
+ego_pose is ego -> global; our camera frame is OpenCV like nuScenes'. ``camera_intrinsic`` is the
+rig's ``K`` unchanged, so its pixel centres are at +0.5: a point that ``view_points`` projects to
+(u, v) falls in pixel (floor(u), floor(v)). Tokens are 32 hex digits from a sha256 of the dataset's
+config hash and the record's names, so the same dataset always exports the same tables.
+
+Example::
+
+    export_nuscenes("data/tiny", "data/tiny_ns")      # synth export data/tiny --format nuscenes --out data/tiny_ns
+"""
+from __future__ import annotations
+
+import datetime as _dt
+import hashlib
+import json
+import math
+import os
+import shutil
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from synth.dataset import (DatasetError, _PLAIN_NAME, open_dataset, read_json, read_png, write_json,
+                           write_png)
+from synth.lidar import LidarConfig, luma, simulate_sweep
+
+FORMAT = "mcdp-synth-nuscenes-export"
+FORMAT_VERSION = 1
+DEFAULT_VERSION = "v1.0-synth"
+EXPORT_DIR = "mcdp_synth"
+MARKER = f"{EXPORT_DIR}/export.json"
+SPLITS_FILE = f"{EXPORT_DIR}/splits.json"
+# nuScenes' camera channels, clockwise from the front as in nuScenes
+NUSCENES_CAMERAS = ("CAM_FRONT", "CAM_FRONT_RIGHT", "CAM_BACK_RIGHT", "CAM_BACK", "CAM_BACK_LEFT", "CAM_FRONT_LEFT")
+LIDAR_CHANNEL = "LIDAR_TOP"
+TABLES = ("category", "attribute", "visibility", "instance", "sensor", "calibrated_sensor", "ego_pose", "log",
+          "scene", "sample", "sample_data", "sample_annotation", "map")
+# what an export owns at the top of NS_ROOT (anything else there makes a re-export refuse)
+_OWNED = ("samples", "sweeps", "maps", EXPORT_DIR)
+BASE_TIMESTAMP_US = 1_577_836_800 * 10**6   # 2020-01-01T00:00:00Z
+SEQUENCE_SPACING_US = 86_400 * 10**6        # sequence k starts k days later (a sequence lasts < 6 h)
+VEHICLE = "mcdp-synth-ego"
+
+
+class ExportError(RuntimeError):
+    """The export cannot be written (refused output folder, bad source); the message names the file."""
+
+
+# ----------------------------------------------------------------------------- conventions
+
+def rotation_to_quaternion(R: np.ndarray) -> list[float]:
+    """Unit quaternion [w, x, y, z] (nuScenes / pyquaternion order) of a 3x3 rotation, w >= 0."""
+    R = np.asarray(R, np.float64)
+    tr = R[0, 0] + R[1, 1] + R[2, 2]
+    if tr > 0:
+        s = 2.0 * math.sqrt(tr + 1.0)
+        q = [0.25 * s, (R[2, 1] - R[1, 2]) / s, (R[0, 2] - R[2, 0]) / s, (R[1, 0] - R[0, 1]) / s]
+    elif R[0, 0] > R[1, 1] and R[0, 0] > R[2, 2]:
+        s = 2.0 * math.sqrt(1.0 + R[0, 0] - R[1, 1] - R[2, 2])
+        q = [(R[2, 1] - R[1, 2]) / s, 0.25 * s, (R[0, 1] + R[1, 0]) / s, (R[0, 2] + R[2, 0]) / s]
+    elif R[1, 1] > R[2, 2]:
+        s = 2.0 * math.sqrt(1.0 + R[1, 1] - R[0, 0] - R[2, 2])
+        q = [(R[0, 2] - R[2, 0]) / s, (R[0, 1] + R[1, 0]) / s, 0.25 * s, (R[1, 2] + R[2, 1]) / s]
+    else:
+        s = 2.0 * math.sqrt(1.0 + R[2, 2] - R[0, 0] - R[1, 1])
+        q = [(R[1, 0] - R[0, 1]) / s, (R[0, 2] + R[2, 0]) / s, (R[1, 2] + R[2, 1]) / s, 0.25 * s]
+    q = np.asarray(q)
+    q = q / np.linalg.norm(q)
+    if q[0] < 0:
+        q = -q
+    return [float(x) for x in q]
+
+
+def quaternion_to_rotation(q) -> np.ndarray:
+    """3x3 rotation of a quaternion [w, x, y, z] (the inverse of `rotation_to_quaternion`)."""
+    w, x, y, z = np.asarray(q, np.float64) / np.linalg.norm(q)
+    return np.array([[1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
+                     [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
+                     [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)]])
+
+
+def _check_rigid(T: np.ndarray, where: str) -> np.ndarray:
+    T = np.asarray(T, np.float64)
+    if T.shape != (4, 4) or not np.all(np.isfinite(T)):
+        raise ExportError(f"{where}: expected a finite 4x4 transform, got shape {T.shape}")
+    R = T[:3, :3]
+    if not np.allclose(R @ R.T, np.eye(3), atol=1e-5) or np.linalg.det(R) < 0.999 or \
+            not np.allclose(T[3], [0, 0, 0, 1], atol=1e-9):
+        raise ExportError(f"{where}: not a rigid transform (rotation not orthonormal or last row not 0 0 0 1)")
+    return T
+
+
+def channel_map(cameras) -> dict[str, str]:
+    """Our camera name -> nuScenes channel. Names that already are nuScenes channels are kept (their yaw
+    must agree: FRONT near 0, *_LEFT positive = to the left, *_RIGHT negative, BACK near 180); otherwise
+    channels are assigned by yaw, clockwise from the camera nearest the front."""
+    names = [c.name for c in cameras]
+    if len(cameras) != 6:
+        raise ExportError(f"rig has {len(cameras)} cameras ({names}); a nuScenes export needs the six of a "
+                          "surround rig")
+    if sorted(names) == sorted(NUSCENES_CAMERAS):
+        mapping = {n: n for n in names}
+    else:
+        yaw = {c.name: (c.yaw_deg + 180.0) % 360.0 - 180.0 for c in cameras}
+        front = min(names, key=lambda n: abs(yaw[n]))
+        # clockwise = decreasing yaw, starting at the front camera
+        order = sorted(names, key=lambda n: (yaw[front] - yaw[n]) % 360.0)
+        mapping = dict(zip(order, NUSCENES_CAMERAS))
+    for c in cameras:
+        ch, y = mapping[c.name], (c.yaw_deg + 180.0) % 360.0 - 180.0
+        ok = {"CAM_FRONT": abs(y) < 45, "CAM_BACK": abs(y) > 135,
+              "CAM_FRONT_LEFT": 0 < y < 135, "CAM_BACK_LEFT": 45 < y < 180,
+              "CAM_FRONT_RIGHT": -135 < y < 0, "CAM_BACK_RIGHT": -180 < y < -45}[ch]
+        if not ok:
+            raise ExportError(f"rig.json: camera {c.name} (yaw {c.yaw_deg:+.1f} deg, positive = left) cannot be "
+                              f"nuScenes channel {ch}")
+    return mapping
+
+
+class _Tokens:
+    def __init__(self, namespace: str) -> None:
+        self.ns = namespace
+
+    def __call__(self, kind: str, *parts) -> str:
+        key = json.dumps([self.ns, kind, *[str(p) for p in parts]])
+        return hashlib.sha256(key.encode()).hexdigest()[:32]
+
+
+def timestamp_us(seq_index: int, frame: int, fps: float) -> int:
+    """Microseconds since the epoch of `frame` in the `seq_index`-th sequence (sorted ids)."""
+    return BASE_TIMESTAMP_US + seq_index * SEQUENCE_SPACING_US + int(round(frame * 1e6 / fps))
+
+
+# ----------------------------------------------------------------------------- output folder
+
+def _prepare_output(out: Path, config_hash: str, version: str) -> None:
+    """Refuse anything but a new/empty folder or a previous export of the same dataset (then remove what
+    that export wrote, version tables first, so a half-written re-export is never loadable)."""
+    if out.exists() and not out.is_dir():
+        raise ExportError(f"{out}: exists and is not a folder")
+    if out.is_symlink():
+        raise ExportError(f"{out}: is a symlink; give the real folder")
+    if not out.is_dir() or not any(out.iterdir()):
+        return
+    marker = out / MARKER
+    if not marker.is_file():
+        raise ExportError(f"{out}: folder is not empty and holds no nuScenes export of a synth dataset "
+                          f"(no {MARKER}); choose an empty or new folder")
+    try:
+        prev = read_json(marker)
+    except DatasetError as exc:
+        raise ExportError(str(exc)) from None
+    if not isinstance(prev, dict) or prev.get("format") != FORMAT:
+        raise ExportError(f"{marker}: not an export marker of {FORMAT}; refusing to overwrite {out}")
+    prev_hash = (prev.get("source") or {}).get("config_hash")
+    if prev_hash != config_hash:
+        raise ExportError(f"{out}: holds the export of another dataset (config_hash {str(prev_hash)[:12]}..., "
+                          f"this one {config_hash[:12]}...); choose another --out")
+    versions = {str(v) for v in [prev.get("version"), version] if v}
+    owned = set(_OWNED) | versions | {f"{v}.partial" for v in versions}
+    for p in sorted(out.iterdir()):
+        if p.name not in owned:
+            raise ExportError(f"{p}: not part of the previous export in {out}; refusing to overwrite it")
+        if p.is_symlink():
+            raise ExportError(f"{p}: is a symlink; an export writes inside {out} only")
+    for name in sorted(versions) + sorted(f"{v}.partial" for v in versions) + list(_OWNED):
+        p = out / name
+        if p.is_dir():
+            shutil.rmtree(p)
+        elif p.exists():
+            p.unlink()
+
+
+def _write_jpeg(path: Path, rgb: np.ndarray, quality: int) -> None:
+    if not cv2.imwrite(str(path), np.ascontiguousarray(rgb[:, :, ::-1]), [cv2.IMWRITE_JPEG_QUALITY, int(quality)]):
+        raise ExportError(f"{path}: could not write JPEG")
+
+
+# ----------------------------------------------------------------------------- export
+
+def export_nuscenes(dataset: str | Path, out: str | Path, version: str = DEFAULT_VERSION,
+                    lidar: LidarConfig | None = LidarConfig(), jpeg_quality: int = 95,
+                    progress: bool = False) -> dict:
+    """Write the nuScenes dataroot `out` from the synth dataset `dataset`; returns a summary dict.
+    `lidar=None` exports cameras only (no LIDAR_TOP)."""
+    src, out = Path(dataset), Path(out)
+    if not isinstance(version, str) or not _PLAIN_NAME.match(version) or version in _OWNED or version.endswith(
+            ".partial"):
+        raise ExportError(f"--version {version!r} is not a plain folder name (letters, digits, . _ -)")
+    if not 1 <= int(jpeg_quality) <= 100:
+        raise ExportError(f"jpeg quality {jpeg_quality} is not in 1..100")
+    try:
+        ds = open_dataset(src)
+    except DatasetError as exc:
+        raise ExportError(str(exc)) from None
+    if src.resolve() == out.resolve() or out.resolve().is_relative_to(src.resolve()):
+        raise ExportError(f"{out}: inside the source dataset {src}; choose a folder outside it")
+    if not ds.has_depth and lidar is not None:
+        raise ExportError(f"{src / 'manifest.json'}: dataset has no depth; export with --no-lidar")
+    chmap = channel_map(ds.cameras)
+    cfg_hash = str(ds.manifest.get("config_hash") or "")
+    if not cfg_hash:
+        raise ExportError(f"{src / 'manifest.json'}: no config_hash")
+    fps = ds.fps
+    seqs = ds.sequences
+    splits = {s: ds.split(s) for s in ("train", "val", "test") if s in ds.manifest.get("splits", {})}
+    split_of = {q: s for s, qs in splits.items() for q in qs}
+
+    _prepare_output(out, cfg_hash, version)
+    out.mkdir(parents=True, exist_ok=True)
+    (out / EXPORT_DIR).mkdir(exist_ok=True)
+    tok = _Tokens(cfg_hash)
+    marker = {"format": FORMAT, "format_version": FORMAT_VERSION, "complete": False, "version": version,
+              "source": {"path": str(src.resolve()), "config_hash": cfg_hash,
+                         "generator_version": ds.manifest.get("generator_version"), "seed": ds.manifest.get("seed")}}
+    write_json(out / MARKER, marker)
+
+    # sensors and calibration (static rig)
+    sensors, calibrated = [], []
+    cs_token: dict[str, str] = {}
+    for cam in ds.cameras:
+        ch = chmap[cam.name]
+        T = _check_rigid(cam.T_ego_cam, f"{src / 'rig.json'} camera {cam.name} T_ego_cam")
+        st, ct = tok("sensor", ch), tok("calibrated_sensor", ch)
+        sensors.append({"token": st, "channel": ch, "modality": "camera"})
+        calibrated.append({"token": ct, "sensor_token": st, "translation": [float(x) for x in T[:3, 3]],
+                           "rotation": rotation_to_quaternion(T[:3, :3]),
+                           "camera_intrinsic": [[float(x) for x in row] for row in cam.K]})
+        cs_token[ch] = ct
+    channels = [chmap[c.name] for c in ds.cameras]
+    if lidar is not None:
+        T = lidar.T_ego_lidar()
+        st, ct = tok("sensor", LIDAR_CHANNEL), tok("calibrated_sensor", LIDAR_CHANNEL)
+        sensors.append({"token": st, "channel": LIDAR_CHANNEL, "modality": "lidar"})
+        calibrated.append({"token": ct, "sensor_token": st, "translation": [float(x) for x in T[:3, 3]],
+                           "rotation": rotation_to_quaternion(T[:3, :3]), "camera_intrinsic": []})
+        cs_token[LIDAR_CHANNEL] = ct
+        channels.append(LIDAR_CHANNEL)
+
+    # masks
+    (out / EXPORT_DIR / "masks").mkdir(parents=True, exist_ok=True)
+    masks: dict[str, np.ndarray] = {}
+    mask_files = {}
+    for cam in ds.cameras:
+        ch = chmap[cam.name]
+        try:
+            m = read_png(ds.root / "masks" / f"{cam.name}.png", gray=True)
+        except DatasetError as exc:
+            raise ExportError(str(exc)) from None
+        if m.shape != (cam.height, cam.width):
+            raise ExportError(f"{ds.root / 'masks' / (cam.name + '.png')}: {m.shape[1]}x{m.shape[0]}, "
+                              f"rig.json says {cam.width}x{cam.height}")
+        masks[cam.name] = m > 127
+        write_png(out / EXPORT_DIR / "masks" / f"{ch}.png", m)
+        mask_files[ch] = f"{EXPORT_DIR}/masks/{ch}.png"
+
+    # placeholder map
+    map_token = tok("map", "semantic_prior")
+    (out / "maps").mkdir(exist_ok=True)
+    write_png(out / "maps" / f"{map_token}.png", np.zeros((8, 8), np.uint8))
+
+    for ch in channels:
+        (out / "samples" / ch).mkdir(parents=True, exist_ok=True)
+        if ch != LIDAR_CHANNEL:
+            (out / EXPORT_DIR / "depth" / ch).mkdir(parents=True, exist_ok=True)
+
+    logs, scenes, samples, sample_data, ego_poses = [], [], [], [], []
+    sd_index: dict[str, dict] = {}
+    n_points = []
+    frames_total = sum(ds.n_frames(q) for q in seqs)
+    bar = None
+    if progress:
+        from tqdm import tqdm
+        bar = tqdm(total=frames_total, desc="export", unit="frame")
+    for si, seq in enumerate(seqs):
+        info = ds.manifest["sequences"][seq]
+        family = str((info.get("scene") or {}).get("family", "synth"))
+        n = ds.n_frames(seq)
+        ego_path = ds.root / seq / "ego.json"
+        try:
+            ego = ds.ego(seq)
+        except DatasetError as exc:
+            raise ExportError(str(exc)) from None
+        if len(ego) != n:
+            raise ExportError(f"{ego_path}: {len(ego)} frames, the manifest says {n}")
+        log_token, scene_token = tok("log", seq), tok("scene", seq)
+        t0 = timestamp_us(si, 0, fps)
+        date = _dt.datetime.fromtimestamp(t0 / 1e6, _dt.timezone.utc).strftime("%Y-%m-%d")
+        logs.append({"token": log_token, "logfile": seq, "vehicle": VEHICLE, "date_captured": date,
+                     "location": f"synth-{family}"})
+        sample_tokens = [tok("sample", seq, f) for f in range(n)]
+        sd_tokens = {ch: [tok("sample_data", seq, ch, f) for f in range(n)] for ch in channels}
+        for f in range(n):
+            fr = ego[f]
+            ts = timestamp_us(si, f, fps)
+            if abs(float(fr.get("timestamp_s", f / fps)) - f / fps) > 1e-6:
+                raise ExportError(f"{ego_path}: frame {f} timestamp_s {fr.get('timestamp_s')} is not frame / fps "
+                                  f"= {f / fps}")
+            T_we = _check_rigid(fr.get("T_world_ego"), f"{ego_path} frame {f} T_world_ego")
+            samples.append({"token": sample_tokens[f], "timestamp": ts, "scene_token": scene_token,
+                            "prev": sample_tokens[f - 1] if f > 0 else "",
+                            "next": sample_tokens[f + 1] if f + 1 < n else ""})
+            pose = {"translation": [float(x) for x in T_we[:3, 3]], "rotation": rotation_to_quaternion(T_we[:3, :3]),
+                    "timestamp": ts}
+            depths, grays = {}, {}
+            for cam in ds.cameras:
+                ch = chmap[cam.name]
+                token = sd_tokens[ch][f]
+                stem = f"{seq}__{ch}__{ts}"
+                try:
+                    rgb = ds.read_rgb(seq, cam.name, f)
+                except DatasetError as exc:
+                    raise ExportError(str(exc)) from None
+                if rgb.shape[:2] != (cam.height, cam.width):
+                    raise ExportError(f"{ds.rgb_path(seq, cam.name, f)}: {rgb.shape[1]}x{rgb.shape[0]}, rig.json "
+                                      f"says {cam.width}x{cam.height}")
+                rel = f"samples/{ch}/{stem}.jpg"
+                _write_jpeg(out / rel, rgb, jpeg_quality)
+                entry = {"sequence": seq, "frame": f, "camera": cam.name, "channel": ch}
+                if ds.has_depth:
+                    dsrc = ds.depth_path(seq, cam.name, f)
+                    if not dsrc.is_file():
+                        raise ExportError(f"{dsrc}: file is missing")
+                    drel = f"{EXPORT_DIR}/depth/{ch}/{stem}.depth.exr"
+                    shutil.copyfile(dsrc, out / drel)
+                    entry["depth"] = drel
+                    if lidar is not None:
+                        try:
+                            depths[cam.name] = ds.read_depth(seq, cam.name, f)
+                        except DatasetError as exc:
+                            raise ExportError(str(exc)) from None
+                        if depths[cam.name].shape != (cam.height, cam.width):
+                            raise ExportError(f"{dsrc}: depth is {depths[cam.name].shape[::-1]}, rig.json says "
+                                              f"{cam.width}x{cam.height}")
+                        grays[cam.name] = luma(rgb)
+                sd_index[token] = entry
+                sample_data.append(_sd_record(token, sample_tokens[f], cs_token[ch], rel, "jpg", cam.width,
+                                              cam.height, ts, sd_tokens[ch], f, n))
+                ego_poses.append({"token": token, **pose})
+            if lidar is not None:
+                token = sd_tokens[LIDAR_CHANNEL][f]
+                rel = f"samples/{LIDAR_CHANNEL}/{seq}__{LIDAR_CHANNEL}__{ts}.pcd.bin"
+                pts = simulate_sweep(lidar, list(ds.cameras), depths, masks, grays)
+                pts.astype("<f4").tofile(out / rel)
+                n_points.append(len(pts))
+                sd_index[token] = {"sequence": seq, "frame": f, "channel": LIDAR_CHANNEL, "points": int(len(pts))}
+                sample_data.append(_sd_record(token, sample_tokens[f], cs_token[LIDAR_CHANNEL], rel, "pcd", 0, 0,
+                                              ts, sd_tokens[LIDAR_CHANNEL], f, n))
+                ego_poses.append({"token": token, **pose})
+            if bar is not None:
+                bar.update(1)
+        desc = f"mcdp-synth {family}, {info.get('time_of_day', '?')}, split {split_of.get(seq, '-')}"
+        scenes.append({"token": scene_token, "name": seq, "description": desc, "log_token": log_token,
+                       "nbr_samples": n, "first_sample_token": sample_tokens[0],
+                       "last_sample_token": sample_tokens[-1]})
+    if bar is not None:
+        bar.close()
+
+    tables = {
+        "category": [], "attribute": [], "visibility": [], "instance": [], "sample_annotation": [],
+        "sensor": sensors, "calibrated_sensor": calibrated, "ego_pose": ego_poses, "log": logs, "scene": scenes,
+        "sample": samples, "sample_data": sample_data,
+        "map": [{"token": map_token, "log_tokens": [lg["token"] for lg in logs], "category": "semantic_prior",
+                 "filename": f"maps/{map_token}.png"}],
+    }
+    write_json(out / SPLITS_FILE, splits)
+    marker.update({
+        "complete": True,
+        "channels": {c.name: chmap[c.name] for c in ds.cameras},
+        "lidar": None if lidar is None else {"channel": LIDAR_CHANNEL, "config": lidar.model_dump(mode="json"),
+                                             "points_per_sweep": {"min": int(min(n_points)), "max": int(max(n_points)),
+                                                                  "mean": float(np.mean(n_points))}},
+        "fps": fps, "timestamp_base_us": BASE_TIMESTAMP_US, "sequence_spacing_us": SEQUENCE_SPACING_US,
+        "jpeg_quality": int(jpeg_quality),
+        "pixel_centre": "camera_intrinsic is rig.json K: pixel (c, r) has its centre at (c + 0.5, r + 0.5); "
+                        "a projected (u, v) lies in pixel (floor(u), floor(v)). For the integer-centre "
+                        "convention subtract 0.5 from K[0][2] and K[1][2].",
+        "splits": SPLITS_FILE, "masks": mask_files, "sample_data": sd_index,
+    })
+    write_json(out / MARKER, marker)
+    # the tables last: into <version>.partial/, then one rename
+    tmp_dir, final_dir = out / f"{version}.partial", out / version
+    if tmp_dir.exists():
+        shutil.rmtree(tmp_dir)
+    tmp_dir.mkdir()
+    for name in TABLES:
+        write_json(tmp_dir / f"{name}.json", tables[name])
+    if final_dir.exists():
+        shutil.rmtree(final_dir)
+    os.replace(tmp_dir, final_dir)
+    summary = {"out": str(out), "version": version, "scenes": len(scenes), "samples": len(samples),
+               "sample_data": len(sample_data), "channels": channels,
+               "lidar_points_per_sweep": None if lidar is None else float(np.mean(n_points))}
+    return summary
+
+
+def _sd_record(token, sample_token, cs_token, filename, fileformat, width, height, ts, chain, f, n) -> dict:
+    return {"token": token, "sample_token": sample_token, "ego_pose_token": token,
+            "calibrated_sensor_token": cs_token, "filename": filename, "fileformat": fileformat,
+            "width": int(width), "height": int(height), "timestamp": ts, "is_key_frame": True,
+            "next": chain[f + 1] if f + 1 < n else "", "prev": chain[f - 1] if f > 0 else ""}
