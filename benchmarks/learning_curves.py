@@ -34,7 +34,7 @@ from mcdp.evaluate import EvalConfig, constant_depth_predictor, evaluate, median
 from mcdp.predict import Predictor  # noqa: E402
 from mcdp.priors import flat_road_predictor  # noqa: E402
 from mcdp.trainer import Trainer  # noqa: E402
-from synth.configlib import load_config  # noqa: E402
+from corelib.configlib import load_config  # noqa: E402
 from synth.dataset import open_dataset  # noqa: E402
 
 EVAL = EvalConfig(min_depth=0.5, max_depth=80.0, frame_stride=2, skip_ends=True)
@@ -138,7 +138,7 @@ class SupervisedRun:
 
     def save_checkpoint(self, path: Path) -> None:
         from mcdp.trainer import CHECKPOINT_VERSION, atomic_torch_save
-        from synth.configlib import config_to_dict
+        from corelib.configlib import config_to_dict
 
         atomic_torch_save({"version": CHECKPOINT_VERSION, "step": self.step, "config": config_to_dict(self.cfg),
                            "depth_model": self.model.state_dict(), "cameras": list(self.ds.camera_names)}, path)

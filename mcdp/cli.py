@@ -34,7 +34,7 @@ def _user_errors() -> tuple[type[BaseException], ...]:
     from corelib.rundir import FolderError
     from mcdp.trainer import RunError
     from mcdp.warmstart import WarmStartError
-    from synth.configlib import ConfigError
+    from corelib.configlib import ConfigError
     from synth.dataset import DatasetError
     from synth.render import OutputFolderError
 
@@ -76,7 +76,7 @@ def _train_args(p: argparse.ArgumentParser) -> None:
 def _train(args: argparse.Namespace) -> int:
     from mcdp.config import RunConfig
     from mcdp.trainer import Trainer
-    from synth.configlib import load_config
+    from corelib.configlib import load_config
 
     cfg = load_config(RunConfig, args.preset, args.overrides)
     ds = _open_dataset(args.data)
@@ -124,7 +124,7 @@ def _eval_args(p: argparse.ArgumentParser) -> None:
 
 def _eval_config(cfg, overrides: list[str]):
     from mcdp.evaluate import EvalConfig
-    from synth.configlib import ConfigError, build_config, config_to_dict, deep_merge, parse_overrides
+    from corelib.configlib import ConfigError, build_config, config_to_dict, deep_merge, parse_overrides
 
     ov = parse_overrides(overrides)
     bad = [k for k in ov if k != "eval"]
@@ -138,7 +138,7 @@ def _eval(args: argparse.Namespace) -> int:
     from mcdp.evaluate import evaluate, format_tables
     from mcdp.predict import Predictor
     from mcdp.trainer import RunError
-    from synth.configlib import config_to_dict
+    from corelib.configlib import config_to_dict
 
     out = Path(args.out) if args.out else Path(args.run) / f"metrics_{args.split}.json"
     _check_metrics_target(out)  # before the (long) evaluation

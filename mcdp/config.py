@@ -22,7 +22,7 @@ from typing import Annotated, Any, Literal
 from pydantic import BeforeValidator, Field, model_validator
 
 from mcdp.evaluate import EvalConfig
-from synth.configlib import StrictModel
+from corelib.configlib import StrictModel
 
 _SCI_FLOAT = re.compile(r"^[-+]?(\d+\.?\d*|\.\d+)[eE][-+]?\d+$")
 
@@ -245,6 +245,6 @@ RESUMABLE_KEYS = (
 
 def resume_conflicts(saved: dict[str, Any], requested: dict[str, Any]) -> list[str]:
     """Dotted keys where a saved run config and a requested one differ in a way resume cannot honour."""
-    from synth.configlib import diff_configs
+    from corelib.configlib import diff_configs
 
     return [k for k in diff_configs(saved, requested) if not any(k == p or (p.endswith(".") and k.startswith(p)) for p in RESUMABLE_KEYS)]

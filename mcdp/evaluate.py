@@ -62,7 +62,7 @@ import numpy as np
 import torch
 from pydantic import field_validator, model_validator
 
-from synth.configlib import StrictModel
+from corelib.configlib import StrictModel
 from synth.overlap import overlap_mask
 
 from . import geometry

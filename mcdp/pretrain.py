@@ -35,7 +35,7 @@ from typing import Callable
 from pydantic import Field
 
 from corelib.atomic import atomic_write_json
-from synth.configlib import ConfigError, StrictModel, config_hash, config_to_dict, load_config
+from corelib.configlib import ConfigError, StrictModel, config_hash, config_to_dict, load_config
 
 MARKER = "pretrain.json"
 WEIGHTS = "pretrained.pt"

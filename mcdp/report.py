@@ -116,7 +116,7 @@ def paired_difference(results: dict, overlap: float, a: str, b: str, key: str) -
 def build_results(cfg, data: list[dict], rows: list[dict], counters: dict, total_s: float,
                   previews: list[str]) -> dict:
     """Everything the report shows, JSON-able (NaN allowed)."""
-    from synth.configlib import config_hash, config_to_dict
+    from corelib.configlib import config_hash, config_to_dict
 
     flats = [flat_row(r) for r in rows]
     aggregate = []

@@ -46,7 +46,7 @@ from pydantic import Field, field_validator, model_validator
 
 from corelib.atomic import atomic_write_json
 from mcdp.pretrain import PretrainConfig
-from synth.configlib import ConfigError, StrictModel, config_hash, config_to_dict, load_config
+from corelib.configlib import ConfigError, StrictModel, config_hash, config_to_dict, load_config
 
 METHODS = ("mono2", "mcdp_m0", "mcdp_m1_nocon", "mcdp_m1", "mcdp_m2")
 ROOT = Path(__file__).resolve().parents[1]
@@ -225,7 +225,7 @@ def run_config_for(cfg: SweepConfig, method: str, seed: int, init_from: str | No
 def eval_config_for(cfg: SweepConfig):
     """The `mcdp.evaluate.EvalConfig` every run and the reference are evaluated with."""
     from mcdp.evaluate import EvalConfig
-    from synth.configlib import build_config
+    from corelib.configlib import build_config
 
     return build_config(EvalConfig, config_to_dict(cfg.eval), "sweep eval")
 
@@ -532,7 +532,7 @@ def _run_sweep(cfg: SweepConfig, out: Path, progress: bool, log, config_source: 
     if prev.is_file():
         old = (yaml.safe_load(prev.read_text()) or {}).get("config")
         if old is not None and old != resolved:
-            from synth.configlib import diff_configs
+            from corelib.configlib import diff_configs
 
             log(f"[sweep] note: the sweep config differs from the saved one in: {', '.join(diff_configs(old, resolved))}; "
                 "datasets/runs are reused only where their own resolved config is unchanged")

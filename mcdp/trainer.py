@@ -79,7 +79,7 @@ from mcdp.losses import (
 from mcdp.model import DepthModel, PoseModel, is_refined, odometry_camera_motion, resize_mask_to
 from corelib.rundir import claim
 from mcdp.warmstart import warm_start
-from synth.configlib import build_config, config_to_dict
+from corelib.configlib import build_config, config_to_dict
 
 CHECKPOINT_VERSION = 1
 #: steps a fresh network may stay a constant map before the collapse guard warns

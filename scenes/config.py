@@ -15,7 +15,7 @@ from typing import Literal
 
 from pydantic import Field, field_validator
 
-from synth.configlib import StrictModel
+from corelib.configlib import StrictModel
 
 FamilyName = Literal["urban", "residential", "highway", "mixed"]
 

@@ -51,7 +51,7 @@ def _parser() -> argparse.ArgumentParser:
 
 
 def main(argv: list[str] | None = None) -> int:
-    from synth.configlib import ConfigError
+    from corelib.configlib import ConfigError
     from synth.dataset import DatasetError
     from synth.nuscenes_export import ExportError
     from synth.render import OutputFolderError
@@ -124,7 +124,7 @@ def _render(args) -> int:
 
 def _export(args) -> int:
     """key=value overrides after `export` set the LiDAR model: lidar.KEY=VALUE (synth.lidar.LidarConfig)."""
-    from synth.configlib import ConfigError, build_config, parse_overrides
+    from corelib.configlib import ConfigError, build_config, parse_overrides
     from synth.lidar import LidarConfig
     from synth.nuscenes_export import export_nuscenes
 

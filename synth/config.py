@@ -16,7 +16,7 @@ from typing import Iterable, Literal
 from pydantic import Field, model_validator
 
 from scenes.config import SceneConfig
-from synth.configlib import StrictModel, load_config
+from corelib.configlib import StrictModel, load_config
 from synth.rig import CameraConfig, RigConfig
 
 

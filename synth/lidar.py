@@ -34,7 +34,7 @@ import math
 import numpy as np
 from pydantic import Field, model_validator
 
-from synth.configlib import StrictModel
+from corelib.configlib import StrictModel
 from synth.rig import CameraSpec
 
 # LIDAR_TOP axes in the ego frame: lidar x = ego -y (right), lidar y = ego x (forward), lidar z = ego z.

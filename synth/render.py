@@ -29,7 +29,7 @@ from scenes.model import Mesh, Scene
 from scenes.textures import LAYER
 from synth import __version__
 from synth.config import DataConfig
-from synth.configlib import build_config, config_hash, config_to_dict
+from corelib.configlib import build_config, config_hash, config_to_dict
 from synth.dataset import (GENERATOR, INTEGRITY, MANIFEST, SCHEMA_VERSION, frame_stem, integrity_record, read_json,
                            sha256_file, write_depth_exr, write_json, write_png)
 from synth.lighting import draw_sequence_lighting, frame_gains
@@ -207,7 +207,7 @@ def prepare_output(cfg: DataConfig, out: Path) -> None:
                 f"output folder {out} is not empty and holds no synth dataset; choose an empty or new folder")
         prev = read_json(marker)
         if prev.get("config_hash") != config_hash(cfg):
-            from synth.configlib import diff_configs
+            from corelib.configlib import diff_configs
             keys = diff_configs(prev.get("config", {}), config_to_dict(cfg))
             raise OutputFolderError(
                 f"output folder {out} holds another dataset (differs in: {', '.join(keys) or 'config hash'}); "

@@ -32,7 +32,7 @@ import numpy as np
 from pydantic import Field
 
 from scenes.model import Mesh
-from synth.configlib import StrictModel
+from corelib.configlib import StrictModel
 
 CAMERA_NAMES = ("CAM_FRONT", "CAM_FRONT_RIGHT", "CAM_BACK_RIGHT", "CAM_BACK", "CAM_BACK_LEFT", "CAM_FRONT_LEFT")
 # adjacent pairs in ring order: (0,1) (1,2) ... (5,0)

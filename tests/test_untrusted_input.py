@@ -150,7 +150,7 @@ def test_lr_1e3_stops_naming_the_step_and_keeps_only_finite_checkpoints(tiny_dat
 def test_a_non_finite_gradient_stops_before_the_weights_change(tiny_dataset, tmp_path):
     from mcdp.config import RunConfig
     from mcdp.trainer import Trainer, TrainingDiverged
-    from synth.configlib import load_config
+    from corelib.configlib import load_config
     from synth.dataset import open_dataset
 
     cfg = load_config(RunConfig, TINY_TRAIN / "mono2.yaml", ["train.steps=3"])
@@ -169,7 +169,7 @@ def test_a_non_finite_gradient_stops_before_the_weights_change(tiny_dataset, tmp
 def test_a_nan_validation_loss_stops_training(tiny_dataset, tmp_path, monkeypatch):
     from mcdp.config import RunConfig
     from mcdp.trainer import Trainer, TrainingDiverged
-    from synth.configlib import load_config
+    from corelib.configlib import load_config
     from synth.dataset import open_dataset
 
     cfg = load_config(RunConfig, TINY_TRAIN / "mono2.yaml", ["train.steps=4", "train.val_every=2"])
@@ -225,7 +225,7 @@ def test_a_second_writer_of_the_same_folder_is_refused_naming_the_pid(tiny_datas
     from mcdp.config import RunConfig
     from corelib.rundir import FolderError
     from mcdp.trainer import Trainer
-    from synth.configlib import load_config
+    from corelib.configlib import load_config
     from synth.dataset import open_dataset
 
     ds = open_dataset(tiny_dataset)

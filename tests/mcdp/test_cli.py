@@ -33,7 +33,7 @@ def trained_run(tiny_dataset, tmp_path_factory):
 @pytest.mark.parametrize("preset", PRESETS)
 def test_every_full_preset_has_the_required_keys(preset):
     from mcdp.config import RunConfig
-    from synth.configlib import load_config
+    from corelib.configlib import load_config
 
     cfg = load_config(RunConfig, FULL / f"{preset}.yaml")
     tiny = load_config(RunConfig, TINY / f"{preset}.yaml")

@@ -17,7 +17,7 @@ from mcdp.data import RigDataset, collate
 from mcdp.diagnostics import collapse_reason, depth_spread
 from mcdp.losses import identity_floored_error
 from mcdp.trainer import SelfSupervisedSystem, Trainer
-from synth.configlib import load_config
+from corelib.configlib import load_config
 
 ROOT = Path(__file__).resolve().parents[2]
 TINY = ROOT / "configs" / "train" / "tiny"
@@ -175,7 +175,7 @@ def test_flat_road_depth_matches_the_ground_plane_analytically():
 def _fake_pretraining(path: Path, bases: int = 8, mono_head: bool = True) -> dict:
     from mcdp.model import DepthModel
     from mcdp.warmstart import FORMAT, VERSION
-    from synth.configlib import config_to_dict
+    from corelib.configlib import config_to_dict
 
     cfg = cfg_of("mcdp_m0", f"model.bases={bases}", f"model.mono_head={str(mono_head).lower()}")
     torch.manual_seed(123)

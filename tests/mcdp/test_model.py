@@ -20,7 +20,7 @@ from mcdp.model import (
     rotation_from_axisangle,
 )
 from mcdp.trainer import SelfSupervisedSystem
-from synth.configlib import build_config
+from corelib.configlib import build_config
 
 pytestmark = pytest.mark.usefixtures("one_thread")
 

@@ -10,7 +10,7 @@ from pathlib import Path
 import pytest
 
 from mcdp import sweep
-from synth.configlib import ConfigError
+from corelib.configlib import ConfigError
 
 ROOT = Path(__file__).resolve().parents[2]
 CI = ROOT / "configs" / "sweep" / "ci.yaml"

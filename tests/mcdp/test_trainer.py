@@ -10,7 +10,7 @@ import torch
 
 from mcdp.config import RunConfig
 from mcdp.trainer import RunError, SelfSupervisedSystem, Trainer, TrainingDiverged, load_checkpoint
-from synth.configlib import load_config
+from corelib.configlib import load_config
 
 ROOT = Path(__file__).resolve().parents[2]
 TINY = ROOT / "configs" / "train" / "tiny"

@@ -160,7 +160,7 @@ def test_model_validation():
 
 
 def test_config_validation():
-    from synth.configlib import ConfigError, build_config
+    from corelib.configlib import ConfigError, build_config
     with pytest.raises(ConfigError, match="traffic_density"):
         build_config(SceneConfig, {"traffic_density": 9.0})
     with pytest.raises(ConfigError, match="family"):

@@ -323,7 +323,7 @@ def test_tables_complete_and_json_last(ns_root):
 
 
 def test_lidar_config_rejects_bad_values():
-    from synth.configlib import ConfigError, build_config
+    from corelib.configlib import ConfigError, build_config
 
     with pytest.raises(ConfigError, match="beams"):
         build_config(LidarConfig, {"beams": 0})

@@ -1,7 +1,7 @@
 import pytest
 
 from synth.config import DataConfig, load_data_config
-from synth.configlib import ConfigError, config_hash, diff_configs, parse_overrides
+from corelib.configlib import ConfigError, config_hash, diff_configs, parse_overrides
 
 
 def test_defaults_and_overrides():
