@@ -137,7 +137,7 @@ class SupervisedRun:
             self.step += 1
 
     def save_checkpoint(self, path: Path) -> None:
-        from mcdp.trainer import CHECKPOINT_VERSION, atomic_torch_save
+        from mcdp.runs import CHECKPOINT_VERSION, atomic_torch_save
         from corelib.configlib import config_to_dict
 
         atomic_torch_save({"version": CHECKPOINT_VERSION, "step": self.step, "config": config_to_dict(self.cfg),

@@ -70,7 +70,7 @@ def worker(preset: str, H: int, W: int, steps: int, device: str, threads: int = 
 
     sys.path.insert(0, str(ROOT))
     from mcdp.config import RunConfig
-    from mcdp.trainer import SelfSupervisedSystem
+    from mcdp.system import SelfSupervisedSystem
     from corelib.configlib import load_config
 
     cfg = load_config(RunConfig, ROOT / "configs" / "train" / f"{preset}.yaml",

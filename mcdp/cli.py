@@ -32,7 +32,7 @@ EXIT_DISK_FULL = 4
 def _user_errors() -> tuple[type[BaseException], ...]:
     from mcdp.networks import NetworkError
     from corelib.rundir import FolderError
-    from mcdp.trainer import RunError
+    from mcdp.runs import RunError
     from mcdp.warmstart import WarmStartError
     from corelib.configlib import ConfigError
     from synth.dataset import DatasetError
@@ -44,7 +44,7 @@ def _user_errors() -> tuple[type[BaseException], ...]:
 def _check_metrics_target(out: Path) -> None:
     """`eval --out` names a file: new, or a metrics file an earlier `mcdp eval` wrote; anything else is the
     user's and is refused before the evaluation starts."""
-    from mcdp.trainer import RunError
+    from mcdp.runs import RunError
 
     if out.is_dir():
         raise RunError(f"--out {out} is a folder; --out names the metrics JSON file to write")
@@ -137,7 +137,7 @@ def _eval_config(cfg, overrides: list[str]):
 def _eval(args: argparse.Namespace) -> int:
     from mcdp.evaluate import evaluate, format_tables
     from mcdp.predict import Predictor
-    from mcdp.trainer import RunError
+    from mcdp.runs import RunError
     from corelib.configlib import config_to_dict
 
     out = Path(args.out) if args.out else Path(args.run) / f"metrics_{args.split}.json"
@@ -192,7 +192,7 @@ def _predict_args(p: argparse.ArgumentParser) -> None:
 
 def _predict(args: argparse.Namespace) -> int:
     from mcdp.predict import Predictor, write_prediction
-    from mcdp.trainer import RunError
+    from mcdp.runs import RunError
 
     if args.stride < 1 or (args.max_samples is not None and args.max_samples < 1):
         raise RunError("--stride and --max-samples must be >= 1")

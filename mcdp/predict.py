@@ -30,25 +30,8 @@ import torch.nn.functional as F
 from corelib.atomic import atomic_write_bytes
 from mcdp.data import RigReader, neighbour_table
 from mcdp.model import DepthModel
-from mcdp.trainer import RunError, config_from_checkpoint, load_checkpoint, resolve_device
-
-
-def find_checkpoint(run_dir: str | Path, which: str = "auto") -> Path:
-    """``auto``: best.pt if present else last.pt; ``best`` | ``last``; or a path to a .pt file."""
-    run_dir = Path(run_dir)
-    if which not in ("auto", "best", "last"):
-        p = Path(which)
-        if not p.is_file():
-            raise RunError(f"checkpoint {p} does not exist")
-        return p
-    if not run_dir.is_dir():
-        raise RunError(f"run folder {run_dir} does not exist (train first: mcdp train PRESET --data DATA --out {run_dir})")
-    ck = run_dir / "checkpoints"
-    names = {"auto": ["best.pt", "last.pt"], "best": ["best.pt"], "last": ["last.pt"]}[which]
-    for n in names:
-        if (ck / n).is_file():
-            return ck / n
-    raise RunError(f"run folder {run_dir} has no checkpoint {' or '.join(names)} in {ck}")
+from mcdp.runs import RunError, config_from_checkpoint, find_checkpoint, load_checkpoint, resolve_device
+from mcdp.visual import depth_grid
 
 
 class Predictor:
@@ -112,29 +95,6 @@ class Predictor:
 
 
 # --------------------------------------------------------------------------- outputs
-def colorize_disparity(disp: np.ndarray, vmax_percentile: float = 95.0) -> np.ndarray:
-    """(..., H, W) disparity -> (..., H, W, 3) uint8 'magma' image, normalised per map (Monodepth2 style)."""
-    import matplotlib
-
-    cmap = matplotlib.colormaps["magma"]
-    d = np.asarray(disp, dtype=np.float64)
-    flat = d.reshape(-1, *d.shape[-2:]) if d.ndim > 2 else d[None]
-    out = np.empty(flat.shape + (3,), dtype=np.uint8)
-    for i, m in enumerate(flat):
-        lo, hi = float(m.min()), float(np.percentile(m, vmax_percentile))
-        n = np.clip((m - lo) / max(hi - lo, 1e-12), 0, 1)
-        out[i] = (cmap(n)[..., :3] * 255).astype(np.uint8)
-    return out.reshape(d.shape + (3,))
-
-
-def depth_grid(rgb: list[np.ndarray], depths: dict[str, list[np.ndarray]]) -> np.ndarray:
-    """Rows: RGB, then one colour-mapped disparity row per stage; cameras side by side -> (H', W', 3) uint8."""
-    rows = [np.concatenate(rgb, axis=1)]
-    for _, ds in depths.items():
-        rows.append(np.concatenate([colorize_disparity(1.0 / np.maximum(d, 1e-6)) for d in ds], axis=1))
-    return np.concatenate(rows, axis=0)
-
-
 def rig_point_cloud(
     ds, depths: list[np.ndarray], rgbs: list[np.ndarray], stride: int = 2, max_depth: float = 80.0
 ) -> tuple[np.ndarray, np.ndarray]:

@@ -123,7 +123,8 @@ def run_pretrain(cfg: PretrainConfig, out: str | Path, progress: bool = True,
 
 
 def _pretrain(cfg: PretrainConfig, out: Path, dcfg, rcfg, h: str, progress: bool, log) -> dict:
-    from mcdp.trainer import Trainer, atomic_torch_save
+    from mcdp.runs import atomic_torch_save
+    from mcdp.trainer import Trainer
     from corelib.hashing import sha256_file
     from mcdp.warmstart import FORMAT, VERSION
     from synth.dataset import open_dataset

@@ -393,7 +393,8 @@ def run_stage(cfg: SweepConfig, overlap: float, data: dict, method: str, seed: i
     """Train (or reuse / resume) and evaluate one (overlap, method, seed); returns its result row."""
     from mcdp.evaluate import evaluate
     from mcdp.predict import Predictor
-    from mcdp.trainer import RunError, Trainer, TrainingDiverged
+    from mcdp.runs import RunError
+    from mcdp.trainer import Trainer, TrainingDiverged
     from synth.dataset import open_dataset
 
     rcfg, preset = run_config_for(cfg, method, seed, init_from)
@@ -452,7 +453,7 @@ def run_stage(cfg: SweepConfig, overlap: float, data: dict, method: str, seed: i
     metrics_path = run_dir / f"metrics_{SPLIT}.json"
     ecfg = eval_config_for(cfg)
     pred = None
-    from mcdp.predict import find_checkpoint
+    from mcdp.runs import find_checkpoint
 
     ckpt_path = find_checkpoint(run_dir, cfg.checkpoint)
     key = _eval_key(rhash, int(status.get("steps", -1)), config_to_dict(cfg.eval), data["config_hash"],
@@ -684,7 +685,7 @@ def main(argv: list[str] | None = None) -> int:
     except SystemExit as exc:
         return int(exc.code or 0)
     from mcdp.networks import NetworkError
-    from mcdp.trainer import RunError
+    from mcdp.runs import RunError
     from synth.dataset import DatasetError
     from synth.render import OutputFolderError
 

@@ -221,7 +221,7 @@ def test_a_full_disk_while_checkpointing_keeps_the_last_checkpoint_and_training_
                                                                                        capsys, monkeypatch):
     import corelib.atomic
     from mcdp.cli import main
-    from mcdp.trainer import load_checkpoint
+    from mcdp.runs import load_checkpoint
 
     run = tmp_path / "run"
     base = ["train", str(TINY_TRAIN / "mono2.yaml"), "--data", str(tiny_dataset), "--out", str(run),

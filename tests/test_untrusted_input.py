@@ -133,7 +133,7 @@ def test_a_long_bad_override_gives_a_bounded_message(capsys):
 # --------------------------------------------------------------------------- divergence
 def test_lr_1e3_stops_naming_the_step_and_keeps_only_finite_checkpoints(tiny_dataset, tmp_path, capsys):
     from mcdp.cli import main
-    from mcdp.trainer import load_checkpoint
+    from mcdp.runs import load_checkpoint
 
     run = tmp_path / "run"
     code = main(["train", str(TINY_TRAIN / "mono2.yaml"), "--data", str(tiny_dataset), "--out", str(run),

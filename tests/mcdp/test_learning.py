@@ -16,7 +16,8 @@ from mcdp.config import RunConfig
 from mcdp.data import RigDataset, collate
 from mcdp.diagnostics import collapse_reason, depth_spread
 from mcdp.losses import identity_floored_error
-from mcdp.trainer import SelfSupervisedSystem, Trainer
+from mcdp.system import SelfSupervisedSystem
+from mcdp.trainer import Trainer
 from corelib.configlib import load_config
 
 ROOT = Path(__file__).resolve().parents[2]

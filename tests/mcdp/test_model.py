@@ -19,7 +19,7 @@ from mcdp.model import (
     pose_from_axisangle,
     rotation_from_axisangle,
 )
-from mcdp.trainer import SelfSupervisedSystem
+from mcdp.system import SelfSupervisedSystem
 from corelib.configlib import build_config
 
 pytestmark = pytest.mark.usefixtures("one_thread")

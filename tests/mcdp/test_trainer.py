@@ -9,7 +9,9 @@ import pytest
 import torch
 
 from mcdp.config import RunConfig
-from mcdp.trainer import RunError, SelfSupervisedSystem, Trainer, TrainingDiverged, load_checkpoint
+from mcdp.runs import RunError, load_checkpoint
+from mcdp.system import SelfSupervisedSystem
+from mcdp.trainer import Trainer, TrainingDiverged
 from corelib.configlib import load_config
 
 ROOT = Path(__file__).resolve().parents[2]

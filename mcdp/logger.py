@@ -1,0 +1,64 @@
+"""Training logs: TensorBoard scalars and six-camera image grids, written by the trainer only.
+
+Example::
+
+    log = TrainLogger(run_dir / "tensorboard")      # TrainLogger(None): logs nothing
+    log.scalars({"train/loss": 0.1}, step)
+    log.close()
+"""
+from __future__ import annotations
+
+from pathlib import Path
+
+import torch
+
+from mcdp.visual import colorize_disparity
+
+
+class TrainLogger:
+    def __init__(self, folder: str | Path | None):
+        self.writer = None
+        if folder is not None:
+            from torch.utils.tensorboard import SummaryWriter
+
+            self.writer = SummaryWriter(str(folder))
+
+    @property
+    def enabled(self) -> bool:
+        return self.writer is not None
+
+    def scalars(self, values: dict, step: int) -> None:
+        """Scalars by tag; tensors are detached; tags starting with "_" are internal and skipped."""
+        if self.writer is None:
+            return
+        for k, v in values.items():
+            if k.startswith("_") or (isinstance(v, torch.Tensor) and v.numel() != 1):
+                continue
+            self.writer.add_scalar(k, float(v.detach()) if isinstance(v, torch.Tensor) else v, step)
+
+    def images(self, batch: dict, outputs: dict, losses: dict, step: int) -> None:
+        """Rows: the rig's RGB at t, one colour-mapped disparity row per stage, then the masks
+        (red: scene mask, green: pixels used by L_p)."""
+        if self.writer is None:
+            return
+        import torchvision
+
+        N = batch["rgb"].shape[1]
+        rows = [batch["rgb"][0, :, 1].float().cpu()]  # (N, 3, H, W)
+        for stage in outputs["stages"]:
+            disp = outputs["disp", stage, 0][:N].detach().float().cpu()
+            rows.append(torch.from_numpy(colorize_disparity(disp[:, 0].numpy())).permute(0, 3, 1, 2).float() / 255)
+        m = batch["mask"][0].float().cpu()
+        used = losses["_used"][:N].float().cpu()
+        rows.append(torch.cat([m, used, m * 0], 1))
+        grid = torchvision.utils.make_grid(torch.cat(rows, 0), nrow=N, padding=2)
+        self.writer.add_image("rig/rgb_depth_per_stage_masks", grid, step)
+
+    def flush(self) -> None:
+        if self.writer is not None:
+            self.writer.flush()
+
+    def close(self) -> None:
+        if self.writer is not None:
+            self.writer.close()
+            self.writer = None

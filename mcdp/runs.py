@@ -1,0 +1,112 @@
+"""A run on disk: its checkpoints (written whole, read without pickle), resuming, the device.
+
+Run folder::
+
+    RUN/config.yaml            resolved RunConfig
+    RUN/run.json               dataset path, cameras, neighbours, warm start
+    RUN/checkpoints/last.pt    model, optimiser, step, config, RNG (written whole: corelib.atomic)
+    RUN/checkpoints/best.pt    lowest val loss: networks, step, config (no optimiser state)
+    RUN/tensorboard/           scalars and six-camera image grids (mcdp.logger)
+
+Example::
+
+    ckpt = load_checkpoint(find_checkpoint("runs/m1"))   # best.pt, else last.pt
+    cfg = config_from_checkpoint(ckpt)
+"""
+from __future__ import annotations
+
+import io
+from pathlib import Path
+
+import torch
+
+from corelib.atomic import atomic_write_bytes
+from corelib.configlib import build_config, config_to_dict
+from mcdp.config import RunConfig, resume_conflicts
+
+CHECKPOINT_VERSION = 1
+
+
+class RunError(ValueError):
+    """A run folder or checkpoint cannot be used as asked; the message says why and what to do."""
+
+
+# --------------------------------------------------------------------------- checkpoints
+def atomic_torch_save(obj, path: Path) -> None:
+    """torch.save to ``path.tmp`` then os.replace: a crash never leaves a half-written checkpoint."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    buf = io.BytesIO()  # serialised in memory: a full disk then fails in one plain write, not inside torch
+    torch.save(obj, buf)
+    atomic_write_bytes(path, buf.getbuffer())
+
+
+def load_checkpoint(path: Path) -> dict:
+    """Read a checkpoint written by `Trainer.save_checkpoint`; RunError naming the file otherwise."""
+    path = Path(path)
+    if not path.is_file():
+        raise RunError(f"checkpoint {path} does not exist")
+    try:
+        # weights_only: tensors and plain containers only; a pickle that would run code is refused
+        ckpt = torch.load(path, map_location="cpu", weights_only=True)
+    except Exception as exc:  # noqa: BLE001
+        first = str(exc).strip().splitlines()[0][:200] if str(exc).strip() else type(exc).__name__
+        raise RunError(f"checkpoint {path} is unreadable or not a plain weights file: {first}") from None
+    if not isinstance(ckpt, dict) or ckpt.get("version") != CHECKPOINT_VERSION or "config" not in ckpt:
+        raise RunError(f"checkpoint {path} is not an mcdp checkpoint of version {CHECKPOINT_VERSION}")
+    return ckpt
+
+
+def config_from_checkpoint(ckpt: dict, source: str = "checkpoint") -> RunConfig:
+    return build_config(RunConfig, ckpt["config"], source=source)
+
+
+def check_resume(run_dir: Path, cfg: RunConfig) -> dict | None:
+    """The checkpoint to resume from (or None for a fresh run); RunError naming conflicting keys."""
+    last = Path(run_dir) / "checkpoints" / "last.pt"
+    if not last.exists():
+        return None
+    ckpt = load_checkpoint(last)
+    saved = ckpt["config"]
+    requested = config_to_dict(cfg)
+    bad = resume_conflicts(saved, requested)
+    if bad:
+
+        def get(d, k):
+            for p in k.split("."):
+                d = d.get(p) if isinstance(d, dict) else None
+            return d
+
+        lines = [f"  {k}: checkpoint has {get(saved, k)!r}, requested {get(requested, k)!r}" for k in bad]
+        raise RunError(
+            f"{last} was trained with a different config; these keys conflict:\n"
+            + "\n".join(lines)
+            + f"\nuse the run's own settings (see {Path(run_dir) / 'config.yaml'}) or a new --out folder"
+        )
+    return ckpt
+
+
+def resolve_device(name: str) -> torch.device:
+    if name == "auto":
+        return torch.device("cuda" if torch.cuda.is_available() else "cpu")
+    if name == "cuda" and not torch.cuda.is_available():
+        raise RunError("train.device=cuda but no CUDA device is available (use train.device=cpu or auto)")
+    return torch.device(name)
+
+
+def find_checkpoint(run_dir: str | Path, which: str = "auto") -> Path:
+    """``auto``: best.pt if present else last.pt; ``best`` | ``last``; or a path to a .pt file."""
+    run_dir = Path(run_dir)
+    if which not in ("auto", "best", "last"):
+        p = Path(which)
+        if not p.is_file():
+            raise RunError(f"checkpoint {p} does not exist")
+        return p
+    if not run_dir.is_dir():
+        raise RunError(f"run folder {run_dir} does not exist (train first: mcdp train PRESET --data DATA --out {run_dir})")
+    ck = run_dir / "checkpoints"
+    names = {"auto": ["best.pt", "last.pt"], "best": ["best.pt"], "last": ["last.pt"]}[which]
+    for n in names:
+        if (ck / n).is_file():
+            return ck / n
+    raise RunError(f"run folder {run_dir} has no checkpoint {' or '.join(names)} in {ck}")

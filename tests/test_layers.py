@@ -1,0 +1,93 @@
+"""The house reads bottom-up (docs/DESIGN.md, "Layers"): corelib -> scenes -> synth -> mcdp -> study.
+Every import, at module level or inside a function, points down or sideways within a package, and
+no two modules import each other, directly or round a longer loop."""
+from __future__ import annotations
+
+import ast
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+LAYERS = ["corelib", "scenes", "synth", "mcdp", "study"]
+MAX_LINES = 450
+
+
+def modules() -> dict[str, Path]:
+    out = {}
+    for pkg in LAYERS:
+        for p in sorted((ROOT / pkg).rglob("*.py")):
+            parts = list(p.relative_to(ROOT).with_suffix("").parts)
+            if parts[-1] == "__init__":
+                parts = parts[:-1]
+            out[".".join(parts)] = p
+    return out
+
+
+def imports_of(name: str, path: Path, known: set[str]) -> set[str]:
+    """Project modules `name` imports anywhere in its body (resolved to the longest known module)."""
+    tree = ast.parse(path.read_text())
+    pkg = name if path.name == "__init__.py" else name.rsplit(".", 1)[0]
+    found = set()
+    for node in ast.walk(tree):
+        targets = []
+        if isinstance(node, ast.Import):
+            targets = [a.name for a in node.names]
+        elif isinstance(node, ast.ImportFrom):
+            base = node.module or ""
+            if node.level:
+                up = pkg.split(".")[: len(pkg.split(".")) - (node.level - 1)]
+                base = ".".join(up + ([base] if base else []))
+            targets = [f"{base}.{a.name}" for a in node.names] + [base]
+        for t in targets:
+            while t and t not in known:
+                t = t.rsplit(".", 1)[0] if "." in t else ""
+            if t and t != name:
+                found.add(t)
+    return found
+
+
+def graph() -> dict[str, set[str]]:
+    mods = modules()
+    return {m: imports_of(m, p, set(mods)) for m, p in mods.items()}
+
+
+def test_every_import_points_down_the_layers():
+    bad = []
+    for mod, deps in graph().items():
+        own = LAYERS.index(mod.split(".")[0])
+        for d in deps:
+            if LAYERS.index(d.split(".")[0]) > own:
+                bad.append(f"{mod} imports {d}")
+    assert not bad, "upward imports:\n" + "\n".join(sorted(bad))
+
+
+def test_no_import_cycles():
+    g = graph()
+    # a package's __init__ re-exporting its modules is not a cycle with them
+    g = {m: {d for d in deps if not m.startswith(d + ".")} for m, deps in g.items()}
+    state: dict[str, int] = {}
+    cycles = []
+
+    def visit(m, stack):
+        state[m] = 1
+        stack.append(m)
+        for d in sorted(g.get(m, ())):
+            if state.get(d) == 1:
+                cycles.append(" -> ".join(stack[stack.index(d):] + [d]))
+            elif d not in state:
+                visit(d, stack)
+        stack.pop()
+        state[m] = 2
+
+    for m in sorted(g):
+        if m not in state:
+            visit(m, [])
+    assert not cycles, "import cycles:\n" + "\n".join(cycles)
+
+
+@pytest.mark.parametrize("pkg", LAYERS)
+def test_no_module_is_over_450_lines(pkg):
+    long = {m: n for m, p in modules().items() if m.split(".")[0] == pkg
+            and (n := len(p.read_text().splitlines())) > MAX_LINES}
+    assert not long, f"modules over {MAX_LINES} lines: {long}"
