@@ -152,14 +152,33 @@ def build_config(cls: Type[T], data: dict[str, Any], source: str = "config") -> 
         raise ConfigError(_format_validation_error(err, source)) from None
 
 
-def load_config(cls: Type[T], path: str | Path | None = None, overrides: Iterable[str] = ()) -> T:
-    """Load a preset file (optional) and apply dotted overrides; returns a frozen config."""
-    data = read_yaml(path) if path is not None else {}
+def nest(values: dict[str, Any]) -> dict[str, Any]:
+    """``{"a.b": 1, "c": 2}`` -> ``{"a": {"b": 1}, "c": 2}`` (values as given, not parsed)."""
+    out: dict[str, Any] = {}
+    for key, value in values.items():
+        node = out
+        parts = key.split(".")
+        for p in parts[:-1]:
+            node = node.setdefault(p, {})
+        node[parts[-1]] = value
+    return out
+
+
+def load_config(cls: Type[T], path: str | Path | None = None, overrides: Iterable[str] = (),
+                values: dict[str, Any] | None = None, base: dict[str, Any] | None = None) -> T:
+    """Load a preset file (optional) over ``base`` (dotted keys -> values: defaults the preset may
+    change), apply a user's ``key=value`` overrides, then the program's own ``values`` (dotted keys ->
+    Python values, no text round trip); returns a frozen config."""
+    data = deep_merge(nest(base or {}), read_yaml(path) if path is not None else {})
     ov = list(overrides)
     data = deep_merge(data, parse_overrides(ov))
+    if values:
+        data = deep_merge(data, nest(values))
     source = str(path) if path is not None else "defaults"
     if ov:
         source += " + overrides " + " ".join(ov)
+    if values:
+        source += " + " + ", ".join(sorted(values))
     return build_config(cls, data, source)
 
 

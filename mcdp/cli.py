@@ -6,13 +6,14 @@
     mcdp eval RUN --data DATA [--split test] [--out metrics.json] [--checkpoint auto|best|last|PATH] [eval.key=value ...]
     mcdp predict RUN --data DATA --out PRED [--split test] [--max-samples N] [--ply]
     mcdp pretrain configs/pretrain/tiny.yaml --out DIR [key=value ...]           # cached by its config hash
-    mcdp sweep configs/sweep/cpu.yaml --out SWEEP [key=value ...]
+    mcdp sweep configs/sweep/cpu.yaml --out SWEEP [key=value ...]          # added by study.cli
 
 Exit codes: 0 success, 2 bad input (config, dataset, run folder; a message on
-stderr, no traceback), 3 training diverged (NaN/inf loss), 130 interrupted.
+stderr, no traceback), 3 training diverged (NaN/inf loss), 4 disk full, 130 interrupted.
 
 Subcommands are registered in `COMMANDS` as (name, add_arguments, run); a new
-one (e.g. ``sweep``) is one more entry.
+one is one more entry. The ``mcdp`` console script is `study.cli.main`: these
+commands plus the study's ``sweep``.
 """
 from __future__ import annotations
 
@@ -20,7 +21,7 @@ import argparse
 import json
 import sys
 from pathlib import Path
-from typing import Callable
+from typing import Callable, Iterable
 
 from corelib.atomic import atomic_write_json, disk_full_message, is_disk_full
 
@@ -225,7 +226,9 @@ COMMANDS: list[tuple[str, str, Callable, Callable]] = [
 ]
 
 
-def build_parser() -> argparse.ArgumentParser:
+def build_parser(extra_commands: Iterable[Callable] = ()) -> argparse.ArgumentParser:
+    """The parser of every subcommand; `extra_commands` add more (``add(subparsers)``: the study's
+    ``sweep``, assembled by `study.cli` so that this package never imports the layer above)."""
     parser = argparse.ArgumentParser(prog="mcdp", description=__doc__.split("\n")[0])
     sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
     for name, help_, add_args, run in COMMANDS:
@@ -233,15 +236,15 @@ def build_parser() -> argparse.ArgumentParser:
         add_args(p)
         p.set_defaults(_run=run)
     from mcdp.pretrain import add_pretrain_parser
-    from mcdp.sweep import add_sweep_parser
 
     add_pretrain_parser(sub)  # mcdp pretrain CONFIG --out DIR [key=value ...]
-    add_sweep_parser(sub)  # mcdp sweep PRESET --out SWEEP [key=value ...]
+    for add in extra_commands:
+        add(sub)
     return parser
 
 
-def main(argv: list[str] | None = None) -> int:
-    parser = build_parser()
+def main(argv: list[str] | None = None, extra_commands: Iterable[Callable] = ()) -> int:
+    parser = build_parser(extra_commands)
     try:
         # key=value overrides may come before or after the options (argparse would only
         # take positionals in one run), so unknown key=value words are collected here.

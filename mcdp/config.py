@@ -42,8 +42,9 @@ Float = Annotated[float, BeforeValidator(_yaml12_float)]
 class ModelConfig(StrictModel):
     """Depth, pose and weight networks.
 
-    method: ``mono2`` (Monodepth2: one sigmoid channel -> depth) or ``mcdp``
-        (n depth bases, initial weights 1/n, ``refine_steps`` weight networks).
+    method: the depth network: ``mono2`` (Monodepth2: one sigmoid channel -> depth), ``mcdp``
+        (n depth bases, initial weights 1/n, ``refine_steps`` weight networks), or the model of
+        another method registered in `mcdp.methods` (checked when the network is built).
     bases: n, number of depth bases (mcdp only; mono2 always uses 1 channel).
     refine_steps: m, refinement steps (0 = bases only, the "M0" row).
     neighbours: which ring neighbours feed the weight network: ``left`` (i-1),
@@ -70,7 +71,7 @@ class ModelConfig(StrictModel):
         architecture differs. The run records the file's path and sha256.
     """
 
-    method: Literal["mono2", "mcdp"] = "mcdp"
+    method: str = Field("mcdp", pattern=r"^[a-z][a-z0-9_]{0,39}$")
     bases: int = Field(32, ge=1, le=256)
     refine_steps: int = Field(0, ge=0, le=8)
     neighbours: Literal["left", "right", "both"] = "both"

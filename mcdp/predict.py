@@ -29,7 +29,7 @@ import torch.nn.functional as F
 
 from corelib.atomic import atomic_write_bytes
 from mcdp.data import RigReader, neighbour_table
-from mcdp.model import DepthModel
+from mcdp.methods import build_depth_model
 from mcdp.runs import RunError, config_from_checkpoint, find_checkpoint, load_checkpoint, resolve_device
 from mcdp.visual import depth_grid
 
@@ -56,7 +56,7 @@ class Predictor:
             )
         self.ds = ds
         self.device = resolve_device(device)
-        self.model = DepthModel(self.cfg.model).to(self.device)
+        self.model = build_depth_model(self.cfg.model).to(self.device)
         self.model.load_state_dict(ckpt["depth_model"])
         self.model.eval()
         self.reader = RigReader(ds, self.cfg.train.height, self.cfg.train.width)

@@ -25,7 +25,8 @@ from mcdp.losses import (
     smoothness_loss,
     used_pixels,
 )
-from mcdp.model import DepthModel, PoseModel, is_refined, odometry_camera_motion, resize_mask_to
+from mcdp.methods import build_depth_model
+from mcdp.model import PoseModel, is_refined, odometry_camera_motion, resize_mask_to
 
 
 # --------------------------------------------------------------------------- augmentation
@@ -73,7 +74,7 @@ class SelfSupervisedSystem(torch.nn.Module):
     def __init__(self, cfg: RunConfig, neighbours, n_cams: int):
         super().__init__()
         self.cfg = cfg
-        self.depth = DepthModel(cfg.model)
+        self.depth = build_depth_model(cfg.model)
         self.pose = PoseModel(cfg.model.pretrained) if cfg.scale.source != "odometry" else None
         self.register_buffer("nbr", neighbour_table(neighbours, n_cams), persistent=False)
         tgt, src = directed_pairs(neighbours)

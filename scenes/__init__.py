@@ -17,12 +17,11 @@ from __future__ import annotations
 
 import numpy as np
 
-from scenes.config import SceneConfig
+from scenes.config import FAMILIES, SceneConfig
 from scenes.families import BUILDERS
 from scenes.model import Mesh, Mover, Scene
 from scenes.textures import LAYER, MATERIALS
 
-FAMILIES: tuple[str, ...] = ("urban", "residential", "highway")
 
 
 def pick_family(cfg: SceneConfig, rng: np.random.Generator) -> str:

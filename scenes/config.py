@@ -17,7 +17,10 @@ from pydantic import Field, field_validator
 
 from corelib.configlib import StrictModel
 
-FamilyName = Literal["urban", "residential", "highway", "mixed"]
+#: the scene families, in the order of `SceneConfig.family_weights`; each has its builder in
+#: `scenes.families.BUILDERS` (a new family: its module, its BUILDERS line, its name here)
+FAMILIES = ("urban", "residential", "highway")
+FamilyName = Literal[FAMILIES + ("mixed",)]  # type: ignore[valid-type]
 
 
 class SceneConfig(StrictModel):
@@ -37,7 +40,7 @@ class SceneConfig(StrictModel):
 
     family: FamilyName = "mixed"
     # strict=False only so that a YAML list is accepted as the tuple
-    family_weights: tuple[float, float, float] = Field(default=(1.0, 1.0, 1.0), strict=False)
+    family_weights: tuple[float, ...] = Field(default=(1.0,) * len(FAMILIES), strict=False)
     traffic_density: float = Field(default=1.0, ge=0.0, le=3.0)
     parked_density: float = Field(default=1.0, ge=0.0, le=2.0)
     vegetation_density: float = Field(default=1.0, ge=0.0, le=2.0)
@@ -48,7 +51,8 @@ class SceneConfig(StrictModel):
 
     @field_validator("family_weights")
     @classmethod
-    def _weights_ok(cls, w: tuple[float, float, float]) -> tuple[float, float, float]:
-        if any(x < 0 for x in w) or sum(w) <= 0:
-            raise ValueError("family_weights must be 3 numbers >= 0 with a positive sum (urban, residential, highway)")
+    def _weights_ok(cls, w: tuple[float, ...]) -> tuple[float, ...]:
+        if len(w) != len(FAMILIES) or any(x < 0 for x in w) or sum(w) <= 0:
+            raise ValueError(f"family_weights must be {len(FAMILIES)} numbers >= 0 with a positive sum "
+                             f"({', '.join(FAMILIES)})")
         return w

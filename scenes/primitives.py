@@ -29,138 +29,8 @@ import numpy as np
 
 from scenes.model import Mesh
 from scenes.polyline import check_polyline, left_normals, offset_polyline, segment_directions, arc_length
-
-UV = float | Sequence[float]
-
-
-def _cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """Cross product over the last axis (np.cross is slow on the small arrays used here)."""
-    a, b = np.broadcast_arrays(np.asarray(a, dtype=np.float64), np.asarray(b, dtype=np.float64))
-    return np.stack([a[..., 1] * b[..., 2] - a[..., 2] * b[..., 1],
-                     a[..., 2] * b[..., 0] - a[..., 0] * b[..., 2],
-                     a[..., 0] * b[..., 1] - a[..., 1] * b[..., 0]], axis=-1)
-
-
-# ---------------------------------------------------------------------------- checks
-def _check_layer(layer: int) -> int:
-    if isinstance(layer, bool) or not isinstance(layer, (int, np.integer)) or layer < 0:
-        raise ValueError(f"layer must be a non-negative int, got {layer!r}")
-    return int(layer)
-
-
-def _check_tint(tint) -> np.ndarray:
-    t = np.asarray(tint, dtype=np.float64)
-    if t.shape != (3,) or not np.all(np.isfinite(t)) or np.any(t < 0):
-        raise ValueError(f"tint must be 3 non-negative finite numbers (linear RGB), got {tint!r}")
-    return t
-
-
-def _check_T(T) -> np.ndarray | None:
-    if T is None:
-        return None
-    T = np.asarray(T, dtype=np.float64)
-    if T.shape != (4, 4) or not np.all(np.isfinite(T)):
-        raise ValueError(f"T must be a finite (4, 4) rigid transform, got shape {T.shape}")
-    R = T[:3, :3]
-    if not np.allclose(R @ R.T, np.eye(3), atol=1e-6) or not np.allclose(T[3], [0, 0, 0, 1]):
-        raise ValueError("T must be rigid: orthonormal rotation and last row (0, 0, 0, 1)")
-    return T
-
-
-def _check_uv_scale(uv_scale: UV) -> tuple[float, float]:
-    s = np.broadcast_to(np.asarray(uv_scale, dtype=np.float64), (2,))
-    if not np.all(np.isfinite(s)) or np.any(s <= 0):
-        raise ValueError(f"uv_scale must be > 0 (a float or (su, sv)), got {uv_scale!r}")
-    return float(s[0]), float(s[1])
-
-
-def _positive(name: str, value: float) -> float:
-    v = float(value)
-    if not (np.isfinite(v) and v > 0):
-        raise ValueError(f"{name} must be a finite number > 0, got {value!r}")
-    return v
-
-
-# ---------------------------------------------------------------------------- builders
-def from_quads(corners: np.ndarray, uvs: np.ndarray, hint_normals: np.ndarray, layer: int,
-               tint=(1.0, 1.0, 1.0)) -> Mesh:
-    """Flat-shaded mesh from K quads.
-
-    corners:      (K, 4, 3) metres, in cyclic order around each quad (planar or nearly).
-    uvs:          (K, 4, 2) texture coordinates of the corners.
-    hint_normals: (K, 3) any vector on the outward side; the exact normal is taken from
-                  the quad's diagonals and the winding made counter-clockwise around it.
-    """
-    c = np.asarray(corners, dtype=np.float64)
-    if c.ndim != 3 or c.shape[1:] != (4, 3):
-        raise ValueError(f"corners must have shape (K, 4, 3), got {c.shape}")
-    k = len(c)
-    uv = np.asarray(uvs, dtype=np.float64)
-    if uv.shape != (k, 4, 2):
-        raise ValueError(f"uvs must have shape {(k, 4, 2)}, got {uv.shape}")
-    h = np.broadcast_to(np.asarray(hint_normals, dtype=np.float64), (k, 3))
-    n = _cross(c[:, 2] - c[:, 0], c[:, 3] - c[:, 1])
-    ln = np.linalg.norm(n, axis=1, keepdims=True)
-    if np.any(ln < 1e-12):
-        raise ValueError("a quad is degenerate (zero area)")
-    n = n / ln
-    n *= np.where(np.sum(n * h, axis=1) < 0, -1.0, 1.0)[:, None]
-    base = (np.arange(k) * 4)[:, None]
-    # diagonal-cross normal and corner order agree iff the cyclic order is CCW around n
-    tri = np.array([[0, 1, 2], [0, 2, 3]])
-    ccw = np.sum(_cross(c[:, 1] - c[:, 0], c[:, 2] - c[:, 0]) * n, axis=1) >= 0
-    ccw2 = np.sum(_cross(c[:, 2] - c[:, 0], c[:, 3] - c[:, 0]) * n, axis=1) >= 0
-    ccw = ccw | ccw2  # a triangle may be degenerate (e.g. a ribbon's folded mitre); use the other
-    idx = np.where(ccw[:, None, None], tri[None], tri[None, :, ::-1])  # (K, 2, 3)
-    idx = (idx + base[:, :, None]).reshape(-1, 3)
-    layer = _check_layer(layer)
-    t = _check_tint(tint)
-    nv = 4 * k
-    return Mesh(c.reshape(-1, 3), np.repeat(n, 4, axis=0), uv.reshape(-1, 2),
-                np.full(nv, layer, np.int32), np.tile(t, (nv, 1)), idx)
-
-
-def from_triangles(corners: np.ndarray, uvs: np.ndarray, hint_normals: np.ndarray, layer: int,
-                   tint=(1.0, 1.0, 1.0)) -> Mesh:
-    """Flat-shaded mesh from K triangles: corners (K, 3, 3), uvs (K, 3, 2), hint_normals (K, 3)."""
-    c = np.asarray(corners, dtype=np.float64)
-    if c.ndim != 3 or c.shape[1:] != (3, 3):
-        raise ValueError(f"corners must have shape (K, 3, 3), got {c.shape}")
-    k = len(c)
-    uv = np.asarray(uvs, dtype=np.float64)
-    if uv.shape != (k, 3, 2):
-        raise ValueError(f"uvs must have shape {(k, 3, 2)}, got {uv.shape}")
-    h = np.broadcast_to(np.asarray(hint_normals, dtype=np.float64), (k, 3))
-    n = _cross(c[:, 1] - c[:, 0], c[:, 2] - c[:, 0])
-    ln = np.linalg.norm(n, axis=1, keepdims=True)
-    if np.any(ln < 1e-12):
-        raise ValueError("a triangle is degenerate (zero area)")
-    n = n / ln
-    flip = np.sum(n * h, axis=1) < 0
-    n[flip] *= -1.0
-    idx = np.arange(3 * k).reshape(k, 3)
-    idx[flip] = idx[flip][:, ::-1]
-    layer = _check_layer(layer)
-    t = _check_tint(tint)
-    nv = 3 * k
-    return Mesh(c.reshape(-1, 3), np.repeat(n, 3, axis=0), uv.reshape(-1, 2),
-                np.full(nv, layer, np.int32), np.tile(t, (nv, 1)), idx)
-
-
-def _finish(mesh: Mesh, T) -> Mesh:
-    T = _check_T(T)
-    return mesh if T is None else mesh.transformed(T)
-
-
-def _wall_uvs(c: np.ndarray, outward: np.ndarray, z0: float, su: float, sv: float) -> np.ndarray:
-    """uvs (K, 4, 2) for vertical quads: u along the face to the right seen from outside, v = -(z - z0)."""
-    right = _cross([0.0, 0.0, 1.0], outward)  # looking along -n with z up: right = (-n) x up = up x n
-    right /= np.maximum(np.linalg.norm(right, axis=-1, keepdims=True), 1e-12)
-    # u = 0 at the face's left-most corner
-    proj = np.einsum("kcj,kj->kc", c, right)
-    u = (proj - proj.min(axis=1, keepdims=True)) * su
-    v = -(c[..., 2] - z0) * sv
-    return np.stack([u, v], axis=-1)
+from scenes.meshing import (UV, check_uv_scale, cross3, finish_mesh, check_positive, wall_uvs, from_quads,
+                            from_triangles)
 
 
 # ---------------------------------------------------------------------------- primitives
@@ -179,7 +49,7 @@ def box(size_xyz: Sequence[float], layer: int, tint=(1.0, 1.0, 1.0), T: np.ndarr
     s = np.asarray(size_xyz, dtype=np.float64)
     if s.shape != (3,) or not np.all(np.isfinite(s)) or np.any(s <= 0):
         raise ValueError(f"size_xyz must be 3 positive lengths in metres, got {size_xyz!r}")
-    su, sv = _check_uv_scale(uv_scale)
+    su, sv = check_uv_scale(uv_scale)
     hx, hy, hz = s / 2
     allf = {
         "+x": ([[hx, -hy, -hz], [hx, hy, -hz], [hx, hy, hz], [hx, -hy, hz]], [1, 0, 0]),
@@ -197,11 +67,11 @@ def box(size_xyz: Sequence[float], layer: int, tint=(1.0, 1.0, 1.0), T: np.ndarr
     uv = np.zeros((len(names), 4, 2))
     vert = nrm[:, 2] == 0
     if np.any(vert):
-        uv[vert] = _wall_uvs(c[vert], nrm[vert], -hz, su, sv)
+        uv[vert] = wall_uvs(c[vert], nrm[vert], -hz, su, sv)
     hor = ~vert
     uv[hor, :, 0] = (c[hor, :, 0] + hx) * su
     uv[hor, :, 1] = (c[hor, :, 1] + hy) * sv
-    return _finish(from_quads(c, uv, nrm, layer, tint), T)
+    return finish_mesh(from_quads(c, uv, nrm, layer, tint), T)
 
 
 def _ring(radius: float, segments: int) -> tuple[np.ndarray, np.ndarray]:
@@ -223,10 +93,10 @@ def cylinder(radius: float, height: float, layer: int, segments: int = 12, tint=
     plus 2*(segments-2) for the caps. uv: u = arc length, v = -z (times uv_scale).
     Rotate with `T` for a horizontal cylinder (e.g. a wheel).
     """
-    r = _positive("radius", radius)
-    h = _positive("height", height)
+    r = check_positive("radius", radius)
+    h = check_positive("height", height)
     n = _check_segments(segments)
-    su, sv = _check_uv_scale(uv_scale)
+    su, sv = check_uv_scale(uv_scale)
     x, y = _ring(r, n)
     c = np.zeros((n, 4, 3))
     c[:, 0, :2] = np.stack([x[:-1], y[:-1]], 1)
@@ -246,7 +116,7 @@ def cylinder(radius: float, height: float, layer: int, segments: int = 12, tint=
     if caps:
         parts.append(_disc(x[:-1], y[:-1], h, +1, layer, tint, su, sv))
         parts.append(_disc(x[:-1], y[:-1], 0.0, -1, layer, tint, su, sv))
-    return _finish(Mesh.merge(parts), T)
+    return finish_mesh(Mesh.merge(parts), T)
 
 
 def _disc(x: np.ndarray, y: np.ndarray, z: float, up: int, layer, tint, su, sv) -> Mesh:
@@ -268,10 +138,10 @@ def cone(radius: float, height: float, layer: int, segments: int = 8, tint=(1.0,
     segments side triangles (+ segments-2 for the base when `base`). uv: u = arc length at
     the base, v = -z (times uv_scale). Good for conifer crowns.
     """
-    r = _positive("radius", radius)
-    h = _positive("height", height)
+    r = check_positive("radius", radius)
+    h = check_positive("height", height)
     n = _check_segments(segments)
-    su, sv = _check_uv_scale(uv_scale)
+    su, sv = check_uv_scale(uv_scale)
     x, y = _ring(r, n)
     tri = np.zeros((n, 3, 3))
     tri[:, 0, :2] = np.stack([x[:-1], y[:-1]], 1)
@@ -289,7 +159,7 @@ def cone(radius: float, height: float, layer: int, segments: int = 8, tint=(1.0,
     parts = [from_triangles(tri, uv, hint, layer, tint)]
     if base:
         parts.append(_disc(x[:-1], y[:-1], 0.0, -1, layer, tint, su, sv))
-    return _finish(Mesh.merge(parts), T)
+    return finish_mesh(Mesh.merge(parts), T)
 
 
 def sphere_low(radii: float | Sequence[float], layer: int, segments: int = 8, rings: int = 5,
@@ -304,7 +174,7 @@ def sphere_low(radii: float | Sequence[float], layer: int, segments: int = 8, ri
         raise ValueError(f"radii must be > 0 (a float or (rx, ry, rz)), got {radii!r}")
     n = _check_segments(segments)
     m = _check_segments(rings, 2)
-    su, sv = _check_uv_scale(uv_scale)
+    su, sv = check_uv_scale(uv_scale)
     th = np.linspace(0.0, np.pi, m + 1)          # polar angle from +z
     ph = np.linspace(0.0, 2 * np.pi, n + 1)
     P = np.stack([np.sin(th)[:, None] * np.cos(ph)[None], np.sin(th)[:, None] * np.sin(ph)[None],
@@ -326,7 +196,7 @@ def sphere_low(radii: float | Sequence[float], layer: int, segments: int = 8, ri
     tri = np.concatenate(tris)
     uv = np.concatenate(uvs)
     hint = tri.mean(axis=1) / rr ** 2  # ellipsoid gradient: outward
-    return _finish(from_triangles(tri, uv, hint, layer, tint), T)
+    return finish_mesh(from_triangles(tri, uv, hint, layer, tint), T)
 
 
 def quad(corners: np.ndarray, layer: int, uvs: np.ndarray | None = None, tint=(1.0, 1.0, 1.0),
@@ -341,15 +211,15 @@ def quad(corners: np.ndarray, layer: int, uvs: np.ndarray | None = None, tint=(1
     c = np.asarray(corners, dtype=np.float64)
     if c.shape != (4, 3) or not np.all(np.isfinite(c)):
         raise ValueError(f"corners must be a finite (4, 3) array, got shape {c.shape}")
-    n = _cross(c[2] - c[0], c[3] - c[1])
+    n = cross3(c[2] - c[0], c[3] - c[1])
     if np.linalg.norm(n) < 1e-12:
         raise ValueError("corners span zero area")
     n /= np.linalg.norm(n)
-    su, sv = _check_uv_scale(uv_scale)
+    su, sv = check_uv_scale(uv_scale)
     if uvs is None:
         e1 = c[1] - c[0]
         e1 /= np.linalg.norm(e1)
-        e2 = _cross(n, e1)  # in-plane, towards c3 side when CCW
+        e2 = cross3(n, e1)  # in-plane, towards c3 side when CCW
         d = c - c[0]
         uv = np.stack([d @ e1 * su, d @ e2 * sv], 1)
     else:
@@ -375,8 +245,8 @@ def ground_strip(polyline: np.ndarray, half_width: float, z: float, layer: int, 
     Area = arc length * 2 * half_width for straight polylines.
     """
     p = check_polyline(polyline)
-    hw = _positive("half_width", half_width)
-    su, sv = _check_uv_scale(uv_scale)
+    hw = check_positive("half_width", half_width)
+    su, sv = check_uv_scale(uv_scale)
     right = offset_polyline(p, float(lateral_offset) - hw)
     left = offset_polyline(p, float(lateral_offset) + hw)
     s = arc_length(p) + float(u_offset)
@@ -398,7 +268,7 @@ def ground_strip(polyline: np.ndarray, half_width: float, z: float, layer: int, 
 def _fix_ccw_up(m: Mesh) -> Mesh:
     """Reorder triangles of a horizontal mesh so every one is CCW seen from +z."""
     p = m.positions[m.indices.astype(np.int64)]
-    cz = _cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0])[:, 2]
+    cz = cross3(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0])[:, 2]
     idx = m.indices.copy()
     idx[cz < 0] = idx[cz < 0][:, ::-1]
     m.indices = idx
@@ -421,7 +291,7 @@ def sweep(polyline: np.ndarray, profile: np.ndarray, layer: int, tint=(1.0, 1.0,
     prof = np.asarray(profile, dtype=np.float64)
     if prof.ndim != 2 or prof.shape[1] != 2 or len(prof) < 2:
         raise ValueError(f"profile must have shape (P, 2) with P >= 2, got {prof.shape}")
-    su, sv = _check_uv_scale(uv_scale)
+    su, sv = check_uv_scale(uv_scale)
     s = arc_length(p) + float(u_offset)
     seg_left = left_normals(segment_directions(p))             # (N-1, 2)
     offs = [offset_polyline(p, d) for d in prof[:, 0]]          # P x (N, 2)
@@ -463,11 +333,11 @@ def gable_roof(size_xy: Sequence[float], height: float, roof_layer: int, gable_l
     sz = np.asarray(size_xy, dtype=np.float64)
     if sz.shape != (2,) or np.any(sz <= 0) or not np.all(np.isfinite(sz)):
         raise ValueError(f"size_xy must be 2 positive lengths in metres, got {size_xy!r}")
-    h = _positive("height", height)
+    h = check_positive("height", height)
     o = float(overhang)
     if not (0 <= o < 5):
         raise ValueError(f"overhang must be in [0, 5) metres, got {overhang!r}")
-    su, sv = _check_uv_scale(uv_scale)
+    su, sv = check_uv_scale(uv_scale)
     hx, hy = sz / 2
     # slopes extended outward by the overhang, dropping along the same pitch
     drop = o * h / hy
@@ -492,7 +362,7 @@ def gable_roof(size_xy: Sequence[float], height: float, roof_layer: int, gable_l
     # the underside of the overhang: seen from street level below the eaves
     under = from_quads(quads[:, ::-1].copy(), uvq[:, ::-1].copy(), np.array([[0, h, -hy], [0, -h, -hy]], dtype=np.float64),
                        roof_layer, np.asarray(roof_tint, dtype=np.float64) * 0.6)
-    return _finish(Mesh.merge([roof, gables, under]), T)
+    return finish_mesh(Mesh.merge([roof, gables, under]), T)
 
 
 def pose_2d(x: float, y: float, yaw: float, z: float = 0.0) -> np.ndarray:

@@ -21,7 +21,8 @@ import numpy as np
 from scenes.model import Mesh, Mover
 from scenes.objects import car
 from scenes.polyline import arc_length, check_polyline, distance_to_polyline, interpolate
-from scenes.primitives import from_quads, ground_strip, quad
+from scenes.meshing import from_quads
+from scenes.primitives import ground_strip, quad
 from scenes.route import Path, poses_4x4
 from scenes.textures import LAYER, uv_scale_for
 

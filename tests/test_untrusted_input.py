@@ -139,7 +139,7 @@ def test_lr_1e3_stops_naming_the_step_and_keeps_only_finite_checkpoints(tiny_dat
     code = main(["train", str(TINY_TRAIN / "mono2.yaml"), "--data", str(tiny_dataset), "--out", str(run),
                  "--no-progress", "train.lr=1e3", "train.steps=30", "train.ckpt_every=1", "train.val_every=1"])
     err = capsys.readouterr().err
-    assert code == 3 and "at step" in err
+    assert code == 3 and "at step" in err, err
     for name in ("last.pt", "best.pt"):
         p = run / "checkpoints" / name
         if p.exists():
@@ -200,7 +200,7 @@ def test_train_refuses_a_folder_of_the_users_own_files(tiny_dataset, tmp_path, c
 
 @pytest.mark.parametrize("command", ["predict", "sweep"])
 def test_predict_and_sweep_refuse_a_folder_of_the_users_own_files(tiny_dataset, tmp_path, capsys, command):
-    from mcdp.cli import main
+    from study.cli import main  # the `mcdp` console script: mcdp's commands + the study's sweep
 
     mine = tmp_path / "mine"
     mine.mkdir()

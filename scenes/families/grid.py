@@ -19,7 +19,8 @@ import numpy as np
 from scenes.config import SceneConfig
 from scenes.model import Mesh, Scene
 from scenes.objects import CAR_LENGTH_M, building, bush, car, house, lamp_post, sign_post, tree
-from scenes.primitives import box, from_quads, ground_strip, pose_2d, quad, sweep
+from scenes.meshing import from_quads
+from scenes.primitives import box, ground_strip, pose_2d, quad, sweep
 from scenes.route import Path, poses_4x4
 from scenes.textures import LAYER, make_textures, uv_scale_for
 from scenes.world import (KERB_H_M, MARK_Z_M, CrossSection, LaneTraffic, World, ground_tiles, lane_markings,

@@ -169,3 +169,10 @@ def test_config_validation():
         build_config(SceneConfig, {"texture_size": 100})
     with pytest.raises(ConfigError, match="family_weights"):
         build_config(SceneConfig, {"family_weights": [0, 0, 0]})
+
+
+def test_every_family_has_one_builder():
+    from scenes.config import FAMILIES
+    from scenes.families import BUILDERS
+
+    assert tuple(BUILDERS) == FAMILIES

@@ -9,8 +9,15 @@ from pathlib import Path
 
 import pytest
 
-from mcdp import sweep
 from corelib.configlib import ConfigError
+from study import cli as study_cli
+from study import config as sweep
+from study.stages import STATUS
+
+
+def sweep_main(argv):
+    """`mcdp sweep ARGV` (the console script is study.cli.main)."""
+    return study_cli.main(["sweep", *argv])
 
 ROOT = Path(__file__).resolve().parents[2]
 CI = ROOT / "configs" / "sweep" / "ci.yaml"
@@ -63,7 +70,7 @@ def test_overlaps_sorted_and_run_config_gets_seed_and_eval():
 
 
 def test_cli_usage_error_returns_2(tmp_path, capsys):
-    assert sweep.main([str(CI), "--out", str(tmp_path / "s"), "overlaps=[0.9]"]) == 2
+    assert sweep_main([str(CI), "--out", str(tmp_path / "s"), "overlaps=[0.9]"]) == 2
     err = capsys.readouterr().err
     assert "overlaps must be in [0.10, 0.60]" in err and "unrecognized" not in err
 
@@ -73,10 +80,10 @@ def test_overrides_may_follow_options():
 
     parser = argparse.ArgumentParser(prog="mcdp")
     sub = parser.add_subparsers(dest="command", required=True)
-    sweep.add_sweep_parser(sub)
+    study_cli.add_sweep_parser(sub)
     args = parser.parse_args(["sweep", "p.yaml", "a=1", "--out", "d", "--no-progress", "b=2", "c=[0.2,0.3]"])
     assert (args.preset, args.out, args.no_progress, args.overrides) == ("p.yaml", "d", True, ["a=1", "b=2", "c=[0.2,0.3]"])
-    assert args._run is sweep.run_sweep_command
+    assert args._run is study_cli.run_sweep_command
 
 
 # --------------------------------------------------------------------------- end to end (ci preset)
@@ -88,7 +95,7 @@ def test_ci_sweep_end_to_end_rerun_and_resume(tmp_path):
     out = tmp_path / "sweep"
     cfg = sweep.load_sweep_config(CI)
     n = len(cfg.overlaps) * len(cfg.methods) * len(cfg.seeds)
-    assert sweep.main([str(CI), "--out", str(out), "--no-progress"]) == 0
+    assert sweep_main([str(CI), "--out", str(out), "--no-progress"]) == 0
 
     for f in ["report.md", "results.csv", "results.json", "sweep_config.yaml",
               "plots/abs_rel_vs_overlap.png", "plots/dep_con_vs_overlap.png",
@@ -154,7 +161,7 @@ def test_ci_sweep_end_to_end_rerun_and_resume(tmp_path):
     assert "Verdict per overlap: MCDP (m = 2) vs Mono2" in report and "shared self-supervised pretraining" in report
 
     # rerun: a no-op that skips every stage and reports the same numbers
-    assert sweep.main([str(CI), "--out", str(out), "--no-progress"]) == 0
+    assert sweep_main([str(CI), "--out", str(out), "--no-progress"]) == 0
     res2 = json.loads((out / "results.json").read_text())
     c2 = res2["counters"]
     assert (c2["rendered"], c2["trained"], c2["evaluated"]) == (0, 0, 0)
@@ -163,7 +170,7 @@ def test_ci_sweep_end_to_end_rerun_and_resume(tmp_path):
 
     # more steps for one run: training resumes from its checkpoint (step 2 -> 3), nothing is re-rendered
     steps3 = [s.replace("train.steps=2", "train.steps=3") for s in cfg.train_overrides]
-    assert sweep.main([str(CI), "--out", str(out), "--no-progress", "methods=[mono2]", "overlaps=[0.2]",
+    assert sweep_main([str(CI), "--out", str(out), "--no-progress", "methods=[mono2]", "overlaps=[0.2]",
                        "train_overrides=[" + ",".join(steps3) + "]"]) == 0
     res3 = json.loads((out / "results.json").read_text())
     c3 = res3["counters"]
@@ -174,8 +181,8 @@ def test_ci_sweep_end_to_end_rerun_and_resume(tmp_path):
 def test_parallel_jobs_give_the_same_numbers_as_sequential(tmp_path):
     """jobs=2 (spawned processes) and jobs=1 (in process) train and evaluate identically."""
     common = ["--no-progress", "overlaps=[0.3]", "methods=[mono2,mcdp_m1]"]
-    assert sweep.main([str(CI), "--out", str(tmp_path / "seq"), "jobs=1", *common]) == 0
-    assert sweep.main([str(CI), "--out", str(tmp_path / "par"), "jobs=2", *common]) == 0
+    assert sweep_main([str(CI), "--out", str(tmp_path / "seq"), "jobs=1", *common]) == 0
+    assert sweep_main([str(CI), "--out", str(tmp_path / "par"), "jobs=2", *common]) == 0
     seq = json.loads((tmp_path / "seq" / "results.json").read_text())
     par = json.loads((tmp_path / "par" / "results.json").read_text())
     assert [(r["method"], r["status"]) for r in par["rows"]] == [("mono2", "ok"), ("mcdp_m1", "ok")]
@@ -188,14 +195,14 @@ def test_parallel_jobs_give_the_same_numbers_as_sequential(tmp_path):
 def test_keep_last_false_removes_last_pt_after_eval_and_refuses_to_extend(tmp_path, capsys):
     out = tmp_path / "sweep"
     common = ["--out", str(out), "--no-progress", "overlaps=[0.5]", "methods=[mono2]", "jobs=1", "keep_last=false"]
-    assert sweep.main([str(CI), *common]) == 0
+    assert sweep_main([str(CI), *common]) == 0
     run = out / "runs" / "overlap_0.50" / "mono2_s0"
     assert not (run / "checkpoints" / "last.pt").exists() and (run / "checkpoints" / "best.pt").is_file()
-    assert json.loads((run / sweep.STATUS).read_text())["last_removed"] is True
+    assert json.loads((run / STATUS).read_text())["last_removed"] is True
     first = json.loads((out / "results.json").read_text())
     assert first["rows"][0]["checkpoint"].endswith("best.pt")
 
-    assert sweep.main([str(CI), *common]) == 0  # rerun: skipped, same numbers from the kept files
+    assert sweep_main([str(CI), *common]) == 0  # rerun: skipped, same numbers from the kept files
     again = json.loads((out / "results.json").read_text())
     assert (again["counters"]["train_skipped"], again["counters"]["eval_skipped"]) == (1, 1)
     assert again["rows"][0]["metrics"] == first["rows"][0]["metrics"]
@@ -203,6 +210,6 @@ def test_keep_last_false_removes_last_pt_after_eval_and_refuses_to_extend(tmp_pa
     cfg = sweep.load_sweep_config(CI)
     steps3 = [s.replace("train.steps=2", "train.steps=3") for s in cfg.train_overrides]
     capsys.readouterr()
-    assert sweep.main([str(CI), *common, "train_overrides=[" + ",".join(steps3) + "]"]) == 2
+    assert sweep_main([str(CI), *common, "train_overrides=[" + ",".join(steps3) + "]"]) == 2
     err = capsys.readouterr().err
     assert str(run) in err and "keep_last: false" in err and "cannot resume" in err

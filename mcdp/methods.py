@@ -1,0 +1,86 @@
+"""The one table of training methods: each is a row of the paper's Table 1 and of every report.
+
+A method is an entry here: its name (the row key in sweeps and reports, and the name of its
+presets ``configs/train/<name>.yaml`` and ``configs/train/tiny/<name>.yaml``), its display
+label, the config values that make it this method (``defaults``: dotted keys, applied under
+the preset and the user's overrides) and the builder of its depth network. Table order =
+report order.
+
+The depth network's contract (what `mcdp.system.SelfSupervisedSystem`, `mcdp.predict` and the
+warm start use) is the one of `mcdp.model.DepthModel`: ``__init__(ModelConfig)``, ``.stages``
+(stage names, the last is evaluated), ``.cfg`` and ``forward(rgb, K, T_ego_cam, mask, nbr,
+oracle_gt_median=None, scales=None, refine_scales=None) -> {("disp" | "depth", stage, scale):
+(B*N, 1, h, w), "stages": [...], "scale": (B*N,)}``.
+
+To add a method: write its network in one module, then add one line to `METHODS` below (or
+call `register` from your own code before training)::
+
+    register(Method("toy", "Toy net", {"model.method": "toy"}, ToyDepth))
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any, Callable, Mapping
+
+import torch.nn as nn
+
+from corelib.configlib import ConfigError
+from mcdp.config import ModelConfig
+from mcdp.model import DepthModel
+
+
+@dataclass(frozen=True)
+class Method:
+    name: str
+    label: str
+    defaults: Mapping[str, Any] = field(default_factory=dict)
+    build: Callable[[ModelConfig], nn.Module] = DepthModel
+
+    @property
+    def model(self) -> str:
+        """The ``model.method`` value this method trains."""
+        return str(self.defaults.get("model.method", self.name))
+
+
+METHODS: dict[str, Method] = {}
+
+
+def register(method: Method) -> Method:
+    """Add (or replace) a method; it appears in reports after the ones registered before it."""
+    METHODS[method.name] = method
+    return method
+
+
+for _m in (
+    Method("mono2", "Mono2", {"model.method": "mono2", "model.refine_steps": 0, "loss.consistency_weight": 0.0}),
+    Method("mcdp_m0", "MCDP (m = 0)", {"model.method": "mcdp", "model.refine_steps": 0,
+                                       "loss.consistency_weight": 0.02}),
+    Method("mcdp_m1_nocon", "MCDP (w/o L_con, m = 1)", {"model.method": "mcdp", "model.refine_steps": 1,
+                                                         "loss.consistency_weight": 0.0}),
+    Method("mcdp_m1", "MCDP (m = 1)", {"model.method": "mcdp", "model.refine_steps": 1,
+                                       "loss.consistency_weight": 0.02}),
+    Method("mcdp_m2", "MCDP (m = 2)", {"model.method": "mcdp", "model.refine_steps": 2,
+                                       "loss.consistency_weight": 0.02}),
+):
+    register(_m)
+
+#: the paper's rows (the sweep's default)
+PAPER_METHODS = ("mono2", "mcdp_m0", "mcdp_m1_nocon", "mcdp_m1", "mcdp_m2")
+
+
+def names() -> list[str]:
+    return list(METHODS)
+
+
+def label(name: str) -> str:
+    return METHODS[name].label if name in METHODS else name
+
+
+def build_depth_model(cfg: ModelConfig) -> nn.Module:
+    """The depth network for ``cfg.method`` (the builder of the first method that trains it)."""
+    for m in METHODS.values():
+        if m.model == cfg.method:
+            return m.build(cfg)
+    models = sorted({m.model for m in METHODS.values()})
+    raise ConfigError(f"model.method {cfg.method!r} is not a registered method's model (registered: "
+                      f"{', '.join(models)}; see mcdp/methods.py)")

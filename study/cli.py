@@ -1,0 +1,72 @@
+"""The `mcdp` command: the method's commands (`mcdp.cli`: train, eval, predict, pretrain) and the
+study's `sweep`, assembled here at the top of the house so that `mcdp` never imports `study`.
+
+Example::
+
+    mcdp sweep configs/sweep/ci.yaml --out SWEEP [key=value ...]
+"""
+from __future__ import annotations
+
+import argparse
+import sys
+
+from mcdp import cli as mcdp_cli
+from study.config import load_sweep_config, resolve_path
+from study.sweep import run_sweep
+
+
+def add_sweep_parser(subparsers) -> argparse.ArgumentParser:
+    """Add the ``sweep`` subcommand to an argparse subparsers object; returns its parser."""
+    p = subparsers.add_parser(
+        "sweep", help="render + train + eval every method over camera overlaps -> report",
+        description="render + train + eval every method over camera overlaps -> report.md, results.csv/json, plots")
+    p.add_argument("preset", help="sweep preset YAML, e.g. configs/sweep/ci.yaml")
+    p.add_argument("--out", required=True, help="sweep folder; a rerun resumes and skips finished work")
+    p.add_argument("--no-progress", action="store_true", help="no progress bars (log lines only)")
+    p.add_argument("overrides", nargs="*",
+                   help="sweep config overrides key=value, e.g. 'overlaps=[0.2,0.5]' seeds=[0,1] "
+                        "'train_overrides=[train.steps=100]'")
+    p.set_defaults(_run=run_sweep_command)
+    _allow_intermixed(p)
+    return p
+
+def _allow_intermixed(p: argparse.ArgumentParser) -> None:
+    """Let ``key=value`` overrides come after ``--out`` (``PRESET --out DIR a=b``).
+
+    Plain argparse binds the optional ``overrides`` positional (nargs='*') to an empty
+    list together with PRESET and then rejects later positionals as unrecognised;
+    ``parse_known_intermixed_args`` does not, but refuses parsers with subcommands, so it
+    is switched on for this (leaf) subparser only, which its parent calls through
+    ``parse_known_args``. The guard sends the intermixed parser's own inner calls to the
+    original method.
+    """
+    orig = p.parse_known_args
+    state = {"inner": False}
+
+    def parse_known_args(args=None, namespace=None):
+        if state["inner"]:
+            return orig(args, namespace)
+        state["inner"] = True
+        try:
+            return p.parse_known_intermixed_args(args, namespace)
+        finally:
+            state["inner"] = False
+
+    p.parse_known_args = parse_known_args
+
+def run_sweep_command(args: argparse.Namespace) -> int:
+    """Run the ``sweep`` subcommand; 0 on success, 3 if some run diverged (the report says which)."""
+    preset = resolve_path(args.preset, "sweep preset")
+    cfg = load_sweep_config(preset, args.overrides)
+    results = run_sweep(cfg, args.out, progress=not args.no_progress,
+                        config_source=str(preset) + (" + " + " ".join(args.overrides) if args.overrides else ""))
+    return 3 if results["counters"].get("diverged") else 0
+
+
+def main(argv: list[str] | None = None) -> int:
+    """The `mcdp` console script: `mcdp.cli.main` with the `sweep` subcommand added."""
+    return mcdp_cli.main(argv, extra_commands=(add_sweep_parser,))
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,182 @@
+"""The sweep preset (`SweepConfig`) and the data / run / eval configs it resolves for each run.
+
+Example::
+
+    cfg = load_sweep_config("configs/sweep/ci.yaml", ["seeds=[0,1]"])
+    dcfg = data_config_for(cfg, 0.3)                 # synth DataConfig with rig.overlap=0.30
+    rcfg, preset = run_config_for(cfg, "mcdp_m2", seed=0)
+"""
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Literal
+
+from pydantic import Field, field_validator, model_validator
+
+from corelib.configlib import ConfigError, StrictModel, config_to_dict, load_config
+from mcdp.methods import METHODS, PAPER_METHODS
+from mcdp.pretrain import PretrainConfig
+
+
+
+ROOT = Path(__file__).resolve().parents[1]
+
+SPLIT = "test"
+
+class SweepEvalConfig(StrictModel):
+    """Evaluation settings applied to every run (see `mcdp.evaluate.EvalConfig`; depths in metres)."""
+
+    min_depth: float = Field(0.5, gt=0.0)
+    max_depth: float = Field(80.0, gt=0.0)
+    frame_stride: int = Field(1, ge=1)
+    skip_ends: bool = True
+
+    @model_validator(mode="after")
+    def _range(self) -> "SweepEvalConfig":
+        if self.min_depth >= self.max_depth:
+            raise ValueError(f"eval.min_depth ({self.min_depth}) must be < eval.max_depth ({self.max_depth})")
+        return self
+
+class SweepConfig(StrictModel):
+    """One overlap sweep; every default here, a preset lists what differs.
+
+    data: data preset YAML (relative paths: to the working directory, else to the project root).
+    data_overrides: dotted overrides for the data config (``rig.overlap``/``rig.overlap_mode`` are set per overlap).
+    overlaps: target overlaps (shared fraction of hfov of adjacent cameras), each in [0.10, 0.60].
+    overlap_mode: ``spacing`` (fixed intrinsics, yaw spacing solved: the clean experiment) or ``fov``.
+    methods: registered methods (`mcdp.methods`; default the paper's five rows), each trained from
+        ``<train_presets_dir>/<method>.yaml`` over the method's registry defaults.
+    train_overrides: dotted overrides applied to every run (e.g. ``train.steps=200``).
+    seeds: training seeds (``train.seed``); the dataset seed comes from the data preset.
+    eval: evaluation settings for every run.
+    checkpoint: which checkpoint is evaluated: ``auto`` (best val loss, else last), ``best``, ``last``.
+    workers: rendering processes.
+    jobs: runs (train + eval) at once, each in its own process; on a CPU give each job
+        ``train.threads`` cores (jobs x threads <= cores). Progress bars are off when > 1.
+    device: training / inference device.
+    preview: write a preview sheet of one rig at the smallest and largest overlap.
+    pretrain: a shared self-supervised pretraining (`mcdp.pretrain.PretrainConfig`) that every
+        run starts from (``model.init_from``), made once into ``SWEEP/pretrain/<hash>/`` and
+        reused by its config hash; null = every run from scratch.
+    keep_last: keep every run's ``checkpoints/last.pt`` (weights + Adam state: about three
+        quarters of a run's disk). ``false`` removes it once the run is trained and its
+        ``best.pt`` has been evaluated (only then); the results, ``best.pt`` and rerun skipping
+        are unaffected, but such a run can no longer be resumed with more steps (the sweep
+        refuses, naming the run folder to delete).
+    """
+
+    data: str = "configs/data/tiny.yaml"
+    data_overrides: list[str] = Field(default_factory=list)
+    overlaps: list[float] = Field(default_factory=lambda: [0.10, 0.20, 0.30, 0.40, 0.50, 0.60])
+    overlap_mode: Literal["spacing", "fov"] = "spacing"
+    methods: list[str] = Field(default_factory=lambda: list(PAPER_METHODS))
+    train_presets_dir: str = "configs/train"
+    train_overrides: list[str] = Field(default_factory=list)
+    seeds: list[int] = Field(default_factory=lambda: [0])
+    eval: SweepEvalConfig = Field(default_factory=SweepEvalConfig)
+    checkpoint: Literal["auto", "best", "last"] = "auto"
+    workers: int = Field(2, ge=1, le=256)
+    jobs: int = Field(1, ge=1, le=64)
+    device: Literal["auto", "cpu", "cuda"] = "auto"
+    preview: bool = True
+    keep_last: bool = True
+    pretrain: PretrainConfig | None = None
+
+    @field_validator("overlaps")
+    @classmethod
+    def _overlaps(cls, v: list[float]) -> list[float]:
+        if not v:
+            raise ValueError("must list at least one overlap in [0.10, 0.60]")
+        bad = [o for o in v if not 0.10 - 1e-9 <= o <= 0.60 + 1e-9]
+        if bad:
+            raise ValueError(f"overlaps must be in [0.10, 0.60], got {bad}")
+        keys = [f"{o:.2f}" for o in v]
+        if len(set(keys)) != len(keys):
+            raise ValueError(f"overlaps must be distinct at 2 decimals, got {v}")
+        return sorted(v)
+
+    @field_validator("methods")
+    @classmethod
+    def _methods(cls, v: list[str]) -> list[str]:
+        if not v:
+            raise ValueError(f"must list at least one of {', '.join(METHODS)}")
+        if len(set(v)) != len(v):
+            raise ValueError(f"methods must be distinct, got {v}")
+        unknown = [m for m in v if m not in METHODS]
+        if unknown:
+            raise ValueError(f"unknown method(s) {', '.join(map(str, unknown))[:200]}; registered (mcdp/methods.py): "
+                             f"{', '.join(METHODS)}")
+        return [m for m in METHODS if m in v]  # canonical (table) order
+
+    @field_validator("seeds")
+    @classmethod
+    def _seeds(cls, v: list[int]) -> list[int]:
+        if not v:
+            raise ValueError("must list at least one seed")
+        if len(set(v)) != len(v) or any(s < 0 for s in v):
+            raise ValueError(f"seeds must be distinct and >= 0, got {v}")
+        return v
+
+    @field_validator("data_overrides")
+    @classmethod
+    def _no_overlap_override(cls, v: list[str]) -> list[str]:
+        for key in override_keys(v):
+            if key in ("rig.overlap", "rig.overlap_mode"):
+                raise ValueError(f"{key} is set by the sweep (use overlaps / overlap_mode), not by data_overrides")
+        return v
+
+    @field_validator("train_overrides")
+    @classmethod
+    def _no_seed_override(cls, v: list[str]) -> list[str]:
+        for key in override_keys(v):
+            if key == "train.seed":
+                raise ValueError("train.seed is set by the sweep (use seeds), not by train_overrides")
+            if key.startswith("eval."):
+                raise ValueError(f"{key}: set evaluation settings in the sweep's eval section")
+        return v
+
+def override_keys(items: list[str]) -> list[str]:
+    """The dotted keys of key=value override strings."""
+    return [item.split("=", 1)[0].strip() for item in items]
+
+def overlap_key(o: float) -> str:
+    return f"overlap_{o:.2f}"
+
+def resolve_path(p: str | Path, kind: str) -> Path:
+    """A relative path: to the working directory if it exists there, else to the project root."""
+    p = Path(p)
+    if p.is_absolute() or p.exists():
+        return p
+    alt = ROOT / p
+    if alt.exists():
+        return alt
+    raise ConfigError(f"{kind} {p} does not exist (looked in {Path.cwd()} and {ROOT})")
+
+def load_sweep_config(path: str | Path | None, overrides=()) -> SweepConfig:
+    return load_config(SweepConfig, path, overrides)
+
+def data_config_for(cfg: SweepConfig, overlap: float):
+    """The resolved data config of one overlap."""
+    from synth.config import DataConfig
+
+    return load_config(DataConfig, resolve_path(cfg.data, "data preset"), cfg.data_overrides,
+                       {"rig.overlap": round(overlap, 2), "rig.overlap_mode": cfg.overlap_mode})
+
+def run_config_for(cfg: SweepConfig, method: str, seed: int, init_from: str | None = None):
+    """The resolved RunConfig of one (method, seed): preset + train_overrides + seed + eval + device
+    (+ ``model.init_from``, the sweep's pretraining)."""
+    from mcdp.config import RunConfig
+
+    preset = resolve_path(Path(cfg.train_presets_dir) / f"{method}.yaml", "training preset")
+    values = {"train.seed": seed, "train.device": cfg.device, "eval": config_to_dict(cfg.eval)}
+    if init_from is not None:
+        values["model.init_from"] = init_from
+    base = dict(METHODS[method].defaults)
+    return load_config(RunConfig, preset, cfg.train_overrides, values, base=base), preset
+
+def eval_config_for(cfg: SweepConfig):
+    """The `mcdp.evaluate.EvalConfig` every run and the reference are evaluated with."""
+    from mcdp.evaluate import EvalConfig
+    from corelib.configlib import build_config
+
+    return build_config(EvalConfig, config_to_dict(cfg.eval), "sweep eval")

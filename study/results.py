@@ -1,0 +1,147 @@
+"""The results of a sweep as one JSON-able dict: flat per-run rows, mean / std and 95 % Student-t
+intervals over seeds, paired differences between methods, and the yardsticks per overlap.
+
+`build_results` turns the per-run rows of `study.stages.run_stage` into that dict; `study.report`
+and `study.plots` only read it. Nothing here chooses or filters numbers: NaN stays NaN.
+"""
+from __future__ import annotations
+
+import math
+import time
+from typing import Any
+
+from mcdp.metrics import METRIC_NAMES
+
+
+SCALE_LABEL = {"none": "metric", "median": "median", "rig_median": "rig median"}
+
+LOWER_BETTER = {"abs_rel", "sq_rel", "rmse", "rmse_log"}
+
+def _f(x) -> float:
+    return float(x) if isinstance(x, (int, float)) and x is not None else float("nan")
+
+def flat_row(row: dict) -> dict[str, Any]:
+    """One run's numbers as a flat dict of scalars (the CSV row)."""
+    out: dict[str, Any] = {k: row.get(k) for k in ("overlap", "method", "seed", "status", "steps", "checkpoint_step",
+                                                     "train_s", "eval_s", "train_skipped", "eval_skipped")}
+    m = row.get("metrics")
+    if not m:
+        return out
+    for sc in ("none", "median", "rig_median"):
+        if sc not in m:
+            continue
+        for region in ("mean", "overlap", "non_overlap"):
+            for k in METRIC_NAMES:
+                out[f"{sc}.{region}.{k}"] = _f(m[sc][region].get(k))
+        for cam, v in m[sc]["per_camera_abs_rel"].items():
+            out[f"{sc}.camera.{cam}.abs_rel"] = _f(v)
+    out["dep_con.mean"] = _f(m["dep_con"]["mean"])
+    out["spread.ratio"] = _f(m.get("spread", {}).get("ratio"))
+    for cam, v in m["dep_con"]["per_camera"].items():
+        out[f"dep_con.camera.{cam}"] = _f(v)
+    for pair, v in m["dep_con"]["per_pair"].items():
+        out[f"dep_con.pair.{pair}"] = _f(v)
+    return out
+
+T975 = (12.706, 4.303, 3.182, 2.776, 2.571, 2.447, 2.365, 2.306, 2.262, 2.228, 2.201, 2.179, 2.160, 2.145,
+        2.131, 2.120, 2.110, 2.101, 2.093, 2.086, 2.080, 2.074, 2.069, 2.064, 2.060, 2.056, 2.052, 2.048,
+        2.045, 2.042)
+
+def t_halfwidth(sd: float, n: int) -> float:
+    """Half-width of the 95 % t-interval of a mean of n values with sample std sd (NaN for n < 2)."""
+    if n < 2 or not math.isfinite(sd):
+        return float("nan")
+    t = T975[n - 2] if n - 1 <= len(T975) else 1.96
+    return t * sd / math.sqrt(n)
+
+def _mean_std(values: list[float]) -> dict:
+    v = [x for x in values if isinstance(x, (int, float)) and math.isfinite(x)]
+    n_nan = len(values) - len(v)
+    if not v:
+        return {"mean": float("nan"), "std": float("nan"), "ci95": float("nan"), "n": 0, "n_nan": n_nan,
+                "values": values}
+    mu = sum(v) / len(v)
+    sd = math.sqrt(sum((x - mu) ** 2 for x in v) / (len(v) - 1)) if len(v) > 1 else 0.0
+    return {"mean": mu, "std": sd, "ci95": t_halfwidth(sd, len(v)), "n": len(v), "n_nan": n_nan, "values": values}
+
+def paired_difference(results: dict, overlap: float, a: str, b: str, key: str) -> dict:
+    """Mean and 95 % t-interval over seeds of (a - b) for the same seed (seeds pair the runs:
+    same data order and pretraining); {"mean", "ci95", "n", "differs"} where differs is
+    -1 (a lower), +1 (a higher) or 0 (the interval contains 0)."""
+    va = {f["seed"]: f.get(key) for f in results["flat"] if f["overlap"] == overlap and f["method"] == a}
+    vb = {f["seed"]: f.get(key) for f in results["flat"] if f["overlap"] == overlap and f["method"] == b}
+    d = [va[s] - vb[s] for s in va if s in vb and all(isinstance(x, (int, float)) and math.isfinite(x)
+                                                      for x in (va[s], vb[s]))]
+    ms = _mean_std(d)
+    mu, hw = ms["mean"], ms["ci95"]
+    differs = 0
+    if math.isfinite(mu) and math.isfinite(hw):
+        differs = -1 if mu + hw < 0 else (1 if mu - hw > 0 else 0)
+    return {"mean": mu, "ci95": hw, "n": ms["n"], "differs": differs}
+
+def build_results(cfg, data: list[dict], rows: list[dict], counters: dict, total_s: float,
+                  previews: list[str]) -> dict:
+    """Everything the report shows, JSON-able (NaN allowed)."""
+    from corelib.configlib import config_hash, config_to_dict
+
+    flats = [flat_row(r) for r in rows]
+    aggregate = []
+    for d in data:
+        o = d["overlap"]
+        for method in cfg.methods:
+            fr = [f for f in flats if f["overlap"] == o and f["method"] == method]
+            keys = [k for k in (fr[0] if fr else {}) if "." in k]
+            aggregate.append({"overlap": o, "method": method, "seeds": [f["seed"] for f in fr],
+                              "status": sorted({f["status"] for f in fr}),
+                              "metrics": {k: _mean_std([f.get(k, float("nan")) for f in fr]) for k in keys}})
+    timing = {
+        "render_s": sum(_nz(d["render_s"]) for d in data),
+        "train_s": sum(_nz(r.get("train_s")) for r in rows),
+        "eval_s": sum(_nz(r.get("eval_s")) for r in rows),
+        "this_invocation_s": total_s,
+        "note": "render/train/eval seconds are those of the invocation that did the work (skipped stages keep "
+                "their recorded time); this_invocation_s is the wall time of the latest invocation",
+    }
+    return {
+        "created": time.strftime("%Y-%m-%d %H:%M:%S"),
+        "sweep_config": config_to_dict(cfg),
+        "sweep_config_hash": config_hash(cfg),
+        "split": "test",
+        "overlaps": list(cfg.overlaps),
+        "methods": list(cfg.methods),
+        "seeds": list(cfg.seeds),
+        "counters": counters,
+        "timing": timing,
+        "data": data,
+        "rows": rows,
+        "flat": flats,
+        "aggregate": aggregate,
+        "previews": previews,
+    }
+
+def _nz(x) -> float:
+    return x if isinstance(x, (int, float)) and math.isfinite(x) else 0.0
+
+def _agg(results: dict, overlap: float, method: str, key: str) -> dict:
+    for a in results["aggregate"]:
+        if a["overlap"] == overlap and a["method"] == method:
+            return a["metrics"].get(key, {"mean": float("nan"), "std": float("nan"), "n": 0})
+    return {"mean": float("nan"), "std": float("nan"), "n": 0}
+
+REF_LABEL = "Constant depth (ref.)"
+
+PRIOR_LABEL = "Flat-road prior (ref.)"
+
+YARDSTICKS = (("reference", REF_LABEL, "constant_reference"), ("prior", PRIOR_LABEL, "flat_road_prior"))
+
+def _ref_flat(results: dict, overlap: float, which: str = "reference") -> dict:
+    for d in results["data"]:
+        if d["overlap"] == overlap and d.get(which):
+            return flat_row({"metrics": d[which]["metrics"]})
+    return {}
+
+def _ref(results: dict, overlap: float, key: str, which: str = "reference") -> dict:
+    """A yardstick's value of `key` at one overlap (``which``: reference = constant, prior = flat road),
+    in `_agg`'s shape (NaN if absent)."""
+    v = _ref_flat(results, overlap, which).get(key, float("nan"))
+    return {"mean": v, "std": 0.0, "n": 1 if math.isfinite(v) else 0}

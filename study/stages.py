@@ -1,0 +1,291 @@
+"""The stages of one sweep: render a dataset per overlap, evaluate the yardsticks on it, make the
+shared pretraining, and train + evaluate one (overlap, method, seed) run; each stage is skipped
+when its inputs' hashes are unchanged (module docstring of `study.sweep`).
+"""
+from __future__ import annotations
+
+import json
+import math
+import time
+from pathlib import Path
+from typing import Any
+
+from corelib.atomic import atomic_write_json
+from corelib.configlib import ConfigError, config_hash, config_to_dict
+from study.config import SPLIT, SweepConfig, data_config_for, eval_config_for, overlap_key, run_config_for
+
+
+STATUS = "sweep_status.json"
+
+def _read_json(path: Path) -> dict | None:
+    try:
+        return json.loads(path.read_text())
+    except (OSError, ValueError):
+        return None
+
+def _write_json(path: Path, obj) -> None:
+    path.parent.mkdir(parents=True, exist_ok=True)
+    atomic_write_json(path, obj, allow_nan=True)
+
+def measured_overlap(manifest: dict) -> dict:
+    """Target and measured pixel overlap of a dataset (from its manifest).
+
+    ``measured_mean``: mean measured overlap over the adjacent pairs whose geometric
+    target equals the sweep's target. In ``spacing`` mode the ring does not close, so
+    the two pairs that take up the remaining angle (side cameras) have another target
+    (a gap or a small overlap); they are listed per pair but not averaged.
+    ``measured_all``: mean over every adjacent pair.
+    """
+    ov = manifest.get("overlap", {})
+    pp = ov.get("per_pair_measured", {})
+    target = ov.get("target")
+    same = [v["measured"] for v in pp.values()
+            if _finite(target) and _finite(v.get("target")) and abs(v["target"] - target) < 1e-3
+            and _finite(v.get("measured"))]
+    allm = [v["measured"] for v in pp.values() if _finite(v.get("measured"))]
+    return {
+        "target": target,
+        "mode": ov.get("mode"),
+        "hfov_deg": ov.get("hfov_deg"),
+        "yaw_spacing_deg": ov.get("yaw_spacing_deg"),
+        "measured_mean": sum(same) / len(same) if same else float("nan"),
+        "measured_all": sum(allm) / len(allm) if allm else float("nan"),
+        "pairs_at_target": len(same),
+        "pairs": len(pp),
+        "per_pair": {k: {"target": v.get("target"), "measured": v.get("measured")} for k, v in pp.items()},
+    }
+
+def _finite(x) -> bool:
+    return isinstance(x, (int, float)) and math.isfinite(x)
+
+def summarize_metrics(metrics: dict, stage: str = "final") -> dict:
+    """The numbers the report uses, from one metrics.json (`mcdp.evaluate` layout)."""
+    st = metrics["stages"][stage]
+    out: dict[str, Any] = {}
+    for sc in ("none", "median", "rig_median"):
+        if sc not in st:
+            continue
+        out[sc] = {
+            "mean": dict(st[sc]["mean"]),
+            "overlap": dict(st[sc]["overlap"]),
+            "non_overlap": dict(st[sc]["non_overlap"]),
+            "per_camera_abs_rel": {c: v["abs_rel"] for c, v in st[sc]["per_camera"].items()},
+        }
+    dc = st["dep_con"]
+    out["dep_con"] = {"mean": dc["mean"], "per_camera": dict(dc["per_camera"]), "per_pair": dict(dc["per_pair"])}
+    out["spread"] = dict(st.get("spread", {}))
+    out["n_samples"] = metrics.get("n_samples")
+    out["stages"] = list(metrics["stages"])
+    return out
+
+class Counters(dict):
+    def bump(self, key: str) -> None:
+        self[key] = self.get(key, 0) + 1
+
+def render_stage(cfg: SweepConfig, overlap: float, sweep_dir: Path, counters: Counters, log, progress: bool) -> dict:
+    """Render (or reuse / resume) the dataset of one overlap; returns its record."""
+    from synth.render import render_dataset
+
+    dcfg = data_config_for(cfg, overlap)
+    h = config_hash(dcfg)
+    out = sweep_dir / "data" / overlap_key(overlap)
+    manifest = _read_json(out / "manifest.json")
+    status = _read_json(out.parent / f"{overlap_key(overlap)}.status.json") or {}
+    if manifest is not None and manifest.get("config_hash") == h:
+        counters.bump("render_skipped")
+        log(f"[sweep] overlap {overlap:.2f}: dataset {out} is complete (config hash {h[:12]}), reused")
+        render_s, skipped = status.get("render_s", float("nan")), True
+    else:
+        if manifest is not None:
+            raise ConfigError(
+                f"{out} holds a dataset with another config (hash {str(manifest.get('config_hash'))[:12]}, "
+                f"requested {h[:12]}); the sweep's data settings changed: use a new --out or delete {out}")
+        log(f"[sweep] overlap {overlap:.2f}: rendering {dcfg.dataset.sequences} sequences x {dcfg.dataset.frames} "
+            f"frames at {dcfg.camera.width}x{dcfg.camera.height} into {out}")
+        t0 = time.perf_counter()
+        summary = render_dataset(dcfg, out, workers=cfg.workers, progress=progress,
+                                 log=lambda *a: log("[sweep]   " + " ".join(str(x) for x in a)))
+        if not summary["complete"]:
+            raise RuntimeError(f"render of {out} did not complete: {summary}")
+        render_s = time.perf_counter() - t0  # this invocation only (an interrupted earlier part is not counted)
+        skipped = False
+        counters.bump("rendered")
+        if summary.get("skipped_sequences"):
+            counters.bump("render_resumed")
+        manifest = _read_json(out / "manifest.json")
+        _write_json(out.parent / f"{overlap_key(overlap)}.status.json", {"config_hash": h, "render_s": render_s})
+    ov = measured_overlap(manifest)
+    log(f"[sweep] overlap {overlap:.2f}: target {ov['target']:.2f}, measured pixel overlap {ov['measured_mean']:.3f} "
+        f"(mean of the {ov['pairs_at_target']}/{ov['pairs']} pairs at the target)")
+    return {"overlap": overlap, "path": str(out), "config_hash": h, "render_s": render_s, "render_skipped": skipped,
+            "measured": ov, "splits": {k: len(v) for k, v in manifest["splits"].items()}}
+
+def reference_stage(cfg: SweepConfig, d: dict, sweep_dir: Path, counters: Counters, log) -> dict:
+    """Evaluate the constant-depth reference on one overlap's test split (cached beside the dataset).
+
+    The constant is the median ground-truth depth of the train split
+    (`mcdp.evaluate.median_gt_depth`): a depth map with no structure at all. With median
+    scaling its value does not matter (every image is scaled to its ground-truth median).
+    A method worse than this reference has learnt no usable depth structure.
+    """
+    from mcdp.evaluate import constant_depth_predictor, evaluate, median_gt_depth
+    from synth.dataset import open_dataset
+
+    from mcdp.priors import flat_road_predictor
+
+    o = d["overlap"]
+    path = sweep_dir / "data" / f"{overlap_key(o)}.reference.json"
+    key = config_hash({"data": d["config_hash"], "eval": config_to_dict(cfg.eval),
+                       "reference": "constant_train_median+flat_road"})
+    cached = _read_json(path)
+    if cached is not None and cached.get("key") == key:
+        counters.bump("reference_skipped")
+        return cached["reference"], cached["prior"]
+    ds = open_dataset(d["path"])
+    ecfg = eval_config_for(cfg)
+    t0 = time.perf_counter()
+    depth = median_gt_depth(ds, "train", ecfg)
+    metrics = evaluate(ds, constant_depth_predictor(ds, depth), SPLIT, ecfg, progress=False)
+    ref = {"kind": "constant depth = median ground-truth depth of the train split", "depth_m": depth,
+           "metrics": summarize_metrics(metrics), "eval_s": time.perf_counter() - t0}
+    t0 = time.perf_counter()
+    metrics = evaluate(ds, flat_road_predictor(ds, depth), SPLIT, ecfg, progress=False)
+    prior = {"kind": "flat-road prior: road-plane depth from the rig geometry, capped at the constant", "far_m": depth,
+             "metrics": summarize_metrics(metrics), "eval_s": time.perf_counter() - t0}
+    _write_json(path, {"key": key, "reference": ref, "prior": prior})
+    counters.bump("reference_evaluated")
+    for name, r in (("constant-depth reference", ref), ("flat-road prior", prior)):
+        log(f"[sweep] overlap {o:.2f}: {name} ({depth:.2f} m): abs_rel metric "
+            f"{r['metrics']['none']['mean']['abs_rel']:.4f}, median {r['metrics']['median']['mean']['abs_rel']:.4f}, "
+            f"dep_con {r['metrics']['dep_con']['mean']:.4f}")
+    return ref, prior
+
+def pretrain_stage(cfg: SweepConfig, sweep_dir: Path, progress: bool, log) -> dict | None:
+    """Make (or reuse) the sweep's shared pretraining; its record with ``weights`` (the path runs start from)."""
+    if cfg.pretrain is None:
+        return None
+    from mcdp.pretrain import WEIGHTS, resolved_configs, run_pretrain
+
+    _, _, h = resolved_configs(cfg.pretrain)
+    pdir = sweep_dir / "pretrain" / h[:12]
+    rec = run_pretrain(cfg.pretrain, pdir, progress=progress, log=log)
+    return {"weights": str(pdir / WEIGHTS), "config_hash": h, "sha256": rec["sha256"], "step": rec["step"],
+            "render_s": rec.get("render_s"), "train_s": rec.get("train_s"), "depth_spread": rec.get("depth_spread")}
+
+def _eval_key(run_hash: str, step: int, eval_cfg: dict, data_hash: str, checkpoint: str, ckpt_name: str) -> str:
+    return config_hash({"run": run_hash, "step": step, "eval": eval_cfg, "data": data_hash, "checkpoint": checkpoint,
+                        "file": ckpt_name})
+
+def run_stage(cfg: SweepConfig, overlap: float, data: dict, method: str, seed: int, sweep_dir: Path,
+              counters: Counters, log, progress: bool, init_from: str | None = None) -> dict:
+    """Train (or reuse / resume) and evaluate one (overlap, method, seed); returns its result row."""
+    from mcdp.evaluate import evaluate
+    from mcdp.predict import Predictor
+    from mcdp.runs import RunError
+    from mcdp.trainer import Trainer, TrainingDiverged
+    from synth.dataset import open_dataset
+
+    rcfg, preset = run_config_for(cfg, method, seed, init_from)
+    rhash = config_hash(rcfg)
+    run_dir = sweep_dir / "runs" / overlap_key(overlap) / f"{method}_s{seed}"
+    status_path = run_dir / STATUS
+    status = _read_json(status_path) or {}
+    tag = f"[sweep] overlap {overlap:.2f} {method} seed {seed}"
+    row: dict[str, Any] = {"overlap": overlap, "method": method, "seed": seed, "run_dir": str(run_dir),
+                           "preset": str(preset), "run_config_hash": rhash, "status": "ok"}
+    ds = open_dataset(data["path"])
+
+    # ---- train
+    if status.get("trained") and status.get("run_config_hash") == rhash and status.get("data_hash") == data["config_hash"]:
+        counters.bump("train_skipped")
+        row.update(train_s=status.get("train_s", float("nan")), train_skipped=True, steps=status.get("steps"))
+        log(f"{tag}: trained already ({status.get('steps')} steps), skipped")
+    else:
+        if status.get("data_hash") not in (None, data["config_hash"]):
+            raise ConfigError(f"{run_dir} was trained on another dataset; delete it or use a new --out")
+        if status.get("last_removed") and not (run_dir / "checkpoints" / "last.pt").exists():
+            raise ConfigError(f"{run_dir}: the resolved config of {method} changed since this run was trained, and "
+                              "its checkpoints/last.pt was removed after evaluation (keep_last: false), so it "
+                              f"cannot resume; delete {run_dir} to retrain it, or use a new --out")
+        t0 = time.perf_counter()
+        try:
+            trainer = Trainer(rcfg, ds, run_dir, progress=progress)
+        except RunError as exc:
+            raise RunError(f"{exc}\n(sweep: the resolved config of {method} changed since this run was trained, "
+                           f"through the sweep preset, its overrides or new code defaults; delete {run_dir} "
+                           "to retrain it, or use a new --out)") from None
+        resumed_at = trainer.step
+        log(f"{tag}: training {rcfg.train.steps} steps"
+            + (f" (resuming at step {resumed_at})" if resumed_at else "") + f" -> {run_dir}")
+        try:
+            summary = trainer.train()
+        except TrainingDiverged as exc:
+            log(f"{tag}: TRAINING DIVERGED: {exc}")
+            counters.bump("diverged")
+            _write_json(status_path, {**status, "run_config_hash": rhash, "data_hash": data["config_hash"],
+                                      "trained": False, "diverged": str(exc)})
+            row.update(status="diverged", error=str(exc), train_s=time.perf_counter() - t0, train_skipped=False)
+            return row
+        finally:
+            trainer.close()
+        train_s = time.perf_counter() - t0  # this invocation only (an interrupted earlier part is not counted)
+        counters.bump("trained")
+        if resumed_at:
+            counters.bump("train_resumed")
+        status = {"run_config_hash": rhash, "data_hash": data["config_hash"], "trained": True,
+                  "steps": summary["steps"], "train_s": train_s, "best_val": summary["best_val"]}
+        _write_json(status_path, status)
+        row.update(train_s=train_s, train_skipped=False, steps=summary["steps"])
+
+    # ---- eval
+    metrics_path = run_dir / f"metrics_{SPLIT}.json"
+    ecfg = eval_config_for(cfg)
+    pred = None
+    from mcdp.runs import find_checkpoint
+
+    ckpt_path = find_checkpoint(run_dir, cfg.checkpoint)
+    key = _eval_key(rhash, int(status.get("steps", -1)), config_to_dict(cfg.eval), data["config_hash"],
+                    cfg.checkpoint, ckpt_path.name)
+    metrics = _read_json(metrics_path)
+    if metrics is not None and metrics.get("sweep", {}).get("eval_key") == key and status.get("eval_key") == key:
+        counters.bump("eval_skipped")
+        row.update(eval_s=status.get("eval_s", float("nan")), eval_skipped=True)
+        log(f"{tag}: evaluated already, skipped")
+    else:
+        t0 = time.perf_counter()
+        pred = Predictor(run_dir, ds, cfg.checkpoint, cfg.device)
+        log(f"{tag}: evaluating {pred.ckpt_path.name} (step {pred.step}) on the {SPLIT} split")
+        metrics = evaluate(ds, pred.predict, SPLIT, ecfg, progress=progress)
+        metrics["run"] = {"run_dir": str(run_dir), "checkpoint": str(pred.ckpt_path), "step": pred.step,
+                          "method": pred.cfg.model.method, "refine_steps": pred.cfg.model.refine_steps,
+                          "bases": pred.cfg.model.n_out, "consistency_weight": pred.cfg.loss.consistency_weight,
+                          "scale_source": pred.cfg.scale.source, "oracle": pred.oracle, "data": data["path"],
+                          "config": config_to_dict(pred.cfg)}
+        metrics["sweep"] = {"eval_key": key, "overlap": overlap, "method": method, "seed": seed}
+        _write_json(metrics_path, metrics)
+        eval_s = time.perf_counter() - t0
+        status = {**status, "eval_key": key, "eval_s": eval_s, "checkpoint": str(pred.ckpt_path),
+                  "checkpoint_step": pred.step}
+        _write_json(status_path, status)
+        counters.bump("evaluated")
+        row.update(eval_s=eval_s, eval_skipped=False)
+    if not cfg.keep_last:
+        status = _remove_last(run_dir, status, status_path)
+    row["checkpoint"] = status.get("checkpoint")
+    row["checkpoint_step"] = status.get("checkpoint_step")
+    row["oracle"] = bool(metrics.get("run", {}).get("oracle", False))
+    row["metrics"] = summarize_metrics(metrics)
+    m = row["metrics"]
+    log(f"{tag}: abs_rel metric {m['none']['mean']['abs_rel']:.4f}, median {m['median']['mean']['abs_rel']:.4f}, "
+        f"dep_con {m['dep_con']['mean']:.4f}")
+    return row
+
+def _remove_last(run_dir: Path, status: dict, status_path: Path) -> dict:
+    """keep_last=false: delete last.pt of a trained run whose evaluated checkpoint is best.pt."""
+    last, best = run_dir / "checkpoints" / "last.pt", run_dir / "checkpoints" / "best.pt"
+    evaluated = Path(status.get("checkpoint") or "")
+    if status.get("trained") and last.is_file() and best.is_file() and evaluated.resolve() == best.resolve():
+        status = {**status, "last_removed": True}
+        _write_json(status_path, status)  # first: an interruption between the two leaves a last.pt, not a lie
+        last.unlink()
+    return status

@@ -1,0 +1,160 @@
+"""The overlap sweep: render + train + evaluate every method at every camera overlap, then report.
+
+For each overlap of a sweep preset (``configs/sweep/*.yaml``) the dataset is
+rendered (``spacing`` mode by default: intrinsics fixed, only the yaw spacing
+changes, so overlap is the only variable), every method preset is trained for
+every seed, evaluated on the test split, and `study.report` writes the tables,
+CSV/JSON and plots::
+
+    mcdp sweep configs/sweep/ci.yaml --out SWEEP [key=value ...]
+    mcdp sweep configs/sweep/cpu.yaml --out sweeps/cpu "overlaps=[0.2,0.4]" seeds=[0,1]
+
+Layout of SWEEP::
+
+    sweep_config.yaml                          resolved SweepConfig (+ its hash)
+    data/overlap_0.10/                         dataset (synth contract v1)
+    data/overlap_0.10.reference.json           constant-depth reference evaluated on its test split
+    runs/overlap_0.10/<method>_s<seed>/        training run (config.yaml, checkpoints/, tensorboard/)
+        metrics_test.json                      mcdp.evaluate layout + "run" + "sweep" keys
+        sweep_status.json                      what this sweep finished for the run, with stage timings
+    report.md, results.csv, results.json, plots/*.png, preview_overlap_*.png
+
+Resumption: a dataset whose manifest's ``config_hash`` equals the resolved data
+config's hash is reused (an incomplete one is resumed by `synth.render.render_dataset`);
+a run whose ``sweep_status.json`` records the same resolved run config as
+trained is not retrained (an interrupted one resumes from ``checkpoints/last.pt``
+through `mcdp.trainer.Trainer`); an evaluation is reused when its key (run
+config, checkpoint step, eval config, dataset hash) is unchanged. A rerun of a
+finished sweep only rewrites the report.
+
+Honesty rules kept here: model selection (``best.pt``) uses the val split's
+self-supervised loss only; the test split is read once per run, by the
+evaluation; no setting is chosen by looking at test numbers.
+"""
+from __future__ import annotations
+
+import sys
+import time
+from pathlib import Path
+from typing import Callable
+
+import yaml
+
+from corelib.configlib import config_hash, config_to_dict
+from study.config import SPLIT, SweepConfig, overlap_key
+from study.report import write_all
+from study.results import build_results
+from study.stages import Counters, pretrain_stage, reference_stage, render_stage, run_stage
+
+
+def run_sweep(cfg: SweepConfig, out: str | Path, progress: bool = True, log: Callable[[str], None] | None = None,
+              config_source: str | None = None) -> dict:
+    """Run (or resume) a whole sweep into `out`; writes the report; returns the results dict.
+
+    The returned dict (also ``out/results.json``) holds ``counters`` (rendered,
+    render_skipped, trained, train_skipped, train_resumed, evaluated, eval_skipped,
+    diverged), ``data`` (per overlap), ``rows`` (per overlap x method x seed),
+    ``aggregate`` (mean/std over seeds) and ``timing``.
+    """
+    from corelib.rundir import claim
+
+    log = log or (lambda s: print(s, file=sys.stderr, flush=True))
+    out = Path(out)
+    lock = claim(out, "sweep", legacy=("sweep_config.yaml",))
+    try:
+        return _run_sweep(cfg, out, progress, log, config_source)
+    finally:
+        lock.release()
+
+def _run_sweep(cfg: SweepConfig, out: Path, progress: bool, log, config_source: str | None) -> dict:
+    resolved = config_to_dict(cfg)
+    prev = out / "sweep_config.yaml"
+    if prev.is_file():
+        old = (yaml.safe_load(prev.read_text()) or {}).get("config")
+        if old is not None and old != resolved:
+            from corelib.configlib import diff_configs
+
+            log(f"[sweep] note: the sweep config differs from the saved one in: {', '.join(diff_configs(old, resolved))}; "
+                "datasets/runs are reused only where their own resolved config is unchanged")
+    prev.write_text(yaml.safe_dump({"config": resolved, "config_hash": config_hash(cfg), "source": config_source},
+                                   sort_keys=False))
+    n_runs = len(cfg.overlaps) * len(cfg.methods) * len(cfg.seeds)
+    log(f"[sweep] {len(cfg.overlaps)} overlap(s) {', '.join(f'{o:.2f}' for o in cfg.overlaps)} ({cfg.overlap_mode}), "
+        f"methods {', '.join(cfg.methods)}, seeds {cfg.seeds}: {n_runs} run(s) -> {out}")
+    counters = Counters(rendered=0, render_skipped=0, render_resumed=0, trained=0, train_skipped=0, train_resumed=0,
+                        evaluated=0, eval_skipped=0, diverged=0, reference_evaluated=0, reference_skipped=0)
+    t_start = time.perf_counter()
+    pre = pretrain_stage(cfg, out, progress, log)
+    init_from = pre["weights"] if pre else None
+    data = [render_stage(cfg, o, out, counters, log, progress) for o in cfg.overlaps]
+    for d in data:
+        d["reference"], d["prior"] = reference_stage(cfg, d, out, counters, log)
+    todo = [(d, method, seed) for d in data for method in cfg.methods for seed in cfg.seeds]
+    if cfg.jobs == 1 or len(todo) == 1:
+        rows = [run_stage(cfg, d["overlap"], d, method, seed, out, counters, log, progress, init_from)
+                for d, method, seed in todo]
+    else:
+        rows = _run_parallel(cfg, todo, out, counters, log, init_from)
+    previews = []
+    if cfg.preview:
+        previews = _previews(data, out, log)
+    total_s = time.perf_counter() - t_start
+    results = build_results(cfg, data, rows, dict(counters), total_s, previews)
+    results["pretrain"] = pre
+    write_all(results, out)
+    log(f"[sweep] done in {total_s:.1f} s: " + ", ".join(f"{k}={v}" for k, v in counters.items()))
+    log(f"[sweep] report: {out / 'report.md'}")
+    return results
+
+def _stage_job(cfg: SweepConfig, d: dict, method: str, seed: int, out: Path, init_from: str | None) -> tuple[dict, dict]:
+    """One run in a worker process (``jobs`` > 1): no progress bars, log lines to stderr."""
+    counters = Counters()
+    row = run_stage(cfg, d["overlap"], d, method, seed, out, counters,
+                    lambda s: print(s, file=sys.stderr, flush=True), False, init_from)
+    return row, dict(counters)
+
+def _run_parallel(cfg: SweepConfig, todo: list, out: Path, counters: Counters, log,
+                  init_from: str | None = None) -> list[dict]:
+    """Run the (overlap, method, seed) stages ``cfg.jobs`` at a time in spawned processes.
+
+    Rows come back in the order of `todo` (the table order) whatever finishes first; the
+    first failure (other than a diverged run, which is a row) stops the sweep after the
+    running jobs end, and a rerun resumes from what finished.
+    """
+    import multiprocessing as mp
+    from concurrent.futures import ProcessPoolExecutor
+
+    log(f"[sweep] {len(todo)} run(s), {cfg.jobs} at a time (one process each; progress bars off)")
+    rows: list[dict | None] = [None] * len(todo)
+    with ProcessPoolExecutor(max_workers=cfg.jobs, mp_context=mp.get_context("spawn")) as pool:
+        futures = [pool.submit(_stage_job, cfg, d, method, seed, out, init_from) for d, method, seed in todo]
+        try:
+            for i, fut in enumerate(futures):
+                row, c = fut.result()
+                rows[i] = row
+                for k, v in c.items():
+                    counters[k] = counters.get(k, 0) + v
+        except BaseException:
+            for f in futures:
+                f.cancel()
+            raise
+    return rows  # type: ignore[return-value]
+
+def _previews(data: list[dict], out: Path, log) -> list[str]:
+    from synth.dataset import open_dataset
+    from synth.preview import make_preview
+
+    paths = []
+    picks = [data[0]] if len(data) == 1 else [data[0], data[-1]]
+    for d in picks:
+        p = out / f"preview_{overlap_key(d['overlap'])}.png"
+        if not p.is_file():
+            try:
+                ds = open_dataset(d["path"])
+                seq = ds.split(SPLIT)[0] if ds.split(SPLIT) else None
+                make_preview(ds, p, seq=seq, frame=0)
+            except Exception as exc:  # a preview is a nicety: never lose the sweep over it
+                log(f"[sweep] preview of {d['path']} failed: {exc}")
+                continue
+        paths.append(p.name)
+    return paths

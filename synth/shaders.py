@@ -1,0 +1,135 @@
+"""GLSL 330 sources of the renderer (`synth.gl_backend`): the main pass (RGB, camera-frame z, ego
+flag), the shadow-map pass and the sky.
+"""
+from __future__ import annotations
+
+
+_GLSL_TO_SRGB = """
+vec3 to_srgb(vec3 c) {
+    c = clamp(c, 0.0, 1.0);
+    return mix(c * 12.92, 1.055 * pow(c, vec3(1.0 / 2.4)) - 0.055, step(vec3(0.0031308), c));
+}
+"""
+
+_VS_MAIN = """
+#version 330 core
+layout(location=0) in vec3 a_pos;
+layout(location=1) in vec3 a_nrm;
+layout(location=2) in vec2 a_uv;
+layout(location=3) in float a_layer;
+layout(location=4) in vec3 a_tint;
+uniform mat4 u_model;      // world <- object
+uniform mat4 u_modelview;  // camera (OpenCV) <- object, composed in float64
+uniform mat4 u_proj;
+uniform mat4 u_light_vp;   // light clip <- world
+out vec3 v_nrm_w;
+out vec2 v_uv;
+flat out float v_layer;
+out vec3 v_tint;
+out float v_zcam;
+out float v_dist;
+out vec4 v_light;
+void main() {
+    vec4 pc = u_modelview * vec4(a_pos, 1.0);
+    vec4 pw = u_model * vec4(a_pos, 1.0);
+    v_zcam = pc.z;
+    v_dist = length(pc.xyz);
+    v_nrm_w = mat3(u_model) * a_nrm;
+    v_uv = a_uv;
+    v_layer = a_layer;
+    v_tint = a_tint;
+    v_light = u_light_vp * pw;
+    gl_Position = u_proj * pc;
+}
+"""
+
+_FS_MAIN = """
+#version 330 core
+in vec3 v_nrm_w;
+in vec2 v_uv;
+flat in float v_layer;
+in vec3 v_tint;
+in float v_zcam;
+in float v_dist;
+in vec4 v_light;
+uniform sampler2DArray u_tex;
+uniform sampler2DShadow u_shadow;
+uniform int u_use_shadow;
+uniform vec3 u_sun_dir;      // world, towards the sun
+uniform vec3 u_sun_rgb;      // linear radiance scale
+uniform vec3 u_ambient_rgb;
+uniform vec3 u_gain;         // exposure * white balance
+uniform vec3 u_fog_rgb;
+uniform float u_fog_dist;
+uniform float u_is_ego;
+layout(location=0) out vec4 o_color;
+layout(location=1) out vec2 o_depth;
+%(to_srgb)svoid main() {
+    vec3 n = normalize(v_nrm_w);
+    if (!gl_FrontFacing) n = -n;
+    vec3 albedo = texture(u_tex, vec3(v_uv, v_layer)).rgb * v_tint;
+    float ndl = max(dot(n, u_sun_dir), 0.0);
+    float lit = 1.0;
+    if (u_use_shadow == 1 && ndl > 0.0) {
+        vec3 p = v_light.xyz / v_light.w * 0.5 + 0.5;
+        if (p.x > 0.0 && p.x < 1.0 && p.y > 0.0 && p.y < 1.0 && p.z < 1.0) {
+            float bias = 0.0015 + 0.004 * (1.0 - ndl);
+            lit = texture(u_shadow, vec3(p.xy, p.z - bias));
+        }
+    }
+    float sky_vis = 0.75 + 0.25 * n.z;
+    vec3 c = albedo * (u_ambient_rgb * sky_vis + u_sun_rgb * ndl * lit);
+    float f = 1.0 - exp(-v_dist / u_fog_dist);
+    c = mix(c, u_fog_rgb, f);
+    o_color = vec4(to_srgb(c * u_gain), 1.0);
+    o_depth = vec2(v_zcam, u_is_ego);
+}
+"""
+
+_FS_MAIN = _FS_MAIN % {"to_srgb": _GLSL_TO_SRGB}
+
+_VS_SHADOW = """
+#version 330 core
+layout(location=0) in vec3 a_pos;
+uniform mat4 u_light_mvp;
+void main() { gl_Position = u_light_mvp * vec4(a_pos, 1.0); }
+"""
+
+_FS_SHADOW = """
+#version 330 core
+void main() { }
+"""
+
+_VS_SKY = """
+#version 330 core
+const vec2 P[3] = vec2[3](vec2(-1.0, -1.0), vec2(3.0, -1.0), vec2(-1.0, 3.0));
+void main() { gl_Position = vec4(P[gl_VertexID], 1.0, 1.0); }
+"""
+
+_FS_SKY = """
+#version 330 core
+uniform mat3 u_R_world_cam;
+uniform mat3 u_K_inv;
+uniform float u_height;
+uniform vec3 u_zenith_rgb;
+uniform vec3 u_horizon_rgb;
+uniform vec3 u_sun_dir;
+uniform vec3 u_sun_rgb;
+uniform vec3 u_gain;
+layout(location=0) out vec4 o_color;
+layout(location=1) out vec2 o_depth;
+%(to_srgb)svoid main() {
+    vec2 uv = vec2(gl_FragCoord.x, u_height - gl_FragCoord.y);   // OpenCV pixel coordinates
+    vec3 d = normalize(u_R_world_cam * (u_K_inv * vec3(uv, 1.0)));
+    float t = clamp(d.z, 0.0, 1.0);
+    vec3 c = mix(u_horizon_rgb, u_zenith_rgb, pow(t, 0.6));
+    if (d.z < 0.0) c = u_horizon_rgb * 0.8;
+    float s = max(dot(d, u_sun_dir), 0.0);
+    c += u_sun_rgb * (0.25 * pow(s, 64.0) + 2.0 * pow(s, 2000.0));
+    o_color = vec4(to_srgb(c * u_gain), 1.0);
+    o_depth = vec2(0.0, 0.0);
+}
+"""
+
+
+_FS_SKY = _FS_SKY % {"to_srgb": _GLSL_TO_SRGB}
