@@ -156,6 +156,13 @@ def test_cli_eval_on_the_dataroot_records_lidar_ground_truth(ns_root, run, tmp_p
     assert m["cameras"] == list(RIG_ORDER) and m["n_samples"] == 4
 
 
+def test_cli_trains_on_the_dataroot(ns_root, tmp_path, capsys):
+    run = tmp_path / "run"
+    assert main(["train", str(TINY_TRAIN), "--data", str(ns_root), "--out", str(run), "--no-progress",
+                 "train.steps=1"]) == 0
+    assert json.loads((run / "run.json").read_text())["data"] == str(ns_root.resolve())
+
+
 # --------------------------------------------------------------------------- broken dataroots
 def _copy(ns_root, tmp_path, keep_extras=True) -> Path:
     root = tmp_path / "broken"
