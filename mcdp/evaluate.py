@@ -35,6 +35,7 @@ valid, e.g. a camera without neighbours has NaN overlap metrics)::
 
     {"split": str, "n_samples": int, "min_depth": float, "max_depth": float,
      "frame_stride": int, "skip_ends": bool, "cameras": [names in rig order],
+     "ground_truth": {"kind": "dense z-depth (rendered)" | "lidar", ...},   # ds.ground_truth
      "stages": {stage: {                     # predict_fn's stages + "final" (= last stage)
         "none" | "median" | "rig_median": {
             "mean": {abs_rel, sq_rel, rmse, rmse_log, a1, a2, a3},
@@ -341,6 +342,7 @@ def evaluate(
         "frame_stride": int(cfg.frame_stride),
         "skip_ends": bool(cfg.skip_ends),
         "cameras": names,
+        "ground_truth": dict(getattr(ds, "ground_truth", None) or {"kind": "unknown"}),  # read_depth's provenance
         "stages": out_stages,
     }
 
@@ -408,6 +410,7 @@ def format_tables(metrics: dict, stage: str = "final") -> str:
     lines = [
         f"split={metrics['split']} samples={metrics['n_samples']} stage={stage} "
         f"depth range [{metrics['min_depth']}, {metrics['max_depth']}] m"
+        + (f" ground truth: {metrics['ground_truth'].get('kind')}" if "ground_truth" in metrics else "")
     ]
     for sc in SCALINGS:
         if sc not in st:

@@ -208,6 +208,11 @@ class Dataset:
     def has_depth(self) -> bool:
         return bool(self.manifest.get("has_depth", True))
 
+    @property
+    def ground_truth(self) -> dict:
+        """Provenance of `read_depth` (the evaluator copies it into metrics.json)."""
+        return {"kind": "dense z-depth (rendered)", "source": "<seq>/<CAM>/<frame>.depth.exr"}
+
 
 _PLAIN_NAME = re.compile(r"^[A-Za-z0-9][A-Za-z0-9._-]{0,127}$")
 
@@ -359,6 +364,12 @@ def open_dataset(path: str | Path, verify: bool = False) -> Dataset:
         raise DatasetError(f"{root}: dataset folder does not exist")
     mpath = root / MANIFEST
     if not mpath.is_file():
+        from synth.nuscenes_read import is_nuscenes_root, open_nuscenes  # the devkit loads only when needed
+
+        if is_nuscenes_root(root):
+            if verify:
+                raise DatasetError(f"{root}: a nuScenes dataroot has no checksums to verify")
+            return open_nuscenes(root)
         raise DatasetError(f"{mpath}: missing; the dataset is incomplete (interrupted render?) or not a dataset")
     manifest = read_json(mpath)
     ver = manifest.get("schema_version") if isinstance(manifest, dict) else None
