@@ -36,7 +36,7 @@ def _user_errors() -> tuple[type[BaseException], ...]:
     from mcdp.runs import RunError
     from mcdp.warmstart import WarmStartError
     from corelib.configlib import ConfigError
-    from synth.dataset import DatasetError
+    from synth.files import DatasetError
     from synth.render import OutputFolderError
 
     return (ConfigError, DatasetError, RunError, NetworkError, OutputFolderError, WarmStartError, FolderError)

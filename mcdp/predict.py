@@ -134,7 +134,7 @@ def write_ply(path: str | Path, points: np.ndarray, colors: np.ndarray) -> None:
 
 def write_prediction(pred: Predictor, seq: str, frame: int, out_dir: str | Path, ply: bool = False) -> list[Path]:
     """Write the grid PNG, final-stage EXR depth per camera and (optionally) the PLY of one rig sample."""
-    from synth.dataset import frame_stem, write_depth_exr, write_png
+    from synth.files import frame_stem, write_depth_exr, write_png
 
     out = Path(out_dir) / seq
     out.mkdir(parents=True, exist_ok=True)

@@ -52,7 +52,7 @@ def _parser() -> argparse.ArgumentParser:
 
 def main(argv: list[str] | None = None) -> int:
     from corelib.configlib import ConfigError
-    from synth.dataset import DatasetError
+    from synth.files import DatasetError
     from synth.nuscenes_export import ExportError
     from synth.render import OutputFolderError
 
@@ -153,7 +153,7 @@ def _verify(args) -> int:
             print(f"FAIL {p}", file=sys.stderr)
         print(f"synth verify: {len(problems)} problem(s) in {args.data}", file=sys.stderr)
         return 1
-    from synth.dataset import read_json
+    from synth.files import read_json
     m = read_json(Path(args.data) / "manifest.json")
     print(f"OK {args.data}: schema v{m['schema_version']}, {len(m['sequences'])} sequences, "
           f"{len(m['files'])} files verified")

@@ -1,4 +1,4 @@
-"""Dataset contract v1: file I/O, the reader used by `mcdp`, and `verify`.
+"""Dataset contract v1: the reader used by `mcdp`, its checks, and `verify` (file I/O: `synth.files`).
 
 Layout (docs/DATASET.md)::
 
@@ -23,107 +23,19 @@ Example::
 """
 from __future__ import annotations
 
-import errno
-import json
 import re
 from pathlib import Path
 from typing import Iterable
 
-import cv2
 import numpy as np
 
-from corelib.atomic import atomic_path, atomic_write_bytes, atomic_write_json
 from corelib.hashing import changed_sections, json_sha256, section_digests, sha256_file
+from synth.files import DatasetError, frame_stem, read_depth_exr, read_json, read_png
 from synth.rig import CameraSpec
 
 SCHEMA_VERSION = 1
 GENERATOR = "mcdp-synth"
 MANIFEST = "manifest.json"
-DEPTH_CHANNEL = "Z"
-
-
-class DatasetError(RuntimeError):
-    """The dataset on disk is missing, incomplete, of another version or corrupt; the message names the file."""
-
-
-# ----------------------------------------------------------------------------- file I/O
-
-def write_json(path: str | Path, obj) -> None:
-    """JSON written whole or not at all (`corelib.atomic`)."""
-    atomic_write_json(path, obj)
-
-
-def read_json(path: str | Path):
-    path = Path(path)
-    try:
-        return json.loads(path.read_text())
-    except FileNotFoundError:
-        raise DatasetError(f"{path}: file is missing") from None
-    except json.JSONDecodeError as exc:
-        raise DatasetError(f"{path}: not valid JSON ({exc})") from None
-
-
-def write_png(path: str | Path, img: np.ndarray, compression: int = 3, fsync: bool = True) -> None:
-    """Write uint8 RGB (H, W, 3) or gray (H, W) as PNG, whole or not at all (`fsync=False` inside a
-    folder that is itself sealed by a rename, see `render_sequence`)."""
-    if img.dtype != np.uint8:
-        raise ValueError(f"write_png: expected uint8, got {img.dtype}")
-    arr = img[:, :, ::-1] if img.ndim == 3 else img
-    ok, buf = cv2.imencode(".png", np.ascontiguousarray(arr), [cv2.IMWRITE_PNG_COMPRESSION, int(compression)])
-    if not ok:
-        raise ValueError(f"write_png: could not encode {path}")
-    atomic_write_bytes(path, buf.tobytes(), fsync=fsync)
-
-
-def read_png(path: str | Path, gray: bool = False) -> np.ndarray:
-    flag = cv2.IMREAD_GRAYSCALE if gray else cv2.IMREAD_COLOR
-    img = cv2.imread(str(path), flag)
-    if img is None:
-        raise DatasetError(f"{path}: missing or not a readable PNG")
-    return img if gray else np.ascontiguousarray(img[:, :, ::-1])
-
-
-def write_depth_exr(path: str | Path, depth: np.ndarray, fsync: bool = True) -> None:
-    """Write (H, W) float32 z-depth in metres as a single-channel ("Z") ZIP-compressed OpenEXR, whole or
-    not at all."""
-    import OpenEXR
-
-    if depth.ndim != 2 or depth.dtype != np.float32:
-        raise ValueError(f"write_depth_exr: expected (H, W) float32, got {depth.shape} {depth.dtype}")
-    header = {"compression": OpenEXR.ZIP_COMPRESSION, "type": OpenEXR.scanlineimage}
-    with atomic_path(path, fsync=fsync) as tmp, OpenEXR.File(header, {DEPTH_CHANNEL: np.ascontiguousarray(depth)}) as f:
-        try:
-            f.write(str(tmp))
-        except RuntimeError as exc:  # OpenEXR reports I/O errors as RuntimeError text
-            if "No space left" in str(exc):
-                raise OSError(errno.ENOSPC, "no space left on device", str(tmp)) from None
-            raise
-
-
-def read_depth_exr(path: str | Path) -> np.ndarray:
-    """(H, W) float32 z-depth in metres, 0 = no surface."""
-    import OpenEXR
-
-    try:
-        with OpenEXR.File(str(path)) as f:
-            ch = f.channels()
-            if DEPTH_CHANNEL not in ch:
-                raise DatasetError(f"{path}: no '{DEPTH_CHANNEL}' channel (has {sorted(ch)[:8]})")
-            px = ch[DEPTH_CHANNEL].pixels
-            if px.dtype != np.float32 or px.ndim != 2:
-                raise DatasetError(f"{path}: channel '{DEPTH_CHANNEL}' is {px.dtype} with shape {px.shape}; the "
-                                   "contract is one float32 (FLOAT) channel of shape (H, W)")
-            return np.ascontiguousarray(px)
-    except DatasetError:
-        raise
-    except Exception as exc:
-        raise DatasetError(f"{path}: missing or not a readable EXR depth map ({exc})") from None
-
-
-def frame_stem(frame: int) -> str:
-    return f"{frame:06d}"
-
-
 # ----------------------------------------------------------------------------- reader
 
 class Dataset:
@@ -364,7 +276,8 @@ def open_dataset(path: str | Path, verify: bool = False) -> Dataset:
         raise DatasetError(f"{root}: dataset folder does not exist")
     mpath = root / MANIFEST
     if not mpath.is_file():
-        from synth.nuscenes_read import is_nuscenes_root, open_nuscenes  # the devkit loads only when needed
+        from synth.nuscenes_read import open_nuscenes  # the devkit loads only when needed
+        from synth.nuscenes_tables import is_nuscenes_root
 
         if is_nuscenes_root(root):
             if verify:

@@ -41,8 +41,8 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from synth.dataset import (DatasetError, _PLAIN_NAME, open_dataset, read_json, read_png, write_json,
-                           write_png)
+from synth.dataset import _PLAIN_NAME, open_dataset
+from synth.files import DatasetError, read_json, read_png, write_json, write_png
 from synth.lidar import LidarConfig, luma, simulate_sweep
 
 FORMAT = "mcdp-synth-nuscenes-export"

@@ -34,35 +34,19 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from synth.dataset import DatasetError, read_png
+from synth.files import DatasetError, read_png
+from synth.nuscenes_tables import EXPORT_DIR, _get, _load, _splits, _version
 from synth.rig import CameraSpec
 
 RIG_ORDER = ("CAM_FRONT", "CAM_FRONT_RIGHT", "CAM_BACK_RIGHT", "CAM_BACK", "CAM_BACK_LEFT", "CAM_FRONT_LEFT")
 LIDAR = "LIDAR_TOP"
 RING = tuple((i, (i + 1) % 6) for i in range(6))
-EXPORT_DIR = "mcdp_synth"
 # depth range of the projected LiDAR (SurroundDepth configs/nusc.txt: min_depth 0.1, max_depth 80;
 # VFDepth configs/nuscenes/*: eval_max_depth 80); the evaluator applies its own range on top
 LIDAR_MIN_DEPTH = 0.1
 LIDAR_MAX_DEPTH = 80.0
 RIG_TOL = 1e-9  # calibrated_sensor values that differ by more are two rigs
-INSTALL_HINT = "install the extra: pip install -e '.[nuscenes]'"
 NO_MASKS = "no self-occlusion masks: every pixel counts as scene"
-
-
-def version_dirs(root: Path) -> list[str]:
-    """Sub-folders of `root` holding a ``sample.json`` (nuScenes version folders), sorted."""
-    try:
-        return sorted(d.name for d in root.iterdir() if d.is_dir() and (d / "sample.json").is_file())
-    except OSError:
-        return []
-
-
-def is_nuscenes_root(root: str | Path) -> bool:
-    """A folder with ``samples/``, a version folder holding ``sample.json`` and no ``manifest.json``."""
-    root = Path(root)
-    return root.is_dir() and (root / "samples").is_dir() and not (root / "manifest.json").exists() and bool(
-        version_dirs(root))
 
 
 def _T(rotation, translation, where: str) -> np.ndarray:
@@ -265,91 +249,6 @@ class NuScenesDataset:
 
 
 # ----------------------------------------------------------------------------- open
-
-def _version(root: Path, version: str | None) -> str:
-    if version is not None:
-        if not (root / version / "sample.json").is_file():
-            raise DatasetError(f"{root / version / 'sample.json'}: missing; {root} has no nuScenes version "
-                               f"{version!r} (version folders: {version_dirs(root) or 'none'})")
-        return version
-    found = version_dirs(root)
-    if not found:
-        raise DatasetError(f"{root}: no nuScenes version folder (a folder holding sample.json)")
-    if len(found) > 1:
-        raise DatasetError(f"{root}: several nuScenes versions ({', '.join(found)}); name one (version=...)")
-    return found[0]
-
-
-def _diagnose_key_error(root: Path, version: str, exc: KeyError) -> str:
-    """The devkit raised KeyError(token) while indexing: find which record names the missing token."""
-    tables = {}
-    for name in ("sample", "sample_data", "calibrated_sensor", "sensor", "ego_pose", "instance", "category",
-                 "sample_annotation"):
-        try:
-            tables[name] = json.loads((root / version / f"{name}.json").read_text())
-        except (OSError, ValueError):
-            tables[name] = []
-    tokens = {k: {r.get("token") for r in v if isinstance(r, dict)} for k, v in tables.items()}
-    refs = [("sample_data", "sample_token", "sample"), ("sample_data", "calibrated_sensor_token", "calibrated_sensor"),
-            ("sample_data", "ego_pose_token", "ego_pose"), ("calibrated_sensor", "sensor_token", "sensor"),
-            ("sample_annotation", "instance_token", "instance"), ("instance", "category_token", "category")]
-    for table, field, target in refs:
-        for r in tables[table]:
-            if isinstance(r, dict) and r.get(field) not in tokens[target]:
-                return (f"{root / version / (table + '.json')}: {table} {r.get('token')} names {field} "
-                        f"{r.get(field)!r}, which is not in {target}.json")
-    return f"{root / version}: the devkit could not index the tables: no record with token {exc}"
-
-
-def _load(root: Path, version: str):
-    try:
-        from nuscenes.nuscenes import NuScenes
-    except ImportError:
-        raise DatasetError(f"{root} is a nuScenes dataroot; {INSTALL_HINT}") from None
-    try:
-        return NuScenes(version=version, dataroot=str(root), verbose=False)
-    except KeyError as exc:
-        raise DatasetError(_diagnose_key_error(root, version, exc)) from None
-    except (OSError, ValueError, AssertionError, TypeError) as exc:
-        raise DatasetError(f"{root / version}: the devkit could not load the tables ({type(exc).__name__}: "
-                           f"{str(exc)[:120]})") from None
-
-
-def _get(nusc, table: str, token, who: str) -> dict:
-    try:
-        return nusc.get(table, token)
-    except KeyError:
-        raise DatasetError(f"{nusc.dataroot}/{nusc.version}: {who}: {table}_token {token!r} is not in "
-                           f"{table}.json") from None
-
-
-def _splits(root: Path, scenes: list[str], version: str) -> tuple[dict[str, list[str]], str]:
-    f = root / EXPORT_DIR / "splits.json"
-    if f.is_file():
-        try:
-            sp = json.loads(f.read_text())
-        except ValueError as exc:
-            raise DatasetError(f"{f}: not valid JSON ({exc})") from None
-        if not isinstance(sp, dict) or not all(isinstance(v, list) for v in sp.values()):
-            raise DatasetError(f"{f}: must map split names to lists of scene names")
-        for name, seqs in sp.items():
-            for s in seqs:
-                if s not in scenes:
-                    raise DatasetError(f"{f}: splits.{name} names scene {str(s)[:60]!r}, which is not in "
-                                       f"{version}/scene.json")
-        return {k: list(v) for k, v in sp.items()}, f"{EXPORT_DIR}/splits.json"
-    from nuscenes.utils.splits import create_splits_scenes
-
-    official = create_splits_scenes()
-    mini = version.endswith("mini")
-    present = set(scenes)
-    pick = {s: [n for n in official["mini_" + s if mini else s] if n in present] for s in ("train", "val")}
-    test = [] if mini else [n for n in official["test"] if n in present]
-    source = "nuscenes-devkit create_splits_scenes: " + ("mini_train / mini_val" if mini else "train / val / test")
-    if not test:  # v1.0-mini, v1.0-trainval: no test scenes; depth papers report on the official val split
-        test = list(pick["val"])
-        source += " (test = val: this dataroot has no test scene)"
-    return {"train": pick["train"], "val": pick["val"], "test": test}, source
 
 
 def _masks(root: Path, cameras: list[CameraSpec], masks) -> tuple[dict[str, np.ndarray], str]:

@@ -14,7 +14,8 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from synth.dataset import Dataset, write_png
+from synth.dataset import Dataset
+from synth.files import write_png
 from synth.overlap import overlap_mask
 
 

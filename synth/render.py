@@ -30,8 +30,9 @@ from scenes.textures import LAYER
 from synth import __version__
 from synth.config import DataConfig
 from corelib.configlib import build_config, config_hash, config_to_dict
-from synth.dataset import (GENERATOR, INTEGRITY, MANIFEST, SCHEMA_VERSION, frame_stem, integrity_record, read_json,
-                           sha256_file, write_depth_exr, write_json, write_png)
+from corelib.hashing import sha256_file
+from synth.dataset import GENERATOR, INTEGRITY, MANIFEST, SCHEMA_VERSION, integrity_record
+from synth.files import frame_stem, read_json, write_depth_exr, write_json, write_png
 from synth.lighting import draw_sequence_lighting, frame_gains
 from synth.overlap import overlap_fraction_counts
 from synth.rig import Rig, build_rig, ego_body_mesh
@@ -132,7 +133,7 @@ def render_sequence(cfg_dict: dict, out_dir: str, index: int, progress_queue=Non
     masks = {name: None for name in rig.names}
     mask_dir = out / "masks"
     for name in rig.names:
-        from synth.dataset import read_png
+        from synth.files import read_png
         masks[name] = read_png(mask_dir / f"{name}.png", gray=True)
     r = _get_renderer(cfg)
     r.load_scene(scene, make_ego_mesh(cfg))

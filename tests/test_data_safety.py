@@ -91,7 +91,8 @@ def test_an_untouched_dataset_verifies(data, capsys):
     ("rig.json", lambda r: r.update(neighbours=[[0, 99]]), "'neighbours' must be"),
 ])
 def test_a_malformed_manifest_or_rig_is_refused_naming_the_key(data, capsys, path, edit, named):
-    from synth.dataset import DatasetError, open_dataset
+    from synth.dataset import open_dataset
+    from synth.files import DatasetError
 
     _edit_json(data / path, edit)
     with pytest.raises(DatasetError) as err:
@@ -133,7 +134,8 @@ CORRUPT = {
 @pytest.mark.parametrize("case", list(CORRUPT))
 def test_a_corrupt_data_file_is_refused_naming_the_file(data, capsys, case):
     from synth.cli import main
-    from synth.dataset import DatasetError, open_dataset
+    from synth.dataset import open_dataset
+    from synth.files import DatasetError
 
     kind, damage, named = CORRUPT[case]
     ds = open_dataset(data)
@@ -265,7 +267,7 @@ def test_a_full_disk_while_writing_exr_raises_disk_full_and_leaves_no_file(tmp_p
     import OpenEXR
 
     from corelib.atomic import DiskFullError
-    from synth.dataset import write_depth_exr
+    from synth.files import write_depth_exr
 
     real = OpenEXR.File
 

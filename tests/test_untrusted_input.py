@@ -56,7 +56,8 @@ def _rename_seq(m, new):
 ])
 def test_a_manifest_name_that_is_not_plain_is_refused_naming_the_field(tiny_dataset, tmp_path, capsys, edit, field):
     from synth.cli import main as synth_main
-    from synth.dataset import DatasetError, open_dataset
+    from synth.dataset import open_dataset
+    from synth.files import DatasetError
 
     d = _copy(tiny_dataset, tmp_path)
     _edit_manifest(d, edit)
@@ -86,7 +87,8 @@ def test_mcdp_predict_refuses_a_manifest_whose_sequence_leaves_the_root(tiny_dat
 
 
 def test_a_sequence_folder_symlinked_outside_the_root_is_refused(tiny_dataset, tmp_path):
-    from synth.dataset import DatasetError, open_dataset
+    from synth.dataset import open_dataset
+    from synth.files import DatasetError
 
     d = _copy(tiny_dataset, tmp_path / "in")
     seq = json.loads((d / "manifest.json").read_text())["splits"]["test"][0]

@@ -8,7 +8,8 @@ import pytest
 
 from synth.cli import main as synth_main
 from synth.config import load_data_config
-from synth.dataset import (DatasetError, open_dataset, read_depth_exr, verify_dataset, write_depth_exr)
+from synth.dataset import open_dataset, verify_dataset
+from synth.files import DatasetError, read_depth_exr, write_depth_exr
 from synth.render import OutputFolderError, merge_datasets, render_dataset
 
 QUIET = dict(progress=False, log=lambda *a: None)
