@@ -84,23 +84,26 @@ def _train(args: argparse.Namespace) -> int:
     trainer = Trainer(cfg, ds, args.out, progress=not args.no_progress)
     m, tc = cfg.model, cfg.train
     n_params = sum(p.numel() for p in trainer.depth.parameters())
-    print(
+    say = print if trainer.dist.is_main else (lambda *a, **k: None)  # torchrun: rank 0 speaks
+    ranks = f", {trainer.dist.world} ranks (torchrun; global batch)" if trainer.dist.enabled else ""
+    say(
         f"mcdp train: method={m.method} bases={m.n_out} refine_steps={m.refine_steps} neighbours={m.neighbours} "
         f"lambda={cfg.loss.consistency_weight} scale={cfg.scale.source}"
         + (" [ORACLE: uses ground-truth median scale]" if cfg.scale.oracle else ""),
         file=sys.stderr,
     )
-    print(
+    say(
         f"  {len(ds.camera_names)} cameras, {len(trainer.train_set)} train / {len(trainer.val_set)} val rig samples, "
-        f"{tc.height}x{tc.width}, batch {tc.batch_size}, depth net {n_params / 1e6:.2f} M params, "
-        f"device {trainer.device}" + (f", resuming at step {trainer.step}" if trainer.step else ""),
+        f"{tc.height}x{tc.width}, batch {tc.batch_size}{ranks}, depth net {n_params / 1e6:.2f} M params, "
+        f"device {trainer.device}, precision {tc.precision}"
+        + (f", resuming at step {trainer.step}" if trainer.step else ""),
         file=sys.stderr,
     )
     try:
         summary = trainer.train()
     finally:
         trainer.close()
-    print(
+    say(
         f"mcdp train: step {summary['steps']} ({summary['trained']} this run), "
         f"best val loss {summary['best_val']:.4f}, checkpoints in {Path(args.out) / 'checkpoints'}",
         file=sys.stderr,

@@ -171,7 +171,8 @@ class ScaleConfig(StrictModel):
 class TrainConfig(StrictModel):
     """Optimisation and bookkeeping.
 
-    steps: optimiser steps; batch_size: rig samples per step (each = 6 cameras x 3 frames).
+    steps: optimiser steps; batch_size: rig samples per step (each = 6 cameras x 3 frames); under
+        torchrun the GLOBAL batch, split evenly over the ranks (`mcdp.distributed`).
     lr: Adam learning rate; decayed by lr_decay_factor after lr_decay_at * steps
         (paper: 1e-4, x0.1 after 15 of 20 epochs).
     height, width: training resolution (multiples of 32, ResNet skips).
@@ -181,7 +182,9 @@ class TrainConfig(StrictModel):
     val_samples: val rig samples used each time (evenly spaced, fixed).
     ckpt_every: steps between checkpoints/last.pt writes (also written at the end).
     log_every, image_every: TensorBoard scalar / image cadence.
-    amp: mixed precision on CUDA (ignored on CPU).
+    precision: ``auto`` (bf16 autocast on a CUDA device that has it, else fp16 with a GradScaler;
+        fp32 on CPU), ``fp32``, ``bf16`` (autocast; CPU too) or ``fp16`` (autocast + GradScaler;
+        CUDA only). Geometry (warps, splatting) always runs in float32.
     device: ``auto`` (CUDA if available), ``cpu`` or ``cuda``.
     num_workers: DataLoader processes (0 = in the main process).
     threads: torch intra-op CPU threads (0 = torch's default). On a shared
@@ -203,7 +206,7 @@ class TrainConfig(StrictModel):
     ckpt_every: int = Field(1000, ge=1)
     log_every: int = Field(50, ge=1)
     image_every: int = Field(500, ge=1)
-    amp: bool = True
+    precision: Literal["auto", "fp32", "bf16", "fp16"] = "auto"
     device: Literal["auto", "cpu", "cuda"] = "auto"
     num_workers: int = Field(2, ge=0)
     threads: int = Field(0, ge=0)
@@ -242,6 +245,16 @@ RESUMABLE_KEYS = (
     "train.device",
     "eval.",
 )
+
+
+def upgrade_config_dict(d: dict[str, Any]) -> dict[str, Any]:
+    """A saved run config of an older version in today's keys (``train.amp`` -> ``train.precision``)."""
+    train = d.get("train")
+    if isinstance(train, dict) and "amp" in train:
+        train = dict(train)
+        train.setdefault("precision", "auto" if train.pop("amp") else "fp32")
+        d = {**d, "train": train}
+    return d
 
 
 def resume_conflicts(saved: dict[str, Any], requested: dict[str, Any]) -> list[str]:

@@ -172,14 +172,20 @@ class StepBatchSampler(torch.utils.data.Sampler):
     The sample stream is the concatenation of per-epoch permutations, epoch e
     drawn from ``torch.Generator().manual_seed(seed * 1_000_003 + e)``; step s
     takes stream positions [s * B, (s + 1) * B). Yields the batches of steps
-    ``start_step .. end_step - 1``.
+    ``start_step .. end_step - 1``. With ``world`` > 1 (torchrun), rank r yields its contiguous
+    share ``[r * B / world, (r + 1) * B / world)`` of each global batch B.
     """
 
-    def __init__(self, n_samples: int, batch_size: int, seed: int, start_step: int, end_step: int):
+    def __init__(self, n_samples: int, batch_size: int, seed: int, start_step: int, end_step: int,
+                 rank: int = 0, world: int = 1):
         if n_samples <= 0:
             raise ValueError("the split has no rig samples (every sequence needs at least 3 frames)")
+        if batch_size % world:
+            raise ValueError(f"train.batch_size={batch_size} (the global batch) must be a multiple of the "
+                             f"{world} ranks")
         self.n, self.B, self.seed = n_samples, batch_size, seed
         self.start, self.end = start_step, end_step
+        self.rank, self.world = rank, world
         self._perm_cache: dict[int, torch.Tensor] = {}
 
     def _perm(self, epoch: int) -> torch.Tensor:
@@ -195,8 +201,9 @@ class StepBatchSampler(torch.utils.data.Sampler):
         return out
 
     def __iter__(self):
+        share = self.B // self.world
         for s in range(self.start, self.end):
-            yield self.batch(s)
+            yield self.batch(s)[self.rank * share:(self.rank + 1) * share]
 
     def __len__(self) -> int:
         return max(0, self.end - self.start)

@@ -22,7 +22,7 @@ import torch
 
 from corelib.atomic import atomic_write_bytes
 from corelib.configlib import build_config, config_to_dict
-from mcdp.config import RunConfig, resume_conflicts
+from mcdp.config import RunConfig, resume_conflicts, upgrade_config_dict
 
 CHECKPOINT_VERSION = 1
 
@@ -58,7 +58,7 @@ def load_checkpoint(path: Path) -> dict:
 
 
 def config_from_checkpoint(ckpt: dict, source: str = "checkpoint") -> RunConfig:
-    return build_config(RunConfig, ckpt["config"], source=source)
+    return build_config(RunConfig, upgrade_config_dict(ckpt["config"]), source=source)
 
 
 def check_resume(run_dir: Path, cfg: RunConfig) -> dict | None:
@@ -67,7 +67,7 @@ def check_resume(run_dir: Path, cfg: RunConfig) -> dict | None:
     if not last.exists():
         return None
     ckpt = load_checkpoint(last)
-    saved = ckpt["config"]
+    saved = upgrade_config_dict(ckpt["config"])
     requested = config_to_dict(cfg)
     bad = resume_conflicts(saved, requested)
     if bad:
@@ -92,6 +92,19 @@ def resolve_device(name: str) -> torch.device:
     if name == "cuda" and not torch.cuda.is_available():
         raise RunError("train.device=cuda but no CUDA device is available (use train.device=cpu or auto)")
     return torch.device(name)
+
+
+def resolve_precision(name: str, device: torch.device) -> tuple[bool, torch.dtype]:
+    """(autocast on?, its dtype) for ``train.precision`` on `device`; RunError for fp16 on CPU."""
+    if name == "auto":
+        if device.type != "cuda":
+            return False, torch.float32
+        return True, torch.bfloat16 if torch.cuda.is_bf16_supported() else torch.float16
+    if name == "fp32":
+        return False, torch.float32
+    if name == "fp16" and device.type != "cuda":
+        raise RunError("train.precision=fp16 needs a CUDA device (a GradScaler); on CPU use bf16 or fp32")
+    return True, torch.bfloat16 if name == "bf16" else torch.float16
 
 
 def find_checkpoint(run_dir: str | Path, which: str = "auto") -> Path:

@@ -30,7 +30,8 @@ from mcdp.model import PoseModel, is_refined, odometry_camera_motion, resize_mas
 
 
 # --------------------------------------------------------------------------- augmentation
-def color_augment(rgb: torch.Tensor, seed: int, step: int) -> torch.Tensor:
+def color_augment(rgb: torch.Tensor, seed: int, step: int, offset: int = 0, global_batch: int | None = None
+                  ) -> torch.Tensor:
     """Monodepth2-style colour jitter (p = 0.5 per camera; brightness, contrast, saturation +-0.2).
 
     One draw per (rig sample, camera), shared by its three frames; drawn from a
@@ -39,10 +40,12 @@ def color_augment(rgb: torch.Tensor, seed: int, step: int) -> torch.Tensor:
 
     Args:
         rgb: (B, N, F, 3, H, W) in [0, 1].
+        offset, global_batch: this batch is samples ``offset .. offset + B - 1`` of a global batch
+            (a torchrun rank's share): each sample gets the draw it gets in one process.
     """
     B, N = rgb.shape[:2]
     g = torch.Generator().manual_seed(int(seed) * 7_919 + int(step) * 104_729 + 17)
-    u = torch.rand(B, N, 4, generator=g)
+    u = torch.rand(global_batch or B, N, 4, generator=g)[offset:offset + B]
     apply = (u[..., 0] < 0.5).float()
     bri = 1 + apply * (u[..., 1] * 0.4 - 0.2)
     con = 1 + apply * (u[..., 2] * 0.4 - 0.2)
@@ -82,6 +85,7 @@ class SelfSupervisedSystem(torch.nn.Module):
         self.register_buffer("pair_src", src, persistent=False)
         self.use_amp = False
         self.amp_dtype = torch.float16
+        self.shard = (0, 1)  # (rank, world) under torchrun: which part of the global batch this is
 
     @property
     def device(self) -> torch.device:
@@ -108,7 +112,10 @@ class SelfSupervisedSystem(torch.nn.Module):
         """Forward + losses for one batch (schema in `mcdp.data`). Returns (outputs, losses)."""
         cfg = self.cfg
         rgb = batch["rgb"]
-        net_rgb = color_augment(rgb, cfg.train.seed, step) if (train and cfg.train.color_aug) else rgb
+        B = rgb.shape[0]
+        rank, world = self.shard
+        net_rgb = (color_augment(rgb, cfg.train.seed, step, rank * B, world * B)
+                   if (train and cfg.train.color_aug) else rgb)
         oracle = batch.get("gt_median") if cfg.scale.oracle else None
         with torch.autocast(self.device.type, dtype=self.amp_dtype, enabled=self.use_amp):
             outputs = self.depth(
@@ -122,6 +129,8 @@ class SelfSupervisedSystem(torch.nn.Module):
         if "velocity" in pose_stats and cfg.scale.source == "velocity":
             losses["loss"] = losses["loss"] + cfg.scale.velocity_weight * pose_stats["velocity"]
         return outputs, losses
+
+    forward = process_batch  # DistributedDataParallel calls forward: its gradient hooks need it
 
     def compute_losses(self, batch: dict, outputs: dict, poses: dict, need_con: bool | None = None) -> dict:
         """Photometric + smoothness per stage and scale, L_con per stage (module docstring)."""

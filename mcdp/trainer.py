@@ -66,8 +66,9 @@ from corelib.rundir import claim
 from mcdp.config import RunConfig
 from mcdp.data import RigDataset, StepBatchSampler, collate
 from mcdp.diagnostics import collapse_reason, depth_spread
+from mcdp.distributed import Dist
 from mcdp.logger import TrainLogger
-from mcdp.runs import CHECKPOINT_VERSION, RunError, atomic_torch_save, check_resume, resolve_device
+from mcdp.runs import CHECKPOINT_VERSION, RunError, atomic_torch_save, check_resume, resolve_device, resolve_precision
 from mcdp.system import SelfSupervisedSystem
 from mcdp.warmstart import warm_start
 
@@ -99,16 +100,18 @@ class Trainer:
         self.run_dir = Path(run_dir)
         self.progress = progress
         self.log = TrainLogger(None)
-        # the run folder is ours (marker) and ours alone (flock) before anything is read or written
-        self._lock = claim(self.run_dir, "run", legacy=("run.json", "checkpoints"))
+        self.dist = Dist.from_env()  # torchrun's ranks, or one process
+        # the run folder is ours (marker) and ours alone (flock) before anything is read or written;
+        # under torchrun rank 0 holds it and alone writes it
+        self._lock = claim(self.run_dir, "run", legacy=("run.json", "checkpoints")) if self.dist.is_main else None
         try:
             self._setup(cfg, ds, tensorboard)
         except BaseException:
-            self._lock.release()
+            self.close()
             raise
 
     def _setup(self, cfg: RunConfig, ds, tensorboard: bool) -> None:
-        self.device = resolve_device(cfg.train.device)
+        self.device = self.dist.start(resolve_device(cfg.train.device))
         tc = cfg.train
         ckpt = check_resume(self.run_dir, cfg)
         if ckpt is not None and list(ckpt.get("cameras", ds.camera_names)) != list(ds.camera_names):
@@ -131,12 +134,19 @@ class Trainer:
             raise RunError(f"dataset {ds.root}: the train split has no rig sample (sequences need >= 3 frames)")
         self.val_set = RigDataset(ds, "val", tc.height, tc.width, oracle=oracle)
 
-        self.use_amp = tc.amp and self.device.type == "cuda"
-        self.amp_dtype = (
-            torch.bfloat16 if self.use_amp and torch.cuda.is_bf16_supported() else torch.float16
-        )
+        self.use_amp, self.amp_dtype = resolve_precision(tc.precision, self.device)
         self.scaler = torch.amp.GradScaler("cuda", enabled=self.use_amp and self.amp_dtype == torch.float16)
         self.system.use_amp, self.system.amp_dtype = self.use_amp, self.amp_dtype
+        self.system.shard = (self.dist.rank, self.dist.world)
+        if tc.batch_size % self.dist.world:
+            raise RunError(f"train.batch_size={tc.batch_size} is the global batch and must be a multiple of the "
+                           f"{self.dist.world} torchrun ranks")
+        self.ddp = None
+        if self.dist.enabled:
+            from torch.nn.parallel import DistributedDataParallel
+
+            self.ddp = DistributedDataParallel(self.system, device_ids=[self.device] if self.device.type == "cuda"
+                                               else None, find_unused_parameters=self._has_unused())
 
         self.init_from: dict | None = None
         if ckpt is None and cfg.model.init_from is not None:
@@ -149,6 +159,8 @@ class Trainer:
         self.val_history: list[tuple[int, float]] = []
         if ckpt is not None:
             self._restore(ckpt)
+        if not self.dist.is_main:
+            return  # rank 0 writes the run folder and the logs
         self.run_dir.mkdir(parents=True, exist_ok=True)
         (self.run_dir / "checkpoints").mkdir(exist_ok=True)
         atomic_write_text(self.run_dir / "config.yaml", yaml.safe_dump(config_to_dict(cfg), sort_keys=False))
@@ -178,11 +190,19 @@ class Trainer:
             "torch_rng": torch.get_rng_state(),
             "depth_spread": dict(self.spread),
             "init_from": self.init_from,
+            "world_size": self.dist.world,
         }
 
+    def _has_unused(self) -> bool:
+        """Parameters no loss reaches (DDP must be told): a pose network the odometry scale ignores."""
+        return self.pose is not None and self.cfg.scale.source == "odometry"
+
     def save_checkpoint(self, name: str = "last.pt", weights_only: bool = False) -> Path:
-        """Atomically write ``checkpoints/<name>``; `weights_only` drops optimiser/scaler/RNG state."""
+        """Atomically write ``checkpoints/<name>``; `weights_only` drops optimiser/scaler/RNG state.
+        Under torchrun only rank 0 writes (every rank holds the same weights)."""
         path = self.run_dir / "checkpoints" / name
+        if not self.dist.is_main:
+            return path
         state = self.state()
         if weights_only:
             for k in ("optimizer", "scaler", "torch_rng"):
@@ -203,6 +223,13 @@ class Trainer:
         self.spread = dict(ckpt.get("depth_spread") or {})
         self.init_from = ckpt.get("init_from")
         torch.set_rng_state(ckpt["torch_rng"])
+        saved_world = int(ckpt.get("world_size", 1))
+        if saved_world != self.dist.world and self.dist.is_main:
+            # exact in what is trained: batches and augmentation are functions of the step, and the
+            # global batch is the same; only the split of each batch over processes changes
+            print(f"mcdp train: resuming a run trained on {saved_world} process(es) with {self.dist.world}: "
+                  "the same global batches; numbers differ as an N-rank run differs from a 1-process one "
+                  "(per-rank BatchNorm statistics)", file=sys.stderr)
 
     # ------------------------------------------------------------------ schedule
     def lr_at(self, step: int) -> float:
@@ -230,7 +257,7 @@ class Trainer:
         vals = []
         final = self.depth.stages[-1]
         lam = self.cfg.loss.consistency_weight
-        for i in idx:
+        for i in idx[self.dist.rank::self.dist.world]:  # each rank its share; the mean over all below
             batch = self.to_device(collate([self.val_set[i]]))
             _, losses = self.system.process_batch(batch, self.step, train=False)
             v = losses[f"photometric/{final}"]
@@ -240,7 +267,8 @@ class Trainer:
         self.depth.train()
         if self.pose is not None:
             self.pose.train()
-        return float(np.mean(vals))
+        total, count = self.dist.sum_([float(np.sum(vals)), float(len(vals))], self.device)
+        return total / count
 
     # ------------------------------------------------------------------ logging
     def check_spread(self, outputs: dict, batch: dict) -> dict:
@@ -260,7 +288,7 @@ class Trainer:
         # spread out, or after COLLAPSE_GRACE_STEPS steps that never left the constant start; and
         # only when COLLAPSE_STREAK logged checks in a row agree (one odd batch is not a collapse)
         armed = self.spread_armed or self.step >= COLLAPSE_GRACE_STEPS
-        if reason is not None and armed and self.collapse_streak == COLLAPSE_STREAK:
+        if reason is not None and armed and self.collapse_streak == COLLAPSE_STREAK and self.dist.is_main:
             print(f"mcdp train: WARNING step {self.step}: depth collapsed: {reason}", file=sys.stderr)
         self.spread = dict(spread, collapsed=reason)
         self.log.scalars({f"depth_spread/{k}": spread[k] for k in ("ratio", "at_min", "at_max")}, self.step)
@@ -296,7 +324,8 @@ class Trainer:
         end = tc.steps if until is None else min(int(until), tc.steps)
         if start >= end:
             return {"steps": self.step, "trained": 0, "best_val": self.best_val, "losses": []}
-        sampler = StepBatchSampler(len(self.train_set), tc.batch_size, tc.seed, start, end)
+        sampler = StepBatchSampler(len(self.train_set), tc.batch_size, tc.seed, start, end,
+                                   rank=self.dist.rank, world=self.dist.world)
         loader = torch.utils.data.DataLoader(
             self.train_set,
             batch_sampler=sampler,
@@ -309,7 +338,7 @@ class Trainer:
         if self.pose is not None:
             self.pose.train()
         bar = None
-        if self.progress:
+        if self.progress and self.dist.is_main:
             from tqdm import tqdm
 
             bar = tqdm(total=tc.steps, initial=start, desc="train", unit="step", dynamic_ncols=True)
@@ -322,9 +351,9 @@ class Trainer:
             for g in self.optimizer.param_groups:
                 g["lr"] = lr
             t0 = time.perf_counter()
-            outputs, losses = self.system.process_batch(batch, self.step, train=True)
+            outputs, losses = (self.ddp or self.system)(batch, self.step, True)
             loss = losses["loss"]
-            if not torch.isfinite(loss):
+            if self.dist.any_true(not bool(torch.isfinite(loss)), self.device):  # every rank stops together
                 bad = {k: float(v.detach()) for k, v in losses.items() if not k.startswith("_") and v.numel() == 1}
                 last = self.run_dir / "checkpoints" / "last.pt"
                 raise TrainingDiverged(
@@ -345,10 +374,10 @@ class Trainer:
             self.scaler.step(self.optimizer)
             self.scaler.update()
             self.step += 1
-            lv = float(loss.detach())
+            lv = self.dist.sum_([float(loss.detach())], self.device)[0] / self.dist.world  # mean over ranks
             history.append(lv)
             ema = lv if ema is None else 0.9 * ema + 0.1 * lv
-            n_last += batch["rgb"].shape[0]
+            n_last += batch["rgb"].shape[0] * self.dist.world
             dt_step = time.perf_counter() - t0
 
             if self.step % tc.log_every == 0 or self.step == tc.steps:
@@ -394,4 +423,6 @@ class Trainer:
         self.log.close()
         if hasattr(self, "_threads_before"):
             torch.set_num_threads(self._threads_before)
-        self._lock.release()
+        self.dist.stop()
+        if self._lock is not None:
+            self._lock.release()

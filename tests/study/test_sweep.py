@@ -12,6 +12,7 @@ import pytest
 from corelib.configlib import ConfigError
 from study import cli as study_cli
 from study import config as sweep
+from mcdp.pretrain import load_pretrain_config, resolved_configs
 from study.stages import STATUS
 
 
@@ -32,6 +33,10 @@ def test_presets_load():
         for m in cfg.methods:  # every method preset resolves
             sweep.run_config_for(cfg, m, cfg.seeds[0])
         sweep.data_config_for(cfg, cfg.overlaps[0])
+        if cfg.pretrain is not None:  # and its pretraining (model.mono_head on the full architecture)
+            resolved_configs(cfg.pretrain)
+    for p in sorted((ROOT / "configs" / "pretrain").glob("*.yaml")):
+        resolved_configs(load_pretrain_config(p))
 
 
 def test_default_overlaps_and_methods():
