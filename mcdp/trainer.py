@@ -145,8 +145,9 @@ class Trainer:
         if self.dist.enabled:
             from torch.nn.parallel import DistributedDataParallel
 
+            # every parameter reaches the loss (the pose network exists only when it is used)
             self.ddp = DistributedDataParallel(self.system, device_ids=[self.device] if self.device.type == "cuda"
-                                               else None, find_unused_parameters=self._has_unused())
+                                               else None)
 
         self.init_from: dict | None = None
         if ckpt is None and cfg.model.init_from is not None:
@@ -192,10 +193,6 @@ class Trainer:
             "init_from": self.init_from,
             "world_size": self.dist.world,
         }
-
-    def _has_unused(self) -> bool:
-        """Parameters no loss reaches (DDP must be told): a pose network the odometry scale ignores."""
-        return self.pose is not None and self.cfg.scale.source == "odometry"
 
     def save_checkpoint(self, name: str = "last.pt", weights_only: bool = False) -> Path:
         """Atomically write ``checkpoints/<name>``; `weights_only` drops optimiser/scaler/RNG state.
