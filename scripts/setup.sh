@@ -1,7 +1,12 @@
 #!/usr/bin/env bash
 # Set up mcdp-synth on a fresh Debian 12 machine: system GL libraries, a virtualenv in .venv,
 # and the package with its pinned dependencies. Safe to run again (idempotent).
+#   bash scripts/setup.sh          # the package + pytest
+#   bash scripts/setup.sh --test   # + the optional extras the test suite exercises: nuscenes-devkit
+#                                  #   (which pins numpy < 2) and Ray
 set -euo pipefail
+extras="dev"
+if [ "${1:-}" = "--test" ]; then extras="dev,nuscenes,cluster"; fi
 cd "$(dirname "$0")/.."
 SUDO=""
 [ "$(id -u)" -ne 0 ] && SUDO="sudo"
@@ -16,5 +21,5 @@ if [ -n "$missing" ]; then
 fi
 [ -x .venv/bin/python ] || python3 -m venv .venv
 .venv/bin/python -m pip install -q --upgrade pip
-.venv/bin/python -m pip install -q -e '.[dev]'
+.venv/bin/python -m pip install -q -e ".[$extras]"
 echo "setup: done ($(.venv/bin/python -c 'import torch, OpenGL; print("torch", torch.__version__, "PyOpenGL", OpenGL.__version__)'))"

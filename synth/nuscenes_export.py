@@ -41,6 +41,8 @@ from pathlib import Path
 import cv2
 import numpy as np
 
+from corelib.atomic import atomic_write_bytes
+from corelib.rundir import lock_folder
 from synth.dataset import _PLAIN_NAME, open_dataset
 from synth.files import DatasetError, read_json, read_png, write_json, write_png
 from synth.lidar import LidarConfig, luma, simulate_sweep
@@ -58,6 +60,7 @@ TABLES = ("category", "attribute", "visibility", "instance", "sensor", "calibrat
           "scene", "sample", "sample_data", "sample_annotation", "map")
 # what an export owns at the top of NS_ROOT (anything else there makes a re-export refuse)
 _OWNED = ("samples", "sweeps", "maps", EXPORT_DIR)
+LOCK = ".lock"  # held while an export writes the folder (a second writer is refused, naming the pid)
 BASE_TIMESTAMP_US = 1_577_836_800 * 10**6   # 2020-01-01T00:00:00Z
 SEQUENCE_SPACING_US = 86_400 * 10**6        # sequence k starts k days later (a sequence lasts < 6 h)
 VEHICLE = "mcdp-synth-ego"
@@ -161,7 +164,7 @@ def _prepare_output(out: Path, config_hash: str, version: str) -> None:
         raise ExportError(f"{out}: exists and is not a folder")
     if out.is_symlink():
         raise ExportError(f"{out}: is a symlink; give the real folder")
-    if not out.is_dir() or not any(out.iterdir()):
+    if not out.is_dir() or not any(p.name != LOCK for p in out.iterdir()):
         return
     marker = out / MARKER
     if not marker.is_file():
@@ -178,7 +181,7 @@ def _prepare_output(out: Path, config_hash: str, version: str) -> None:
         raise ExportError(f"{out}: holds the export of another dataset (config_hash {str(prev_hash)[:12]}..., "
                           f"this one {config_hash[:12]}...); choose another --out")
     versions = {str(v) for v in [prev.get("version"), version] if v}
-    owned = set(_OWNED) | versions | {f"{v}.partial" for v in versions}
+    owned = set(_OWNED) | versions | {f"{v}.partial" for v in versions} | {LOCK}
     for p in sorted(out.iterdir()):
         if p.name not in owned:
             raise ExportError(f"{p}: not part of the previous export in {out}; refusing to overwrite it")
@@ -193,8 +196,10 @@ def _prepare_output(out: Path, config_hash: str, version: str) -> None:
 
 
 def _write_jpeg(path: Path, rgb: np.ndarray, quality: int) -> None:
-    if not cv2.imwrite(str(path), np.ascontiguousarray(rgb[:, :, ::-1]), [cv2.IMWRITE_JPEG_QUALITY, int(quality)]):
-        raise ExportError(f"{path}: could not write JPEG")
+    ok, buf = cv2.imencode(".jpg", np.ascontiguousarray(rgb[:, :, ::-1]), [cv2.IMWRITE_JPEG_QUALITY, int(quality)])
+    if not ok:
+        raise ExportError(f"{path}: could not encode JPEG")
+    atomic_write_bytes(path, buf.tobytes(), fsync=False)  # whole or absent; the tables, written last, seal
 
 
 # ----------------------------------------------------------------------------- export
@@ -229,190 +234,194 @@ def export_nuscenes(dataset: str | Path, out: str | Path, version: str = DEFAULT
 
     _prepare_output(out, cfg_hash, version)
     out.mkdir(parents=True, exist_ok=True)
-    (out / EXPORT_DIR).mkdir(exist_ok=True)
-    tok = _Tokens(cfg_hash)
-    marker = {"format": FORMAT, "format_version": FORMAT_VERSION, "complete": False, "version": version,
-              "source": {"path": str(src.resolve()), "config_hash": cfg_hash,
-                         "generator_version": ds.manifest.get("generator_version"), "seed": ds.manifest.get("seed")}}
-    write_json(out / MARKER, marker)
+    lock = lock_folder(out, LOCK)  # a second export into `out` is refused, naming this pid
+    try:
+        (out / EXPORT_DIR).mkdir(exist_ok=True)
+        tok = _Tokens(cfg_hash)
+        marker = {"format": FORMAT, "format_version": FORMAT_VERSION, "complete": False, "version": version,
+                  "source": {"path": str(src.resolve()), "config_hash": cfg_hash,
+                             "generator_version": ds.manifest.get("generator_version"), "seed": ds.manifest.get("seed")}}
+        write_json(out / MARKER, marker)
 
-    # sensors and calibration (static rig)
-    sensors, calibrated = [], []
-    cs_token: dict[str, str] = {}
-    for cam in ds.cameras:
-        ch = chmap[cam.name]
-        T = _check_rigid(cam.T_ego_cam, f"{src / 'rig.json'} camera {cam.name} T_ego_cam")
-        st, ct = tok("sensor", ch), tok("calibrated_sensor", ch)
-        sensors.append({"token": st, "channel": ch, "modality": "camera"})
-        calibrated.append({"token": ct, "sensor_token": st, "translation": [float(x) for x in T[:3, 3]],
-                           "rotation": rotation_to_quaternion(T[:3, :3]),
-                           "camera_intrinsic": [[float(x) for x in row] for row in cam.K]})
-        cs_token[ch] = ct
-    channels = [chmap[c.name] for c in ds.cameras]
-    if lidar is not None:
-        T = lidar.T_ego_lidar()
-        st, ct = tok("sensor", LIDAR_CHANNEL), tok("calibrated_sensor", LIDAR_CHANNEL)
-        sensors.append({"token": st, "channel": LIDAR_CHANNEL, "modality": "lidar"})
-        calibrated.append({"token": ct, "sensor_token": st, "translation": [float(x) for x in T[:3, 3]],
-                           "rotation": rotation_to_quaternion(T[:3, :3]), "camera_intrinsic": []})
-        cs_token[LIDAR_CHANNEL] = ct
-        channels.append(LIDAR_CHANNEL)
+        # sensors and calibration (static rig)
+        sensors, calibrated = [], []
+        cs_token: dict[str, str] = {}
+        for cam in ds.cameras:
+            ch = chmap[cam.name]
+            T = _check_rigid(cam.T_ego_cam, f"{src / 'rig.json'} camera {cam.name} T_ego_cam")
+            st, ct = tok("sensor", ch), tok("calibrated_sensor", ch)
+            sensors.append({"token": st, "channel": ch, "modality": "camera"})
+            calibrated.append({"token": ct, "sensor_token": st, "translation": [float(x) for x in T[:3, 3]],
+                               "rotation": rotation_to_quaternion(T[:3, :3]),
+                               "camera_intrinsic": [[float(x) for x in row] for row in cam.K]})
+            cs_token[ch] = ct
+        channels = [chmap[c.name] for c in ds.cameras]
+        if lidar is not None:
+            T = lidar.T_ego_lidar()
+            st, ct = tok("sensor", LIDAR_CHANNEL), tok("calibrated_sensor", LIDAR_CHANNEL)
+            sensors.append({"token": st, "channel": LIDAR_CHANNEL, "modality": "lidar"})
+            calibrated.append({"token": ct, "sensor_token": st, "translation": [float(x) for x in T[:3, 3]],
+                               "rotation": rotation_to_quaternion(T[:3, :3]), "camera_intrinsic": []})
+            cs_token[LIDAR_CHANNEL] = ct
+            channels.append(LIDAR_CHANNEL)
 
-    # masks
-    (out / EXPORT_DIR / "masks").mkdir(parents=True, exist_ok=True)
-    masks: dict[str, np.ndarray] = {}
-    mask_files = {}
-    for cam in ds.cameras:
-        ch = chmap[cam.name]
-        try:
-            m = read_png(ds.root / "masks" / f"{cam.name}.png", gray=True)
-        except DatasetError as exc:
-            raise ExportError(str(exc)) from None
-        if m.shape != (cam.height, cam.width):
-            raise ExportError(f"{ds.root / 'masks' / (cam.name + '.png')}: {m.shape[1]}x{m.shape[0]}, "
-                              f"rig.json says {cam.width}x{cam.height}")
-        masks[cam.name] = m > 127
-        write_png(out / EXPORT_DIR / "masks" / f"{ch}.png", m)
-        mask_files[ch] = f"{EXPORT_DIR}/masks/{ch}.png"
+        # masks
+        (out / EXPORT_DIR / "masks").mkdir(parents=True, exist_ok=True)
+        masks: dict[str, np.ndarray] = {}
+        mask_files = {}
+        for cam in ds.cameras:
+            ch = chmap[cam.name]
+            try:
+                m = read_png(ds.root / "masks" / f"{cam.name}.png", gray=True)
+            except DatasetError as exc:
+                raise ExportError(str(exc)) from None
+            if m.shape != (cam.height, cam.width):
+                raise ExportError(f"{ds.root / 'masks' / (cam.name + '.png')}: {m.shape[1]}x{m.shape[0]}, "
+                                  f"rig.json says {cam.width}x{cam.height}")
+            masks[cam.name] = m > 127
+            write_png(out / EXPORT_DIR / "masks" / f"{ch}.png", m)
+            mask_files[ch] = f"{EXPORT_DIR}/masks/{ch}.png"
 
-    # placeholder map
-    map_token = tok("map", "semantic_prior")
-    (out / "maps").mkdir(exist_ok=True)
-    write_png(out / "maps" / f"{map_token}.png", np.zeros((8, 8), np.uint8))
+        # placeholder map
+        map_token = tok("map", "semantic_prior")
+        (out / "maps").mkdir(exist_ok=True)
+        write_png(out / "maps" / f"{map_token}.png", np.zeros((8, 8), np.uint8))
 
-    for ch in channels:
-        (out / "samples" / ch).mkdir(parents=True, exist_ok=True)
-        if ch != LIDAR_CHANNEL:
-            (out / EXPORT_DIR / "depth" / ch).mkdir(parents=True, exist_ok=True)
+        for ch in channels:
+            (out / "samples" / ch).mkdir(parents=True, exist_ok=True)
+            if ch != LIDAR_CHANNEL:
+                (out / EXPORT_DIR / "depth" / ch).mkdir(parents=True, exist_ok=True)
 
-    logs, scenes, samples, sample_data, ego_poses = [], [], [], [], []
-    sd_index: dict[str, dict] = {}
-    n_points = []
-    frames_total = sum(ds.n_frames(q) for q in seqs)
-    bar = None
-    if progress:
-        from tqdm import tqdm
-        bar = tqdm(total=frames_total, desc="export", unit="frame")
-    for si, seq in enumerate(seqs):
-        info = ds.manifest["sequences"][seq]
-        family = str((info.get("scene") or {}).get("family", "synth"))
-        n = ds.n_frames(seq)
-        ego_path = ds.root / seq / "ego.json"
-        try:
-            ego = ds.ego(seq)
-        except DatasetError as exc:
-            raise ExportError(str(exc)) from None
-        if len(ego) != n:
-            raise ExportError(f"{ego_path}: {len(ego)} frames, the manifest says {n}")
-        log_token, scene_token = tok("log", seq), tok("scene", seq)
-        t0 = timestamp_us(si, 0, fps)
-        date = _dt.datetime.fromtimestamp(t0 / 1e6, _dt.timezone.utc).strftime("%Y-%m-%d")
-        logs.append({"token": log_token, "logfile": seq, "vehicle": VEHICLE, "date_captured": date,
-                     "location": f"synth-{family}"})
-        sample_tokens = [tok("sample", seq, f) for f in range(n)]
-        sd_tokens = {ch: [tok("sample_data", seq, ch, f) for f in range(n)] for ch in channels}
-        for f in range(n):
-            fr = ego[f]
-            ts = timestamp_us(si, f, fps)
-            if abs(float(fr.get("timestamp_s", f / fps)) - f / fps) > 1e-6:
-                raise ExportError(f"{ego_path}: frame {f} timestamp_s {fr.get('timestamp_s')} is not frame / fps "
-                                  f"= {f / fps}")
-            T_we = _check_rigid(fr.get("T_world_ego"), f"{ego_path} frame {f} T_world_ego")
-            samples.append({"token": sample_tokens[f], "timestamp": ts, "scene_token": scene_token,
-                            "prev": sample_tokens[f - 1] if f > 0 else "",
-                            "next": sample_tokens[f + 1] if f + 1 < n else ""})
-            pose = {"translation": [float(x) for x in T_we[:3, 3]], "rotation": rotation_to_quaternion(T_we[:3, :3]),
-                    "timestamp": ts}
-            depths, grays = {}, {}
-            for cam in ds.cameras:
-                ch = chmap[cam.name]
-                token = sd_tokens[ch][f]
-                stem = f"{seq}__{ch}__{ts}"
-                try:
-                    rgb = ds.read_rgb(seq, cam.name, f)
-                except DatasetError as exc:
-                    raise ExportError(str(exc)) from None
-                if rgb.shape[:2] != (cam.height, cam.width):
-                    raise ExportError(f"{ds.rgb_path(seq, cam.name, f)}: {rgb.shape[1]}x{rgb.shape[0]}, rig.json "
-                                      f"says {cam.width}x{cam.height}")
-                rel = f"samples/{ch}/{stem}.jpg"
-                _write_jpeg(out / rel, rgb, jpeg_quality)
-                entry = {"sequence": seq, "frame": f, "camera": cam.name, "channel": ch}
-                if ds.has_depth:
-                    dsrc = ds.depth_path(seq, cam.name, f)
-                    if not dsrc.is_file():
-                        raise ExportError(f"{dsrc}: file is missing")
-                    drel = f"{EXPORT_DIR}/depth/{ch}/{stem}.depth.exr"
-                    shutil.copyfile(dsrc, out / drel)
-                    entry["depth"] = drel
-                    if lidar is not None:
-                        try:
-                            depths[cam.name] = ds.read_depth(seq, cam.name, f)
-                        except DatasetError as exc:
-                            raise ExportError(str(exc)) from None
-                        if depths[cam.name].shape != (cam.height, cam.width):
-                            raise ExportError(f"{dsrc}: depth is {depths[cam.name].shape[::-1]}, rig.json says "
-                                              f"{cam.width}x{cam.height}")
-                        grays[cam.name] = luma(rgb)
-                sd_index[token] = entry
-                sample_data.append(_sd_record(token, sample_tokens[f], cs_token[ch], rel, "jpg", cam.width,
-                                              cam.height, ts, sd_tokens[ch], f, n))
-                ego_poses.append({"token": token, **pose})
-            if lidar is not None:
-                token = sd_tokens[LIDAR_CHANNEL][f]
-                rel = f"samples/{LIDAR_CHANNEL}/{seq}__{LIDAR_CHANNEL}__{ts}.pcd.bin"
-                pts = simulate_sweep(lidar, list(ds.cameras), depths, masks, grays)
-                pts.astype("<f4").tofile(out / rel)
-                n_points.append(len(pts))
-                sd_index[token] = {"sequence": seq, "frame": f, "channel": LIDAR_CHANNEL, "points": int(len(pts))}
-                sample_data.append(_sd_record(token, sample_tokens[f], cs_token[LIDAR_CHANNEL], rel, "pcd", 0, 0,
-                                              ts, sd_tokens[LIDAR_CHANNEL], f, n))
-                ego_poses.append({"token": token, **pose})
-            if bar is not None:
-                bar.update(1)
-        desc = f"mcdp-synth {family}, {info.get('time_of_day', '?')}, split {split_of.get(seq, '-')}"
-        scenes.append({"token": scene_token, "name": seq, "description": desc, "log_token": log_token,
-                       "nbr_samples": n, "first_sample_token": sample_tokens[0],
-                       "last_sample_token": sample_tokens[-1]})
-    if bar is not None:
-        bar.close()
+        logs, scenes, samples, sample_data, ego_poses = [], [], [], [], []
+        sd_index: dict[str, dict] = {}
+        n_points = []
+        frames_total = sum(ds.n_frames(q) for q in seqs)
+        bar = None
+        if progress:
+            from tqdm import tqdm
+            bar = tqdm(total=frames_total, desc="export", unit="frame")
+        for si, seq in enumerate(seqs):
+            info = ds.manifest["sequences"][seq]
+            family = str((info.get("scene") or {}).get("family", "synth"))
+            n = ds.n_frames(seq)
+            ego_path = ds.root / seq / "ego.json"
+            try:
+                ego = ds.ego(seq)
+            except DatasetError as exc:
+                raise ExportError(str(exc)) from None
+            if len(ego) != n:
+                raise ExportError(f"{ego_path}: {len(ego)} frames, the manifest says {n}")
+            log_token, scene_token = tok("log", seq), tok("scene", seq)
+            t0 = timestamp_us(si, 0, fps)
+            date = _dt.datetime.fromtimestamp(t0 / 1e6, _dt.timezone.utc).strftime("%Y-%m-%d")
+            logs.append({"token": log_token, "logfile": seq, "vehicle": VEHICLE, "date_captured": date,
+                         "location": f"synth-{family}"})
+            sample_tokens = [tok("sample", seq, f) for f in range(n)]
+            sd_tokens = {ch: [tok("sample_data", seq, ch, f) for f in range(n)] for ch in channels}
+            for f in range(n):
+                fr = ego[f]
+                ts = timestamp_us(si, f, fps)
+                if abs(float(fr.get("timestamp_s", f / fps)) - f / fps) > 1e-6:
+                    raise ExportError(f"{ego_path}: frame {f} timestamp_s {fr.get('timestamp_s')} is not frame / fps "
+                                      f"= {f / fps}")
+                T_we = _check_rigid(fr.get("T_world_ego"), f"{ego_path} frame {f} T_world_ego")
+                samples.append({"token": sample_tokens[f], "timestamp": ts, "scene_token": scene_token,
+                                "prev": sample_tokens[f - 1] if f > 0 else "",
+                                "next": sample_tokens[f + 1] if f + 1 < n else ""})
+                pose = {"translation": [float(x) for x in T_we[:3, 3]], "rotation": rotation_to_quaternion(T_we[:3, :3]),
+                        "timestamp": ts}
+                depths, grays = {}, {}
+                for cam in ds.cameras:
+                    ch = chmap[cam.name]
+                    token = sd_tokens[ch][f]
+                    stem = f"{seq}__{ch}__{ts}"
+                    try:
+                        rgb = ds.read_rgb(seq, cam.name, f)
+                    except DatasetError as exc:
+                        raise ExportError(str(exc)) from None
+                    if rgb.shape[:2] != (cam.height, cam.width):
+                        raise ExportError(f"{ds.rgb_path(seq, cam.name, f)}: {rgb.shape[1]}x{rgb.shape[0]}, rig.json "
+                                          f"says {cam.width}x{cam.height}")
+                    rel = f"samples/{ch}/{stem}.jpg"
+                    _write_jpeg(out / rel, rgb, jpeg_quality)
+                    entry = {"sequence": seq, "frame": f, "camera": cam.name, "channel": ch}
+                    if ds.has_depth:
+                        dsrc = ds.depth_path(seq, cam.name, f)
+                        if not dsrc.is_file():
+                            raise ExportError(f"{dsrc}: file is missing")
+                        drel = f"{EXPORT_DIR}/depth/{ch}/{stem}.depth.exr"
+                        shutil.copyfile(dsrc, out / drel)
+                        entry["depth"] = drel
+                        if lidar is not None:
+                            try:
+                                depths[cam.name] = ds.read_depth(seq, cam.name, f)
+                            except DatasetError as exc:
+                                raise ExportError(str(exc)) from None
+                            if depths[cam.name].shape != (cam.height, cam.width):
+                                raise ExportError(f"{dsrc}: depth is {depths[cam.name].shape[::-1]}, rig.json says "
+                                                  f"{cam.width}x{cam.height}")
+                            grays[cam.name] = luma(rgb)
+                    sd_index[token] = entry
+                    sample_data.append(_sd_record(token, sample_tokens[f], cs_token[ch], rel, "jpg", cam.width,
+                                                  cam.height, ts, sd_tokens[ch], f, n))
+                    ego_poses.append({"token": token, **pose})
+                if lidar is not None:
+                    token = sd_tokens[LIDAR_CHANNEL][f]
+                    rel = f"samples/{LIDAR_CHANNEL}/{seq}__{LIDAR_CHANNEL}__{ts}.pcd.bin"
+                    pts = simulate_sweep(lidar, list(ds.cameras), depths, masks, grays)
+                    pts.astype("<f4").tofile(out / rel)
+                    n_points.append(len(pts))
+                    sd_index[token] = {"sequence": seq, "frame": f, "channel": LIDAR_CHANNEL, "points": int(len(pts))}
+                    sample_data.append(_sd_record(token, sample_tokens[f], cs_token[LIDAR_CHANNEL], rel, "pcd", 0, 0,
+                                                  ts, sd_tokens[LIDAR_CHANNEL], f, n))
+                    ego_poses.append({"token": token, **pose})
+                if bar is not None:
+                    bar.update(1)
+            desc = f"mcdp-synth {family}, {info.get('time_of_day', '?')}, split {split_of.get(seq, '-')}"
+            scenes.append({"token": scene_token, "name": seq, "description": desc, "log_token": log_token,
+                           "nbr_samples": n, "first_sample_token": sample_tokens[0],
+                           "last_sample_token": sample_tokens[-1]})
+        if bar is not None:
+            bar.close()
 
-    tables = {
-        "category": [], "attribute": [], "visibility": [], "instance": [], "sample_annotation": [],
-        "sensor": sensors, "calibrated_sensor": calibrated, "ego_pose": ego_poses, "log": logs, "scene": scenes,
-        "sample": samples, "sample_data": sample_data,
-        "map": [{"token": map_token, "log_tokens": [lg["token"] for lg in logs], "category": "semantic_prior",
-                 "filename": f"maps/{map_token}.png"}],
-    }
-    write_json(out / SPLITS_FILE, splits)
-    marker.update({
-        "complete": True,
-        "channels": {c.name: chmap[c.name] for c in ds.cameras},
-        "lidar": None if lidar is None else {"channel": LIDAR_CHANNEL, "config": lidar.model_dump(mode="json"),
-                                             "points_per_sweep": {"min": int(min(n_points)), "max": int(max(n_points)),
-                                                                  "mean": float(np.mean(n_points))}},
-        "fps": fps, "timestamp_base_us": BASE_TIMESTAMP_US, "sequence_spacing_us": SEQUENCE_SPACING_US,
-        "jpeg_quality": int(jpeg_quality),
-        "pixel_centre": "camera_intrinsic is rig.json K: pixel (c, r) has its centre at (c + 0.5, r + 0.5); "
-                        "a projected (u, v) lies in pixel (floor(u), floor(v)). For the integer-centre "
-                        "convention subtract 0.5 from K[0][2] and K[1][2].",
-        "splits": SPLITS_FILE, "masks": mask_files, "sample_data": sd_index,
-    })
-    write_json(out / MARKER, marker)
-    # the tables last: into <version>.partial/, then one rename
-    tmp_dir, final_dir = out / f"{version}.partial", out / version
-    if tmp_dir.exists():
-        shutil.rmtree(tmp_dir)
-    tmp_dir.mkdir()
-    for name in TABLES:
-        write_json(tmp_dir / f"{name}.json", tables[name])
-    if final_dir.exists():
-        shutil.rmtree(final_dir)
-    os.replace(tmp_dir, final_dir)
-    summary = {"out": str(out), "version": version, "scenes": len(scenes), "samples": len(samples),
-               "sample_data": len(sample_data), "channels": channels,
-               "lidar_points_per_sweep": None if lidar is None else float(np.mean(n_points))}
-    return summary
+        tables = {
+            "category": [], "attribute": [], "visibility": [], "instance": [], "sample_annotation": [],
+            "sensor": sensors, "calibrated_sensor": calibrated, "ego_pose": ego_poses, "log": logs, "scene": scenes,
+            "sample": samples, "sample_data": sample_data,
+            "map": [{"token": map_token, "log_tokens": [lg["token"] for lg in logs], "category": "semantic_prior",
+                     "filename": f"maps/{map_token}.png"}],
+        }
+        write_json(out / SPLITS_FILE, splits)
+        marker.update({
+            "complete": True,
+            "channels": {c.name: chmap[c.name] for c in ds.cameras},
+            "lidar": None if lidar is None else {"channel": LIDAR_CHANNEL, "config": lidar.model_dump(mode="json"),
+                                                 "points_per_sweep": {"min": int(min(n_points)), "max": int(max(n_points)),
+                                                                      "mean": float(np.mean(n_points))}},
+            "fps": fps, "timestamp_base_us": BASE_TIMESTAMP_US, "sequence_spacing_us": SEQUENCE_SPACING_US,
+            "jpeg_quality": int(jpeg_quality),
+            "pixel_centre": "camera_intrinsic is rig.json K: pixel (c, r) has its centre at (c + 0.5, r + 0.5); "
+                            "a projected (u, v) lies in pixel (floor(u), floor(v)). For the integer-centre "
+                            "convention subtract 0.5 from K[0][2] and K[1][2].",
+            "splits": SPLITS_FILE, "masks": mask_files, "sample_data": sd_index,
+        })
+        write_json(out / MARKER, marker)
+        # the tables last: into <version>.partial/, then one rename
+        tmp_dir, final_dir = out / f"{version}.partial", out / version
+        if tmp_dir.exists():
+            shutil.rmtree(tmp_dir)
+        tmp_dir.mkdir()
+        for name in TABLES:
+            write_json(tmp_dir / f"{name}.json", tables[name])
+        if final_dir.exists():
+            shutil.rmtree(final_dir)
+        os.replace(tmp_dir, final_dir)
+        summary = {"out": str(out), "version": version, "scenes": len(scenes), "samples": len(samples),
+                   "sample_data": len(sample_data), "channels": channels,
+                   "lidar_points_per_sweep": None if lidar is None else float(np.mean(n_points))}
+        return summary
+    finally:
+        lock.release()
 
 
 def _sd_record(token, sample_token, cs_token, filename, fileformat, width, height, ts, chain, f, n) -> dict:

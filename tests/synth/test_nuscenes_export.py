@@ -268,7 +268,7 @@ def test_reexport_is_reproducible_and_cli(ns_root, tiny_dataset, tmp_path, capsy
                "lidar.azimuth_res_deg=1.0", "lidar.beams=16", "--no-progress"])
     assert rc == 0, capsys.readouterr().err
     assert not (copy / VERSION).exists() and sorted(p.name for p in copy.iterdir()) == \
-        ["maps", "mcdp_synth", "samples", "v1.0-ci"]
+        [".lock", "maps", "mcdp_synth", "samples", "v1.0-ci"]
     ns, out, caught = _load(copy, "v1.0-ci")
     assert caught == [] and "warn" not in out.lower()
     pts = LidarPointCloud.from_file(str(copy / ns.get("sample_data", ns.sample[0]["data"]["LIDAR_TOP"])["filename"]))
@@ -331,3 +331,22 @@ def test_lidar_config_rejects_bad_values():
         build_config(LidarConfig, {"beams": 0})
     with pytest.raises(ConfigError, match="max_range_m"):
         build_config(LidarConfig, {"min_range_m": 10.0, "max_range_m": 5.0})
+
+
+def test_a_second_export_into_the_same_folder_is_refused_naming_the_pid(tiny_dataset, tmp_path, capsys):
+    import os
+
+    from corelib.rundir import lock_folder
+    from synth.cli import main
+
+    out = tmp_path / "ns"
+    out.mkdir()
+    held = lock_folder(out, ".lock")  # another export is writing
+    try:
+        assert main(["export", str(tiny_dataset), "--format", "nuscenes", "--out", str(out), "--no-lidar",
+                     "--no-progress"]) == 2
+        assert f"another process (pid {os.getpid()})" in capsys.readouterr().err
+    finally:
+        held.release()
+    assert main(["export", str(tiny_dataset), "--format", "nuscenes", "--out", str(out), "--no-lidar",
+                 "--no-progress"]) == 0
