@@ -30,6 +30,7 @@ def add_sweep_parser(subparsers) -> argparse.ArgumentParser:
     _allow_intermixed(p)
     return p
 
+
 def _allow_intermixed(p: argparse.ArgumentParser) -> None:
     """Let ``key=value`` overrides come after ``--out`` (``PRESET --out DIR a=b``).
 
@@ -53,6 +54,7 @@ def _allow_intermixed(p: argparse.ArgumentParser) -> None:
             state["inner"] = False
 
     p.parse_known_args = parse_known_args
+
 
 def run_sweep_command(args: argparse.Namespace) -> int:
     """Run the ``sweep`` subcommand; 0 on success, 3 if some run diverged (the report says which)."""

@@ -21,7 +21,9 @@ from mcdp.pretrain import PretrainConfig
 
 ROOT = Path(__file__).resolve().parents[1]
 
+
 SPLIT = "test"
+
 
 class SweepEvalConfig(StrictModel):
     """Evaluation settings applied to every run (see `mcdp.evaluate.EvalConfig`; depths in metres)."""
@@ -36,6 +38,7 @@ class SweepEvalConfig(StrictModel):
         if self.min_depth >= self.max_depth:
             raise ValueError(f"eval.min_depth ({self.min_depth}) must be < eval.max_depth ({self.max_depth})")
         return self
+
 
 class SweepConfig(StrictModel):
     """One overlap sweep; every default here, a preset lists what differs.
@@ -135,12 +138,15 @@ class SweepConfig(StrictModel):
                 raise ValueError(f"{key}: set evaluation settings in the sweep's eval section")
         return v
 
+
 def override_keys(items: list[str]) -> list[str]:
     """The dotted keys of key=value override strings."""
     return [item.split("=", 1)[0].strip() for item in items]
 
+
 def overlap_key(o: float) -> str:
     return f"overlap_{o:.2f}"
+
 
 def resolve_path(p: str | Path, kind: str) -> Path:
     """A relative path: to the working directory if it exists there, else to the project root."""
@@ -152,8 +158,10 @@ def resolve_path(p: str | Path, kind: str) -> Path:
         return alt
     raise ConfigError(f"{kind} {p} does not exist (looked in {Path.cwd()} and {ROOT})")
 
+
 def load_sweep_config(path: str | Path | None, overrides=()) -> SweepConfig:
     return load_config(SweepConfig, path, overrides)
+
 
 def data_config_for(cfg: SweepConfig, overlap: float):
     """The resolved data config of one overlap."""
@@ -161,6 +169,7 @@ def data_config_for(cfg: SweepConfig, overlap: float):
 
     return load_config(DataConfig, resolve_path(cfg.data, "data preset"), cfg.data_overrides,
                        {"rig.overlap": round(overlap, 2), "rig.overlap_mode": cfg.overlap_mode})
+
 
 def run_config_for(cfg: SweepConfig, method: str, seed: int, init_from: str | None = None):
     """The resolved RunConfig of one (method, seed): preset + train_overrides + seed + eval + device
@@ -173,6 +182,7 @@ def run_config_for(cfg: SweepConfig, method: str, seed: int, init_from: str | No
         values["model.init_from"] = init_from
     base = dict(METHODS[method].defaults)
     return load_config(RunConfig, preset, cfg.train_overrides, values, base=base), preset
+
 
 def eval_config_for(cfg: SweepConfig):
     """The `mcdp.evaluate.EvalConfig` every run and the reference are evaluated with."""

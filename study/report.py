@@ -41,6 +41,7 @@ def write_all(results: dict, out: str | Path) -> None:
     plots = make_plots(results, out / "plots")
     atomic_write_text(out / "report.md", format_report(results, [p.relative_to(out).as_posix() for p in plots]))
 
+
 def write_csv(results: dict, path: Path) -> None:
     flats = results["flat"]
     meas = {d["overlap"]: d["measured"] for d in results["data"]}
@@ -67,6 +68,7 @@ def write_csv(results: dict, path: Path) -> None:
                                 "measured_overlap": d["measured"].get("measured_mean")})
         atomic_write_text(path, fh.getvalue())
 
+
 def _fmt(a: dict, digits: int = 3) -> str:
     mu = a.get("mean", float("nan"))
     if not isinstance(mu, (int, float)) or not math.isfinite(mu):
@@ -79,13 +81,16 @@ def _fmt(a: dict, digits: int = 3) -> str:
         s += f" ({a['n_nan']} nan)"
     return s
 
+
 def _rel(x: float, ref: float) -> float:
     if not (math.isfinite(x) and math.isfinite(ref)) or ref == 0:
         return float("nan")
     return (x - ref) / ref * 100.0
 
+
 def _pct(p: float) -> str:
     return "nan" if not math.isfinite(p) else f"{p:+.1f} %"
+
 
 def format_report(results: dict, plots: list[str]) -> str:
     cfg = results["sweep_config"]
@@ -277,6 +282,7 @@ def format_report(results: dict, plots: list[str]) -> str:
     add("Every number: `results.csv` (one row per overlap × method × seed) and `results.json`.")
     return "\n".join(L) + "\n"
 
+
 def _pair_verdicts(results: dict, a: str = "mcdp_m2", b: str = "mono2") -> str:
     """One line per overlap: does method a differ from b beyond the paired 95 % interval?"""
     if a not in results["methods"] or b not in results["methods"]:
@@ -296,6 +302,7 @@ def _pair_verdicts(results: dict, a: str = "mcdp_m2", b: str = "mono2") -> str:
             parts.append(f"{name} {pd['mean']:+.3f} ± {pd['ci95']:.3f}{unit}: {word[pd['differs']]}")
         lines.append(f"- overlap {o:.2f}: " + "; ".join(parts))
     return "\n".join(lines)
+
 
 def _verdicts(results: dict) -> str:
     methods = results["methods"]
@@ -350,8 +357,10 @@ def _verdicts(results: dict) -> str:
                      "are not evidence either way.")
     return "\n".join(lines)
 
+
 def _num(x, digits: int = 3) -> str:
     return f"{x:.{digits}f}" if isinstance(x, (int, float)) and math.isfinite(x) else "nan"
+
 
 def _sec(x) -> str:
     return f"{x:.1f}" if isinstance(x, (int, float)) and math.isfinite(x) else "n/a"

@@ -15,10 +15,13 @@ from mcdp.metrics import METRIC_NAMES
 
 SCALE_LABEL = {"none": "metric", "median": "median", "rig_median": "rig median"}
 
+
 LOWER_BETTER = {"abs_rel", "sq_rel", "rmse", "rmse_log"}
+
 
 def _f(x) -> float:
     return float(x) if isinstance(x, (int, float)) and x is not None else float("nan")
+
 
 def flat_row(row: dict) -> dict[str, Any]:
     """One run's numbers as a flat dict of scalars (the CSV row)."""
@@ -43,9 +46,11 @@ def flat_row(row: dict) -> dict[str, Any]:
         out[f"dep_con.pair.{pair}"] = _f(v)
     return out
 
+
 T975 = (12.706, 4.303, 3.182, 2.776, 2.571, 2.447, 2.365, 2.306, 2.262, 2.228, 2.201, 2.179, 2.160, 2.145,
         2.131, 2.120, 2.110, 2.101, 2.093, 2.086, 2.080, 2.074, 2.069, 2.064, 2.060, 2.056, 2.052, 2.048,
         2.045, 2.042)
+
 
 def t_halfwidth(sd: float, n: int) -> float:
     """Half-width of the 95 % t-interval of a mean of n values with sample std sd (NaN for n < 2)."""
@@ -53,6 +58,7 @@ def t_halfwidth(sd: float, n: int) -> float:
         return float("nan")
     t = T975[n - 2] if n - 1 <= len(T975) else 1.96
     return t * sd / math.sqrt(n)
+
 
 def _mean_std(values: list[float]) -> dict:
     v = [x for x in values if isinstance(x, (int, float)) and math.isfinite(x)]
@@ -63,6 +69,7 @@ def _mean_std(values: list[float]) -> dict:
     mu = sum(v) / len(v)
     sd = math.sqrt(sum((x - mu) ** 2 for x in v) / (len(v) - 1)) if len(v) > 1 else 0.0
     return {"mean": mu, "std": sd, "ci95": t_halfwidth(sd, len(v)), "n": len(v), "n_nan": n_nan, "values": values}
+
 
 def paired_difference(results: dict, overlap: float, a: str, b: str, key: str) -> dict:
     """Mean and 95 % t-interval over seeds of (a - b) for the same seed (seeds pair the runs:
@@ -78,6 +85,7 @@ def paired_difference(results: dict, overlap: float, a: str, b: str, key: str) -
     if math.isfinite(mu) and math.isfinite(hw):
         differs = -1 if mu + hw < 0 else (1 if mu - hw > 0 else 0)
     return {"mean": mu, "ci95": hw, "n": ms["n"], "differs": differs}
+
 
 def build_results(cfg, data: list[dict], rows: list[dict], counters: dict, total_s: float,
                   previews: list[str]) -> dict:
@@ -119,8 +127,10 @@ def build_results(cfg, data: list[dict], rows: list[dict], counters: dict, total
         "previews": previews,
     }
 
+
 def _nz(x) -> float:
     return x if isinstance(x, (int, float)) and math.isfinite(x) else 0.0
+
 
 def _agg(results: dict, overlap: float, method: str, key: str) -> dict:
     for a in results["aggregate"]:
@@ -128,17 +138,22 @@ def _agg(results: dict, overlap: float, method: str, key: str) -> dict:
             return a["metrics"].get(key, {"mean": float("nan"), "std": float("nan"), "n": 0})
     return {"mean": float("nan"), "std": float("nan"), "n": 0}
 
+
 REF_LABEL = "Constant depth (ref.)"
+
 
 PRIOR_LABEL = "Flat-road prior (ref.)"
 
+
 YARDSTICKS = (("reference", REF_LABEL, "constant_reference"), ("prior", PRIOR_LABEL, "flat_road_prior"))
+
 
 def _ref_flat(results: dict, overlap: float, which: str = "reference") -> dict:
     for d in results["data"]:
         if d["overlap"] == overlap and d.get(which):
             return flat_row({"metrics": d[which]["metrics"]})
     return {}
+
 
 def _ref(results: dict, overlap: float, key: str, which: str = "reference") -> dict:
     """A yardstick's value of `key` at one overlap (``which``: reference = constant, prior = flat road),

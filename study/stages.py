@@ -17,15 +17,18 @@ from study.config import SPLIT, SweepConfig, data_config_for, eval_config_for, o
 
 STATUS = "sweep_status.json"
 
+
 def _read_json(path: Path) -> dict | None:
     try:
         return json.loads(path.read_text())
     except (OSError, ValueError):
         return None
 
+
 def _write_json(path: Path, obj) -> None:
     path.parent.mkdir(parents=True, exist_ok=True)
     atomic_write_json(path, obj, allow_nan=True)
+
 
 def measured_overlap(manifest: dict) -> dict:
     """Target and measured pixel overlap of a dataset (from its manifest).
@@ -55,8 +58,10 @@ def measured_overlap(manifest: dict) -> dict:
         "per_pair": {k: {"target": v.get("target"), "measured": v.get("measured")} for k, v in pp.items()},
     }
 
+
 def _finite(x) -> bool:
     return isinstance(x, (int, float)) and math.isfinite(x)
+
 
 def summarize_metrics(metrics: dict, stage: str = "final") -> dict:
     """The numbers the report uses, from one metrics.json (`mcdp.evaluate` layout)."""
@@ -78,9 +83,11 @@ def summarize_metrics(metrics: dict, stage: str = "final") -> dict:
     out["stages"] = list(metrics["stages"])
     return out
 
+
 class Counters(dict):
     def bump(self, key: str) -> None:
         self[key] = self.get(key, 0) + 1
+
 
 def render_stage(cfg: SweepConfig, overlap: float, sweep_dir: Path, counters: Counters, log, progress: bool) -> dict:
     """Render (or reuse / resume) the dataset of one overlap; returns its record."""
@@ -119,6 +126,7 @@ def render_stage(cfg: SweepConfig, overlap: float, sweep_dir: Path, counters: Co
         f"(mean of the {ov['pairs_at_target']}/{ov['pairs']} pairs at the target)")
     return {"overlap": overlap, "path": str(out), "config_hash": h, "render_s": render_s, "render_skipped": skipped,
             "measured": ov, "splits": {k: len(v) for k, v in manifest["splits"].items()}}
+
 
 def reference_stage(cfg: SweepConfig, d: dict, sweep_dir: Path, counters: Counters, log) -> dict:
     """Evaluate the constant-depth reference on one overlap's test split (cached beside the dataset).
@@ -160,6 +168,7 @@ def reference_stage(cfg: SweepConfig, d: dict, sweep_dir: Path, counters: Counte
             f"dep_con {r['metrics']['dep_con']['mean']:.4f}")
     return ref, prior
 
+
 def pretrain_stage(cfg: SweepConfig, sweep_dir: Path, progress: bool, log) -> dict | None:
     """Make (or reuse) the sweep's shared pretraining; its record with ``weights`` (the path runs start from)."""
     if cfg.pretrain is None:
@@ -172,9 +181,11 @@ def pretrain_stage(cfg: SweepConfig, sweep_dir: Path, progress: bool, log) -> di
     return {"weights": str(pdir / WEIGHTS), "config_hash": h, "sha256": rec["sha256"], "step": rec["step"],
             "render_s": rec.get("render_s"), "train_s": rec.get("train_s"), "depth_spread": rec.get("depth_spread")}
 
+
 def _eval_key(run_hash: str, step: int, eval_cfg: dict, data_hash: str, checkpoint: str, ckpt_name: str) -> str:
     return config_hash({"run": run_hash, "step": step, "eval": eval_cfg, "data": data_hash, "checkpoint": checkpoint,
                         "file": ckpt_name})
+
 
 def run_stage(cfg: SweepConfig, overlap: float, data: dict, method: str, seed: int, sweep_dir: Path,
               counters: Counters, log, progress: bool, init_from: str | None = None) -> dict:
@@ -279,6 +290,7 @@ def run_stage(cfg: SweepConfig, overlap: float, data: dict, method: str, seed: i
     log(f"{tag}: abs_rel metric {m['none']['mean']['abs_rel']:.4f}, median {m['median']['mean']['abs_rel']:.4f}, "
         f"dep_con {m['dep_con']['mean']:.4f}")
     return row
+
 
 def _remove_last(run_dir: Path, status: dict, status_path: Path) -> dict:
     """keep_last=false: delete last.pt of a trained run whose evaluated checkpoint is best.pt."""

@@ -66,6 +66,7 @@ def run_sweep(cfg: SweepConfig, out: str | Path, progress: bool = True, log: Cal
     finally:
         lock.release()
 
+
 def _run_sweep(cfg: SweepConfig, out: Path, progress: bool, log, config_source: str | None) -> dict:
     resolved = config_to_dict(cfg)
     prev = out / "sweep_config.yaml"
@@ -106,12 +107,14 @@ def _run_sweep(cfg: SweepConfig, out: Path, progress: bool, log, config_source: 
     log(f"[sweep] report: {out / 'report.md'}")
     return results
 
+
 def _stage_job(cfg: SweepConfig, d: dict, method: str, seed: int, out: Path, init_from: str | None) -> tuple[dict, dict]:
     """One run in a worker process (``jobs`` > 1): no progress bars, log lines to stderr."""
     counters = Counters()
     row = run_stage(cfg, d["overlap"], d, method, seed, out, counters,
                     lambda s: print(s, file=sys.stderr, flush=True), False, init_from)
     return row, dict(counters)
+
 
 def _run_parallel(cfg: SweepConfig, todo: list, out: Path, counters: Counters, log,
                   init_from: str | None = None) -> list[dict]:
@@ -139,6 +142,7 @@ def _run_parallel(cfg: SweepConfig, todo: list, out: Path, counters: Counters, l
                 f.cancel()
             raise
     return rows  # type: ignore[return-value]
+
 
 def _previews(data: list[dict], out: Path, log) -> list[str]:
     from synth.dataset import open_dataset

@@ -13,6 +13,7 @@ from pathlib import Path
 
 from synth.files import DatasetError
 
+
 EXPORT_DIR = "mcdp_synth"
 INSTALL_HINT = "install the extra: pip install -e '.[nuscenes]'"
 
@@ -24,11 +25,13 @@ def version_dirs(root: Path) -> list[str]:
     except OSError:
         return []
 
+
 def is_nuscenes_root(root: str | Path) -> bool:
     """A folder with ``samples/``, a version folder holding ``sample.json`` and no ``manifest.json``."""
     root = Path(root)
     return root.is_dir() and (root / "samples").is_dir() and not (root / "manifest.json").exists() and bool(
         version_dirs(root))
+
 
 def _version(root: Path, version: str | None) -> str:
     if version is not None:
@@ -42,6 +45,7 @@ def _version(root: Path, version: str | None) -> str:
     if len(found) > 1:
         raise DatasetError(f"{root}: several nuScenes versions ({', '.join(found)}); name one (version=...)")
     return found[0]
+
 
 def _diagnose_key_error(root: Path, version: str, exc: KeyError) -> str:
     """The devkit raised KeyError(token) while indexing: find which record names the missing token."""
@@ -63,6 +67,7 @@ def _diagnose_key_error(root: Path, version: str, exc: KeyError) -> str:
                         f"{r.get(field)!r}, which is not in {target}.json")
     return f"{root / version}: the devkit could not index the tables: no record with token {exc}"
 
+
 def _load(root: Path, version: str):
     try:
         from nuscenes.nuscenes import NuScenes
@@ -76,12 +81,14 @@ def _load(root: Path, version: str):
         raise DatasetError(f"{root / version}: the devkit could not load the tables ({type(exc).__name__}: "
                            f"{str(exc)[:120]})") from None
 
+
 def _get(nusc, table: str, token, who: str) -> dict:
     try:
         return nusc.get(table, token)
     except KeyError:
         raise DatasetError(f"{nusc.dataroot}/{nusc.version}: {who}: {table}_token {token!r} is not in "
                            f"{table}.json") from None
+
 
 def _splits(root: Path, scenes: list[str], version: str) -> tuple[dict[str, list[str]], str]:
     f = root / EXPORT_DIR / "splits.json"
