@@ -12,6 +12,7 @@ import sys
 
 from mcdp import cli as mcdp_cli
 from study.config import load_sweep_config, resolve_path
+from study.engines import EXIT_RUN_FAILED
 from study.sweep import run_sweep
 
 
@@ -23,6 +24,10 @@ def add_sweep_parser(subparsers) -> argparse.ArgumentParser:
     p.add_argument("preset", help="sweep preset YAML, e.g. configs/sweep/ci.yaml")
     p.add_argument("--out", required=True, help="sweep folder; a rerun resumes and skips finished work")
     p.add_argument("--no-progress", action="store_true", help="no progress bars (log lines only)")
+    p.add_argument("--engine", choices=["local", "ray"], default=None,
+                   help="where renders and runs execute (overrides the config's engine): local processes, or Ray "
+                        "tasks on a local Ray / the cluster at RAY_ADDRESS (pip install -e '.[cluster]'; "
+                        "docs/SCALING.md)")
     p.add_argument("overrides", nargs="*",
                    help="sweep config overrides key=value, e.g. 'overlaps=[0.2,0.5]' seeds=[0,1] "
                         "'train_overrides=[train.steps=100]'")
@@ -57,11 +62,16 @@ def _allow_intermixed(p: argparse.ArgumentParser) -> None:
 
 
 def run_sweep_command(args: argparse.Namespace) -> int:
-    """Run the ``sweep`` subcommand; 0 on success, 3 if some run diverged (the report says which)."""
+    """Run the ``sweep`` subcommand; 0 on success, 5 if some run failed (engine ray: retried once, then a
+    ``failed`` row), else 3 if some run diverged (the report says which); 2 for a usage / config error."""
     preset = resolve_path(args.preset, "sweep preset")
-    cfg = load_sweep_config(preset, args.overrides)
+    engine = getattr(args, "engine", None)
+    cfg = load_sweep_config(preset, args.overrides, {"engine": engine} if engine else None)
+    source = str(preset) + (" + " + " ".join(args.overrides) if args.overrides else "")
     results = run_sweep(cfg, args.out, progress=not args.no_progress,
-                        config_source=str(preset) + (" + " + " ".join(args.overrides) if args.overrides else ""))
+                        config_source=source + (f" + --engine {engine}" if engine else ""))
+    if results["counters"].get("failed"):
+        return EXIT_RUN_FAILED
     return 3 if results["counters"].get("diverged") else 0
 
 

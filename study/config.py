@@ -18,7 +18,6 @@ from mcdp.methods import METHODS, PAPER_METHODS
 from mcdp.pretrain import PretrainConfig
 
 
-
 ROOT = Path(__file__).resolve().parents[1]
 
 
@@ -53,9 +52,15 @@ class SweepConfig(StrictModel):
     seeds: training seeds (``train.seed``); the dataset seed comes from the data preset.
     eval: evaluation settings for every run.
     checkpoint: which checkpoint is evaluated: ``auto`` (best val loss, else last), ``best``, ``last``.
-    workers: rendering processes.
-    jobs: runs (train + eval) at once, each in its own process; on a CPU give each job
-        ``train.threads`` cores (jobs x threads <= cores). Progress bars are off when > 1.
+    workers: rendering processes (engine ``local``).
+    jobs: runs (train + eval) at once, each in its own process (engine ``local``); on a CPU give
+        each job ``train.threads`` cores (jobs x threads <= cores). Progress bars are off when > 1.
+    engine: ``local`` (this machine: ``workers`` render processes, ``jobs`` run processes) or
+        ``ray`` (every sequence of every render and every run is a Ray task, scheduled by Ray;
+        `study.engines`, docs/SCALING.md); ``mcdp sweep --engine`` overrides it. Same results,
+        resumption and skipping either way.
+    ray_cpus: CPUs of the local Ray instance the sweep starts for ``engine: ray`` (null = the
+        machine's cores); unused when ``RAY_ADDRESS`` names a cluster to join.
     device: training / inference device.
     preview: write a preview sheet of one rig at the smallest and largest overlap.
     pretrain: a shared self-supervised pretraining (`mcdp.pretrain.PretrainConfig`) that every
@@ -80,6 +85,8 @@ class SweepConfig(StrictModel):
     checkpoint: Literal["auto", "best", "last"] = "auto"
     workers: int = Field(2, ge=1, le=256)
     jobs: int = Field(1, ge=1, le=64)
+    engine: Literal["local", "ray"] = "local"
+    ray_cpus: int | None = Field(None, ge=1, le=4096)
     device: Literal["auto", "cpu", "cuda"] = "auto"
     preview: bool = True
     keep_last: bool = True
@@ -159,8 +166,9 @@ def resolve_path(p: str | Path, kind: str) -> Path:
     raise ConfigError(f"{kind} {p} does not exist (looked in {Path.cwd()} and {ROOT})")
 
 
-def load_sweep_config(path: str | Path | None, overrides=()) -> SweepConfig:
-    return load_config(SweepConfig, path, overrides)
+def load_sweep_config(path: str | Path | None, overrides=(), values: dict | None = None) -> SweepConfig:
+    """A preset, then ``key=value`` overrides, then `values` (the command line's own flags, e.g. ``--engine``)."""
+    return load_config(SweepConfig, path, overrides, values)
 
 
 def data_config_for(cfg: SweepConfig, overlap: float):

@@ -156,7 +156,9 @@ def format_report(results: dict, plots: list[str]) -> str:
     if bad:
         add("**Failed runs** (their metrics are missing / NaN below):\n")
         for r in bad:
-            add(f"- overlap {r['overlap']:.2f} {r['method']} seed {r['seed']}: {r['status']}: {r.get('error', '')}")
+            add(f"- overlap {r['overlap']:.2f} {r['method']} seed {r['seed']}: {r['status']}: {r.get('error', '')}"
+                + (f" ({r['failed_attempts']} attempt(s) raised; tracebacks in `runs/overlap_{r['overlap']:.2f}/"
+                   f"{r['method']}_s{r['seed']}.errors.jsonl`)" if r.get("status") == "failed" else ""))
         add("")
 
     # ---- summary
@@ -266,9 +268,12 @@ def format_report(results: dict, plots: list[str]) -> str:
         add(f"| {o:.2f} | {_sec(d['render_s'])} | " + " | ".join(cells) + " |")
     t = results["timing"]
     jobs = results.get("sweep_config", {}).get("jobs", 1)
+    ray = results.get("sweep_config", {}).get("engine") == "ray"
     add(f"\nTotals (seconds): render {_sec(t['render_s'])}, train {_sec(t['train_s'])}, eval {_sec(t['eval_s'])}; "
         f"latest invocation {_sec(t['this_invocation_s'])} wall"
-        + (f" ({jobs} runs at a time, so train + eval seconds add up to more than the wall time)." if jobs > 1 else "."))
+        + (" (runs as Ray tasks, in parallel: train + eval seconds may add up to more than the wall time)." if ray
+           else f" ({jobs} runs at a time, so train + eval seconds add up to more than the wall time)." if jobs > 1
+           else "."))
     c = results["counters"]
     add("Latest invocation: " + ", ".join(f"{k} {v}" for k, v in c.items()) + ".\n")
 

@@ -110,7 +110,7 @@ def render_stage(cfg: SweepConfig, overlap: float, sweep_dir: Path, counters: Co
         log(f"[sweep] overlap {overlap:.2f}: rendering {dcfg.dataset.sequences} sequences x {dcfg.dataset.frames} "
             f"frames at {dcfg.camera.width}x{dcfg.camera.height} into {out}")
         t0 = time.perf_counter()
-        summary = render_dataset(dcfg, out, workers=cfg.workers, progress=progress,
+        summary = render_dataset(dcfg, out, workers=cfg.workers, engine=cfg.engine, progress=progress,
                                  log=lambda *a: log("[sweep]   " + " ".join(str(x) for x in a)))
         if not summary["complete"]:
             raise RuntimeError(f"render of {out} did not complete: {summary}")
@@ -187,6 +187,11 @@ def _eval_key(run_hash: str, step: int, eval_cfg: dict, data_hash: str, checkpoi
                         "file": ckpt_name})
 
 
+def run_dir_for(sweep_dir: Path, overlap: float, method: str, seed: int) -> Path:
+    """The folder of one (overlap, method, seed) run: ``SWEEP/runs/overlap_0.30/<method>_s<seed>``."""
+    return Path(sweep_dir) / "runs" / overlap_key(overlap) / f"{method}_s{seed}"
+
+
 def run_stage(cfg: SweepConfig, overlap: float, data: dict, method: str, seed: int, sweep_dir: Path,
               counters: Counters, log, progress: bool, init_from: str | None = None) -> dict:
     """Train (or reuse / resume) and evaluate one (overlap, method, seed); returns its result row."""
@@ -198,7 +203,7 @@ def run_stage(cfg: SweepConfig, overlap: float, data: dict, method: str, seed: i
 
     rcfg, preset = run_config_for(cfg, method, seed, init_from)
     rhash = config_hash(rcfg)
-    run_dir = sweep_dir / "runs" / overlap_key(overlap) / f"{method}_s{seed}"
+    run_dir = run_dir_for(sweep_dir, overlap, method, seed)
     status_path = run_dir / STATUS
     status = _read_json(status_path) or {}
     tag = f"[sweep] overlap {overlap:.2f} {method} seed {seed}"

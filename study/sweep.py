@@ -8,6 +8,12 @@ CSV/JSON and plots::
 
     mcdp sweep configs/sweep/ci.yaml --out SWEEP [key=value ...]
     mcdp sweep configs/sweep/cpu.yaml --out sweeps/cpu "overlaps=[0.2,0.4]" seeds=[0,1]
+    mcdp sweep configs/sweep/cpu.yaml --out /shared/sweeps/cpu --engine ray   # Ray tasks (docs/SCALING.md)
+
+Engines (`study.engines`): ``local`` runs the renders in ``workers`` processes and the runs
+``jobs`` at a time in processes; ``ray`` makes every rendered sequence and every run a Ray task
+on a local Ray or the cluster at ``RAY_ADDRESS``; a run that fails twice there is a row with
+status ``failed`` and the other runs go on. Rows, counters, resumption and skipping are the same.
 
 Layout of SWEEP::
 
@@ -44,7 +50,8 @@ from corelib.configlib import config_hash, config_to_dict
 from study.config import SPLIT, SweepConfig, overlap_key
 from study.report import write_all
 from study.results import build_results
-from study.stages import Counters, pretrain_stage, reference_stage, render_stage, run_stage
+from study.engines import run_all
+from study.stages import Counters, pretrain_stage, reference_stage, render_stage
 
 
 def run_sweep(cfg: SweepConfig, out: str | Path, progress: bool = True, log: Callable[[str], None] | None = None,
@@ -53,16 +60,24 @@ def run_sweep(cfg: SweepConfig, out: str | Path, progress: bool = True, log: Cal
 
     The returned dict (also ``out/results.json``) holds ``counters`` (rendered,
     render_skipped, trained, train_skipped, train_resumed, evaluated, eval_skipped,
-    diverged), ``data`` (per overlap), ``rows`` (per overlap x method x seed),
+    diverged, failed), ``data`` (per overlap), ``rows`` (per overlap x method x seed),
     ``aggregate`` (mean/std over seeds) and ``timing``.
     """
     from corelib.rundir import claim
 
     log = log or (lambda s: print(s, file=sys.stderr, flush=True))
     out = Path(out)
+    if cfg.engine == "ray":
+        from corelib.cluster import import_ray
+        import_ray()  # Ray missing: one line, before anything is written
     lock = claim(out, "sweep", legacy=("sweep_config.yaml",))
     try:
-        return _run_sweep(cfg, out, progress, log, config_source)
+        if cfg.engine != "ray":
+            return _run_sweep(cfg, out, progress, log, config_source)
+        from corelib.cluster import ray_session
+
+        with ray_session(cfg.ray_cpus, log):
+            return _run_sweep(cfg, out, progress, log, config_source)
     finally:
         lock.release()
 
@@ -83,7 +98,7 @@ def _run_sweep(cfg: SweepConfig, out: Path, progress: bool, log, config_source: 
     log(f"[sweep] {len(cfg.overlaps)} overlap(s) {', '.join(f'{o:.2f}' for o in cfg.overlaps)} ({cfg.overlap_mode}), "
         f"methods {', '.join(cfg.methods)}, seeds {cfg.seeds}: {n_runs} run(s) -> {out}")
     counters = Counters(rendered=0, render_skipped=0, render_resumed=0, trained=0, train_skipped=0, train_resumed=0,
-                        evaluated=0, eval_skipped=0, diverged=0, reference_evaluated=0, reference_skipped=0)
+                        evaluated=0, eval_skipped=0, diverged=0, failed=0, reference_evaluated=0, reference_skipped=0)
     t_start = time.perf_counter()
     pre = pretrain_stage(cfg, out, progress, log)
     init_from = pre["weights"] if pre else None
@@ -91,11 +106,7 @@ def _run_sweep(cfg: SweepConfig, out: Path, progress: bool, log, config_source: 
     for d in data:
         d["reference"], d["prior"] = reference_stage(cfg, d, out, counters, log)
     todo = [(d, method, seed) for d in data for method in cfg.methods for seed in cfg.seeds]
-    if cfg.jobs == 1 or len(todo) == 1:
-        rows = [run_stage(cfg, d["overlap"], d, method, seed, out, counters, log, progress, init_from)
-                for d, method, seed in todo]
-    else:
-        rows = _run_parallel(cfg, todo, out, counters, log, init_from)
+    rows = run_all(cfg, todo, out, counters, log, progress, init_from)
     previews = []
     if cfg.preview:
         previews = _previews(data, out, log)
@@ -106,42 +117,6 @@ def _run_sweep(cfg: SweepConfig, out: Path, progress: bool, log, config_source: 
     log(f"[sweep] done in {total_s:.1f} s: " + ", ".join(f"{k}={v}" for k, v in counters.items()))
     log(f"[sweep] report: {out / 'report.md'}")
     return results
-
-
-def _stage_job(cfg: SweepConfig, d: dict, method: str, seed: int, out: Path, init_from: str | None) -> tuple[dict, dict]:
-    """One run in a worker process (``jobs`` > 1): no progress bars, log lines to stderr."""
-    counters = Counters()
-    row = run_stage(cfg, d["overlap"], d, method, seed, out, counters,
-                    lambda s: print(s, file=sys.stderr, flush=True), False, init_from)
-    return row, dict(counters)
-
-
-def _run_parallel(cfg: SweepConfig, todo: list, out: Path, counters: Counters, log,
-                  init_from: str | None = None) -> list[dict]:
-    """Run the (overlap, method, seed) stages ``cfg.jobs`` at a time in spawned processes.
-
-    Rows come back in the order of `todo` (the table order) whatever finishes first; the
-    first failure (other than a diverged run, which is a row) stops the sweep after the
-    running jobs end, and a rerun resumes from what finished.
-    """
-    import multiprocessing as mp
-    from concurrent.futures import ProcessPoolExecutor
-
-    log(f"[sweep] {len(todo)} run(s), {cfg.jobs} at a time (one process each; progress bars off)")
-    rows: list[dict | None] = [None] * len(todo)
-    with ProcessPoolExecutor(max_workers=cfg.jobs, mp_context=mp.get_context("spawn")) as pool:
-        futures = [pool.submit(_stage_job, cfg, d, method, seed, out, init_from) for d, method, seed in todo]
-        try:
-            for i, fut in enumerate(futures):
-                row, c = fut.result()
-                rows[i] = row
-                for k, v in c.items():
-                    counters[k] = counters.get(k, 0) + v
-        except BaseException:
-            for f in futures:
-                f.cancel()
-            raise
-    return rows  # type: ignore[return-value]
 
 
 def _previews(data: list[dict], out: Path, log) -> list[str]:

@@ -26,7 +26,8 @@ def _parser() -> argparse.ArgumentParser:
     r.add_argument("--out", required=True, help="output dataset folder (new, empty, or a partial render to resume)")
     r.add_argument("--workers", type=int, default=1, help="worker processes (default 1)")
     r.add_argument("--shard", default=None, help="K/N: render only sequences with index %% N == K")
-    r.add_argument("--engine", default="local", choices=["local", "ray"], help="local processes or a Ray cluster")
+    r.add_argument("--engine", default="local", choices=["local", "ray"], help="local: --workers processes; ray: one Ray task per sequence on a local Ray "
+                   "(the machine's cores) or the cluster at RAY_ADDRESS (pip install -e '.[cluster]'; docs/SCALING.md)")
     r.add_argument("--no-progress", action="store_true")
     v = sub.add_parser("verify", help="check a dataset's integrity and contract; non-zero exit on any problem")
     v.add_argument("data")

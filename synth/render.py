@@ -279,13 +279,21 @@ def finalize(cfg: DataConfig, out: Path, rig: Rig) -> dict | None:
 
 def render_dataset(cfg: DataConfig, out: str | Path, workers: int = 1, shard: tuple[int, int] = (0, 1),
                    engine: str = "local", progress: bool = True, log=print) -> dict:
-    """Render (the shard of) a dataset into `out`; resume-safe. Returns a summary dict."""
+    """Render (the shard of) a dataset into `out`; resume-safe. Returns a summary dict.
+
+    ``engine="local"``: `workers` spawned processes; ``"ray"``: one Ray task per sequence on the
+    Ray of `corelib.cluster.ray_session` (`workers` is not used; Ray schedules). Both write
+    the same files (the manifest's ``files`` hashes are equal).
+    """
     out = Path(out)
     k, N = shard
     if workers < 1:
         raise ValueError(f"--workers must be >= 1, got {workers}")
     if engine not in ("local", "ray"):
         raise ValueError(f"--engine must be local or ray, got {engine!r}")
+    if engine == "ray":
+        from corelib.cluster import import_ray
+        import_ray()  # Ray missing: one line, before anything is written
     rig = make_rig(cfg)  # validates geometry before anything is written
     from synth.gl_backend import select_backend
     backend = select_backend(cfg.render.backend)
@@ -312,7 +320,8 @@ def _render_into(cfg: DataConfig, out: Path, rig: Rig, backend: str, workers: in
     skipped = len(mine) - len(todo)
     cfg_dict = config_to_dict(cfg)
     log(f"synth render: {len(todo)} sequence(s) to render, {skipped} already complete, shard {k}/{N}, "
-        f"backend {backend}, {workers} worker(s), {cfg.camera.width}x{cfg.camera.height}")
+        f"backend {backend}, " + ("Ray tasks" if engine == "ray" else f"{workers} worker(s)")
+        + f", {cfg.camera.width}x{cfg.camera.height}")
     frames_total = len(todo) * cfg.dataset.frames
     bar = None
     if progress and frames_total:
@@ -320,7 +329,7 @@ def _render_into(cfg: DataConfig, out: Path, rig: Rig, backend: str, workers: in
         bar = tqdm(total=frames_total, unit="rig-frame", desc="render", file=sys.stderr, dynamic_ncols=True)
     records = []
     if engine == "ray":
-        records = _render_ray(cfg_dict, out, todo, bar)
+        records = _render_ray(cfg_dict, out, todo, bar) if todo else []
     elif workers == 1 or len(todo) <= 1:
         q = _BarQueue(bar)
         for i in todo:
@@ -363,22 +372,32 @@ class _BarQueue:
 
 
 def _render_ray(cfg_dict: dict, out: Path, todo: list[int], bar) -> list[dict]:
-    try:
-        import ray
-    except ImportError:
-        raise RuntimeError("--engine ray needs Ray: pip install 'mcdp-synth[cluster]'") from None
-    if not ray.is_initialized():
-        ray.init(address=os.environ.get("RAY_ADDRESS"), include_dashboard=False)
-    task = ray.remote(num_cpus=1)(render_sequence)
-    futures = {task.remote(cfg_dict, str(out), i, None): i for i in todo}
-    records = []
-    while futures:
-        ready, _ = ray.wait(list(futures), num_returns=1)
-        for f in ready:
-            records.append(ray.get(f))
-            futures.pop(f)
-            if bar is not None:
-                bar.update(cfg_dict["dataset"]["frames"])
+    """Every sequence as one Ray task (1 CPU), Ray schedules; returns their records.
+
+    A task that fails is rerun once (``max_retries=1``: a crashed worker; ``retry_exceptions``:
+    an exception, e.g. a full disk), safe since a sequence is written into ``<seq>.partial/``
+    and renamed when whole; the others finish before the failures are raised, named.
+    ``max_calls=1``: a worker process renders one sequence and exits, so no process that loaded
+    Mesa's llvmpipe is reused for a sweep's training task (torch imported after it segfaults).
+    """
+    from corelib.cluster import error_line, ray_session
+
+    with ray_session() as ray:
+        task = ray.remote(num_cpus=1, max_retries=1, retry_exceptions=True, max_calls=1)(render_sequence)
+        futures = {task.options(name=f"render {sequence_id(i)}").remote(cfg_dict, str(out), i, None): i for i in todo}
+        records, failed = [], []
+        while futures:
+            ready, _ = ray.wait(list(futures), num_returns=1)
+            for f in ready:
+                i = futures.pop(f)
+                try:
+                    records.append(ray.get(f))
+                except ray.exceptions.RayError as exc:
+                    failed.append(f"{sequence_id(i)}: {error_line(exc)}")
+                if bar is not None:
+                    bar.update(cfg_dict["dataset"]["frames"])
+    if failed:
+        raise RuntimeError(f"{len(failed)} sequence(s) of {out} failed twice on Ray: " + "; ".join(failed))
     return records
 
 

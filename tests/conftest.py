@@ -33,3 +33,23 @@ def tiny_dataset(tmp_path_factory, tiny_config):
     out = tmp_path_factory.mktemp("tiny") / "data"
     render_dataset(tiny_config, out, workers=1, progress=False, log=lambda *a: None)
     return out
+
+
+@pytest.fixture(scope="module")
+def local_ray():
+    """A private local Ray (2 CPUs, no dashboard) for one test module, shut down and removed after it.
+
+    The engines find Ray initialised and use it as it is (`corelib.cluster.ray_session`).
+    Skips (visibly) without the ``cluster`` extra.
+    """
+    ray = pytest.importorskip("ray")
+    import shutil
+    import tempfile
+
+    if ray.is_initialized():
+        ray.shutdown()
+    tmp = tempfile.mkdtemp(prefix="ray_")
+    ray.init(address="local", num_cpus=2, include_dashboard=False, _temp_dir=tmp)
+    yield ray
+    ray.shutdown()
+    shutil.rmtree(tmp, ignore_errors=True)

@@ -1,0 +1,176 @@
+"""Where a sweep's (overlap, method, seed) runs execute: in this process, a local process pool, or Ray.
+
+One signature, ``run_all(cfg, todo, out, counters, log, progress, init_from) -> rows``: the
+rows come back in the order of `todo` (the table order) whatever finishes first, and the
+per-run counters (trained, train_skipped, evaluated, ...) are summed into `counters`, so the
+results, resumption and skipping are the same whichever engine ran them.
+
+- ``engine: local``, ``jobs: 1``: one run after the other in this process.
+- ``engine: local``, ``jobs: N``: N spawned processes (`concurrent.futures`); the first failure
+  (other than a diverged run, which is a row) stops the sweep after the running jobs end.
+- ``engine: ray``: every run is one Ray task on the Ray of `corelib.cluster.ray_session` (the
+  sweep opens it), with ``num_cpus`` = the run's ``train.threads`` (at least 1) and
+  ``num_gpus`` = 1 when the run trains on CUDA (``device: cuda``, or ``auto`` on a cluster
+  that has GPUs), else 0; Ray schedules them. A task that fails is rerun once
+  (``max_retries=1``: a crashed worker or a lost node; ``retry_exceptions=True``: an exception
+  raised by the run); one that fails again becomes a row with ``status: failed``, ``error``
+  (the error's first line) and ``failed_attempts`` (how many attempts raised), the other runs go on, and the sweep exits
+  `EXIT_RUN_FAILED`. Every failed attempt that raised is appended, with its traceback, to
+  ``SWEEP/runs/overlap_*/<method>_s<seed>.errors.jsonl`` (beside the run folder, which the
+  trainer owns). A rerun of the sweep retries failed runs from their last checkpoint.
+"""
+from __future__ import annotations
+
+import json
+import os
+import socket
+import sys
+import time
+import traceback
+from pathlib import Path
+
+from corelib.cluster import error_line
+from study.config import SweepConfig, run_config_for
+from study.stages import Counters, run_dir_for, run_stage
+
+
+EXIT_RUN_FAILED = 5  # `mcdp sweep`: some run failed (engine ray; the report lists it)
+
+
+def run_all(cfg: SweepConfig, todo: list, out: Path, counters: Counters, log, progress: bool,
+            init_from: str | None = None) -> list[dict]:
+    """Run every (data record, method, seed) of `todo` with the sweep's engine; the rows in `todo`'s order."""
+    if cfg.engine == "ray":
+        return _run_ray(cfg, todo, out, counters, log, init_from)
+    if cfg.jobs == 1 or len(todo) == 1:
+        return [run_stage(cfg, d["overlap"], d, method, seed, out, counters, log, progress, init_from)
+                for d, method, seed in todo]
+    return _run_parallel(cfg, todo, out, counters, log, init_from)
+
+
+def _stage_job(cfg: SweepConfig, d: dict, method: str, seed: int, out: Path, init_from: str | None) -> tuple[dict, dict]:
+    """One run in a worker process: no progress bars, log lines to stderr; the row and its counters."""
+    counters = Counters()
+    row = run_stage(cfg, d["overlap"], d, method, seed, out, counters,
+                    lambda s: print(s, file=sys.stderr, flush=True), False, init_from)
+    return row, dict(counters)
+
+
+def _merge(counters: Counters, c: dict) -> None:
+    for k, v in c.items():
+        counters[k] = counters.get(k, 0) + v
+
+
+def _run_parallel(cfg: SweepConfig, todo: list, out: Path, counters: Counters, log,
+                  init_from: str | None = None) -> list[dict]:
+    """The runs ``cfg.jobs`` at a time in spawned processes (see the module docstring)."""
+    import multiprocessing as mp
+    from concurrent.futures import ProcessPoolExecutor
+
+    log(f"[sweep] {len(todo)} run(s), {cfg.jobs} at a time (one process each; progress bars off)")
+    rows: list[dict | None] = [None] * len(todo)
+    with ProcessPoolExecutor(max_workers=cfg.jobs, mp_context=mp.get_context("spawn")) as pool:
+        futures = [pool.submit(_stage_job, cfg, d, method, seed, out, init_from) for d, method, seed in todo]
+        try:
+            for i, fut in enumerate(futures):
+                row, c = fut.result()
+                rows[i] = row
+                _merge(counters, c)
+        except BaseException:
+            for f in futures:
+                f.cancel()
+            raise
+    return rows  # type: ignore[return-value]
+
+
+# ----------------------------------------------------------------------------- Ray
+
+
+def errors_path(out: Path, overlap: float, method: str, seed: int) -> Path:
+    """The failed attempts of one run (JSON lines), beside its run folder."""
+    run_dir = run_dir_for(out, overlap, method, seed)
+    return run_dir.parent / f"{run_dir.name}.errors.jsonl"
+
+
+def _ray_job(cfg: SweepConfig, d: dict, method: str, seed: int, out: Path, init_from: str | None) -> tuple[dict, dict]:
+    """`_stage_job` as a Ray task; an exception is recorded in `errors_path` and raised again (Ray retries it)."""
+    try:
+        return _stage_job(cfg, d, method, seed, out, init_from)
+    except BaseException as exc:
+        rec = {"time": time.strftime("%Y-%m-%d %H:%M:%S"), "host": socket.gethostname(), "pid": os.getpid(),
+               "error": error_line(exc), "traceback": traceback.format_exc()}
+        p = errors_path(out, d["overlap"], method, seed)
+        p.parent.mkdir(parents=True, exist_ok=True)
+        with open(p, "a") as fh:  # one short line per attempt: appends, not a whole-file rewrite
+            fh.write(json.dumps(rec) + "\n")
+        raise
+
+
+def _count_lines(p: Path) -> int:
+    try:
+        return len(p.read_text().splitlines())
+    except OSError:
+        return 0
+
+
+def _resources(cfg: SweepConfig, method: str, seed: int, init_from: str | None, gpus_in_cluster: float) -> dict:
+    rcfg, _ = run_config_for(cfg, method, seed, init_from)
+    device = rcfg.train.device
+    cuda = device == "cuda" or (device == "auto" and gpus_in_cluster >= 1)
+    return {"num_cpus": max(1, rcfg.train.threads), "num_gpus": 1 if cuda else 0}
+
+
+def _run_ray(cfg: SweepConfig, todo: list, out: Path, counters: Counters, log, init_from: str | None) -> list[dict]:
+    """Every run as one Ray task (see the module docstring); failed runs become rows."""
+    from corelib.cluster import import_ray
+
+    ray = import_ray()
+    task = ray.remote(max_retries=1, retry_exceptions=True)(_ray_job)
+    gpus = ray.cluster_resources().get("GPU", 0)
+    refs, before, shapes = [], [], set()
+    for d, method, seed in todo:
+        res = _resources(cfg, method, seed, init_from, gpus)
+        shapes.add(f"{res['num_cpus']} CPU + {res['num_gpus']} GPU")
+        name = f"{run_dir_for(out, d['overlap'], method, seed).parent.name}/{method}_s{seed}"
+        before.append(_count_lines(errors_path(out, d["overlap"], method, seed)))
+        refs.append(task.options(name=name, **res).remote(cfg, d, method, seed, out, init_from))
+    log(f"[sweep] {len(todo)} run(s) submitted to Ray as tasks of {' / '.join(sorted(shapes))} each; "
+        "Ray schedules them, a failed task is rerun once")
+    index = {ref: i for i, ref in enumerate(refs)}
+    rows: list[dict | None] = [None] * len(todo)
+    pending = list(refs)
+    try:
+        while pending:
+            ready, pending = ray.wait(pending, num_returns=1)
+            for ref in ready:
+                i = index[ref]
+                d, method, seed = todo[i]
+                try:
+                    row, c = ray.get(ref)
+                except ray.exceptions.RayError as exc:
+                    rows[i] = _failed_row(cfg, out, d, method, seed, exc, before[i], init_from)
+                    counters.bump("failed")
+                    log(f"[sweep] overlap {d['overlap']:.2f} {method} seed {seed}: FAILED (rerun once; "
+                        f"{rows[i]['failed_attempts']} attempt(s) raised): {rows[i]['error']} (tracebacks: "
+                        f"{errors_path(out, d['overlap'], method, seed)})")
+                    continue
+                rows[i] = row
+                _merge(counters, c)
+    except BaseException:  # interrupted: nothing more runs for this sweep; a rerun resumes
+        for ref in pending:
+            ray.cancel(ref, force=True)
+        raise
+    return rows  # type: ignore[return-value]
+
+
+def _failed_row(cfg: SweepConfig, out: Path, d: dict, method: str, seed: int, exc: BaseException, before: int,
+                init_from: str | None) -> dict:
+    from corelib.configlib import config_hash
+
+    rcfg, preset = run_config_for(cfg, method, seed, init_from)
+    # the attempts that raised, as the task recorded them (a crashed worker records nothing)
+    raised = _count_lines(errors_path(out, d["overlap"], method, seed)) - before
+    return {"overlap": d["overlap"], "method": method, "seed": seed,
+            "run_dir": str(run_dir_for(out, d["overlap"], method, seed)), "preset": str(preset),
+            "run_config_hash": config_hash(rcfg), "status": "failed", "error": error_line(exc),
+            "failed_attempts": raised}
