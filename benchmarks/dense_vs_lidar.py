@@ -25,7 +25,10 @@ def main(argv=None) -> int:
     ap.add_argument("--sequences", type=int, default=40)
     ap.add_argument("--frames", type=int, default=10)
     ap.add_argument("--steps", type=int, default=300)
-    ap.add_argument("--keep", default=None, help="folder to keep the data, run and export in")
+    ap.add_argument("--keep", default=None, help="folder to keep the data, run and export in (reused if there)")
+    ap.add_argument("--supervised", action="store_true",
+                    help="train with ground-truth depth instead (benchmarks/learning_curves.py's upper bound): a "
+                         "network with depth structure for sure, when the question is only the ground truth's effect")
     args = ap.parse_args(argv)
     import torch
 
@@ -44,32 +47,46 @@ def main(argv=None) -> int:
     t0 = time.perf_counter()
     dcfg = load_data_config(ROOT / "configs/data/tiny.yaml",
                             [f"dataset.sequences={args.sequences}", f"dataset.frames={args.frames}"])
-    render_dataset(dcfg, tmp / "data", progress=False, log=lambda *a: None)
+    if not (tmp / "data" / "manifest.json").is_file():
+        render_dataset(dcfg, tmp / "data", progress=False, log=lambda *a: None)
     ds = open_dataset(tmp / "data")
     t_render = time.perf_counter() - t0
     cfg = load_config(RunConfig, ROOT / "configs/train/tiny/mono2.yaml",
                       [f"train.steps={args.steps}", "train.lr=5e-4", "train.threads=1", "train.num_workers=0"])
     t0 = time.perf_counter()
-    tr = Trainer(cfg, ds, tmp / "run", progress=False, tensorboard=False)
-    try:
-        tr.train()
-    finally:
-        tr.close()
+    run = tmp / ("run_supervised" if args.supervised else "run")
+    if args.supervised:
+        sys.path.insert(0, str(ROOT / "benchmarks"))
+        from learning_curves import SupervisedRun
+
+        st = SupervisedRun(cfg, ds)
+        st.train(args.steps)
+        (run / "checkpoints").mkdir(parents=True, exist_ok=True)
+        st.save_checkpoint(run / "checkpoints" / "last.pt")
+    else:
+        tr = Trainer(cfg, ds, run, progress=False, tensorboard=False)
+        try:
+            tr.train()
+        finally:
+            tr.close()
     t_train = time.perf_counter() - t0
     t0 = time.perf_counter()
-    export_nuscenes(tmp / "data", tmp / "ns", progress=False)
+    if not (tmp / "ns" / "mcdp_synth" / "export.json").is_file():
+        export_nuscenes(tmp / "data", tmp / "ns", progress=False)
     t_export = time.perf_counter() - t0
     ns = open_dataset(tmp / "ns")
     ecfg = EvalConfig()
     rows = []
     for name, d in (("dense (rendered, PNG)", ds), ("LiDAR (export, JPEG)", ns)):
-        pred = Predictor(tmp / "run", d, "auto")
+        pred = Predictor(run, d, "last" if args.supervised else "auto")
         m = evaluate(d, pred.predict, "test", ecfg, progress=False)
         c = evaluate(d, constant_depth_predictor(d, median_gt_depth(d, "train", ecfg)), "test", ecfg, progress=False)
-        rows.append((name, "mono2, median scaling", m["stages"]["final"]["median"], m["stages"]["final"]["dep_con"]))
+        who = "mono2 supervised (GT), median scaling" if args.supervised else "mono2, median scaling"
+        rows.append((name, who, m["stages"]["final"]["median"], m["stages"]["final"]["dep_con"]))
         rows.append((name, "constant depth, median scaling", c["stages"]["final"]["median"],
                      c["stages"]["final"]["dep_con"]))
-    print(f"\n{args.sequences} sequences x {args.frames} frames (96x64), mono2 {args.steps} steps; "
+    print(f"\n{args.sequences} sequences x {args.frames} frames (96x64), mono2 {args.steps} steps"
+          f"{' supervised with ground truth' if args.supervised else ''}; "
           f"render {t_render:.0f} s, train {t_train:.0f} s, export {t_export:.0f} s; test split, eval "
           f"{ecfg.min_depth}-{ecfg.max_depth} m")
     print("| ground truth | predictor | abs_rel | sq_rel | rmse | a1 | overlap / non-overlap abs_rel | Dep Con (m) |")
