@@ -212,6 +212,16 @@ class TrainConfig(StrictModel):
     threads: int = Field(0, ge=0)
     grad_clip: Float | None = None
 
+    @model_validator(mode="before")
+    @classmethod
+    def _old_amp_key(cls, data: Any) -> Any:
+        """``train.amp`` (before precision existed): true -> auto, false -> fp32."""
+        if isinstance(data, dict) and "amp" in data and "precision" not in data:
+            data = dict(data)
+            amp = data.pop("amp")
+            data["precision"] = "auto" if amp else "fp32"
+        return data
+
     @model_validator(mode="after")
     def _check(self) -> "TrainConfig":
         for key in ("height", "width"):
@@ -243,6 +253,7 @@ RESUMABLE_KEYS = (
     "train.num_workers",
     "train.threads",
     "train.device",
+    "train.precision",
     "eval.",
 )
 

@@ -62,7 +62,7 @@ import yaml
 
 from corelib.atomic import atomic_write_json, atomic_write_text
 from corelib.configlib import config_to_dict
-from corelib.rundir import claim
+from corelib.rundir import FolderError, claim
 from mcdp.config import RunConfig
 from mcdp.data import RigDataset, StepBatchSampler, collate
 from mcdp.diagnostics import collapse_reason, depth_spread
@@ -76,6 +76,8 @@ from mcdp.warmstart import warm_start
 COLLAPSE_GRACE_STEPS = 100
 #: logged checks in a row that must show a collapse before the guard warns
 COLLAPSE_STREAK = 5
+#: fp16 steps in a row the GradScaler may skip (non-finite gradients) before training stops
+FP16_SKIP_LIMIT = 20
 
 
 class TrainingDiverged(RuntimeError):
@@ -101,17 +103,26 @@ class Trainer:
         self.progress = progress
         self.log = TrainLogger(None)
         self.dist = Dist.from_env()  # torchrun's ranks, or one process
-        # the run folder is ours (marker) and ours alone (flock) before anything is read or written;
-        # under torchrun rank 0 holds it and alone writes it
-        self._lock = claim(self.run_dir, "run", legacy=("run.json", "checkpoints")) if self.dist.is_main else None
+        self._lock = None
         try:
+            self.device = self.dist.start(resolve_device(cfg.train.device))
+            # the run folder is ours (marker) and ours alone (flock) before anything is read or written;
+            # under torchrun rank 0 holds it and alone writes it, and every rank learns if it could not
+            refused = None
+            if self.dist.is_main:
+                try:
+                    self._lock = claim(self.run_dir, "run", legacy=("run.json", "checkpoints"))
+                except FolderError as exc:
+                    refused = exc
+            if self.dist.any_true(refused is not None, self.device):
+                raise refused or FolderError(f"{self.run_dir}: rank 0 could not claim the run folder (its message "
+                                             "says why)")
             self._setup(cfg, ds, tensorboard)
         except BaseException:
             self.close()
             raise
 
     def _setup(self, cfg: RunConfig, ds, tensorboard: bool) -> None:
-        self.device = self.dist.start(resolve_device(cfg.train.device))
         tc = cfg.train
         ckpt = check_resume(self.run_dir, cfg)
         if ckpt is not None and list(ckpt.get("cameras", ds.camera_names)) != list(ds.camera_names):
@@ -153,6 +164,7 @@ class Trainer:
         if ckpt is None and cfg.model.init_from is not None:
             self.init_from = warm_start(self.depth, cfg.model.init_from)
         self.step = 0
+        self._skipped = 0
         self.spread: dict = {}
         self.spread_armed = False
         self.collapse_streak = 0
@@ -368,8 +380,15 @@ class Trainer:
                 torch.nn.utils.clip_grad_norm_(
                     [p for g in self.optimizer.param_groups for p in g["params"]], tc.grad_clip
                 )
+            scale = self.scaler.get_scale() if self.scaler.is_enabled() else None
             self.scaler.step(self.optimizer)
             self.scaler.update()
+            if scale is not None:  # fp16: the scaler skips a step with non-finite gradients and lowers the scale
+                self._skipped = self._skipped + 1 if self.scaler.get_scale() < scale else 0
+                if self._skipped >= FP16_SKIP_LIMIT:
+                    raise TrainingDiverged(f"fp16: the gradients were not finite for {self._skipped} steps in a row "
+                                           f"(up to step {self.step}); the weights did not change in them"
+                                           + self._last_good() + "; try train.precision=bf16 or fp32")
             self.step += 1
             lv = self.dist.sum_([float(loss.detach())], self.device)[0] / self.dist.world  # mean over ranks
             history.append(lv)

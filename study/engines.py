@@ -30,6 +30,7 @@ import traceback
 from pathlib import Path
 
 from corelib.cluster import error_line
+from corelib.configlib import ConfigError
 from study.config import SweepConfig, run_config_for
 from study.stages import Counters, run_dir_for, run_stage
 
@@ -130,6 +131,9 @@ def _run_ray(cfg: SweepConfig, todo: list, out: Path, counters: Counters, log, i
     refs, before, shapes = [], [], set()
     for d, method, seed in todo:
         res = _resources(cfg, method, seed, init_from, gpus)
+        if res["num_gpus"] > gpus:  # Ray would keep such a task pending forever
+            raise ConfigError(f"the sweep trains on CUDA (device: {cfg.device}) but the Ray cluster has no GPU; "
+                              "use device: cpu or a cluster with GPUs")
         shapes.add(f"{res['num_cpus']} CPU + {res['num_gpus']} GPU")
         name = f"{run_dir_for(out, d['overlap'], method, seed).parent.name}/{method}_s{seed}"
         before.append(_count_lines(errors_path(out, d["overlap"], method, seed)))

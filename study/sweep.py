@@ -46,6 +46,7 @@ from typing import Callable
 
 import yaml
 
+from corelib.atomic import atomic_write_text
 from corelib.configlib import config_hash, config_to_dict
 from study.config import SPLIT, SweepConfig, overlap_key
 from study.report import write_all
@@ -92,8 +93,8 @@ def _run_sweep(cfg: SweepConfig, out: Path, progress: bool, log, config_source: 
 
             log(f"[sweep] note: the sweep config differs from the saved one in: {', '.join(diff_configs(old, resolved))}; "
                 "datasets/runs are reused only where their own resolved config is unchanged")
-    prev.write_text(yaml.safe_dump({"config": resolved, "config_hash": config_hash(cfg), "source": config_source},
-                                   sort_keys=False))
+    atomic_write_text(prev, yaml.safe_dump({"config": resolved, "config_hash": config_hash(cfg),
+                                            "source": config_source}, sort_keys=False))
     n_runs = len(cfg.overlaps) * len(cfg.methods) * len(cfg.seeds)
     log(f"[sweep] {len(cfg.overlaps)} overlap(s) {', '.join(f'{o:.2f}' for o in cfg.overlaps)} ({cfg.overlap_mode}), "
         f"methods {', '.join(cfg.methods)}, seeds {cfg.seeds}: {n_runs} run(s) -> {out}")

@@ -157,7 +157,7 @@ def timestamp_us(seq_index: int, frame: int, fps: float) -> int:
 
 # ----------------------------------------------------------------------------- output folder
 
-def _prepare_output(out: Path, config_hash: str, version: str) -> None:
+def _prepare_output(out: Path, config_hash: str, version: str, clean: bool = True) -> None:
     """Refuse anything but a new/empty folder or a previous export of the same dataset (then remove what
     that export wrote, version tables first, so a half-written re-export is never loadable)."""
     if out.exists() and not out.is_dir():
@@ -187,6 +187,8 @@ def _prepare_output(out: Path, config_hash: str, version: str) -> None:
             raise ExportError(f"{p}: not part of the previous export in {out}; refusing to overwrite it")
         if p.is_symlink():
             raise ExportError(f"{p}: is a symlink; an export writes inside {out} only")
+    if not clean:
+        return
     for name in sorted(versions) + sorted(f"{v}.partial" for v in versions) + list(_OWNED):
         p = out / name
         if p.is_dir():
@@ -232,10 +234,11 @@ def export_nuscenes(dataset: str | Path, out: str | Path, version: str = DEFAULT
     splits = {s: ds.split(s) for s in ("train", "val", "test") if s in ds.manifest.get("splits", {})}
     split_of = {q: s for s, qs in splits.items() for q in qs}
 
-    _prepare_output(out, cfg_hash, version)
+    _prepare_output(out, cfg_hash, version, clean=False)  # refuse a foreign folder before writing a byte
     out.mkdir(parents=True, exist_ok=True)
     lock = lock_folder(out, LOCK)  # a second export into `out` is refused, naming this pid
     try:
+        _prepare_output(out, cfg_hash, version)  # under the lock: remove what a previous export wrote
         (out / EXPORT_DIR).mkdir(exist_ok=True)
         tok = _Tokens(cfg_hash)
         marker = {"format": FORMAT, "format_version": FORMAT_VERSION, "complete": False, "version": version,

@@ -126,3 +126,7 @@ def test_an_old_checkpoint_config_with_train_amp_still_loads():
 
     assert upgrade_config_dict({"train": {"amp": True, "steps": 3}})["train"] == {"precision": "auto", "steps": 3}
     assert upgrade_config_dict({"train": {"amp": False}})["train"] == {"precision": "fp32"}
+    from corelib.configlib import load_config
+    from mcdp.config import RunConfig
+
+    assert load_config(RunConfig, PRESET, ["train.amp=false"]).train.precision == "fp32"  # an old preset too

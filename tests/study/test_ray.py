@@ -120,3 +120,12 @@ def test_a_failing_run_is_retried_once_then_reported_and_the_others_finish(local
     rows = {r["method"]: r for r in _csv(out)}
     assert rows["mcdp_m0"]["status"] == "failed" and rows["mcdp_m0"]["none.mean.abs_rel"] == ""
     assert math.isfinite(float(rows["mcdp_m1"]["none.mean.abs_rel"]))
+
+
+def test_a_cuda_sweep_on_a_cluster_without_gpus_is_refused_not_left_pending(local_ray, local_sweep, tmp_path,
+                                                                             capsys):
+    out = tmp_path / "sweep"
+    shutil.copytree(local_sweep, out)  # data and yardsticks there: only the runs are new
+    capsys.readouterr()
+    assert sweep_main([str(CI), "--out", str(out), "--engine", "ray", "device=cuda", *SMALL]) == 2
+    assert "the Ray cluster has no GPU" in capsys.readouterr().err

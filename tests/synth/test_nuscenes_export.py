@@ -350,3 +350,19 @@ def test_a_second_export_into_the_same_folder_is_refused_naming_the_pid(tiny_dat
         held.release()
     assert main(["export", str(tiny_dataset), "--format", "nuscenes", "--out", str(out), "--no-lidar",
                  "--no-progress"]) == 0
+
+
+def test_a_second_export_over_a_running_one_deletes_nothing(ns_root, tiny_dataset, tmp_path, capsys):
+    from corelib.rundir import lock_folder
+    from synth.cli import main
+
+    copy = tmp_path / "copy"
+    shutil.copytree(ns_root, copy)
+    before = {p.relative_to(copy): sha256_file(p) for p in copy.rglob("*") if p.is_file() and p.name != ".lock"}
+    held = lock_folder(copy, ".lock")  # the first export is still writing
+    try:
+        assert main(["export", str(tiny_dataset), "--format", "nuscenes", "--out", str(copy), "--no-progress"]) == 2
+    finally:
+        held.release()
+    after = {p.relative_to(copy): sha256_file(p) for p in copy.rglob("*") if p.is_file() and p.name != ".lock"}
+    assert after == before
