@@ -168,6 +168,16 @@ class ScaleConfig(StrictModel):
         return self.source == "oracle_gt_median"
 
 
+def _upgrade_train(train: dict[str, Any]) -> dict[str, Any]:
+    """The train section of an older version in today's keys: ``amp`` true -> precision auto, false -> fp32."""
+    if "amp" not in train:
+        return train
+    train = dict(train)
+    amp = train.pop("amp")
+    train.setdefault("precision", "auto" if amp else "fp32")
+    return train
+
+
 class TrainConfig(StrictModel):
     """Optimisation and bookkeeping.
 
@@ -216,11 +226,7 @@ class TrainConfig(StrictModel):
     @classmethod
     def _old_amp_key(cls, data: Any) -> Any:
         """``train.amp`` (before precision existed): true -> auto, false -> fp32."""
-        if isinstance(data, dict) and "amp" in data and "precision" not in data:
-            data = dict(data)
-            amp = data.pop("amp")
-            data["precision"] = "auto" if amp else "fp32"
-        return data
+        return _upgrade_train(data) if isinstance(data, dict) else data
 
     @model_validator(mode="after")
     def _check(self) -> "TrainConfig":
@@ -259,13 +265,9 @@ RESUMABLE_KEYS = (
 
 
 def upgrade_config_dict(d: dict[str, Any]) -> dict[str, Any]:
-    """A saved run config of an older version in today's keys (``train.amp`` -> ``train.precision``)."""
+    """A saved run config of an older version in today's keys (`_upgrade_train`)."""
     train = d.get("train")
-    if isinstance(train, dict) and "amp" in train:
-        train = dict(train)
-        train.setdefault("precision", "auto" if train.pop("amp") else "fp32")
-        d = {**d, "train": train}
-    return d
+    return {**d, "train": _upgrade_train(train)} if isinstance(train, dict) else d
 
 
 def resume_conflicts(saved: dict[str, Any], requested: dict[str, Any]) -> list[str]:

@@ -68,6 +68,25 @@ def check_positive(name: str, value: float) -> float:
 
 
 # ---------------------------------------------------------------------------- builders
+def _faces(corners, uvs, hint_normals, m: int):
+    """(corners (K, m, 3), uvs (K, m, 2), hint normals (K, 3), K) as float64, shapes checked."""
+    c = np.asarray(corners, dtype=np.float64)
+    if c.ndim != 3 or c.shape[1:] != (m, 3):
+        raise ValueError(f"corners must have shape (K, {m}, 3), got {c.shape}")
+    k = len(c)
+    uv = np.asarray(uvs, dtype=np.float64)
+    if uv.shape != (k, m, 2):
+        raise ValueError(f"uvs must have shape {(k, m, 2)}, got {uv.shape}")
+    return c, uv, np.broadcast_to(np.asarray(hint_normals, dtype=np.float64), (k, 3)), k
+
+
+def _unit_normals(n: np.ndarray, what: str) -> np.ndarray:
+    ln = np.linalg.norm(n, axis=1, keepdims=True)
+    if np.any(ln < 1e-12):
+        raise ValueError(f"a {what} is degenerate (zero area)")
+    return n / ln
+
+
 def from_quads(corners: np.ndarray, uvs: np.ndarray, hint_normals: np.ndarray, layer: int,
                tint=(1.0, 1.0, 1.0)) -> Mesh:
     """Flat-shaded mesh from K quads.
@@ -77,19 +96,8 @@ def from_quads(corners: np.ndarray, uvs: np.ndarray, hint_normals: np.ndarray, l
     hint_normals: (K, 3) any vector on the outward side; the exact normal is taken from
                   the quad's diagonals and the winding made counter-clockwise around it.
     """
-    c = np.asarray(corners, dtype=np.float64)
-    if c.ndim != 3 or c.shape[1:] != (4, 3):
-        raise ValueError(f"corners must have shape (K, 4, 3), got {c.shape}")
-    k = len(c)
-    uv = np.asarray(uvs, dtype=np.float64)
-    if uv.shape != (k, 4, 2):
-        raise ValueError(f"uvs must have shape {(k, 4, 2)}, got {uv.shape}")
-    h = np.broadcast_to(np.asarray(hint_normals, dtype=np.float64), (k, 3))
-    n = cross3(c[:, 2] - c[:, 0], c[:, 3] - c[:, 1])
-    ln = np.linalg.norm(n, axis=1, keepdims=True)
-    if np.any(ln < 1e-12):
-        raise ValueError("a quad is degenerate (zero area)")
-    n = n / ln
+    c, uv, h, k = _faces(corners, uvs, hint_normals, 4)
+    n = _unit_normals(cross3(c[:, 2] - c[:, 0], c[:, 3] - c[:, 1]), "quad")
     n *= np.where(np.sum(n * h, axis=1) < 0, -1.0, 1.0)[:, None]
     base = (np.arange(k) * 4)[:, None]
     # diagonal-cross normal and corner order agree iff the cyclic order is CCW around n
@@ -109,19 +117,8 @@ def from_quads(corners: np.ndarray, uvs: np.ndarray, hint_normals: np.ndarray, l
 def from_triangles(corners: np.ndarray, uvs: np.ndarray, hint_normals: np.ndarray, layer: int,
                    tint=(1.0, 1.0, 1.0)) -> Mesh:
     """Flat-shaded mesh from K triangles: corners (K, 3, 3), uvs (K, 3, 2), hint_normals (K, 3)."""
-    c = np.asarray(corners, dtype=np.float64)
-    if c.ndim != 3 or c.shape[1:] != (3, 3):
-        raise ValueError(f"corners must have shape (K, 3, 3), got {c.shape}")
-    k = len(c)
-    uv = np.asarray(uvs, dtype=np.float64)
-    if uv.shape != (k, 3, 2):
-        raise ValueError(f"uvs must have shape {(k, 3, 2)}, got {uv.shape}")
-    h = np.broadcast_to(np.asarray(hint_normals, dtype=np.float64), (k, 3))
-    n = cross3(c[:, 1] - c[:, 0], c[:, 2] - c[:, 0])
-    ln = np.linalg.norm(n, axis=1, keepdims=True)
-    if np.any(ln < 1e-12):
-        raise ValueError("a triangle is degenerate (zero area)")
-    n = n / ln
+    c, uv, h, k = _faces(corners, uvs, hint_normals, 3)
+    n = _unit_normals(cross3(c[:, 1] - c[:, 0], c[:, 2] - c[:, 0]), "triangle")
     flip = np.sum(n * h, axis=1) < 0
     n[flip] *= -1.0
     idx = np.arange(3 * k).reshape(k, 3)

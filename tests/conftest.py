@@ -53,3 +53,20 @@ def local_ray():
     yield ray
     ray.shutdown()
     shutil.rmtree(tmp, ignore_errors=True)
+
+
+def _tree_hash(path: Path) -> str:
+    """sha256 of every path name and file's bytes under `path` (to prove nothing there changed)."""
+    import hashlib
+
+    h = hashlib.sha256()
+    for p in sorted(path.rglob("*")):
+        h.update(str(p.relative_to(path)).encode())
+        if p.is_file():
+            h.update(p.read_bytes())
+    return h.hexdigest()
+
+
+@pytest.fixture
+def tree_hash():
+    return _tree_hash

@@ -18,17 +18,6 @@ TINY_DATA = ROOT / "configs" / "data" / "tiny.yaml"
 TINY_TRAIN = ROOT / "configs" / "train" / "tiny"
 
 
-def tree_hash(path: Path) -> str:
-    import hashlib
-
-    h = hashlib.sha256()
-    for p in sorted(path.rglob("*")):
-        h.update(str(p.relative_to(path)).encode())
-        if p.is_file():
-            h.update(p.read_bytes())
-    return h.hexdigest()
-
-
 @pytest.fixture
 def data(tiny_dataset, tmp_path) -> Path:
     d = tmp_path / "data"
@@ -64,7 +53,7 @@ def _set_K(r):
     ("rig.json", _set_K, "cameras[CAM_FRONT].K"),
     ("rig.json", lambda r: r["neighbours"].reverse(), "neighbours"),
 ])
-def test_verify_names_what_changed_in_the_manifest_or_rig(data, capsys, path, edit, named):
+def test_verify_names_what_changed_in_the_manifest_or_rig(tree_hash, data, capsys, path, edit, named):
     _edit_json(data / path, edit)
     before = tree_hash(data)
     code, text = _verify(data, capsys)
@@ -132,7 +121,7 @@ CORRUPT = {
 
 
 @pytest.mark.parametrize("case", list(CORRUPT))
-def test_a_corrupt_data_file_is_refused_naming_the_file(data, capsys, case):
+def test_a_corrupt_data_file_is_refused_naming_the_file(tree_hash, data, capsys, case):
     from synth.cli import main
     from synth.dataset import open_dataset
     from synth.files import DatasetError

@@ -6,7 +6,6 @@ validation losses, a lr = 1e3 run. The pickle checkpoint probe is in tests/mcdp/
 """
 from __future__ import annotations
 
-import hashlib
 import json
 import math
 import shutil
@@ -17,15 +16,6 @@ import torch
 
 ROOT = Path(__file__).resolve().parents[1]
 TINY_TRAIN = ROOT / "configs" / "train" / "tiny"
-
-
-def tree_hash(path: Path) -> str:
-    h = hashlib.sha256()
-    for p in sorted(path.rglob("*")):
-        h.update(str(p.relative_to(path)).encode())
-        if p.is_file():
-            h.update(p.read_bytes())
-    return h.hexdigest()
 
 
 def _copy(tiny_dataset, tmp_path) -> Path:
@@ -54,7 +44,7 @@ def _rename_seq(m, new):
     (lambda m: m["cameras"].__setitem__(0, "../CAM"), "camera name"),
     (lambda m: m["files"].update({"../../evil.png": "0" * 64}), "files entry"),
 ])
-def test_a_manifest_name_that_is_not_plain_is_refused_naming_the_field(tiny_dataset, tmp_path, capsys, edit, field):
+def test_a_manifest_name_that_is_not_plain_is_refused_naming_the_field(tree_hash, tiny_dataset, tmp_path, capsys, edit, field):
     from synth.cli import main as synth_main
     from synth.dataset import open_dataset
     from synth.files import DatasetError
@@ -186,7 +176,7 @@ def test_a_nan_validation_loss_stops_training(tiny_dataset, tmp_path, monkeypatc
 
 
 # --------------------------------------------------------------------------- output folders
-def test_train_refuses_a_folder_of_the_users_own_files(tiny_dataset, tmp_path, capsys):
+def test_train_refuses_a_folder_of_the_users_own_files(tree_hash, tiny_dataset, tmp_path, capsys):
     from mcdp.cli import main
 
     mine = tmp_path / "mine"
@@ -201,7 +191,7 @@ def test_train_refuses_a_folder_of_the_users_own_files(tiny_dataset, tmp_path, c
 
 
 @pytest.mark.parametrize("command", ["predict", "sweep"])
-def test_predict_and_sweep_refuse_a_folder_of_the_users_own_files(tiny_dataset, tmp_path, capsys, command):
+def test_predict_and_sweep_refuse_a_folder_of_the_users_own_files(tree_hash, tiny_dataset, tmp_path, capsys, command):
     from study.cli import main  # the `mcdp` console script: mcdp's commands + the study's sweep
 
     mine = tmp_path / "mine"
