@@ -63,6 +63,8 @@ class ModelConfig(StrictModel):
     weight_channels: channels each encoder-feature pyramid is reduced to
         before warping, inside each weight network (keeps refinement cheap).
     weight_conv_channels, weight_fc: widths of the weight network's conv stack and FC layers.
+    weight_init_std: std of the normal init of each weight network's last layer (bias 0), so
+        a fresh step starts near the previous step's weights (paper: not stated).
     mono_head: pretraining only (`mcdp.pretrain`): a one-channel Monodepth2 head beside the
         n bases on the same encoder and decoder trunk (stages "mono" and "init").
     init_from: path to a shared pretraining's ``pretrained.pt`` (`mcdp.pretrain`), or null. A
@@ -83,6 +85,7 @@ class ModelConfig(StrictModel):
     weight_channels: int = Field(32, ge=1)
     weight_conv_channels: int = Field(64, ge=1)
     weight_fc: int = Field(128, ge=1)
+    weight_init_std: Float = Field(1e-3, ge=0.0, le=1.0)
     mono_head: bool = False
     init_from: str | None = None
 
@@ -114,13 +117,13 @@ class LossConfig(StrictModel):
     ssim_alpha: pe = alpha/2 (1 - SSIM) + (1 - alpha) L1 (paper: 0.85).
     smoothness_weight: edge-aware smoothness on mean-normalised disparity,
         divided by 2^scale as in Monodepth2 (paper: 1e-3).
-    consistency_weight: lambda of L_con; 0 disables it. The paper's 1e-3 was
-        tuned for its median-scaled depths and a per-pixel-*sum*-like L1; here
-        L_con is the masked *mean* of |D_i - D_hat_i| in metres on the overlap,
-        typically 0.5-5 m early in training against L_p ~ 0.1-0.2, so the
-        default 0.02 makes lambda L_con 10-50 % of L_p at the start and a few %
-        once the cameras agree: large enough to shape the overlap, too small to
-        collapse depth towards the near plane (which also lowers the L1).
+    consistency_weight: lambda of L_con; 0 disables it. Default 1e-3, the paper's (sec. 4.1).
+        L_con here is the masked mean of |D_i - D_hat_i| in metres over the overlap
+        (`mcdp.losses.consistency_loss`), the same quantity as the public MCDP code's
+        ``depth_consistency_loss`` (``L1Loss()(warp_depth[mask], depth[mask])``), which
+        defaults to 1e-4 (``--weight_depth_consistency_loss`` in its ``options_DDAD.py``).
+        The earlier default 0.02 (20x the paper) rested on a wrong reading of the paper's L1 as a
+        per-pixel sum; measured in docs/results/consistency_weight.md.
     automask: Monodepth2 auto-masking of stationary pixels.
     out_of_view: what a pixel that no source frame sees (warped outside every source image
         or behind it) scores. ``identity`` (default; `mcdp.losses.identity_floored_error`):
@@ -141,7 +144,7 @@ class LossConfig(StrictModel):
 
     ssim_alpha: Float = Field(0.85, ge=0.0, le=1.0)
     smoothness_weight: Float = Field(1e-3, ge=0.0)
-    consistency_weight: Float = Field(0.02, ge=0.0)
+    consistency_weight: Float = Field(1e-3, ge=0.0)
     automask: bool = True
     out_of_view: Literal["identity", "border"] = "identity"
     refine_scales: int = Field(1, ge=1, le=4)
@@ -200,6 +203,10 @@ class TrainConfig(StrictModel):
     threads: torch intra-op CPU threads (0 = torch's default). On a shared
         machine 1 avoids the heavy slow-down of oversubscribed OpenMP threads.
     grad_clip: max global grad norm, or null.
+    weight_lr_mult: the MCDP weight networks' learning rate is ``lr * weight_lr_mult`` (1 = one rate
+        for every parameter). They start fresh while the encoder and decoder come from a
+        pretraining, and at one small rate they did not move in a 100-step fine-tuning
+        (docs/results/refinement.md).
     """
 
     steps: int = Field(20000, ge=1)
@@ -221,6 +228,7 @@ class TrainConfig(StrictModel):
     num_workers: int = Field(2, ge=0)
     threads: int = Field(0, ge=0)
     grad_clip: Float | None = None
+    weight_lr_mult: Float = Field(1.0, gt=0.0, le=1000.0)
 
     @model_validator(mode="before")
     @classmethod

@@ -25,7 +25,7 @@ from typing import Any, Callable, Mapping
 import torch.nn as nn
 
 from corelib.configlib import ConfigError
-from mcdp.config import ModelConfig
+from mcdp.config import LossConfig, ModelConfig
 from mcdp.model import DepthModel
 
 
@@ -44,6 +44,9 @@ class Method:
 
 METHODS: dict[str, Method] = {}
 
+#: L_con's weight of the MCDP rows: the one default in `mcdp.config.LossConfig` (the paper's 1e-3)
+PAPER_LAMBDA = float(LossConfig.model_fields["consistency_weight"].default)
+
 
 def register(method: Method) -> Method:
     """Add (or replace) a method; it appears in reports after the ones registered before it."""
@@ -54,13 +57,13 @@ def register(method: Method) -> Method:
 for _m in (
     Method("mono2", "Mono2", {"model.method": "mono2", "model.refine_steps": 0, "loss.consistency_weight": 0.0}),
     Method("mcdp_m0", "MCDP (m = 0)", {"model.method": "mcdp", "model.refine_steps": 0,
-                                       "loss.consistency_weight": 0.02}),
+                                       "loss.consistency_weight": PAPER_LAMBDA}),
     Method("mcdp_m1_nocon", "MCDP (w/o L_con, m = 1)", {"model.method": "mcdp", "model.refine_steps": 1,
                                                          "loss.consistency_weight": 0.0}),
     Method("mcdp_m1", "MCDP (m = 1)", {"model.method": "mcdp", "model.refine_steps": 1,
-                                       "loss.consistency_weight": 0.02}),
+                                       "loss.consistency_weight": PAPER_LAMBDA}),
     Method("mcdp_m2", "MCDP (m = 2)", {"model.method": "mcdp", "model.refine_steps": 2,
-                                       "loss.consistency_weight": 0.02}),
+                                       "loss.consistency_weight": PAPER_LAMBDA}),
 ):
     register(_m)
 

@@ -169,6 +169,7 @@ class DepthModel(nn.Module):
                     c_red=cfg.weight_channels,
                     c_conv=cfg.weight_conv_channels,
                     c_fc=cfg.weight_fc,
+                    init_std=cfg.weight_init_std,
                 )
                 for _ in range(cfg.refine_steps)
             ]

@@ -231,7 +231,8 @@ class WeightNet(nn.Module):
       previous weights while every layer already receives gradients.
     """
 
-    def __init__(self, c_levels, n_slots: int, n_bases: int, c_red: int = 32, c_conv: int = 64, c_fc: int = 128):
+    def __init__(self, c_levels, n_slots: int, n_bases: int, c_red: int = 32, c_conv: int = 64, c_fc: int = 128,
+                 init_std: float = 1e-3):
         super().__init__()
         self.reduce = PyramidReduce(c_levels, c_red)
         c_in = c_red * (1 + n_slots) + n_slots
@@ -247,7 +248,7 @@ class WeightNet(nn.Module):
             nn.ReLU(inplace=True),
             nn.Linear(c_fc, n_bases),
         )
-        nn.init.normal_(self.fc[-1].weight, std=1e-3)
+        nn.init.normal_(self.fc[-1].weight, std=init_std)
         nn.init.zeros_(self.fc[-1].bias)
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:

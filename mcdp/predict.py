@@ -6,7 +6,17 @@
 upsampled bilinearly to each camera's dataset size. Only frame t is used (no
 temporal neighbours, no pose network). No ground truth is read, except by a
 run trained with ``scale.source=oracle_gt_median``, which rescales by the GT
-median exactly as in training and is labelled ORACLE (`Predictor.oracle`).
+median exactly as in training and is labelled ORACLE (`Predictor.oracle`), and the
+``oracle_weights`` yardstick (`mcdp.oracle`), an extra stage "oracle" after "final".
+
+Two switches serve the overlap experiment (`study.stages`):
+
+- ``cut=True`` cuts the neighbours at inference: every camera's neighbour table entry is -1,
+  so each weight network sees zeros and valid = 0 for both neighbours, exactly as a camera
+  without neighbours. As trained minus cut is what the neighbours contribute.
+- `Predictor.refinement` accumulates, over every predicted image, how much the refinement acts:
+  mean |w - 1/n| of the last stage's weights and the mean |refined - init| depth (metres, scene
+  pixels, training size). Near zero means an inert refinement.
 
 `write_prediction` writes, per rig sample::
 
@@ -44,7 +54,8 @@ class Predictor:
         device: ``auto`` | ``cpu`` | ``cuda``.
     """
 
-    def __init__(self, run_dir, ds, checkpoint: str = "auto", device: str = "auto"):
+    def __init__(self, run_dir, ds, checkpoint: str = "auto", device: str = "auto", cut: bool = False,
+                 oracle_weights: bool = False, oracle_range: tuple[float, float] = (0.5, 80.0)):
         self.ckpt_path = find_checkpoint(run_dir, checkpoint) if run_dir is not None else Path(checkpoint)
         ckpt = load_checkpoint(self.ckpt_path)
         self.cfg = config_from_checkpoint(ckpt, source=str(self.ckpt_path))
@@ -61,11 +72,63 @@ class Predictor:
         self.model.eval()
         self.reader = RigReader(ds, self.cfg.train.height, self.cfg.train.width)
         self.nbr = neighbour_table(ds.neighbours, len(ds.camera_names)).to(self.device)
+        self.cut = bool(cut)
+        if self.cut:  # neighbours cut at inference: as for a camera without neighbours
+            self.nbr = torch.full_like(self.nbr, -1)
         self.K = torch.from_numpy(self.reader.K).to(self.device)[None]
         self.T_ego_cam = torch.from_numpy(self.reader.T_ego_cam).to(self.device)[None]
         self.mask = torch.from_numpy(self.reader.mask).to(self.device)[None]
         self.oracle = self.cfg.scale.oracle
         self.stages = list(self.model.stages)
+        n = self.cfg.model.n_out if self.cfg.model.method == "mcdp" else 1
+        self.oracle_weights = bool(oracle_weights) and n > 1
+        self.oracle_range = (float(oracle_range[0]), float(oracle_range[1]))
+        self._acc = {"images": 0, "weight_move": 0.0, "depth_change_m": 0.0, "oracle_weight_move": 0.0}
+
+    @property
+    def refinement(self) -> dict:
+        """How much the refinement acted on the images predicted so far (module docstring)."""
+        a = self._acc
+        k = max(a["images"], 1)
+        out = {"images": a["images"], "cut": self.cut,
+               "weight_move": a["weight_move"] / k if len(self.stages) > 1 else float("nan"),
+               "depth_change_m": a["depth_change_m"] / k if len(self.stages) > 1 else float("nan")}
+        if self.oracle_weights:
+            out["oracle_weight_move"] = a["oracle_weight_move"] / k
+        return out
+
+    def _record(self, out: dict) -> None:
+        last = self.stages[-1]
+        w = out["weights", last]
+        self._acc["images"] += int(w.shape[0]) if w is not None else 0
+        if w is None or last == "init" or "init" not in self.stages:
+            return
+        n = w.shape[1]
+        self._acc["weight_move"] += float((w.float() - 1.0 / n).abs().mean(1).sum())
+        m = self.mask.reshape(-1, 1, *self.mask.shape[-2:]).float()
+        diff = (out["depth", last, 0].float() - out["depth", "init", 0].float()).abs() * m
+        self._acc["depth_change_m"] += float((diff.flatten(1).sum(1) / m.flatten(1).sum(1).clamp(min=1)).sum())
+
+    def _oracle_depth(self, seq: str, frame: int, out: dict) -> torch.Tensor:
+        """ORACLE: depth of this run's bases at weights fitted to the ground truth (`mcdp.oracle`)."""
+        from mcdp.oracle import fit_oracle_weights
+
+        bases = out["bases"][0]  # (N, n, h, w)
+        gts, valids = [], []
+        h, w = bases.shape[-2:]
+        lo, hi = self.oracle_range
+        for c, name in enumerate(self.ds.camera_names):
+            g = torch.from_numpy(self.ds.read_depth(seq, name, frame).astype("float32"))[None, None]
+            v = (g >= lo) & (g <= hi) & torch.from_numpy(self.reader.mask_full[c])[None, None]
+            gts.append(F.interpolate(g, size=(h, w), mode="nearest"))
+            valids.append(F.interpolate(v.float(), size=(h, w), mode="nearest") > 0.5)
+        gt, valid = torch.cat(gts).to(self.device), torch.cat(valids).to(self.device)
+        wts = fit_oracle_weights(bases, gt, valid, self.model.to_depth)
+        n = wts.shape[1]
+        self._acc["oracle_weight_move"] += float((wts - 1.0 / n).abs().mean(1).sum())
+        from mcdp.model import combine_bases
+
+        return self.model.to_depth(combine_bases(bases.float(), wts))[1]
 
     @torch.no_grad()
     def predict_train_size(self, seq: str, frame: int) -> tuple[dict, np.ndarray]:
@@ -76,7 +139,12 @@ class Predictor:
         if self.oracle:  # ORACLE: the reference code's ground-truth median scaling
             gtm = torch.from_numpy(self.reader.gt_median(seq, frame)).to(self.device)[None]
         out = self.model(x, self.K, self.T_ego_cam, self.mask, self.nbr, gtm, scales=1)
-        return {st: out["depth", st, 0].float() for st in self.stages}, rgb
+        self._record(out)
+        res = {st: out["depth", st, 0].float() for st in self.stages}
+        if self.oracle_weights:  # "final" is named explicitly so that the yardstick stays apart from it
+            res["final"] = res[self.stages[-1]]
+            res["oracle"] = self._oracle_depth(seq, frame, out) * out["scale"].view(-1, 1, 1, 1)
+        return res, rgb
 
     def predict(self, seq: str, frame: int) -> dict[str, np.ndarray]:
         """{stage: (N, H, W) float32 metres at the dataset resolution}, stages in order."""

@@ -137,7 +137,13 @@ class Trainer:
         torch.manual_seed(tc.seed)
         self.system = SelfSupervisedSystem(cfg, ds.neighbours, len(ds.camera_names)).to(self.device)
         self.depth, self.pose = self.system.depth, self.system.pose
-        self.optimizer = torch.optim.Adam(self.system.parameters(), lr=tc.lr, betas=(0.9, 0.999))
+        wnet = [p for p in self.depth.weight_nets.parameters()]
+        wids = {id(p) for p in wnet}
+        rest = [p for p in self.system.parameters() if id(p) not in wids]
+        groups = [{"params": rest, "lr_mult": 1.0}]
+        if wnet:  # the fresh weight networks learn at a rate of their own (train.weight_lr_mult)
+            groups.append({"params": wnet, "lr_mult": tc.weight_lr_mult})
+        self.optimizer = torch.optim.Adam(groups, lr=tc.lr, betas=(0.9, 0.999))
 
         oracle = cfg.scale.oracle
         self.train_set = RigDataset(ds, "train", tc.height, tc.width, oracle=oracle)
@@ -358,7 +364,7 @@ class Trainer:
             batch = self.to_device(batch)
             lr = self.lr_at(self.step)
             for g in self.optimizer.param_groups:
-                g["lr"] = lr
+                g["lr"] = lr * g.get("lr_mult", 1.0)
             t0 = time.perf_counter()
             outputs, losses = (self.ddp or self.system)(batch, self.step, True)
             loss = losses["loss"]

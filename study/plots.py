@@ -55,7 +55,7 @@ def make_plots(results: dict, plot_dir: Path) -> list[Path]:
         y, e = series(m, "dep_con.mean")
         ax.errorbar(xs, y, yerr=e, marker="o", capsize=3, label=label(m))
     ax.plot(xs, [_ref(results, o, "dep_con.mean")["mean"] for o in xs], "k--", label=REF_LABEL)
-    style(ax, "Dep Con (unscaled), mean over camera pairs", "target overlap (fraction of hfov)",
+    style(ax, "Dep Con (unscaled; ratio |D - D_hat| / D_gt), mean over camera pairs", "target overlap (fraction of hfov)",
           "Dep Con (lower is better)")
     save(fig, "dep_con_vs_overlap.png")
 

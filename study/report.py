@@ -30,6 +30,7 @@ from mcdp.diagnostics import COLLAPSE_RATIO
 from mcdp.methods import label
 from mcdp.metrics import METRIC_NAMES
 from study.plots import make_plots
+from study.propagation import format_propagation
 from study.results import (PRIOR_LABEL, REF_LABEL, SCALE_LABEL, YARDSTICKS, _agg, _ref, _ref_flat,
                            paired_difference)
 
@@ -184,8 +185,11 @@ def format_report(results: dict, plots: list[str]) -> str:
     add("### Verdict per overlap: MCDP (m = 2) vs Mono2\n")
     add("Paired over seeds (same seed = same data order and start): mean difference MCDP (m = 2) − Mono2 with "
         "its 95 % Student-t interval; *differs* only when the interval excludes 0. Median-scaled abs_rel "
-        "(accuracy) and Dep Con in metres (consistency), on all, overlap and non-overlap pixels.\n")
+        "(accuracy) and Dep Con, the paper's unitless ratio mean |D − D̂| / D_gt (consistency), on all, overlap and "
+        "non-overlap pixels.\n")
     add(_pair_verdicts(results))
+    add("")
+    add(format_propagation(results, label))
     add("")
     add("### Verdicts (abs_rel, mean over seeds)\n")
     add(_verdicts(results))
@@ -302,7 +306,7 @@ def _pair_verdicts(results: dict, a: str = "mcdp_m2", b: str = "mono2") -> str:
         for key, name, unit in (("median.mean.abs_rel", "accuracy", ""),
                                 ("median.overlap.abs_rel", "overlap px", ""),
                                 ("median.non_overlap.abs_rel", "non-overlap px", ""),
-                                ("dep_con.mean", "Dep Con", " m")):
+                                ("dep_con.mean", "Dep Con (ratio)", "")):
             pd = paired_difference(results, o, a, b, key)
             parts.append(f"{name} {pd['mean']:+.3f} ± {pd['ci95']:.3f}{unit}: {word[pd['differs']]}")
         lines.append(f"- overlap {o:.2f}: " + "; ".join(parts))

@@ -23,6 +23,53 @@ def _f(x) -> float:
     return float(x) if isinstance(x, (int, float)) and x is not None else float("nan")
 
 
+CUT = "@cut"  # method suffix of a run evaluated with its neighbours cut at inference
+ORACLE = "@oracle"  # method suffix of the ORACLE-weights yardstick of a run's bases
+INERT_M = 0.01  # a refinement whose refined depth differs from its init stage by < 1 cm on average is inert
+
+
+def flat_rows(row: dict) -> list[dict[str, Any]]:
+    """A run's CSV rows: as trained, and where evaluated, ``<method>@cut`` (neighbours cut at inference)
+    and ``<method>@oracle`` (ORACLE: its bases at weights fitted to ground truth)."""
+    base = flat_row(row)
+    ref = row.get("refinement") or {}
+    base["refine.weight_move"] = _f(ref.get("weight_move"))
+    base["refine.depth_change_m"] = _f(ref.get("depth_change_m"))
+    base["refine.oracle_weight_move"] = _f(ref.get("oracle_weight_move"))
+    if math.isfinite(base["refine.depth_change_m"]):
+        base["refine.inert"] = bool(base["refine.depth_change_m"] < INERT_M)
+    out = [base]
+    extra = {}
+    if row.get("metrics_init"):
+        init = flat_row({"metrics": row["metrics_init"]})
+        for k in ("median.mean.abs_rel", "median.overlap.abs_rel", "median.non_overlap.abs_rel"):
+            base[f"init.{k}"] = init.get(k, float("nan"))
+        base["refine.gain"] = base["init.median.mean.abs_rel"] - base.get("median.mean.abs_rel", float("nan"))
+    if row.get("metrics_oracle"):
+        orc = flat_row({"metrics": row["metrics_oracle"]})
+        base["oracle.median.mean.abs_rel"] = orc.get("median.mean.abs_rel", float("nan"))
+        init = base.get("init.median.mean.abs_rel", base.get("median.mean.abs_rel", float("nan")))
+        gap = init - base["oracle.median.mean.abs_rel"]
+        base["refine.headroom"] = gap
+        base["refine.headroom_closed"] = ((init - base.get("median.mean.abs_rel", float("nan"))) / gap
+                                          if gap > 1e-9 else float("nan"))
+        extra[ORACLE] = orc
+    if row.get("metrics_cut"):
+        cut = flat_row({"metrics": row["metrics_cut"]})
+        rc = row.get("refinement_cut") or {}
+        cut["refine.weight_move"] = _f(rc.get("weight_move"))
+        cut["refine.depth_change_m"] = _f(rc.get("depth_change_m"))
+        extra[CUT] = cut
+    for suffix in (CUT, ORACLE):
+        if suffix in extra:
+            e = extra[suffix]
+            for k in ("overlap", "seed", "status", "steps", "checkpoint_step"):
+                e[k] = base.get(k)
+            e["method"] = f"{base['method']}{suffix}"
+            out.append(e)
+    return out
+
+
 def flat_row(row: dict) -> dict[str, Any]:
     """One run's numbers as a flat dict of scalars (the CSV row)."""
     out: dict[str, Any] = {k: row.get(k) for k in ("overlap", "method", "seed", "status", "steps", "checkpoint_step",
@@ -92,11 +139,13 @@ def build_results(cfg, data: list[dict], rows: list[dict], counters: dict, total
     """Everything the report shows, JSON-able (NaN allowed)."""
     from corelib.configlib import config_hash, config_to_dict
 
-    flats = [flat_row(r) for r in rows]
+    flats = [f for r in rows for f in flat_rows(r)]
+    names = [m for base in cfg.methods for m in (base, base + CUT, base + ORACLE)
+             if any(f["method"] == m for f in flats) or m == base]
     aggregate = []
     for d in data:
         o = d["overlap"]
-        for method in cfg.methods:
+        for method in names:
             fr = [f for f in flats if f["overlap"] == o and f["method"] == method]
             keys = [k for k in (fr[0] if fr else {}) if "." in k]
             aggregate.append({"overlap": o, "method": method, "seeds": [f["seed"] for f in fr],
@@ -117,6 +166,7 @@ def build_results(cfg, data: list[dict], rows: list[dict], counters: dict, total
         "split": "test",
         "overlaps": list(cfg.overlaps),
         "methods": list(cfg.methods),
+        "evaluations": names,
         "seeds": list(cfg.seeds),
         "counters": counters,
         "timing": timing,

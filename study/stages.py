@@ -184,7 +184,7 @@ def pretrain_stage(cfg: SweepConfig, sweep_dir: Path, progress: bool, log) -> di
 
 def _eval_key(run_hash: str, step: int, eval_cfg: dict, data_hash: str, checkpoint: str, ckpt_name: str) -> str:
     return config_hash({"run": run_hash, "step": step, "eval": eval_cfg, "data": data_hash, "checkpoint": checkpoint,
-                        "file": ckpt_name})
+                        "file": ckpt_name, "protocol": "as-trained+cut+oracle-weights"})
 
 
 def run_dir_for(sweep_dir: Path, overlap: float, method: str, seed: int) -> Path:
@@ -195,8 +195,6 @@ def run_dir_for(sweep_dir: Path, overlap: float, method: str, seed: int) -> Path
 def run_stage(cfg: SweepConfig, overlap: float, data: dict, method: str, seed: int, sweep_dir: Path,
               counters: Counters, log, progress: bool, init_from: str | None = None) -> dict:
     """Train (or reuse / resume) and evaluate one (overlap, method, seed); returns its result row."""
-    from mcdp.evaluate import evaluate
-    from mcdp.predict import Predictor
     from mcdp.runs import RunError
     from mcdp.trainer import Trainer, TrainingDiverged
     from synth.dataset import open_dataset
@@ -255,33 +253,32 @@ def run_stage(cfg: SweepConfig, overlap: float, data: dict, method: str, seed: i
 
     # ---- eval
     metrics_path = run_dir / f"metrics_{SPLIT}.json"
+    cut_path = run_dir / f"metrics_{SPLIT}_cut.json"
     ecfg = eval_config_for(cfg)
-    pred = None
     from mcdp.runs import find_checkpoint
 
     ckpt_path = find_checkpoint(run_dir, cfg.checkpoint)
     key = _eval_key(rhash, int(status.get("steps", -1)), config_to_dict(cfg.eval), data["config_hash"],
                     cfg.checkpoint, ckpt_path.name)
     metrics = _read_json(metrics_path)
+    metrics_cut = _read_json(cut_path)
     if metrics is not None and metrics.get("sweep", {}).get("eval_key") == key and status.get("eval_key") == key:
         counters.bump("eval_skipped")
         row.update(eval_s=status.get("eval_s", float("nan")), eval_skipped=True)
         log(f"{tag}: evaluated already, skipped")
     else:
         t0 = time.perf_counter()
-        pred = Predictor(run_dir, ds, cfg.checkpoint, cfg.device)
-        log(f"{tag}: evaluating {pred.ckpt_path.name} (step {pred.step}) on the {SPLIT} split")
-        metrics = evaluate(ds, pred.predict, SPLIT, ecfg, progress=progress)
-        metrics["run"] = {"run_dir": str(run_dir), "checkpoint": str(pred.ckpt_path), "step": pred.step,
-                          "method": pred.cfg.model.method, "refine_steps": pred.cfg.model.refine_steps,
-                          "bases": pred.cfg.model.n_out, "consistency_weight": pred.cfg.loss.consistency_weight,
-                          "scale_source": pred.cfg.scale.source, "oracle": pred.oracle, "data": data["path"],
-                          "config": config_to_dict(pred.cfg)}
+        metrics, metrics_cut = evaluate_run(cfg, run_dir, ds, ecfg, progress, log, tag)
+        metrics["run"] = run_record(metrics["_predictor"], run_dir, data["path"])
+        metrics.pop("_predictor")
         metrics["sweep"] = {"eval_key": key, "overlap": overlap, "method": method, "seed": seed}
-        _write_json(metrics_path, metrics)
+        if metrics_cut is not None:
+            metrics_cut["sweep"] = {**metrics["sweep"], "cut": True}
+            _write_json(cut_path, metrics_cut)
+        _write_json(metrics_path, metrics)  # last: it names the eval key that says both are complete
         eval_s = time.perf_counter() - t0
-        status = {**status, "eval_key": key, "eval_s": eval_s, "checkpoint": str(pred.ckpt_path),
-                  "checkpoint_step": pred.step}
+        status = {**status, "eval_key": key, "eval_s": eval_s, "checkpoint": metrics["run"]["checkpoint"],
+                  "checkpoint_step": metrics["run"]["step"]}
         _write_json(status_path, status)
         counters.bump("evaluated")
         row.update(eval_s=eval_s, eval_skipped=False)
@@ -291,10 +288,59 @@ def run_stage(cfg: SweepConfig, overlap: float, data: dict, method: str, seed: i
     row["checkpoint_step"] = status.get("checkpoint_step")
     row["oracle"] = bool(metrics.get("run", {}).get("oracle", False))
     row["metrics"] = summarize_metrics(metrics)
+    row["refinement"] = metrics.get("refinement")
+    if "init" in metrics["stages"] and len(metrics["stages"]) > 2:
+        row["metrics_init"] = summarize_metrics(metrics, "init")
+    if "oracle" in metrics["stages"]:
+        row["metrics_oracle"] = summarize_metrics(metrics, "oracle")
+    if metrics_cut is not None and metrics_cut.get("sweep", {}).get("eval_key") == key:
+        row["metrics_cut"] = summarize_metrics(metrics_cut)
+        row["refinement_cut"] = metrics_cut.get("refinement")
     m = row["metrics"]
+    r = row["refinement"] or {}
     log(f"{tag}: abs_rel metric {m['none']['mean']['abs_rel']:.4f}, median {m['median']['mean']['abs_rel']:.4f}, "
-        f"dep_con {m['dep_con']['mean']:.4f}")
+        f"dep_con {m['dep_con']['mean']:.4f}"
+        + (f"; refinement |w - 1/n| {r['weight_move']:.4f}, |refined - init| {r['depth_change_m']:.3f} m"
+           if r.get("weight_move") == r.get("weight_move") and "weight_move" in r else "")
+        + (f"; cut median {row['metrics_cut']['median']['mean']['abs_rel']:.4f}" if "metrics_cut" in row else "")
+        + (f"; ORACLE weights median {row['metrics_oracle']['median']['mean']['abs_rel']:.4f}"
+           if "metrics_oracle" in row else ""))
     return row
+
+
+def run_record(pred, run_dir: Path, data_path: str) -> dict:
+    """The ``metrics["run"]`` record of an evaluated checkpoint."""
+    return {"run_dir": str(run_dir), "checkpoint": str(pred.ckpt_path), "step": pred.step,
+            "method": pred.cfg.model.method, "refine_steps": pred.cfg.model.refine_steps,
+            "bases": pred.cfg.model.n_out, "consistency_weight": pred.cfg.loss.consistency_weight,
+            "scale_source": pred.cfg.scale.source, "oracle": pred.oracle, "config": config_to_dict(pred.cfg),
+            "data": data_path}
+
+
+def evaluate_run(cfg: SweepConfig, run_dir: Path, ds, ecfg, progress: bool, log, tag: str) -> tuple[dict, dict | None]:
+    """Evaluate one run's checkpoint: as trained (+ the ORACLE-weights stage of a run with bases),
+    and, for a run with refinement steps, a second time with its neighbours cut at inference.
+
+    Returns (metrics, metrics_cut or None); ``metrics["_predictor"]`` is the as-trained predictor and
+    ``metrics["refinement"]`` / ``metrics_cut["refinement"]`` record how much the refinement acted.
+    """
+    from mcdp.evaluate import evaluate
+    from mcdp.predict import Predictor
+
+    rng = (ecfg.min_depth, ecfg.max_depth)
+    pred = Predictor(run_dir, ds, cfg.checkpoint, cfg.device, oracle_weights=True, oracle_range=rng)
+    log(f"{tag}: evaluating {pred.ckpt_path.name} (step {pred.step}) on the {SPLIT} split"
+        + (" (+ ORACLE weights of its bases)" if pred.oracle_weights else ""))
+    metrics = evaluate(ds, pred.predict, SPLIT, ecfg, progress=progress)
+    metrics["refinement"] = pred.refinement
+    metrics["_predictor"] = pred
+    metrics_cut = None
+    if pred.cfg.model.method == "mcdp" and pred.cfg.model.refine_steps > 0:
+        cut = Predictor(run_dir, ds, cfg.checkpoint, cfg.device, cut=True)
+        log(f"{tag}: evaluating it again with the neighbours cut at inference")
+        metrics_cut = evaluate(ds, cut.predict, SPLIT, ecfg, progress=progress)
+        metrics_cut["refinement"] = cut.refinement
+    return metrics, metrics_cut
 
 
 def _remove_last(run_dir: Path, status: dict, status_path: Path) -> dict:
