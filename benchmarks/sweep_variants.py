@@ -1,0 +1,154 @@
+"""Variants of one sweep recipe side by side: the consistency-weight table, the budget (learning-curve)
+table, and probes of the refinement's knobs, all from ONE shared pretraining and the same datasets.
+
+Each variant is the base sweep preset plus its own training overrides, run by `mcdp sweep` into
+``ROOT/<variant>/`` (so every number comes from the sweep's own evaluation: as trained, cut, ORACLE
+weights, refinement acting). The source sweep's pretraining and datasets are hard-linked into each
+variant's folder first, so they are made once (the sweep reuses them by their config hashes).
+
+    python benchmarks/sweep_variants.py --base configs/sweep/cpu.yaml --source /work/sweeps/cpu \\
+        --root /work/sweeps/lambda --set 'overlaps=[0.3]' 'methods=[mcdp_m2]' 'seeds=[0,1,2]' \\
+        --variant 'lam0: loss.consistency_weight=0' --variant 'lam1e-3: loss.consistency_weight=1e-3' \\
+        [--table lambda|budget] [--out docs/results/consistency_weight.md]
+
+Rerunning resumes (finished runs are skipped). The table prints per variant, overlap and method the
+mean over seeds ± 95 % t half-width of: median-scaled abs_rel (all / overlap / non-overlap), Dep Con
+(ratio), depth spread (p90/p10), mean |w - 1/n| and |refined - init| (m), the propagation
+(as trained - cut on non-overlap pixels, paired), the headroom closed ((init - final) / (init -
+ORACLE)), and, where Mono2 is in the variant, MCDP - Mono2 (paired).
+"""
+from __future__ import annotations
+
+import argparse
+import math
+import os
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+
+from study.results import CUT, ORACLE, _agg, paired_difference  # noqa: E402
+
+
+def link_tree(src: Path, dst: Path) -> None:
+    """Hard-link every file of src into dst (same layout); existing files are kept."""
+    for p in src.rglob("*"):
+        q = dst / p.relative_to(src)
+        if p.is_dir():
+            q.mkdir(parents=True, exist_ok=True)
+        elif p.is_file() and not p.is_symlink() and not q.exists():
+            q.parent.mkdir(parents=True, exist_ok=True)
+            try:
+                os.link(p, q)
+            except OSError:
+                shutil.copy2(p, q)
+
+
+def share(source: Path, out: Path) -> None:
+    """The source sweep's pretraining (weights and record only) and datasets, linked into out."""
+    for pre in sorted((source / "pretrain").glob("*")):
+        dst = out / "pretrain" / pre.name
+        dst.mkdir(parents=True, exist_ok=True)
+        for name in ("pretrain.json", "pretrained.pt", "pretrain.config.json"):
+            if (pre / name).is_file() and not (dst / name).exists():
+                os.link(pre / name, dst / name)
+    if (source / "data").is_dir():
+        link_tree(source / "data", out / "data")
+
+
+def run_variant(base: str, root: Path, source: Path | None, name: str, train: list[str], sets: list[str]) -> Path:
+    out = root / name
+    out.mkdir(parents=True, exist_ok=True)
+    if source is not None:
+        share(source, out)
+    from study.config import load_sweep_config
+
+    cfg = load_sweep_config(base, sets)
+    overrides = list(cfg.train_overrides) + train
+    args = [sys.executable, "-m", "study.cli", "sweep", base, "--out", str(out), "--no-progress",
+            *sets, "train_overrides=[" + ",".join(overrides) + "]"]
+    log = out / "variant.log"
+    print(f"[variants] {name}: {' '.join(train) or '(base)'} -> {out}", flush=True)
+    with open(log, "a") as fh:
+        rc = subprocess.call(args, cwd=ROOT, stdout=fh, stderr=subprocess.STDOUT)
+    if rc != 0:
+        raise SystemExit(f"[variants] {name}: mcdp sweep exited {rc}; see {log}")
+    return out
+
+
+def _ms(a: dict, digits: int = 3) -> str:
+    mu, hw = a.get("mean", math.nan), a.get("ci95", math.nan)
+    if not (isinstance(mu, (int, float)) and math.isfinite(mu)):
+        return "—"
+    return f"{mu:.{digits}f}" + (f" ± {hw:.{digits}f}" if isinstance(hw, float) and math.isfinite(hw) else "")
+
+
+def _pd(pd: dict, digits: int = 3) -> str:
+    if not math.isfinite(pd["mean"]):
+        return "—"
+    mark = {-1: " (lower)", 1: " (higher)", 0: ""}[pd["differs"]]
+    return f"{pd['mean']:+.{digits}f} ± {pd['ci95']:.{digits}f}{mark}"
+
+
+def table(rows: list[tuple[str, dict]]) -> str:
+    head = ("| variant | overlap | method | abs_rel all | overlap px | non-overlap px | Dep Con | spread | "
+            "abs(w − 1/n) | abs(refined − init) m | propagation (trained − cut, non-overlap) | "
+            "direct use (trained − cut, overlap) | headroom closed | − Mono2 (all) | − Mono2 (non-overlap) |")
+    L = [head, "|" + "---|" * (head.count("|") - 1)]
+    for name, res in rows:
+        for o in res["overlaps"]:
+            for m in res["methods"]:
+                g = lambda k, d=3: _ms(_agg(res, o, m, k), d)  # noqa: E731
+                has_cut = m + CUT in res.get("evaluations", [])
+                prop = _pd(paired_difference(res, o, m, m + CUT, "median.non_overlap.abs_rel")) if has_cut else "—"
+                direct = _pd(paired_difference(res, o, m, m + CUT, "median.overlap.abs_rel")) if has_cut else "—"
+                vs = lambda k: (_pd(paired_difference(res, o, m, "mono2", k))  # noqa: E731
+                                if m != "mono2" and "mono2" in res["methods"] else "—")
+                L.append(f"| {name} | {o:.2f} | {m} | {g('median.mean.abs_rel')} | {g('median.overlap.abs_rel')} | "
+                         f"{g('median.non_overlap.abs_rel')} | {g('dep_con.mean')} | {g('spread.ratio', 2)} | "
+                         f"{g('refine.weight_move', 4)} | {g('refine.depth_change_m')} | {prop} | {direct} | "
+                         f"{g('refine.headroom_closed', 2)} | {vs('median.mean.abs_rel')} | "
+                         f"{vs('median.non_overlap.abs_rel')} |")
+            if any(m + ORACLE in res.get("evaluations", []) for m in res["methods"]):
+                for m in res["methods"]:
+                    if m + ORACLE in res.get("evaluations", []):
+                        L.append(f"| {name} | {o:.2f} | *{m} ORACLE weights* | "
+                                 f"{_ms(_agg(res, o, m + ORACLE, 'median.mean.abs_rel'))} | | | | | | | | | | | |")
+    return "\n".join(L)
+
+
+def main(argv=None) -> None:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--base", required=True, help="sweep preset every variant starts from")
+    ap.add_argument("--root", required=True, type=Path, help="folder of the variants' sweeps")
+    ap.add_argument("--source", type=Path, help="a sweep folder whose pretraining and datasets are shared")
+    ap.add_argument("--set", nargs="*", default=[], help="sweep-level overrides for every variant (key=value)")
+    ap.add_argument("--variant", action="append", default=[], help="'NAME: key=value key=value' (train overrides)")
+    ap.add_argument("--only-table", action="store_true", help="do not run; tabulate finished variants")
+    ap.add_argument("--out", type=Path, help="also write the table (markdown) here")
+    args = ap.parse_args(argv)
+    import json
+
+    rows = []
+    for v in args.variant:
+        name, _, rest = v.partition(":")
+        name = name.strip()
+        if not name or "/" in name or name.startswith("."):
+            raise SystemExit(f"--variant {v!r}: give 'NAME: overrides' with a plain NAME")
+        out = args.root / name
+        if not args.only_table:
+            out = run_variant(args.base, args.root, args.source, name, rest.split(), args.set)
+        res_path = out / "results.json"
+        if res_path.is_file():
+            rows.append((name, json.loads(res_path.read_text())))
+    text = table(rows)
+    print(text)
+    if args.out:
+        args.out.write_text(text + "\n")
+
+
+if __name__ == "__main__":
+    main()
