@@ -42,21 +42,19 @@ def _user_errors() -> tuple[type[BaseException], ...]:
     return (ConfigError, DatasetError, RunError, NetworkError, OutputFolderError, WarmStartError, FolderError)
 
 
-def _check_metrics_target(out: Path) -> None:
-    """`eval --out` names a file: new, or a metrics file an earlier `mcdp eval` wrote; anything else is the
-    user's and is refused before the evaluation starts."""
-    from mcdp.runs import RunError
+def _is_metrics(path: Path) -> bool:
+    try:
+        return isinstance(json.loads(path.read_text()[:1 << 26]).get("run", {}).get("checkpoint"), str)
+    except (OSError, ValueError, UnicodeDecodeError, AttributeError):
+        return False
 
-    if out.is_dir():
-        raise RunError(f"--out {out} is a folder; --out names the metrics JSON file to write")
-    if out.exists():
-        try:
-            ours = isinstance(json.loads(out.read_text()[:1 << 26]).get("run", {}).get("checkpoint"), str)
-        except (OSError, ValueError, UnicodeDecodeError, AttributeError):
-            ours = False
-        if not ours:
-            raise RunError(f"--out {out} exists and is not a metrics file written by mcdp eval; nothing was "
-                           "written: choose a new file name")
+
+def _check_metrics_target(out: Path) -> None:
+    """`eval --out` names a file: new, or a metrics file an earlier `mcdp eval` wrote; anything else (a
+    file of the user's, a folder, a device, a symlink) is refused before the evaluation starts."""
+    from corelib.rundir import check_output_file
+
+    check_output_file(out, _is_metrics, "metrics file written by mcdp eval")
 
 
 def _open_dataset(path: str):
