@@ -57,6 +57,16 @@ def _check_metrics_target(out: Path) -> None:
     check_output_file(out, _is_metrics, "metrics file written by mcdp eval")
 
 
+def _outside_datasets(out: str | Path) -> None:
+    """An output inside a dataset would change it behind its manifest (and `synth verify` would not see it)."""
+    from corelib.rundir import FolderError
+    from synth.dataset import dataset_containing
+
+    inside = dataset_containing(out)
+    if inside is not None:
+        raise FolderError(f"--out {out} is inside the dataset {inside}; nothing was written: write outside it")
+
+
 def _open_dataset(path: str):
     from synth.dataset import open_dataset
 
@@ -78,6 +88,7 @@ def _train(args: argparse.Namespace) -> int:
     from corelib.configlib import load_config
 
     cfg = load_config(RunConfig, args.preset, args.overrides)
+    _outside_datasets(args.out)
     ds = _open_dataset(args.data)
     trainer = Trainer(cfg, ds, args.out, progress=not args.no_progress)
     m, tc = cfg.model, cfg.train
@@ -144,6 +155,7 @@ def _eval(args: argparse.Namespace) -> int:
 
     out = Path(args.out) if args.out else Path(args.run) / f"metrics_{args.split}.json"
     _check_metrics_target(out)  # before the (long) evaluation
+    _outside_datasets(out)
     ds = _open_dataset(args.data)
     if not ds.has_depth:
         raise RunError(f"dataset {args.data} has no ground-truth depth (manifest has_depth=false); eval needs it")
@@ -198,6 +210,7 @@ def _predict(args: argparse.Namespace) -> int:
 
     if args.stride < 1 or (args.max_samples is not None and args.max_samples < 1):
         raise RunError("--stride and --max-samples must be >= 1")
+    _outside_datasets(args.out)
     ds = _open_dataset(args.data)
     pred = Predictor(args.run, ds, args.checkpoint, args.device)
     samples = [(s, f) for s in ds.split(args.split) for f in range(0, ds.n_frames(s), args.stride)]
@@ -211,12 +224,32 @@ def _predict(args: argparse.Namespace) -> int:
     lock = claim(args.out, "predict")  # a folder of the user's own files is refused, nothing written
     n = 0
     try:
+        _record_source(Path(args.out), args.run, pred, args.data)
         for seq, f in samples:
             n += len(write_prediction(pred, seq, f, args.out, ply=args.ply))
     finally:
         lock.release()
     print(f"mcdp predict: wrote {n} files", file=sys.stderr)
     return 0
+
+
+def _record_source(out: Path, run: str, pred, data: str) -> None:
+    """``predict.json`` names the run, checkpoint and dataset a prediction folder holds; another run's or
+    dataset's predictions are refused there (files of two runs would mix without a record)."""
+    from corelib.rundir import FolderError
+
+    rec = {"run": str(Path(run).resolve()), "data": str(Path(data).resolve())}
+    p = out / "predict.json"
+    if p.is_file():
+        try:
+            old = json.loads(p.read_text()[:1 << 20])
+        except (OSError, ValueError, UnicodeDecodeError):
+            old = None
+        old = {k: old.get(k) for k in rec} if isinstance(old, dict) else old
+        if old != rec:
+            raise FolderError(f"--out {out} holds predictions of another run or dataset ({p}: {str(old)[:200]}); "
+                              "nothing was written: use a new --out")
+    atomic_write_json(p, {**rec, "checkpoint": str(pred.ckpt_path), "step": pred.step})
 
 
 # --------------------------------------------------------------------------- main

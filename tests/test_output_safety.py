@@ -18,6 +18,8 @@ import pytest
 
 from synth.cli import main as synth_main
 
+ROOT = Path(__file__).resolve().parents[1]
+TINY = ROOT / "configs" / "data" / "tiny.yaml"
 SEQ_CAM = "seq_00000/CAM_FRONT"
 
 
@@ -170,3 +172,60 @@ def test_a_jpeg_under_a_png_name_is_refused_where_it_is_read(data, tmp_path, cap
                        "--no-lidar", "--no-progress"]) == 2
     line = _err_line(capsys)
     assert str(png) in line and "a JPEG file" in line, line
+
+
+# --------------------------------------------------------------------------- 5: the size of a render
+def test_a_render_states_its_size_and_refuses_a_huge_one_without_yes(tmp_path, capsys, tiny_config):
+    from synth.config import MAX_RENDER_BYTES, render_size
+
+    assert render_size(tiny_config) == {"rig_frames": 18, "images": 108, "max_bytes": 108 * 96 * 64 * 7}
+    assert render_size(tiny_config, shard_of=2)["rig_frames"] == 12  # sequences 0 and 2 of 3
+    out = tmp_path / "big"
+    huge = ["camera.width=4096", "camera.height=4096", "dataset.sequences=100000", "dataset.frames=10000"]
+    assert synth_main(["render", str(TINY), "--out", str(out), "--no-progress", *huge]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert err[0].startswith("synth render: 1000000000 rig-frames, 6000000000 images of 4096x4096")
+    assert len(err) == 2 and "--yes" in err[1] and f"more than {MAX_RENDER_BYTES // 10**9} GB" in err[1], err
+    assert not out.exists()
+
+
+# --------------------------------------------------------------------------- 9: outputs inside a dataset
+def test_outputs_inside_a_dataset_are_refused(data, tmp_path, capsys, tree_hash):
+    from mcdp.cli import main as mcdp_main
+
+    before = tree_hash(data)
+    inner = data / "seq_00000"
+    mono2 = str(ROOT / "configs" / "train" / "tiny" / "mono2.yaml")
+    for code, argv in [
+        (synth_main, ["render", str(TINY), "--out", str(inner / "d"), "--no-progress"]),
+        (synth_main, ["export", str(data), "--format", "nuscenes", "--out", str(inner / "ns")]),
+        (mcdp_main, ["train", mono2, "--data", str(data), "--out", str(inner / "run"), "--no-progress"]),
+        (mcdp_main, ["predict", str(tmp_path / "run"), "--data", str(data), "--out", str(inner / "pred")]),
+        (mcdp_main, ["eval", str(tmp_path / "run"), "--data", str(data), "--out", str(inner / "m.json")]),
+    ]:
+        assert code(argv) == 2, argv
+        line = _err_line(capsys)
+        assert f"is inside the dataset {data.resolve()}" in line, line
+    assert tree_hash(data) == before
+
+
+def test_predict_refuses_a_folder_of_another_dataset_or_run(tiny_dataset, data, tmp_path, capsys):
+    import json
+
+    from mcdp.cli import main as mcdp_main
+
+    run = tmp_path / "run"
+    assert mcdp_main(["train", str(ROOT / "configs" / "train" / "tiny" / "mono2.yaml"), "--data", str(tiny_dataset),
+                      "--out", str(run), "--no-progress", "train.steps=1"]) == 0
+    pred = tmp_path / "pred"
+    argv = ["predict", str(run), "--out", str(pred), "--max-samples", "1", "--data"]
+    assert mcdp_main(argv + [str(tiny_dataset)]) == 0
+    rec = json.loads((pred / "predict.json").read_text())
+    assert rec["run"] == str(run.resolve()) and rec["data"] == str(tiny_dataset.resolve()) and rec["step"] == 1
+    files = sorted(p for p in pred.rglob("*") if p.is_file())
+    assert mcdp_main(argv + [str(tiny_dataset)]) == 0  # the same run and dataset: rewritten
+    capsys.readouterr()
+    assert mcdp_main(argv + [str(data)]) == 2  # a copy elsewhere is another dataset
+    line = capsys.readouterr().err.strip().splitlines()[-1]
+    assert "holds predictions of another run or dataset" in line and str(pred) in line, line
+    assert sorted(p for p in pred.rglob("*") if p.is_file()) == files
