@@ -67,6 +67,33 @@ def _outside_datasets(out: str | Path) -> None:
         raise FolderError(f"--out {out} is inside the dataset {inside}; nothing was written: write outside it")
 
 
+def rig_differences(run: Path, ds) -> list[str] | None:
+    """How the dataset's rig (per camera: size, K, T_ego_cam) differs from the one the run was trained on
+    (``run.json``'s ``rig``; None for a run written before it was recorded): [] when it is the same."""
+    import numpy as np
+
+    try:
+        trained = json.loads((run / "run.json").read_text()).get("rig")
+    except (OSError, ValueError, AttributeError):
+        return None
+    if not isinstance(trained, list):
+        return None
+    now = {c.name: c for c in ds.cameras}
+    diffs = [] if [c.get("name") for c in trained] == list(now) else \
+        [f"cameras {[c.get('name') for c in trained]} -> {list(now)}"]
+    for c in trained:
+        cam = now.get(c.get("name"))
+        if cam is None:
+            continue
+        if (c.get("width"), c.get("height")) != (cam.width, cam.height):
+            diffs.append(f"{cam.name} size {c.get('width')}x{c.get('height')} -> {cam.width}x{cam.height}")
+        for key, new in (("K", cam.K), ("T_ego_cam", cam.T_ego_cam)):
+            old = np.asarray(c.get(key), np.float64)
+            if old.shape != new.shape or not np.allclose(old, new, rtol=1e-6, atol=1e-6):
+                diffs.append(f"{cam.name} {key}")
+    return diffs
+
+
 def _open_dataset(path: str):
     from synth.dataset import open_dataset
 
@@ -166,6 +193,11 @@ def _eval(args: argparse.Namespace) -> int:
         probe = ds.depth_path(seqs[0], ds.camera_names[0], 0)
         if not probe.is_file():
             raise RunError(f"dataset {args.data} has no ground-truth depth ({probe} is missing); eval needs it")
+    rig_diff = rig_differences(Path(args.run), ds)
+    if rig_diff:
+        print(f"mcdp eval: warning: {args.data}'s rig differs from the one {args.run} was trained on: "
+              f"{'; '.join(rig_diff[:6])}" + (f" (+{len(rig_diff) - 6} more)" if len(rig_diff) > 6 else ""),
+              file=sys.stderr)
     label = " [ORACLE: ground-truth median scale at inference]" if pred.oracle else ""
     print(f"mcdp eval: {pred.ckpt_path} (step {pred.step}) on {args.data} split {args.split}{label}", file=sys.stderr)
     metrics = evaluate(ds, pred.predict, args.split, ecfg, progress=not args.no_progress)
@@ -181,6 +213,8 @@ def _eval(args: argparse.Namespace) -> int:
         "oracle": pred.oracle,
         "data": str(Path(args.data)),
         "config": config_to_dict(pred.cfg),
+        "rig_as_trained": None if rig_diff is None else not rig_diff,  # None: the run did not record its rig
+        "rig_differences": rig_diff,
     }
     out.parent.mkdir(parents=True, exist_ok=True)
     atomic_write_json(out, metrics, allow_nan=True)

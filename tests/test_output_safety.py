@@ -229,3 +229,29 @@ def test_predict_refuses_a_folder_of_another_dataset_or_run(tiny_dataset, data, 
     line = capsys.readouterr().err.strip().splitlines()[-1]
     assert "holds predictions of another run or dataset" in line and str(pred) in line, line
     assert sorted(p for p in pred.rglob("*") if p.is_file()) == files
+
+
+# --------------------------------------------------------------------------- 10: eval on another rig
+def test_eval_on_another_rig_warns_and_records_the_difference(tiny_dataset, tmp_path, capsys):
+    import json
+
+    from mcdp.cli import main as mcdp_main
+
+    run = tmp_path / "run"
+    assert mcdp_main(["train", str(ROOT / "configs" / "train" / "tiny" / "mono2.yaml"), "--data", str(tiny_dataset),
+                      "--out", str(run), "--no-progress", "train.steps=1"]) == 0
+    assert len(json.loads((run / "run.json").read_text())["rig"]) == 6
+    other = tmp_path / "wide"
+    assert synth_main(["render", str(TINY), "--out", str(other), "--no-progress", "rig.overlap=0.5"]) == 0
+    capsys.readouterr()
+    ev = ["eval", str(run), "--no-progress", "--data"]
+    assert mcdp_main(ev + [str(tiny_dataset), "--out", str(tmp_path / "same.json")]) == 0
+    assert "warning" not in capsys.readouterr().err
+    same = json.loads((tmp_path / "same.json").read_text())["run"]
+    assert same["rig_as_trained"] is True and same["rig_differences"] == []
+    assert mcdp_main(ev + [str(other), "--out", str(tmp_path / "wide.json")]) == 0
+    err = capsys.readouterr().err
+    assert f"warning: {other}'s rig differs from the one {run} was trained on: CAM_FRONT_RIGHT T_ego_cam" in err
+    wide = json.loads((tmp_path / "wide.json").read_text())["run"]
+    assert wide["rig_as_trained"] is False and "CAM_FRONT_RIGHT T_ego_cam" in wide["rig_differences"]
+    assert "CAM_FRONT T_ego_cam" not in wide["rig_differences"]  # spacing mode: the front camera stays put
