@@ -11,6 +11,9 @@ folder, ``mcdp predict --out``, ``mcdp sweep --out``):
 - an exclusive ``flock`` on ``.lock`` is held until `FolderLock.release` (or process exit): a
   second process writing the same folder is refused at once, naming the holder's pid.
 
+`check_output_file(path, is_ours, what)` does the same for a single file a command writes (``synth
+preview --out``, ``mcdp eval --out``): new, or a regular file the command recognises as its own.
+
 Example::
 
     lock = claim(Path("runs/m2"), "run", legacy=("run.json",))
@@ -24,7 +27,9 @@ from __future__ import annotations
 import fcntl
 import json
 import os
+import stat
 from pathlib import Path
+from typing import Callable
 
 from corelib.atomic import atomic_write_json
 
@@ -95,3 +100,30 @@ def lock_folder(folder: str | Path, lock_file: str | Path = LOCK) -> FolderLock:
     fh.write(str(os.getpid()))
     fh.flush()
     return FolderLock(folder, fh)
+
+
+def check_output_file(path: str | Path, is_ours: Callable[[Path], bool], what: str, flag: str = "--out") -> Path:
+    """Accept ``path`` as a file to (over)write: it does not exist yet (in an existing folder, or one to be
+    created), or it is a regular file that ``is_ours`` recognises as a ``what`` written earlier. A symlink,
+    a folder, a device, FIFO or socket, and a file of anyone else are refused (FolderError naming the path)
+    before the command writes or computes anything."""
+    path = Path(path)
+    try:
+        st = path.lstat()
+    except FileNotFoundError:
+        for parent in path.parents:
+            if parent.exists() or parent.is_symlink():
+                if not parent.is_dir():
+                    raise FolderError(f"{flag} {path}: {parent} is not a folder") from None
+                break
+        return path
+    if stat.S_ISLNK(st.st_mode):
+        raise FolderError(f"{flag} {path} is a symlink; nothing was written: give a new file name, not a link")
+    if stat.S_ISDIR(st.st_mode):
+        raise FolderError(f"{flag} {path} is a folder; {flag} names the {what} file to write")
+    if not stat.S_ISREG(st.st_mode):
+        raise FolderError(f"{flag} {path} is not a regular file (a device, FIFO or socket); nothing was written: "
+                          "choose a new file name")
+    if not is_ours(path):
+        raise FolderError(f"{flag} {path} exists and is not a {what}; nothing was written: choose a new file name")
+    return path

@@ -42,21 +42,56 @@ def _user_errors() -> tuple[type[BaseException], ...]:
     return (ConfigError, DatasetError, RunError, NetworkError, OutputFolderError, WarmStartError, FolderError)
 
 
-def _check_metrics_target(out: Path) -> None:
-    """`eval --out` names a file: new, or a metrics file an earlier `mcdp eval` wrote; anything else is the
-    user's and is refused before the evaluation starts."""
-    from mcdp.runs import RunError
+def _is_metrics(path: Path) -> bool:
+    try:
+        return isinstance(json.loads(path.read_text()[:1 << 26]).get("run", {}).get("checkpoint"), str)
+    except (OSError, ValueError, UnicodeDecodeError, AttributeError):
+        return False
 
-    if out.is_dir():
-        raise RunError(f"--out {out} is a folder; --out names the metrics JSON file to write")
-    if out.exists():
-        try:
-            ours = isinstance(json.loads(out.read_text()[:1 << 26]).get("run", {}).get("checkpoint"), str)
-        except (OSError, ValueError, UnicodeDecodeError, AttributeError):
-            ours = False
-        if not ours:
-            raise RunError(f"--out {out} exists and is not a metrics file written by mcdp eval; nothing was "
-                           "written: choose a new file name")
+
+def _check_metrics_target(out: Path) -> None:
+    """`eval --out` names a file: new, or a metrics file an earlier `mcdp eval` wrote; anything else (a
+    file of the user's, a folder, a device, a symlink) is refused before the evaluation starts."""
+    from corelib.rundir import check_output_file
+
+    check_output_file(out, _is_metrics, "metrics file written by mcdp eval")
+
+
+def _outside_datasets(out: str | Path) -> None:
+    """An output inside a dataset would change it behind its manifest (and `synth verify` would not see it)."""
+    from corelib.rundir import FolderError
+    from synth.dataset import dataset_containing
+
+    inside = dataset_containing(out)
+    if inside is not None:
+        raise FolderError(f"--out {out} is inside the dataset {inside}; nothing was written: write outside it")
+
+
+def rig_differences(run: Path, ds) -> list[str] | None:
+    """How the dataset's rig (per camera: size, K, T_ego_cam) differs from the one the run was trained on
+    (``run.json``'s ``rig``; None for a run written before it was recorded): [] when it is the same."""
+    import numpy as np
+
+    try:
+        trained = json.loads((run / "run.json").read_text()).get("rig")
+    except (OSError, ValueError, AttributeError):
+        return None
+    if not isinstance(trained, list):
+        return None
+    now = {c.name: c for c in ds.cameras}
+    diffs = [] if [c.get("name") for c in trained] == list(now) else \
+        [f"cameras {[c.get('name') for c in trained]} -> {list(now)}"]
+    for c in trained:
+        cam = now.get(c.get("name"))
+        if cam is None:
+            continue
+        if (c.get("width"), c.get("height")) != (cam.width, cam.height):
+            diffs.append(f"{cam.name} size {c.get('width')}x{c.get('height')} -> {cam.width}x{cam.height}")
+        for key, new in (("K", cam.K), ("T_ego_cam", cam.T_ego_cam)):
+            old = np.asarray(c.get(key), np.float64)
+            if old.shape != new.shape or not np.allclose(old, new, rtol=1e-6, atol=1e-6):
+                diffs.append(f"{cam.name} {key}")
+    return diffs
 
 
 def _open_dataset(path: str):
@@ -80,6 +115,7 @@ def _train(args: argparse.Namespace) -> int:
     from corelib.configlib import load_config
 
     cfg = load_config(RunConfig, args.preset, args.overrides)
+    _outside_datasets(args.out)
     ds = _open_dataset(args.data)
     trainer = Trainer(cfg, ds, args.out, progress=not args.no_progress)
     m, tc = cfg.model, cfg.train
@@ -146,6 +182,7 @@ def _eval(args: argparse.Namespace) -> int:
 
     out = Path(args.out) if args.out else Path(args.run) / f"metrics_{args.split}.json"
     _check_metrics_target(out)  # before the (long) evaluation
+    _outside_datasets(out)
     ds = _open_dataset(args.data)
     if not ds.has_depth:
         raise RunError(f"dataset {args.data} has no ground-truth depth (manifest has_depth=false); eval needs it")
@@ -156,6 +193,11 @@ def _eval(args: argparse.Namespace) -> int:
         probe = ds.depth_path(seqs[0], ds.camera_names[0], 0)
         if not probe.is_file():
             raise RunError(f"dataset {args.data} has no ground-truth depth ({probe} is missing); eval needs it")
+    rig_diff = rig_differences(Path(args.run), ds)
+    if rig_diff:
+        print(f"mcdp eval: warning: {args.data}'s rig differs from the one {args.run} was trained on: "
+              f"{'; '.join(rig_diff[:6])}" + (f" (+{len(rig_diff) - 6} more)" if len(rig_diff) > 6 else ""),
+              file=sys.stderr)
     label = " [ORACLE: ground-truth median scale at inference]" if pred.oracle else ""
     print(f"mcdp eval: {pred.ckpt_path} (step {pred.step}) on {args.data} split {args.split}{label}", file=sys.stderr)
     metrics = evaluate(ds, pred.predict, args.split, ecfg, progress=not args.no_progress)
@@ -171,6 +213,8 @@ def _eval(args: argparse.Namespace) -> int:
         "oracle": pred.oracle,
         "data": str(Path(args.data)),
         "config": config_to_dict(pred.cfg),
+        "rig_as_trained": None if rig_diff is None else not rig_diff,  # None: the run did not record its rig
+        "rig_differences": rig_diff,
     }
     out.parent.mkdir(parents=True, exist_ok=True)
     atomic_write_json(out, metrics, allow_nan=True)
@@ -200,6 +244,7 @@ def _predict(args: argparse.Namespace) -> int:
 
     if args.stride < 1 or (args.max_samples is not None and args.max_samples < 1):
         raise RunError("--stride and --max-samples must be >= 1")
+    _outside_datasets(args.out)
     ds = _open_dataset(args.data)
     pred = Predictor(args.run, ds, args.checkpoint, args.device)
     samples = [(s, f) for s in ds.split(args.split) for f in range(0, ds.n_frames(s), args.stride)]
@@ -213,12 +258,32 @@ def _predict(args: argparse.Namespace) -> int:
     lock = claim(args.out, "predict")  # a folder of the user's own files is refused, nothing written
     n = 0
     try:
+        _record_source(Path(args.out), args.run, pred, args.data)
         for seq, f in samples:
             n += len(write_prediction(pred, seq, f, args.out, ply=args.ply))
     finally:
         lock.release()
     print(f"mcdp predict: wrote {n} files", file=sys.stderr)
     return 0
+
+
+def _record_source(out: Path, run: str, pred, data: str) -> None:
+    """``predict.json`` names the run, checkpoint and dataset a prediction folder holds; another run's or
+    dataset's predictions are refused there (files of two runs would mix without a record)."""
+    from corelib.rundir import FolderError
+
+    rec = {"run": str(Path(run).resolve()), "data": str(Path(data).resolve())}
+    p = out / "predict.json"
+    if p.is_file():
+        try:
+            old = json.loads(p.read_text()[:1 << 20])
+        except (OSError, ValueError, UnicodeDecodeError):
+            old = None
+        old = {k: old.get(k) for k in rec} if isinstance(old, dict) else old
+        if old != rec:
+            raise FolderError(f"--out {out} holds predictions of another run or dataset ({p}: {str(old)[:200]}); "
+                              "nothing was written: use a new --out")
+    atomic_write_json(p, {**rec, "checkpoint": str(pred.ckpt_path), "step": pred.step})
 
 
 # --------------------------------------------------------------------------- main

@@ -38,6 +38,15 @@ def _yaml12_float(v: Any) -> Any:
 
 Float = Annotated[float, BeforeValidator(_yaml12_float)]
 
+# Upper bounds of the numeric keys: each well beyond what a real run uses, so that a typo or a probe
+# (train.steps=10**15, model.weight_channels=100000) is refused before anything is allocated or written.
+MAX_DEPTH_M = 1000.0
+MAX_STEPS = 10_000_000
+MAX_WEIGHT = 1000.0  # loss weights, learning-rate multipliers
+#: train.batch_size x height x width: pixels of one camera image summed over a step's rig samples
+MAX_STEP_PIXELS = 1 << 24
+IMAGES_PER_SAMPLE = 18  # 6 cameras x 3 frames (target + 2 sources)
+
 
 class ModelConfig(StrictModel):
     """Depth, pose and weight networks.
@@ -78,13 +87,13 @@ class ModelConfig(StrictModel):
     refine_steps: int = Field(0, ge=0, le=8)
     neighbours: Literal["left", "right", "both"] = "both"
     pretrained: str | None = None
-    min_depth: Float = Field(0.1, gt=0.0)
-    max_depth: Float = Field(100.0, gt=0.0)
-    init_depth: Float | None = Field(10.0, gt=0.0)
+    min_depth: Float = Field(0.1, gt=0.0, le=MAX_DEPTH_M, allow_inf_nan=False)
+    max_depth: Float = Field(100.0, gt=0.0, le=MAX_DEPTH_M, allow_inf_nan=False)
+    init_depth: Float | None = Field(10.0, gt=0.0, le=MAX_DEPTH_M, allow_inf_nan=False)
     scales: int = Field(4, ge=1, le=4)
-    weight_channels: int = Field(32, ge=1)
-    weight_conv_channels: int = Field(64, ge=1)
-    weight_fc: int = Field(128, ge=1)
+    weight_channels: int = Field(32, ge=1, le=512)
+    weight_conv_channels: int = Field(64, ge=1, le=1024)
+    weight_fc: int = Field(128, ge=1, le=4096)
     weight_init_std: Float = Field(1e-3, ge=0.0, le=1.0)
     mono_head: bool = False
     init_from: str | None = None
@@ -143,8 +152,8 @@ class LossConfig(StrictModel):
     """
 
     ssim_alpha: Float = Field(0.85, ge=0.0, le=1.0)
-    smoothness_weight: Float = Field(1e-3, ge=0.0)
-    consistency_weight: Float = Field(1e-3, ge=0.0)
+    smoothness_weight: Float = Field(1e-3, ge=0.0, le=MAX_WEIGHT, allow_inf_nan=False)
+    consistency_weight: Float = Field(1e-3, ge=0.0, le=MAX_WEIGHT, allow_inf_nan=False)
     automask: bool = True
     out_of_view: Literal["identity", "border"] = "identity"
     refine_scales: int = Field(1, ge=1, le=4)
@@ -164,7 +173,7 @@ class ScaleConfig(StrictModel):
     """
 
     source: Literal["velocity", "odometry", "oracle_gt_median"] = "velocity"
-    velocity_weight: Float = Field(0.05, ge=0.0)
+    velocity_weight: Float = Field(0.05, ge=0.0, le=MAX_WEIGHT, allow_inf_nan=False)
 
     @property
     def oracle(self) -> bool:
@@ -202,33 +211,33 @@ class TrainConfig(StrictModel):
     num_workers: DataLoader processes (0 = in the main process).
     threads: torch intra-op CPU threads (0 = torch's default). On a shared
         machine 1 avoids the heavy slow-down of oversubscribed OpenMP threads.
-    grad_clip: max global grad norm, or null.
+    grad_clip: max global grad norm (> 0, finite), or null.
     weight_lr_mult: the MCDP weight networks' learning rate is ``lr * weight_lr_mult`` (1 = one rate
         for every parameter). They start fresh while the encoder and decoder come from a
         pretraining, and at one small rate they did not move in a 100-step fine-tuning
         (docs/results/refinement.md).
     """
 
-    steps: int = Field(20000, ge=1)
-    batch_size: int = Field(1, ge=1)
-    lr: Float = Field(1e-4, gt=0.0)
+    steps: int = Field(20000, ge=1, le=MAX_STEPS)
+    batch_size: int = Field(1, ge=1, le=256)
+    lr: Float = Field(1e-4, gt=0.0, le=1.0, allow_inf_nan=False)
     lr_decay_at: Float = Field(0.75, gt=0.0, le=1.0)
     lr_decay_factor: Float = Field(0.1, gt=0.0, le=1.0)
-    height: int = Field(192, ge=32)
-    width: int = Field(320, ge=32)
-    seed: int = Field(0, ge=0)
+    height: int = Field(192, ge=32, le=2048)
+    width: int = Field(320, ge=32, le=4096)
+    seed: int = Field(0, ge=0, le=2**32 - 1)
     color_aug: bool = True
-    val_every: int = Field(1000, ge=1)
-    val_samples: int = Field(16, ge=1)
-    ckpt_every: int = Field(1000, ge=1)
-    log_every: int = Field(50, ge=1)
-    image_every: int = Field(500, ge=1)
+    val_every: int = Field(1000, ge=1, le=MAX_STEPS)
+    val_samples: int = Field(16, ge=1, le=100_000)
+    ckpt_every: int = Field(1000, ge=1, le=MAX_STEPS)
+    log_every: int = Field(50, ge=1, le=MAX_STEPS)
+    image_every: int = Field(500, ge=1, le=MAX_STEPS)
     precision: Literal["auto", "fp32", "bf16", "fp16"] = "auto"
     device: Literal["auto", "cpu", "cuda"] = "auto"
-    num_workers: int = Field(2, ge=0)
-    threads: int = Field(0, ge=0)
-    grad_clip: Float | None = None
-    weight_lr_mult: Float = Field(1.0, gt=0.0, le=1000.0)
+    num_workers: int = Field(2, ge=0, le=64)
+    threads: int = Field(0, ge=0, le=1024)
+    grad_clip: Float | None = Field(None, gt=0.0, le=1e6, allow_inf_nan=False)
+    weight_lr_mult: Float = Field(1.0, gt=0.0, le=MAX_WEIGHT, allow_inf_nan=False)
 
     @model_validator(mode="before")
     @classmethod
@@ -242,6 +251,13 @@ class TrainConfig(StrictModel):
             v = getattr(self, key)
             if v % 32:
                 raise ValueError(f"train.{key}={v} must be a multiple of 32 (ResNet skip connections)")
+        px = self.batch_size * self.height * self.width
+        if px > MAX_STEP_PIXELS:
+            gb = px * IMAGES_PER_SAMPLE * 3 * 4 / 1e9
+            raise ValueError(f"train.batch_size x height x width = {self.batch_size} x {self.height} x {self.width} "
+                             f"= {px} pixels per camera image and step, above the limit {MAX_STEP_PIXELS}: the "
+                             f"float32 input alone would be {gb:.1f} GB ({IMAGES_PER_SAMPLE} images a rig sample), "
+                             "the activations many times that")
         return self
 
 

@@ -61,7 +61,7 @@ from typing import Callable, Mapping
 
 import numpy as np
 import torch
-from pydantic import field_validator, model_validator
+from pydantic import Field, field_validator, model_validator
 
 from corelib.configlib import StrictModel
 from synth.overlap import overlap_mask
@@ -87,9 +87,9 @@ REGIONS = ("all", "overlap", "non_overlap")
 class EvalConfig(StrictModel):
     """Evaluation settings (depths in metres)."""
 
-    min_depth: float = 0.5
-    max_depth: float = 80.0
-    frame_stride: int = 1  # evaluate every k-th frame
+    min_depth: float = Field(0.5, le=1000.0, allow_inf_nan=False)
+    max_depth: float = Field(80.0, le=1000.0, allow_inf_nan=False)
+    frame_stride: int = Field(1, le=10_000)  # evaluate every k-th frame
     skip_ends: bool = True  # skip first and last frame of each sequence (no temporal neighbours)
 
     @field_validator("min_depth")

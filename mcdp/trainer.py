@@ -185,7 +185,7 @@ class Trainer:
         atomic_write_text(self.run_dir / "config.yaml", yaml.safe_dump(config_to_dict(cfg), sort_keys=False))
         atomic_write_json(self.run_dir / "run.json", {
             "data": str(Path(ds.root).resolve()),
-            "cameras": list(ds.camera_names),
+            "cameras": list(ds.camera_names), "rig": [c.to_json() for c in ds.cameras],  # mcdp eval compares it
             "neighbours": [list(p) for p in ds.neighbours],
             "oracle": oracle,
             "init_from": self.init_from,

@@ -192,6 +192,28 @@ def run_config_for(cfg: SweepConfig, method: str, seed: int, init_from: str | No
     return load_config(RunConfig, preset, cfg.train_overrides, values, base=base), preset
 
 
+def check_nested_configs(cfg: SweepConfig) -> None:
+    """Resolve every config the sweep will build (the pretraining's data and run configs, each overlap's
+    data config, each (method, seed)'s run config), so that a wrong key or value in ``data_overrides`` /
+    ``train_overrides`` (or the pretraining's) is a ConfigError naming it before anything is rendered."""
+    where = "pretrain"
+    try:
+        if cfg.pretrain is not None:
+            from mcdp.pretrain import resolved_configs
+
+            resolved_configs(cfg.pretrain)
+        where = "data_overrides"
+        for o in cfg.overlaps:
+            data_config_for(cfg, o)
+        where = "train_overrides"
+        init_from = "pretrained.pt" if cfg.pretrain is not None else None
+        for method in cfg.methods:
+            for seed in cfg.seeds:
+                run_config_for(cfg, method, seed, init_from)
+    except ConfigError as exc:
+        raise ConfigError(f"sweep {where}: {exc}") from None
+
+
 def eval_config_for(cfg: SweepConfig):
     """The `mcdp.evaluate.EvalConfig` every run and the reference are evaluated with."""
     from mcdp.evaluate import EvalConfig

@@ -70,7 +70,11 @@ def _run_parallel(cfg: SweepConfig, todo: list, out: Path, counters: Counters, l
 
     log(f"[sweep] {len(todo)} run(s), {cfg.jobs} at a time (one process each; progress bars off)")
     rows: list[dict | None] = [None] * len(todo)
-    with ProcessPoolExecutor(max_workers=cfg.jobs, mp_context=mp.get_context("spawn")) as pool:
+    from corelib.procs import die_with_parent
+
+    # workers die with the sweep: SIGTERM, SIGHUP or kill -9 of this process leaves no run training
+    with ProcessPoolExecutor(max_workers=cfg.jobs, mp_context=mp.get_context("spawn"), initializer=die_with_parent,
+                             initargs=(os.getpid(),)) as pool:
         futures = [pool.submit(_stage_job, cfg, d, method, seed, out, init_from) for d, method, seed in todo]
         try:
             for i, fut in enumerate(futures):

@@ -48,7 +48,7 @@ import yaml
 
 from corelib.atomic import atomic_write_text
 from corelib.configlib import config_hash, config_to_dict
-from study.config import SPLIT, SweepConfig, overlap_key
+from study.config import SPLIT, SweepConfig, check_nested_configs, overlap_key
 from study.report import write_all
 from study.results import build_results
 from study.engines import run_all
@@ -68,6 +68,7 @@ def run_sweep(cfg: SweepConfig, out: str | Path, progress: bool = True, log: Cal
 
     log = log or (lambda s: print(s, file=sys.stderr, flush=True))
     out = Path(out)
+    check_nested_configs(cfg)  # a typo in an override: refused before anything is rendered or written
     if cfg.engine == "ray":
         from corelib.cluster import import_ray
         import_ray()  # Ray missing: one line, before anything is written

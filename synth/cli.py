@@ -29,6 +29,8 @@ def _parser() -> argparse.ArgumentParser:
     r.add_argument("--engine", default="local", choices=["local", "ray"], help="local: --workers processes; ray: one Ray task per sequence on a local Ray "
                    "(the machine's cores) or the cluster at RAY_ADDRESS (pip install -e '.[cluster]'; docs/SCALING.md)")
     r.add_argument("--no-progress", action="store_true")
+    r.add_argument("--yes", action="store_true", help="start a render larger than synth.config.MAX_RENDER_BYTES "
+                   "(500 GB uncompressed) without refusing")
     v = sub.add_parser("verify", help="check a dataset's integrity and contract; non-zero exit on any problem")
     v.add_argument("data")
     pv = sub.add_parser("preview", help="contact sheet: 6 cameras x (RGB, depth, mask, overlap)")
@@ -102,11 +104,25 @@ def main(argv: list[str] | None = None) -> int:
 
 
 def _render(args) -> int:
-    from synth.config import load_data_config
+    from corelib.configlib import ConfigError
+    from synth.config import MAX_RENDER_BYTES, load_data_config, render_size
+    from synth.dataset import dataset_containing
     from synth.render import parse_shard, render_dataset
 
     cfg = load_data_config(args.config, args.overrides)
     shard = parse_shard(args.shard)
+    inside = dataset_containing(args.out)
+    if inside is not None:
+        raise ConfigError(f"--out {args.out} is inside the dataset {inside}; nothing was written: render outside it")
+    size = render_size(cfg, shard[1])
+    print(f"synth render: {size['rig_frames']} rig-frames, {size['images']} images of {cfg.camera.width}x"
+          f"{cfg.camera.height} (RGB + depth): {size['max_bytes'] / 1e9:.3g} GB before compression, about a third "
+          "of that on disk",
+          file=sys.stderr)
+    if size["max_bytes"] > MAX_RENDER_BYTES and not args.yes:
+        raise ConfigError(f"{args.config}: this render is up to {size['max_bytes'] / 1e9:.3g} GB, more than "
+                          f"{MAX_RENDER_BYTES / 1e9:.0f} GB; lower dataset.sequences / dataset.frames / camera.* "
+                          "or pass --yes")
     s = render_dataset(cfg, args.out, workers=args.workers, shard=shard, engine=args.engine,
                        progress=not args.no_progress)
     print(f"rendered {s['rendered_sequences']} sequence(s) ({s['rig_frames']} rig-frames) in {s['seconds']:.1f} s "
@@ -127,8 +143,11 @@ def _export(args) -> int:
     """key=value overrides after `export` set the LiDAR model: lidar.KEY=VALUE (synth.lidar.LidarConfig)."""
     from corelib.configlib import ConfigError, build_config, parse_overrides
     from synth.lidar import LidarConfig
+    from synth.dataset import dataset_containing
     from synth.nuscenes_export import export_nuscenes
 
+    if dataset_containing(args.out) is not None:
+        raise ConfigError(f"--out {args.out} is inside the dataset {dataset_containing(args.out)}; export outside it")
     ov = parse_overrides(args.overrides)
     unknown = sorted(k for k in ov if k != "lidar")
     if unknown:

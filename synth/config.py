@@ -73,3 +73,20 @@ class DataConfig(StrictModel):
 
 def load_data_config(path=None, overrides: Iterable[str] = ()) -> DataConfig:
     return load_config(DataConfig, path, overrides)
+
+
+#: the largest render `synth render` starts without ``--yes`` (bytes, the upper bound of `render_size`)
+MAX_RENDER_BYTES = 500 * 10**9
+_BYTES_PER_PIXEL = 3 + 4  # RGB uint8 + float32 z-depth, before PNG / EXR compression (about 2 measured)
+
+
+def render_size(cfg: DataConfig, shard_of: int = 1) -> dict:
+    """What a render writes: rig frames, images and an upper bound of its bytes (images uncompressed;
+    the tiny preset's files measured about 2 bytes a pixel). ``shard_of`` N: one of N shards."""
+    from synth.rig import CAMERA_NAMES
+
+    rig_frames = -(-cfg.dataset.sequences // shard_of) * cfg.dataset.frames
+    images = rig_frames * len(CAMERA_NAMES)
+    return {"rig_frames": rig_frames, "images": images,
+            "max_bytes": images * cfg.camera.width * cfg.camera.height * _BYTES_PER_PIXEL}
+

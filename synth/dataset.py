@@ -43,6 +43,7 @@ class Dataset:
 
     def __init__(self, root: Path, manifest: dict, rig: dict) -> None:
         self.root = root
+        self._real_root = root.resolve()
         self.manifest = manifest
         self.cameras = [CameraSpec.from_json(c) for c in rig["cameras"]]  # checked by check_rig
         self.camera_names = [c.name for c in self.cameras]
@@ -75,9 +76,25 @@ class Dataset:
     def n_frames(self, seq: str) -> int:
         return int(self.manifest["sequences"][seq]["frames"])
 
+    def inside(self, p: Path) -> Path:
+        """`p`, a file of the dataset, when it resolves inside the root; a file symlinked out of the
+        dataset is never read (DatasetError naming it)."""
+        real = p.resolve()
+        if not real.is_relative_to(self._real_root):
+            raise DatasetError(f"{p}: is a link to {real}, outside the dataset root {self._real_root}; a "
+                               "dataset's files must lie inside it")
+        return p
+
+    def read_bytes(self, p: Path) -> bytes:
+        """The bytes of the dataset's file `p` (for a copy), refused outside the root (`inside`)."""
+        try:
+            return self.inside(p).read_bytes()
+        except OSError as exc:
+            raise DatasetError(f"{p}: missing or not readable ({exc.strerror or exc})") from None
+
     def ego(self, seq: str) -> list[dict]:
         if seq not in self._ego_cache:
-            self._ego_cache[seq] = read_json(self.root / seq / "ego.json")["frames"]
+            self._ego_cache[seq] = read_json(self.inside(self.root / seq / "ego.json"))["frames"]
         return self._ego_cache[seq]
 
     def T_world_ego(self, seq: str) -> np.ndarray:
@@ -97,12 +114,12 @@ class Dataset:
 
     def read_rgb(self, seq: str, cam: str, frame: int) -> np.ndarray:
         """(H, W, 3) uint8 RGB."""
-        p = self.rgb_path(seq, cam, frame)
+        p = self.inside(self.rgb_path(seq, cam, frame))
         return self._sized(read_png(p), p, "the image")
 
     def read_depth(self, seq: str, cam: str, frame: int) -> np.ndarray:
         """(H, W) float32 z-depth in metres, 0 = no surface; finite and >= 0, else DatasetError."""
-        p = self.depth_path(seq, cam, frame)
+        p = self.inside(self.depth_path(seq, cam, frame))
         d = self._sized(read_depth_exr(p), p, "the depth map")
         if not np.isfinite(d).all() or (d < 0).any():
             raise DatasetError(f"{p}: depth holds non-finite or negative values (the contract: finite, >= 0, "
@@ -112,7 +129,7 @@ class Dataset:
     def mask(self, cam: str) -> np.ndarray:
         """(H, W) bool, True = scene, False = ego body."""
         if cam not in self._mask_cache:
-            p = self.root / "masks" / f"{cam}.png"
+            p = self.inside(self.root / "masks" / f"{cam}.png")
             self._mask_cache[cam] = self._sized(read_png(p, gray=True), p, "the mask") > 127
         return self._mask_cache[cam]
 
@@ -162,6 +179,15 @@ def check_manifest_names(root: Path, manifest: dict, mpath: Path) -> None:
             p = (root / sub)
             if p.exists() and not p.resolve().is_relative_to(base):
                 raise DatasetError(f"{p}: resolves to {p.resolve()}, outside the dataset root {base}")
+
+
+def dataset_containing(path: str | Path) -> Path | None:
+    """The dataset folder (manifest.json beside rig.json) that one of `path`'s parent folders is, or None:
+    an output named inside a dataset would change it behind its manifest."""
+    for parent in Path(path).resolve().parents:
+        if (parent / MANIFEST).is_file() and (parent / "rig.json").is_file():
+            return parent
+    return None
 
 
 INTEGRITY = "integrity"
@@ -324,10 +350,13 @@ def verify_dataset(root: str | Path, progress: bool = False) -> list[str]:
     if progress:
         from tqdm import tqdm
         items = tqdm(items, total=len(files), desc="verify", unit="file")
+    base = root.resolve()
     for rel, digest in items:
         p = root / rel
         if not p.is_file():
             problems.append(f"{p}: missing")
+        elif not p.resolve().is_relative_to(base):
+            problems.append(f"{p}: is a link to {p.resolve()}, outside the dataset root")
         elif sha256_file(p) != digest:
             problems.append(f"{p}: checksum mismatch (truncated or altered)")
     # every expected frame file is listed

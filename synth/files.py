@@ -39,23 +39,40 @@ def read_json(path: str | Path):
         raise DatasetError(f"{path}: not valid JSON ({exc})") from None
 
 
-def write_png(path: str | Path, img: np.ndarray, compression: int = 3, fsync: bool = True) -> None:
-    """Write uint8 RGB (H, W, 3) or gray (H, W) as PNG, whole or not at all (`fsync=False` inside a
-    folder that is itself sealed by a rename, see `render_sequence`)."""
+PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
+
+
+def encode_png(img: np.ndarray, compression: int = 3) -> bytes:
+    """uint8 RGB (H, W, 3) or gray (H, W) -> PNG file bytes."""
     if img.dtype != np.uint8:
         raise ValueError(f"write_png: expected uint8, got {img.dtype}")
     arr = img[:, :, ::-1] if img.ndim == 3 else img
     ok, buf = cv2.imencode(".png", np.ascontiguousarray(arr), [cv2.IMWRITE_PNG_COMPRESSION, int(compression)])
     if not ok:
-        raise ValueError(f"write_png: could not encode {path}")
-    atomic_write_bytes(path, buf.tobytes(), fsync=fsync)
+        raise ValueError("write_png: could not encode the image")
+    return buf.tobytes()
+
+
+def write_png(path: str | Path, img: np.ndarray, compression: int = 3, fsync: bool = True) -> None:
+    """Write uint8 RGB (H, W, 3) or gray (H, W) as PNG, whole or not at all (`fsync=False` inside a
+    folder that is itself sealed by a rename, see `render_sequence`)."""
+    atomic_write_bytes(path, encode_png(img, compression), fsync=fsync)
 
 
 def read_png(path: str | Path, gray: bool = False) -> np.ndarray:
-    flag = cv2.IMREAD_GRAYSCALE if gray else cv2.IMREAD_COLOR
-    img = cv2.imread(str(path), flag)
+    """(H, W, 3) uint8 RGB or (H, W) gray of a PNG file; a file of any other format (a JPEG under a .png
+    name) is refused by its first bytes, naming the file."""
+    path = Path(path)
+    try:
+        data = path.read_bytes()
+    except OSError as exc:
+        raise DatasetError(f"{path}: missing or not readable ({exc.strerror or exc})") from None
+    if not data.startswith(PNG_SIGNATURE):
+        kind = "a JPEG file" if data.startswith(b"\xff\xd8\xff") else "another format"
+        raise DatasetError(f"{path}: not a readable PNG ({kind}: its first bytes are not the PNG signature)")
+    img = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_GRAYSCALE if gray else cv2.IMREAD_COLOR)
     if img is None:
-        raise DatasetError(f"{path}: missing or not a readable PNG")
+        raise DatasetError(f"{path}: not a readable PNG (truncated or corrupt)")
     return img if gray else np.ascontiguousarray(img[:, :, ::-1])
 
 

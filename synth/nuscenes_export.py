@@ -275,7 +275,7 @@ def export_nuscenes(dataset: str | Path, out: str | Path, version: str = DEFAULT
         for cam in ds.cameras:
             ch = chmap[cam.name]
             try:
-                m = read_png(ds.root / "masks" / f"{cam.name}.png", gray=True)
+                m = read_png(ds.inside(ds.root / "masks" / f"{cam.name}.png"), gray=True)
             except DatasetError as exc:
                 raise ExportError(str(exc)) from None
             if m.shape != (cam.height, cam.width):
@@ -350,10 +350,11 @@ def export_nuscenes(dataset: str | Path, out: str | Path, version: str = DEFAULT
                     entry = {"sequence": seq, "frame": f, "camera": cam.name, "channel": ch}
                     if ds.has_depth:
                         dsrc = ds.depth_path(seq, cam.name, f)
-                        if not dsrc.is_file():
-                            raise ExportError(f"{dsrc}: file is missing")
                         drel = f"{EXPORT_DIR}/depth/{ch}/{stem}.depth.exr"
-                        shutil.copyfile(dsrc, out / drel)
+                        try:  # the bytes of a file inside the dataset only, written whole
+                            atomic_write_bytes(out / drel, ds.read_bytes(dsrc), fsync=False)
+                        except DatasetError as exc:
+                            raise ExportError(str(exc)) from None
                         entry["depth"] = drel
                         if lidar is not None:
                             try:
@@ -372,7 +373,7 @@ def export_nuscenes(dataset: str | Path, out: str | Path, version: str = DEFAULT
                     token = sd_tokens[LIDAR_CHANNEL][f]
                     rel = f"samples/{LIDAR_CHANNEL}/{seq}__{LIDAR_CHANNEL}__{ts}.pcd.bin"
                     pts = simulate_sweep(lidar, list(ds.cameras), depths, masks, grays)
-                    pts.astype("<f4").tofile(out / rel)
+                    atomic_write_bytes(out / rel, pts.astype("<f4").tobytes(), fsync=False)
                     n_points.append(len(pts))
                     sd_index[token] = {"sequence": seq, "frame": f, "channel": LIDAR_CHANNEL, "points": int(len(pts))}
                     sample_data.append(_sd_record(token, sample_tokens[f], cs_token[LIDAR_CHANNEL], rel, "pcd", 0, 0,

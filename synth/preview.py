@@ -3,20 +3,53 @@
 Overlap column: the camera's RGB in grey, tinted blue where the previous camera in
 ring order sees the pixel, red where the next one does (purple: both).
 
+The sheet carries a PNG text chunk (``Software: mcdp-synth preview``) right after its header: `--out`
+may name a new file or an earlier sheet, never a file of anyone else (`check_preview_target`).
+
 Example::
 
     synth preview data/tiny --out sheet.png
 """
 from __future__ import annotations
 
+import struct
+import zlib
 from pathlib import Path
 
 import cv2
 import numpy as np
 
-from synth.dataset import Dataset
-from synth.files import write_png
+from corelib.atomic import atomic_write_bytes
+from corelib.rundir import FolderError, check_output_file
+from synth.dataset import Dataset, dataset_containing
+from synth.files import PNG_SIGNATURE, encode_png
 from synth.overlap import overlap_mask
+
+_TEXT = b"Software\0mcdp-synth preview"
+_TAG = struct.pack(">I", len(_TEXT)) + b"tEXt" + _TEXT + struct.pack(">I", zlib.crc32(b"tEXt" + _TEXT))
+_IHDR_END = len(PNG_SIGNATURE) + 25  # signature, then the IHDR chunk (4 + 4 + 13 + 4 bytes)
+
+
+def tag_png(png: bytes) -> bytes:
+    """PNG bytes with the preview's text chunk inserted after IHDR (where `is_preview` looks for it)."""
+    return png[:_IHDR_END] + _TAG + png[_IHDR_END:]
+
+
+def is_preview(path: Path) -> bool:
+    """True for a PNG file that `make_preview` wrote."""
+    with open(path, "rb") as f:
+        head = f.read(_IHDR_END + len(_TAG))
+    return head.startswith(PNG_SIGNATURE) and head[_IHDR_END:] == _TAG
+
+
+def check_preview_target(out: str | Path) -> Path:
+    """--out: a new file or an earlier preview sheet, outside any dataset; FolderError naming it otherwise."""
+    out = check_output_file(out, is_preview, "preview sheet written by synth preview")
+    inside = dataset_containing(out)
+    if inside is not None:
+        raise FolderError(f"--out {out} is inside the dataset {inside}; nothing was written: write the sheet "
+                          "outside it")
+    return out
 
 
 def colorize_depth(depth: np.ndarray, max_depth: float = 80.0) -> np.ndarray:
@@ -39,6 +72,7 @@ def _label(img: np.ndarray, text: str) -> np.ndarray:
 
 
 def make_preview(ds: Dataset, out: str | Path, seq: str | None = None, frame: int = 0) -> Path:
+    out = check_preview_target(out)  # before the overlap is computed
     seq = seq or ds.sequences[0]
     if seq not in ds.manifest["sequences"]:
         raise ValueError(f"--sequence {seq!r} is not in the dataset (has {', '.join(ds.sequences[:5])}...)")
@@ -63,7 +97,6 @@ def make_preview(ds: Dataset, out: str | Path, seq: str | None = None, frame: in
                  _label(m3, f"mask ({(~mask).mean():.0%} ego)"), _label(ov.astype(np.uint8), f"overlap {frac:.0%}")]
         rows.append(np.concatenate(tiles, axis=1))
     sheet = np.concatenate(rows, axis=0)
-    out = Path(out)
     out.parent.mkdir(parents=True, exist_ok=True)
-    write_png(out, sheet)
+    atomic_write_bytes(out, tag_png(encode_png(sheet)))
     return out

@@ -24,6 +24,7 @@ from pathlib import Path
 import numpy as np
 
 
+from corelib import procs
 from corelib.atomic import DiskFullError, atomic_path
 from corelib.rundir import lock_folder
 from scenes.model import Mesh, Scene
@@ -337,9 +338,9 @@ def _render_into(cfg: DataConfig, out: Path, rig: Rig, backend: str, workers: in
             records.append(render_sequence(cfg_dict, str(out), i, q))
     else:
         ctx = mp.get_context("spawn")
-        with ctx.Manager() as manager:
+        with procs.manager(ctx) as manager:  # the manager and the workers die with this process
             q = manager.Queue()
-            with ctx.Pool(min(workers, len(todo)), initializer=_pool_init) as pool:
+            with procs.worker_pool(ctx, min(workers, len(todo)), _pool_init) as pool:
                 results = [pool.apply_async(render_sequence, (cfg_dict, str(out), i, q)) for i in todo]
                 pending = len(todo) * cfg.dataset.frames
                 while pending:

@@ -2,7 +2,7 @@
 flood the terminal; divergence stops training and keeps only finite checkpoints.
 
 Covered here: manifest names and symlinks, YAML aliases and oversized configs, NaN gradients and
-validation losses, a lr = 1e3 run. The pickle checkpoint probe is in tests/mcdp/test_trainer.py.
+validation losses, a lr = 1 run (the largest train.lr accepted). The pickle checkpoint probe is in tests/mcdp/test_trainer.py.
 """
 from __future__ import annotations
 
@@ -123,13 +123,13 @@ def test_a_long_bad_override_gives_a_bounded_message(capsys):
 
 
 # --------------------------------------------------------------------------- divergence
-def test_lr_1e3_stops_naming_the_step_and_keeps_only_finite_checkpoints(tiny_dataset, tmp_path, capsys):
+def test_lr_1_stops_naming_the_step_and_keeps_only_finite_checkpoints(tiny_dataset, tmp_path, capsys):
     from mcdp.cli import main
     from mcdp.runs import load_checkpoint
 
     run = tmp_path / "run"
     code = main(["train", str(TINY_TRAIN / "mono2.yaml"), "--data", str(tiny_dataset), "--out", str(run),
-                 "--no-progress", "train.lr=1e3", "train.steps=30", "train.ckpt_every=1", "train.val_every=1"])
+                 "--no-progress", "train.lr=1.0", "train.steps=30", "train.ckpt_every=1", "train.val_every=1"])
     err = capsys.readouterr().err
     assert code == 3 and "at step" in err, err
     for name in ("last.pt", "best.pt"):

@@ -1,0 +1,76 @@
+"""Hardening, round two (issue 20, items 4, 5, 7): numbers that make training nonsense or allocate
+until the machine gives out are refused, naming the key, before a run folder is created; a sweep
+resolves every nested override before it renders or pretrains anything."""
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+
+from corelib.configlib import ConfigError, config_hash, load_config
+
+ROOT = Path(__file__).resolve().parents[1]
+MONO2 = ROOT / "configs" / "train" / "tiny" / "mono2.yaml"
+CI_SWEEP = ROOT / "configs" / "sweep" / "ci.yaml"
+
+
+@pytest.mark.parametrize("override, key, said", [
+    ("train.grad_clip=-1", "train.grad_clip", "greater than 0"),      # torch would flip the gradient
+    ("train.grad_clip=.inf", "train.grad_clip", "(got inf)"),
+    ("train.lr=.inf", "train.lr", "finite"),
+    ("train.lr=-1e-4", "train.lr", "greater than 0"),
+    ("train.lr=10", "train.lr", "less than or equal to 1"),
+    ("model.max_depth=.inf", "model.max_depth", "finite"),
+    ("model.max_depth=.nan", "model.max_depth", "finite"),
+    ("model.init_depth=.inf", "model.init_depth", "(got inf)"),
+    ("loss.consistency_weight=.inf", "loss.consistency_weight", "finite"),
+    ("train.steps=1000000000000000", "train.steps", "less than or equal to 10000000"),
+    ("train.height=32000", "train.height", "less than or equal to 2048"),
+    ("train.width=32000", "train.width", "less than or equal to 4096"),
+    ("train.batch_size=100000", "train.batch_size", "less than or equal to 256"),
+    ("model.weight_channels=100000", "model.weight_channels", "less than or equal to 512"),
+    ("model.weight_fc=1000000000", "model.weight_fc", "less than or equal to 4096"),
+    ("eval.max_depth=.inf", "eval.max_depth", "finite"),
+])
+def test_train_refuses_a_nonsense_or_unbounded_number_before_writing(tmp_path, capsys, override, key, said):
+    from mcdp.cli import main
+
+    run = tmp_path / "run"
+    assert main(["train", str(MONO2), "--data", str(tmp_path / "nodata"), "--out", str(run), override]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) <= 3 and any(key in line and said in line for line in err), err
+    assert not run.exists()
+
+
+def test_the_pixels_of_a_step_are_bounded_with_their_size_named():
+    from mcdp.config import RunConfig
+
+    with pytest.raises(ConfigError, match=r"train.batch_size x height x width = 64 x 1024 x 2048 = 134217728 "
+                                          r"pixels .* above the limit 16777216: the float32 input alone would "
+                                          r"be 29.0 GB"):
+        load_config(RunConfig, None, ["train.batch_size=64", "train.height=1024", "train.width=2048"])
+    cfg = load_config(RunConfig, None, ["train.batch_size=16", "train.height=384", "train.width=640"])
+    assert cfg.train.batch_size * cfg.train.height * cfg.train.width == 3_932_160  # a real GPU run: accepted
+
+
+def test_bounds_leave_the_default_configs_hash_unchanged():
+    """A cached pretraining is keyed on the resolved config hash: bounds must not change it."""
+    from mcdp.config import RunConfig
+
+    assert config_hash(load_config(RunConfig, None)) == \
+        "40acb517a855e5d88416d417bbe901d140190ed543363e37e1febedaf0dd59f3"
+
+
+@pytest.mark.parametrize("override, where, key", [
+    ("train_overrides=[train.stepz=2]", "train_overrides", "train.stepz: unknown key"),
+    ("data_overrides=[dataset.frames=1]", "data_overrides", "dataset.frames"),
+    ("pretrain.train_overrides=[train.lr=-1]", "pretrain", "train.lr"),
+])
+def test_a_sweep_refuses_a_bad_nested_override_before_it_renders(tmp_path, capsys, override, where, key):
+    from study.cli import main
+
+    out = tmp_path / "sweep"
+    assert main(["sweep", str(CI_SWEEP), "--out", str(out), "--no-progress", override]) == 2
+    err = capsys.readouterr().err
+    assert f"sweep {where}: invalid config" in err and key in err, err
+    assert not out.exists()

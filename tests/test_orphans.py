@@ -1,0 +1,90 @@
+"""Hardening, round two (issue 20, item 6): the worker processes of `synth render --workers` and of a
+sweep's parallel runs die with their parent on SIGTERM, SIGHUP and kill -9 (`corelib.procs`).
+
+Each test starts the real command in a subprocess, waits until its spawned workers run, signals the
+parent only (not its process group: what `kill PID` or an OOM killer does) and checks the process
+table: every worker is gone (or a zombie awaiting its reaper) within seconds.
+"""
+from __future__ import annotations
+
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+pytestmark = pytest.mark.skipif(not sys.platform.startswith("linux"), reason="PR_SET_PDEATHSIG is Linux-only")
+
+
+def _stat(pid: int) -> tuple[int, str] | None:
+    """(ppid, state) of a live process, None once it is gone."""
+    try:
+        text = Path(f"/proc/{pid}/stat").read_text()
+    except OSError:
+        return None
+    fields = text.rsplit(")", 1)[1].split()
+    return int(fields[1]), fields[0]
+
+
+def _spawned_children(pid: int) -> list[int]:
+    kids = []
+    for d in Path("/proc").iterdir():
+        if d.name.isdigit():
+            st = _stat(int(d.name))
+            try:
+                cmd = (d / "cmdline").read_bytes()
+            except OSError:
+                continue
+            if st and st[0] == pid and st[1] != "Z" and b"spawn_main" in cmd:
+                kids.append(int(d.name))
+    return kids
+
+
+def _alive(pids: list[int]) -> list[int]:
+    return [p for p in pids if (st := _stat(p)) is not None and st[1] != "Z"]
+
+
+def _kill_parent_and_check(argv: list[str], n_workers: int, sig: int, tmp_path: Path, wait_s: float = 240) -> None:
+    env = {**os.environ, "OMP_NUM_THREADS": "1"}
+    proc = subprocess.Popen(argv, cwd=ROOT, env=env, stdout=subprocess.DEVNULL, stderr=open(tmp_path / "err", "w"))
+    kids: list[int] = []
+    try:
+        t0 = time.monotonic()
+        while len(kids) < n_workers:
+            assert proc.poll() is None, (tmp_path / "err").read_text()[-2000:]
+            assert time.monotonic() - t0 < wait_s, f"workers never started: {kids}"
+            time.sleep(0.5)
+            kids = _spawned_children(proc.pid)
+        time.sleep(1.0)  # the workers are past their initializer
+        os.kill(proc.pid, sig)
+        proc.wait(timeout=30)
+        t1 = time.monotonic()
+        while _alive(kids) and time.monotonic() - t1 < 20:
+            time.sleep(0.2)
+        assert _alive(kids) == [], f"workers {kids} outlived their parent (signal {sig})"
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
+        for pid in _alive(kids):  # a failing test leaves no orphan behind either
+            os.kill(pid, signal.SIGKILL)
+
+
+@pytest.mark.parametrize("sig", [signal.SIGKILL, signal.SIGTERM, signal.SIGHUP])
+def test_render_workers_die_with_the_render(tmp_path, sig):
+    argv = [sys.executable, "-m", "synth.cli", "render", "configs/data/tiny.yaml", "--out", str(tmp_path / "d"),
+            "--workers", "2", "--no-progress", "dataset.sequences=6", "dataset.frames=200"]
+    _kill_parent_and_check(argv, 3, sig, tmp_path)  # the progress queue's manager + 2 workers
+
+
+@pytest.mark.parametrize("sig", [signal.SIGKILL, signal.SIGTERM])
+def test_sweep_run_workers_die_with_the_sweep(tmp_path, sig):
+    steps = "train_overrides=[train.steps=100000,train.val_every=100000,train.ckpt_every=100000,model.min_depth=2.0]"
+    argv = [sys.executable, "-m", "study.cli", "sweep", "configs/sweep/ci.yaml", "--out", str(tmp_path / "s"),
+            "--no-progress", "pretrain=null", "methods=[mono2]", "overlaps=[0.2]", "seeds=[0,1]", "jobs=2",
+            "preview=false", steps]
+    _kill_parent_and_check(argv, 2, sig, tmp_path)
