@@ -61,8 +61,10 @@ def share(source: Path, out: Path) -> None:
 
 def run_variant(base: str, root: Path, source: Path | None, name: str, train: list[str], sets: list[str]) -> Path:
     out = root / name
-    out.mkdir(parents=True, exist_ok=True)
     if source is not None:
+        from corelib.rundir import claim
+
+        claim(out, "sweep").release()  # a sweep folder (refused if it is something else), then shared inputs
         share(source, out)
     from study.config import load_sweep_config
 
@@ -70,7 +72,7 @@ def run_variant(base: str, root: Path, source: Path | None, name: str, train: li
     overrides = list(cfg.train_overrides) + train
     args = [sys.executable, "-m", "study.cli", "sweep", base, "--out", str(out), "--no-progress",
             *sets, "train_overrides=[" + ",".join(overrides) + "]"]
-    log = out / "variant.log"
+    log = root / f"{name}.log"
     print(f"[variants] {name}: {' '.join(train) or '(base)'} -> {out}", flush=True)
     with open(log, "a") as fh:
         rc = subprocess.call(args, cwd=ROOT, stdout=fh, stderr=subprocess.STDOUT)
