@@ -39,7 +39,7 @@ def link_tree(src: Path, dst: Path) -> None:
         q = dst / p.relative_to(src)
         if p.is_dir():
             q.mkdir(parents=True, exist_ok=True)
-        elif p.is_file() and not p.is_symlink() and not q.exists():
+        elif p.is_file() and not p.is_symlink() and not q.exists() and p.name != ".lock":  # locks stay apart
             q.parent.mkdir(parents=True, exist_ok=True)
             try:
                 os.link(p, q)
@@ -47,8 +47,10 @@ def link_tree(src: Path, dst: Path) -> None:
                 shutil.copy2(p, q)
 
 
-def share(source: Path, out: Path) -> None:
-    """The source sweep's pretraining (weights and record only) and datasets, linked into out."""
+def share(source: Path, out: Path, link_methods: list[str] = ()) -> None:
+    """The source sweep's pretraining (weights and record only) and datasets, linked into out; and the
+    finished runs of ``link_methods`` (a variant whose runs of those methods are the source's own:
+    same resolved config, so the sweep skips them; a changed config is refused by the sweep)."""
     for pre in sorted((source / "pretrain").glob("*")):
         dst = out / "pretrain" / pre.name
         dst.mkdir(parents=True, exist_ok=True)
@@ -57,15 +59,20 @@ def share(source: Path, out: Path) -> None:
                 os.link(pre / name, dst / name)
     if (source / "data").is_dir():
         link_tree(source / "data", out / "data")
+    for m in link_methods:
+        for run in sorted((source / "runs").glob(f"*/{m}_s*")):
+            if run.name.rsplit("_s", 1)[0] == m:
+                link_tree(run, out / "runs" / run.parent.name / run.name)
 
 
-def run_variant(base: str, root: Path, source: Path | None, name: str, train: list[str], sets: list[str]) -> Path:
+def run_variant(base: str, root: Path, source: Path | None, name: str, train: list[str], sets: list[str],
+                link_methods: list[str] = ()) -> Path:
     out = root / name
     if source is not None:
         from corelib.rundir import claim
 
         claim(out, "sweep").release()  # a sweep folder (refused if it is something else), then shared inputs
-        share(source, out)
+        share(source, out, link_methods)
     from study.config import load_sweep_config
 
     cfg = load_sweep_config(base, sets)
@@ -128,7 +135,8 @@ def main(argv=None) -> None:
     ap.add_argument("--root", required=True, type=Path, help="folder of the variants' sweeps")
     ap.add_argument("--source", type=Path, help="a sweep folder whose pretraining and datasets are shared")
     ap.add_argument("--set", nargs="*", default=[], help="sweep-level overrides for every variant (key=value)")
-    ap.add_argument("--variant", action="append", default=[], help="'NAME: key=value key=value' (train overrides)")
+    ap.add_argument("--variant", action="append", default=[],
+                    help="'NAME: key=value key=value [| link=m1,m2]' (train overrides; link: reuse the source's runs)")
     ap.add_argument("--only-table", action="store_true", help="do not run; tabulate finished variants")
     ap.add_argument("--out", type=Path, help="also write the table (markdown) here")
     args = ap.parse_args(argv)
@@ -138,11 +146,13 @@ def main(argv=None) -> None:
     for v in args.variant:
         name, _, rest = v.partition(":")
         name = name.strip()
+        rest, _, link = rest.partition("|")
+        link_methods = [m for m in link.strip().removeprefix("link=").split(",") if m]
         if not name or "/" in name or name.startswith("."):
             raise SystemExit(f"--variant {v!r}: give 'NAME: overrides' with a plain NAME")
         out = args.root / name
         if not args.only_table:
-            out = run_variant(args.base, args.root, args.source, name, rest.split(), args.set)
+            out = run_variant(args.base, args.root, args.source, name, rest.split(), args.set, link_methods)
         res_path = out / "results.json"
         if res_path.is_file():
             rows.append((name, json.loads(res_path.read_text())))
