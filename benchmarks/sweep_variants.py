@@ -102,6 +102,20 @@ def _pd(pd: dict, digits: int = 3) -> str:
     return f"{pd['mean']:+.{digits}f} ± {pd['ci95']:.{digits}f}{mark}"
 
 
+def with_reference(res: dict, ref: dict | None) -> dict:
+    """res with the reference sweep's Mono2 rows added at res's overlaps (same seeds pair the runs),
+    so that a variant without Mono2 (e.g. a lambda that Mono2 does not have) is compared with it."""
+    if ref is None or "mono2" in res["methods"]:
+        return res
+    add = [f for f in ref["flat"] if f["method"] == "mono2" and f["overlap"] in res["overlaps"]
+           and f["seed"] in res["seeds"]]
+    if not add:
+        return res
+    aggs = [a for a in ref["aggregate"] if a["method"] == "mono2" and a["overlap"] in res["overlaps"]]
+    return {**res, "flat": res["flat"] + add, "aggregate": res["aggregate"] + aggs,
+            "methods": ["mono2"] + list(res["methods"])}
+
+
 def table(rows: list[tuple[str, dict]]) -> str:
     head = ("| variant | overlap | method | abs_rel all | overlap px | non-overlap px | Dep Con | spread | "
             "abs(w − 1/n) | abs(refined − init) m | propagation (trained − cut, non-overlap) | "
@@ -138,6 +152,8 @@ def main(argv=None) -> None:
     ap.add_argument("--variant", action="append", default=[],
                     help="'NAME: key=value key=value [| link=m1,m2]' (train overrides; link: reuse the source's runs)")
     ap.add_argument("--only-table", action="store_true", help="do not run; tabulate finished variants")
+    ap.add_argument("--reference", type=Path, help="a sweep's results.json whose Mono2 runs (same overlap and "
+                    "seeds) are the comparison for variants without Mono2")
     ap.add_argument("--out", type=Path, help="also write the table (markdown) here")
     args = ap.parse_args(argv)
     import json
@@ -155,7 +171,8 @@ def main(argv=None) -> None:
             out = run_variant(args.base, args.root, args.source, name, rest.split(), args.set, link_methods)
         res_path = out / "results.json"
         if res_path.is_file():
-            rows.append((name, json.loads(res_path.read_text())))
+            ref = json.loads(args.reference.read_text()) if args.reference else None
+            rows.append((name, with_reference(json.loads(res_path.read_text()), ref)))
     text = table(rows)
     print(text)
     if args.out:
