@@ -147,9 +147,19 @@ def test_ci_sweep_end_to_end_rerun_and_resume(tmp_path):
         assert rec["path"] == str(Path(pre["weights"]).resolve()) and rec["sha256"] == pre["sha256"]
 
     rows = list(csv.DictReader((out / "results.csv").open()))
-    assert len(rows) == n + 2 * len(cfg.overlaps)
-    assert [r["method"] for r in rows[n:]] == (["constant_reference"] * len(cfg.overlaps)
-                                                + ["flat_road_prior"] * len(cfg.overlaps))
+    # beside each run: <m>@oracle for every method with bases, <m>@cut for every one with refinement
+    with_bases = [m for m in cfg.methods if m != "mono2"]
+    refined = [m for m in with_bases if m != "mcdp_m0"]
+    n_rows = n + len(cfg.overlaps) * len(cfg.seeds) * (len(with_bases) + len(refined))
+    assert len(rows) == n_rows + 2 * len(cfg.overlaps)
+    assert {r["method"] for r in rows[:n_rows]} == (set(cfg.methods) | {m + "@oracle" for m in with_bases}
+                                                   | {m + "@cut" for m in refined})
+    assert [r["method"] for r in rows[n_rows:]] == (["constant_reference"] * len(cfg.overlaps)
+                                                     + ["flat_road_prior"] * len(cfg.overlaps))
+    for row in rows[:n_rows]:  # every refined run records how much its refinement acted
+        if row["method"] in refined:
+            assert float(row["refine.weight_move"]) >= 0 and float(row["refine.depth_change_m"]) >= 0
+            assert row["refine.inert"] in ("True", "False")
     for row in rows:
         for k in ("none.mean.abs_rel", "median.mean.abs_rel", "dep_con.mean", "measured_overlap"):
             assert math.isfinite(float(row[k])), (row["overlap"], row["method"], k)
@@ -164,6 +174,7 @@ def test_ci_sweep_end_to_end_rerun_and_resume(tmp_path):
     assert report.count("Constant depth (ref.)") >= 1 + 4 * len(cfg.overlaps)  # setup + summary/Table 1/2/regions
     assert report.count("Flat-road prior (ref.)") >= 1 + 3 * len(cfg.overlaps)
     assert "Verdict per overlap: MCDP (m = 2) vs Mono2" in report and "shared self-supervised pretraining" in report
+    assert "Does the refinement act, use the neighbours, and propagate?" in report and "Inert refinements" in report
 
     # rerun: a no-op that skips every stage and reports the same numbers
     assert sweep_main([str(CI), "--out", str(out), "--no-progress"]) == 0
