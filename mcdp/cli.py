@@ -4,7 +4,7 @@
 
     mcdp train configs/train/<preset>.yaml --data DATA --out RUN [key=value ...]   # resumes if RUN has a checkpoint
     mcdp eval RUN --data DATA [--split test] [--out metrics.json] [--checkpoint auto|best|last|PATH] [eval.key=value ...]
-    mcdp predict RUN --data DATA --out PRED [--split test] [--max-samples N] [--ply]
+    mcdp predict RUN --data DATA --out PRED [--split test] [--max-samples N] [--ply] [--rrd pred.rrd]
     mcdp pretrain configs/pretrain/tiny.yaml --out DIR [key=value ...]           # cached by its config hash
     mcdp sweep configs/sweep/cpu.yaml --out SWEEP [key=value ...]          # added by study.cli
 
@@ -38,8 +38,10 @@ def _user_errors() -> tuple[type[BaseException], ...]:
     from corelib.configlib import ConfigError
     from synth.files import DatasetError
     from synth.render import OutputFolderError
+    from synth.view import ViewError
 
-    return (ConfigError, DatasetError, RunError, NetworkError, OutputFolderError, WarmStartError, FolderError)
+    return (ConfigError, DatasetError, RunError, NetworkError, OutputFolderError, WarmStartError, FolderError,
+            ViewError)
 
 
 def _is_metrics(path: Path) -> bool:
@@ -229,13 +231,16 @@ def _eval(args: argparse.Namespace) -> int:
 def _predict_args(p: argparse.ArgumentParser) -> None:
     p.add_argument("run", help="run folder written by mcdp train")
     p.add_argument("--data", required=True, help="dataset folder")
-    p.add_argument("--out", required=True, help="output folder")
+    p.add_argument("--out", default=None, help="output folder (grids, EXR, PLY); --out, --rrd or both")
+    p.add_argument("--rrd", default=None, help="also (or only) a Rerun recording *.rrd: ground truth and every "
+                   "stage's depth, points and abs_rel image (mcdp.recording; pip install -e '.[viz]')")
     p.add_argument("--split", default="test", choices=["train", "val", "test"])
     p.add_argument("--max-samples", type=int, default=None, help="at most this many rig samples")
     p.add_argument("--stride", type=int, default=1, help="every k-th frame")
     p.add_argument("--ply", action="store_true", help="also write a coloured PLY point cloud of the rig (ego frame)")
     p.add_argument("--checkpoint", default="auto", help="auto | best | last | path")
     p.add_argument("--device", default="auto", choices=["auto", "cpu", "cuda"])
+    p.add_argument("--no-progress", action="store_true", help="no progress bar (--rrd)")
 
 
 def _predict(args: argparse.Namespace) -> int:
@@ -244,15 +249,31 @@ def _predict(args: argparse.Namespace) -> int:
 
     if args.stride < 1 or (args.max_samples is not None and args.max_samples < 1):
         raise RunError("--stride and --max-samples must be >= 1")
-    _outside_datasets(args.out)
+    if args.out is None and args.rrd is None:
+        raise RunError("give --out PRED (files), --rrd FILE.rrd (a Rerun recording) or both")
+    if args.rrd is not None:
+        from synth.view import check_rrd_target, import_rerun
+
+        check_rrd_target(args.rrd, "--rrd")
+        import_rerun()  # the viz extra missing: one line naming the install command, before any work
+    if args.out is not None:
+        _outside_datasets(args.out)
     ds = _open_dataset(args.data)
     pred = Predictor(args.run, ds, args.checkpoint, args.device)
     samples = [(s, f) for s in ds.split(args.split) for f in range(0, ds.n_frames(s), args.stride)]
     if args.max_samples is not None:
         samples = samples[: args.max_samples]
     label = " [ORACLE]" if pred.oracle else ""
-    print(f"mcdp predict: {pred.ckpt_path} (step {pred.step}), {len(samples)} rig samples -> {args.out}{label}",
-          file=sys.stderr)
+    print(f"mcdp predict: {pred.ckpt_path} (step {pred.step}), {len(samples)} rig samples -> "
+          f"{' + '.join(str(x) for x in (args.out, args.rrd) if x is not None)}{label}", file=sys.stderr)
+    if args.rrd is not None:
+        from mcdp.recording import record_predictions
+
+        r = record_predictions(pred, samples, args.rrd, progress=not args.no_progress and sys.stderr.isatty())
+        print(f"mcdp predict: wrote {args.rrd} ({r['bytes'] / 1e6:.2f} MB, {r['bytes_per_rig_frame'] / 1e6:.3f} MB "
+              f"per rig-frame); open it with `rerun {args.rrd}`", file=sys.stderr)
+    if args.out is None:
+        return 0
     from corelib.rundir import claim
 
     lock = claim(args.out, "predict")  # a folder of the user's own files is refused, nothing written

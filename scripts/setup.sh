@@ -3,7 +3,9 @@
 # and the package with its pinned dependencies. Safe to run again (idempotent).
 #   bash scripts/setup.sh          # the package + pytest
 #   bash scripts/setup.sh --test   # + the optional extras the test suite exercises: nuscenes-devkit
-#                                  #   (which pins numpy < 2) and Ray
+#                                  #   (which pins numpy < 2) and Ray in .venv, and a second environment
+#                                  #   .venv-viz with [viz] (rerun-sdk 0.41 requires numpy >= 2); the main
+#                                  #   suite runs the viz tests there (tests/test_viz_env.py)
 set -euo pipefail
 extras="dev"
 if [ "${1:-}" = "--test" ]; then extras="dev,nuscenes,cluster"; fi
@@ -22,4 +24,9 @@ fi
 [ -x .venv/bin/python ] || python3 -m venv .venv
 .venv/bin/python -m pip install -q --upgrade pip
 .venv/bin/python -m pip install -q -e ".[$extras]"
+if [ "${1:-}" = "--test" ]; then
+  [ -x .venv-viz/bin/python ] || python3 -m venv .venv-viz
+  .venv-viz/bin/python -m pip install -q --upgrade pip
+  .venv-viz/bin/python -m pip install -q -e ".[dev,viz]"
+fi
 echo "setup: done ($(.venv/bin/python -c 'import torch, OpenGL; print("torch", torch.__version__, "PyOpenGL", OpenGL.__version__)'))"

@@ -1,9 +1,10 @@
 """Where a sweep's (overlap, method, seed) runs execute: in this process, a local process pool, or Ray.
 
-One signature, ``run_all(cfg, todo, out, counters, log, progress, init_from) -> rows``: the
+One signature, ``run_all(cfg, todo, out, counters, log, progress, init_from, on_done) -> rows``: the
 rows come back in the order of `todo` (the table order) whatever finishes first, and the
 per-run counters (trained, train_skipped, evaluated, ...) are summed into `counters`, so the
-results, resumption and skipping are the same whichever engine ran them.
+results, resumption and skipping are the same whichever engine ran them. ``on_done()`` is called
+in this process once per finished run, as it finishes (the sweep's progress, `study.progress`).
 
 - ``engine: local``, ``jobs: 1``: one run after the other in this process.
 - ``engine: local``, ``jobs: N``: N spawned processes (`concurrent.futures`); the first failure
@@ -39,14 +40,18 @@ EXIT_RUN_FAILED = 5  # `mcdp sweep`: some run failed (engine ray; the report lis
 
 
 def run_all(cfg: SweepConfig, todo: list, out: Path, counters: Counters, log, progress: bool,
-            init_from: str | None = None) -> list[dict]:
+            init_from: str | None = None, on_done=None) -> list[dict]:
     """Run every (data record, method, seed) of `todo` with the sweep's engine; the rows in `todo`'s order."""
+    on_done = on_done or (lambda: None)
     if cfg.engine == "ray":
-        return _run_ray(cfg, todo, out, counters, log, init_from)
+        return _run_ray(cfg, todo, out, counters, log, init_from, on_done)
     if cfg.jobs == 1 or len(todo) == 1:
-        return [run_stage(cfg, d["overlap"], d, method, seed, out, counters, log, progress, init_from)
-                for d, method, seed in todo]
-    return _run_parallel(cfg, todo, out, counters, log, init_from)
+        rows = []
+        for d, method, seed in todo:
+            rows.append(run_stage(cfg, d["overlap"], d, method, seed, out, counters, log, progress, init_from))
+            on_done()
+        return rows
+    return _run_parallel(cfg, todo, out, counters, log, init_from, on_done)
 
 
 def _stage_job(cfg: SweepConfig, d: dict, method: str, seed: int, out: Path, init_from: str | None) -> tuple[dict, dict]:
@@ -63,10 +68,10 @@ def _merge(counters: Counters, c: dict) -> None:
 
 
 def _run_parallel(cfg: SweepConfig, todo: list, out: Path, counters: Counters, log,
-                  init_from: str | None = None) -> list[dict]:
+                  init_from: str | None = None, on_done=lambda: None) -> list[dict]:
     """The runs ``cfg.jobs`` at a time in spawned processes (see the module docstring)."""
     import multiprocessing as mp
-    from concurrent.futures import ProcessPoolExecutor
+    from concurrent.futures import ProcessPoolExecutor, as_completed
 
     log(f"[sweep] {len(todo)} run(s), {cfg.jobs} at a time (one process each; progress bars off)")
     rows: list[dict | None] = [None] * len(todo)
@@ -76,11 +81,13 @@ def _run_parallel(cfg: SweepConfig, todo: list, out: Path, counters: Counters, l
     with ProcessPoolExecutor(max_workers=cfg.jobs, mp_context=mp.get_context("spawn"), initializer=die_with_parent,
                              initargs=(os.getpid(),)) as pool:
         futures = [pool.submit(_stage_job, cfg, d, method, seed, out, init_from) for d, method, seed in todo]
+        index = {fut: i for i, fut in enumerate(futures)}
         try:
-            for i, fut in enumerate(futures):
+            for fut in as_completed(futures):  # as they finish, for the progress; rows keep todo's order
                 row, c = fut.result()
-                rows[i] = row
+                rows[index[fut]] = row
                 _merge(counters, c)
+                on_done()
         except BaseException:
             for f in futures:
                 f.cancel()
@@ -125,7 +132,8 @@ def _resources(cfg: SweepConfig, method: str, seed: int, init_from: str | None, 
     return {"num_cpus": max(1, rcfg.train.threads), "num_gpus": 1 if cuda else 0}
 
 
-def _run_ray(cfg: SweepConfig, todo: list, out: Path, counters: Counters, log, init_from: str | None) -> list[dict]:
+def _run_ray(cfg: SweepConfig, todo: list, out: Path, counters: Counters, log, init_from: str | None,
+             on_done=lambda: None) -> list[dict]:
     """Every run as one Ray task (see the module docstring); failed runs become rows."""
     from corelib.cluster import import_ray
 
@@ -161,9 +169,11 @@ def _run_ray(cfg: SweepConfig, todo: list, out: Path, counters: Counters, log, i
                     log(f"[sweep] overlap {d['overlap']:.2f} {method} seed {seed}: FAILED (rerun once; "
                         f"{rows[i]['failed_attempts']} attempt(s) raised): {rows[i]['error']} (tracebacks: "
                         f"{errors_path(out, d['overlap'], method, seed)})")
+                    on_done()
                     continue
                 rows[i] = row
                 _merge(counters, c)
+                on_done()
     except BaseException:  # interrupted: nothing more runs for this sweep; a rerun resumes
         for ref in pending:
             ray.cancel(ref, force=True)

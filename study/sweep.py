@@ -52,6 +52,7 @@ from study.config import SPLIT, SweepConfig, check_nested_configs, overlap_key
 from study.report import write_all
 from study.results import build_results
 from study.engines import run_all
+from study.progress import SweepProgress, fmt_duration
 from study.stages import Counters, pretrain_stage, reference_stage, render_stage
 
 
@@ -102,13 +103,25 @@ def _run_sweep(cfg: SweepConfig, out: Path, progress: bool, log, config_source: 
     counters = Counters(rendered=0, render_skipped=0, render_resumed=0, trained=0, train_skipped=0, train_resumed=0,
                         evaluated=0, eval_skipped=0, diverged=0, failed=0, reference_evaluated=0, reference_skipped=0)
     t_start = time.perf_counter()
-    pre = pretrain_stage(cfg, out, progress, log)
-    init_from = pre["weights"] if pre else None
-    data = [render_stage(cfg, o, out, counters, log, progress) for o in cfg.overlaps]
-    for d in data:
-        d["reference"], d["prior"] = reference_stage(cfg, d, out, counters, log)
-    todo = [(d, method, seed) for d in data for method in cfg.methods for seed in cfg.seeds]
-    rows = run_all(cfg, todo, out, counters, log, progress, init_from)
+    # overall progress: a bar on a terminal, else log lines (study.progress)
+    prog = SweepProgress(n_runs, log, bar=progress and sys.stderr.isatty())
+    try:
+        prog.stage("pretraining")
+        pre = pretrain_stage(cfg, out, progress, log)
+        init_from = pre["weights"] if pre else None
+        data = []
+        for o in cfg.overlaps:
+            prog.stage(f"render of overlap {o:.2f}")
+            data.append(render_stage(cfg, o, out, counters, log, progress))
+        prog.stage("yardsticks")
+        for d in data:
+            d["reference"], d["prior"] = reference_stage(cfg, d, out, counters, log)
+        todo = [(d, method, seed) for d in data for method in cfg.methods for seed in cfg.seeds]
+        prog.stage("runs")
+        rows = run_all(cfg, todo, out, counters, log, progress, init_from, on_done=prog.run_done)
+        prog.stage("report")
+    finally:
+        prog.close()
     previews = []
     if cfg.preview:
         previews = _previews(data, out, log)
@@ -117,7 +130,7 @@ def _run_sweep(cfg: SweepConfig, out: Path, progress: bool, log, config_source: 
     results["pretrain"] = pre
     write_all(results, out)
     log(f"[sweep] done in {total_s:.1f} s: " + ", ".join(f"{k}={v}" for k, v in counters.items()))
-    log(f"[sweep] report: {out / 'report.md'}")
+    log(f"[sweep] finished: {prog.done}/{n_runs} runs in {fmt_duration(total_s)} wall time; report: {out / 'report.md'}")
     return results
 
 

@@ -8,6 +8,8 @@ Examples::
     synth preview data/tiny --out sheet.png
     synth merge --out data/full shard0 shard1
     synth export data/tiny --format nuscenes --out data/tiny_ns [--version v1.0-synth] [lidar.azimuth_res_deg=0.4]
+    synth export data/tiny --format gltf --out data/tiny_gltf          # pip install -e '.[viz]'
+    synth view data/tiny --seq seq_00000 --frames 0:4 --out rig.rrd    # Rerun recording; pip install -e '.[viz]'
 """
 from __future__ import annotations
 
@@ -43,13 +45,23 @@ def _parser() -> argparse.ArgumentParser:
     m.add_argument("--out", required=True)
     e = sub.add_parser("export", help="write a dataset in another format (nuScenes dataroot; docs/NUSCENES.md)")
     e.add_argument("data", help="finished synth dataset folder")
-    e.add_argument("--format", required=True, choices=["nuscenes"])
+    e.add_argument("--format", required=True, choices=["nuscenes", "gltf"],
+                   help="nuscenes: a nuScenes dataroot; gltf: per sequence the world and movers as GLB + poses JSON "
+                        "(docs/DATASET.md, 'glTF export'; pip install -e '.[viz]')")
     e.add_argument("--out", required=True, help="dataroot to write (new, empty, or a previous export of this dataset)")
     e.add_argument("--version", default="v1.0-synth", help="table folder name (NuScenes(version=...)); "
                    "default v1.0-synth")
     e.add_argument("--no-lidar", action="store_true", help="cameras only, no synthetic LIDAR_TOP")
     e.add_argument("--jpeg-quality", type=int, default=95)
     e.add_argument("--no-progress", action="store_true")
+    w = sub.add_parser("view", help="Rerun recording (.rrd) of a sequence: rig, images, depth, masks, points "
+                       "(pip install -e '.[viz]'; open with `rerun FILE.rrd`)")
+    w.add_argument("data", help="finished synth dataset folder (or a nuScenes dataroot)")
+    w.add_argument("--out", required=True, help="recording to write, *.rrd (new, or a recording written before)")
+    w.add_argument("--seq", default=None, help="sequence id (default: the first)")
+    w.add_argument("--frames", default=None, help="A:B, frames A..B-1 (default: all)")
+    w.add_argument("--point-stride", type=int, default=2, help="every k-th pixel row and column in the point "
+                   "cloud (default 2)")
     return p
 
 
@@ -80,7 +92,15 @@ def main(argv: list[str] | None = None) -> int:
             print(f"wrote {path}")
             return 0
         if args.cmd == "export":
-            return _export(args)
+            return _export(args) if args.format == "nuscenes" else _export_gltf(args)
+        if args.cmd == "view":
+            from synth.view import record_rig
+
+            s = record_rig(args.data, args.out, args.seq, args.frames, args.point_stride)
+            print(f"wrote {s['out']}: {s['sequence']} frames {s['frames'][0]}:{s['frames'][1]}, {s['bytes'] / 1e6:.2f} MB "
+                  f"({s['bytes_per_rig_frame'] / 1e6:.3f} MB per rig-frame) in {s['seconds']:.1f} s; open it with "
+                  f"`rerun {s['out']}`")
+            return 0
         if args.cmd == "merge":
             from synth.render import merge_datasets
 
@@ -161,6 +181,18 @@ def _export(args) -> int:
     pts = "" if s["lidar_points_per_sweep"] is None else f", {s['lidar_points_per_sweep']:.0f} lidar points/sweep"
     print(f"exported {s['scenes']} scene(s), {s['samples']} samples, {s['sample_data']} sample_data{pts} to "
           f"{s['out']} (NuScenes(version={s['version']!r}, dataroot={s['out']!r}))")
+    return 0
+
+
+def _export_gltf(args) -> int:
+    from corelib.configlib import ConfigError
+    from synth.gltf_export import export_gltf
+
+    if args.overrides or args.no_lidar or args.version != "v1.0-synth":
+        raise ConfigError("--format gltf takes no lidar.* overrides, --no-lidar or --version")
+    s = export_gltf(args.data, args.out, progress=not args.no_progress and sys.stderr.isatty())
+    print(f"exported {s['sequences']} sequence(s) as glTF ({s['vertices']} vertices, {s['bytes'] / 1e6:.2f} MB) to "
+          f"{s['out']}")
     return 0
 
 

@@ -222,6 +222,10 @@ class NuScenesDataset:
         self._points_cache = (key, g)
         return g
 
+    def lidar_points_world(self, seq: str, frame: int) -> np.ndarray:
+        """(N, 3) float64 LiDAR points of a sample in the global frame (`synth.view` records them)."""
+        return self._global_points(seq, frame).T
+
     def read_depth(self, seq: str, cam: str, frame: int) -> np.ndarray:
         """(H, W) float32 sparse z-depth (m) from the sample's LIDAR_TOP, 0 = no return (module docstring)."""
         from nuscenes.utils.geometry_utils import view_points

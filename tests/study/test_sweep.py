@@ -96,11 +96,20 @@ def _finite(x) -> bool:
     return isinstance(x, (int, float)) and math.isfinite(x)
 
 
-def test_ci_sweep_end_to_end_rerun_and_resume(tmp_path):
+def test_ci_sweep_end_to_end_rerun_and_resume(tmp_path, capsys):
     out = tmp_path / "sweep"
     cfg = sweep.load_sweep_config(CI)
     n = len(cfg.overlaps) * len(cfg.methods) * len(cfg.seeds)
     assert sweep_main([str(CI), "--out", str(out), "--no-progress"]) == 0
+    # overall progress (study.progress; jobs=2: runs reported as they finish): one line per stage and per run
+    err = capsys.readouterr().err.splitlines()
+    prog = [ln for ln in err if ln.startswith("[sweep] progress: ")]
+    stages = [ln.rsplit("stage: ", 1)[1] for ln in prog]
+    assert stages[:4] == ["pretraining", "render of overlap 0.20", "render of overlap 0.50", "yardsticks"]
+    runs = [int(ln.split("progress: ")[1].split("/")[0]) for ln in prog if ln.endswith("stage: runs")]
+    assert runs == list(range(n + 1)) and all(f"/{n} runs done" in ln for ln in prog)
+    assert "ETA after the first run" in prog[4] and " s/run over 1 run(s))" in prog[5]
+    assert err[-1].startswith(f"[sweep] finished: {n}/{n} runs in ") and err[-1].endswith(f"report: {out / 'report.md'}")
 
     for f in ["report.md", "results.csv", "results.json", "sweep_config.yaml",
               "plots/abs_rel_vs_overlap.png", "plots/dep_con_vs_overlap.png",

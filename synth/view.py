@@ -1,0 +1,248 @@
+"""A Rerun recording (.rrd) of a dataset's rig: poses, pinhole cameras, images, depth, masks, points.
+
+``synth view DATA [--seq S] [--frames A:B] --out rig.rrd`` writes one recording (open it with
+``rerun rig.rrd`` or the Rerun web viewer). One timeline, ``time``: the dataset's ``timestamp_s``
+(a duration from the sequence start). Entities (metres; the world frame z up, as the dataset's)::
+
+    world                         ViewCoordinates RIGHT_HAND_Z_UP (static)
+    world/ego                     Transform3D = T_world_ego, per frame
+    world/ego/points_gt           Points3D: ground-truth depth of every camera back-projected, ego frame
+    world/ego/<CAM>               Transform3D = T_ego_cam and Pinhole(K, resolution, camera_xyz=RDF) (static)
+    world/ego/<CAM>/rgb           EncodedImage: the dataset's PNG bytes, per frame
+    world/ego/<CAM>/depth         DepthImage, float32 z-depth in metres (meter=1), 0 = no surface, per frame
+    world/ego/<CAM>/ego_mask      SegmentationImage (static): 0 = ego body, 1 = scene
+    world/ego/<CAM>/overlap       SegmentationImage per frame: bit 1 = seen by the camera's first neighbour,
+                                  bit 2 = by its second (`synth.overlap.overlap_mask`, labels in the
+                                  entity's AnnotationContext)
+    world/lidar                   Points3D, world frame: the sample's LIDAR_TOP sweep (nuScenes datasets only)
+
+``K`` goes in unchanged: Rerun's pinhole puts pixel (0, 0)'s corner at the image origin and its
+default principal point at (W/2, H/2), the +0.5 pixel-centre convention of rig.json. The recording is
+written to a temporary name beside ``--out`` and renamed when whole; an existing ``--out`` is replaced
+only when it is an .rrd file. `mcdp.recording` adds predictions to the same layout.
+
+Example::
+
+    synth view data/tiny --seq seq_00000 --frames 0:4 --out rig.rrd && rerun rig.rrd
+"""
+from __future__ import annotations
+
+from contextlib import contextmanager
+from pathlib import Path
+from typing import Iterator
+
+import numpy as np
+
+from corelib.atomic import atomic_path
+from corelib.rundir import FolderError, check_output_file
+from synth.overlap import overlap_mask
+
+INSTALL = "pip install -e '.[viz]'"
+APP_ID = "mcdp_synth"
+TIMELINE = "time"
+RRD_MAGIC = b"RRF"  # every .rrd file starts with it (RRF0, RRF2, ...)
+
+
+class ViewError(ValueError):
+    """A bad --seq / --frames / --out, or the viz extra missing; the message says what is allowed."""
+
+
+def import_rerun():
+    """The `rerun` module, or ViewError naming the install command."""
+    try:
+        import rerun as rr
+    except ImportError:
+        raise ViewError(f"the Rerun recording needs the optional extra 'viz' (rerun-sdk): {INSTALL}") from None
+    return rr
+
+
+def parse_frames(text: str | None, n_frames: int, seq: str) -> range:
+    """``A:B`` (half-open, either side may be empty) -> range of frames inside [0, n_frames); ViewError
+    naming the valid range otherwise."""
+    if text is None:
+        return range(n_frames)
+    parts = str(text).split(":")
+    try:
+        if len(parts) != 2:
+            raise ValueError
+        a = int(parts[0]) if parts[0].strip() else 0
+        b = int(parts[1]) if parts[1].strip() else n_frames
+    except ValueError:
+        raise ViewError(f"--frames {text!r} is not A:B (e.g. 0:{n_frames}); {seq} has frames 0..{n_frames - 1}") \
+            from None
+    if not 0 <= a < b <= n_frames:
+        raise ViewError(f"--frames {text} is outside {seq}'s frames: A:B with 0 <= A < B <= {n_frames}")
+    return range(a, b)
+
+
+def pick_sequence(ds, seq: str | None) -> str:
+    seqs = ds.sequences
+    if seq is None:
+        return seqs[0]
+    if seq not in seqs:
+        shown = ", ".join(seqs[:8]) + (f" (+{len(seqs) - 8} more)" if len(seqs) > 8 else "")
+        raise ViewError(f"--seq {seq!r} is not a sequence of {ds.root}; it has {shown}")
+    return seq
+
+
+def _is_rrd(p: Path) -> bool:
+    try:
+        with open(p, "rb") as fh:
+            return fh.read(3) == RRD_MAGIC
+    except OSError:
+        return False
+
+
+def check_rrd_target(out: str | Path, flag: str = "--out") -> Path:
+    """`out` may be written: an .rrd name, outside any dataset, new or a recording written before."""
+    from synth.dataset import dataset_containing
+
+    out = Path(out)
+    if out.suffix != ".rrd":
+        raise ViewError(f"{flag} {out}: a Rerun recording is named *.rrd")
+    inside = dataset_containing(out)
+    if inside is not None:
+        raise FolderError(f"{flag} {out} is inside the dataset {inside}; nothing was written: write outside it")
+    return check_output_file(out, _is_rrd, "Rerun recording (.rrd)", flag)
+
+
+@contextmanager
+def recording(out: Path, name: str) -> Iterator[object]:
+    """A RecordingStream saving into a temporary file beside `out`, renamed onto `out` when the block
+    ends without error (flushed and disconnected first); removed otherwise."""
+    rr = import_rerun()
+    out.parent.mkdir(parents=True, exist_ok=True)
+    with atomic_path(out) as tmp:
+        rec = rr.RecordingStream(APP_ID, recording_id=name)
+        rec.set_log_time_enabled(False)  # one timeline: the dataset's time (no wall clock, no tick)
+        rec.set_log_tick_enabled(False)
+        rec.save(str(tmp))
+        try:
+            yield rec
+            rec.flush()
+        finally:
+            rec.disconnect()
+
+
+def backproject(depth: np.ndarray, K: np.ndarray, T_ego_cam: np.ndarray, keep: np.ndarray,
+                stride: int = 1) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Ego-frame points of the pixels of `depth` ((H, W) z-depth, m) with `keep` and depth > 0, every
+    `stride`-th row and column: ((M, 3) float32 metres, rows (M,), cols (M,)). Pixel centres at +0.5."""
+    H, W = depth.shape
+    v, u = np.mgrid[0:H:stride, 0:W:stride]
+    z = depth[v, u]
+    ok = keep[v, u] & (z > 0)
+    v, u, z = v[ok], u[ok], z[ok].astype(np.float64)
+    X = np.linalg.inv(np.asarray(K, np.float64)) @ np.stack([u + 0.5, v + 0.5, np.ones_like(z)]) * z
+    T = np.asarray(T_ego_cam, np.float64)
+    return (T[:3, :3] @ X + T[:3, 3:4]).T.astype(np.float32), v, u
+
+
+class RigRecorder:
+    """Logs one sequence of a dataset into a RecordingStream (layout: module docstring)."""
+
+    def __init__(self, rr, rec, ds, seq: str, point_stride: int = 2, time_offset_s: float = 0.0) -> None:
+        if point_stride < 1:
+            raise ViewError(f"--point-stride {point_stride} must be >= 1")
+        self.rr, self.rec, self.ds, self.seq = rr, rec, ds, seq
+        self.stride, self.offset = int(point_stride), float(time_offset_s)
+        self.ego = ds.ego(seq)
+        self.names = list(ds.camera_names)
+        self.nbrs = {n: [] for n in self.names}
+        for i, j in ds.neighbours:
+            self.nbrs[self.names[i]].append(j)
+            self.nbrs[self.names[j]].append(i)
+        self.lidar = getattr(ds, "lidar_points_world", None)  # nuScenes datasets only
+
+    @staticmethod
+    def cam_path(name: str) -> str:
+        return f"world/ego/{name}"
+
+    def log_static(self) -> None:
+        rr, rec = self.rr, self.rec
+        rec.log("world", rr.ViewCoordinates.RIGHT_HAND_Z_UP, static=True)
+        for c, cam in enumerate(self.ds.cameras):
+            path = self.cam_path(cam.name)
+            T = np.asarray(cam.T_ego_cam, np.float64)
+            rec.log(path, rr.Transform3D(translation=T[:3, 3], mat3x3=T[:3, :3]), static=True)
+            rec.log(path, rr.Pinhole(image_from_camera=np.asarray(cam.K, np.float64),
+                                     resolution=[cam.width, cam.height], camera_xyz=rr.ViewCoordinates.RDF),
+                    static=True)
+            rec.log(f"{path}/ego_mask", rr.AnnotationContext([(0, "ego body", (200, 40, 40)), (1, "scene", (0, 0, 0))]),
+                    static=True)
+            rec.log(f"{path}/ego_mask", rr.SegmentationImage(np.asarray(self.ds.mask(cam.name), np.uint8)),
+                    static=True)
+            labels = [(0, "seen by no neighbour", (0, 0, 0))]
+            for b, j in enumerate(self.nbrs[cam.name][:2]):
+                labels.append((1 << b, f"seen by {self.names[j]}", [(40, 120, 255), (255, 160, 0)][b]))
+            if len(self.nbrs[cam.name]) >= 2:
+                labels.append((3, "seen by both neighbours", (200, 60, 220)))
+            rec.log(f"{path}/overlap", rr.AnnotationContext(labels), static=True)
+
+    def set_frame(self, frame: int) -> float:
+        t = self.offset + float(self.ego[frame].get("timestamp_s", frame / self.ds.fps))
+        self.rec.set_time(TIMELINE, duration=t)
+        return t
+
+    def log_frame(self, frame: int) -> dict[str, np.ndarray]:
+        """Log frame `frame` (sets the time); returns the ground-truth depth per camera."""
+        rr, rec, ds = self.rr, self.rec, self.ds
+        self.set_frame(frame)
+        T_we = np.asarray(self.ego[frame]["T_world_ego"], np.float64)
+        rec.log("world/ego", rr.Transform3D(translation=T_we[:3, 3], mat3x3=T_we[:3, :3]))
+        depths, pts, cols = {}, [], []
+        for cam in ds.cameras:
+            path = self.cam_path(cam.name)
+            rgb = ds.read_rgb(self.seq, cam.name, frame)  # checked: size, readable
+            png = ds.rgb_path(self.seq, cam.name, frame)
+            if png.suffix == ".png" and hasattr(ds, "read_bytes"):
+                rec.log(f"{path}/rgb", rr.EncodedImage(contents=ds.read_bytes(png), media_type="image/png"))
+            else:
+                rec.log(f"{path}/rgb", rr.Image(rgb))
+            depth = ds.read_depth(self.seq, cam.name, frame) if ds.has_depth else None
+            if depth is None:
+                continue
+            depths[cam.name] = depth
+            rec.log(f"{path}/depth", rr.DepthImage(depth, meter=1.0))
+            p, v, u = backproject(depth, cam.K, cam.T_ego_cam, np.asarray(ds.mask(cam.name), bool), self.stride)
+            pts.append(p)
+            cols.append(rgb[v, u])
+        if depths:
+            for c, cam in enumerate(ds.cameras):
+                code = np.zeros((cam.height, cam.width), np.uint8)
+                for b, j in enumerate(self.nbrs[cam.name][:2]):
+                    cj = ds.cameras[j]
+                    ov = overlap_mask(depths[cam.name], cam.K, cam.T_ego_cam, depths[cj.name], cj.K, cj.T_ego_cam,
+                                      mask_i=ds.mask(cam.name), mask_j=ds.mask(cj.name))
+                    code |= ov.astype(np.uint8) << b
+                rec.log(f"{self.cam_path(cam.name)}/overlap", rr.SegmentationImage(code))
+            rec.log("world/ego/points_gt", rr.Points3D(np.concatenate(pts), colors=np.concatenate(cols), radii=0.05))
+        if self.lidar is not None:
+            rec.log("world/lidar", rr.Points3D(np.asarray(self.lidar(self.seq, frame), np.float32), radii=0.05,
+                                               colors=(255, 255, 255)))
+        return depths
+
+
+def record_rig(dataset: str | Path, out: str | Path, seq: str | None = None, frames: str | None = None,
+               point_stride: int = 2) -> dict:
+    """Write the recording of one sequence (all its frames, or `frames` ``A:B``) to `out`; returns a
+    summary (sequence, frames, bytes, seconds)."""
+    import time
+
+    from synth.dataset import open_dataset
+
+    out = check_rrd_target(out)
+    rr = import_rerun()
+    ds = open_dataset(dataset)
+    seq = pick_sequence(ds, seq)
+    rng = parse_frames(frames, ds.n_frames(seq), seq)
+    t0 = time.perf_counter()
+    with recording(out, f"{seq}") as rec:
+        r = RigRecorder(rr, rec, ds, seq, point_stride)
+        r.log_static()
+        for f in rng:
+            r.log_frame(f)
+    n = len(rng)
+    size = out.stat().st_size
+    return {"out": str(out), "sequence": seq, "frames": [rng.start, rng.stop], "rig_frames": n, "bytes": size,
+            "bytes_per_rig_frame": size / n, "seconds": time.perf_counter() - t0}

@@ -1,0 +1,124 @@
+"""`synth view`: the Rerun recording of the tiny render, read back with Rerun's own tools (the `rerun rrd
+verify` CLI and the SDK's chunk reader `rerun.chunk.RrdReader`). Skips without the viz extra."""
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+rr = pytest.importorskip("rerun", reason="the viz extra is not installed: pip install -e '.[viz]'")
+
+
+def read_rrd(path) -> dict[str, list[tuple[int | None, dict]]]:
+    """{entity path: [(time in ns or None for static, {component: value of that row})]} of the first
+    recording in `path`, through the SDK's chunk reader."""
+    from rerun.chunk import RrdReader
+
+    out: dict[str, list] = {}
+    for chunk in RrdReader(path).stream():
+        rb = chunk.to_record_batch()
+        cols = {n: rb.column(n).to_pylist() for n in rb.schema.names if ":" in n}
+        times = rb.column("time").cast("int64").to_pylist() if "time" in rb.schema.names else [None] * rb.num_rows
+        for i in range(rb.num_rows):
+            out.setdefault(chunk.entity_path, []).append((times[i], {k: v[i] for k, v in cols.items()}))
+    return out
+
+
+def depth_of(row: dict, prefix: str = "DepthImage") -> np.ndarray:
+    fmt = row[f"{prefix}:format"][0]
+    buf = np.asarray(row[f"{prefix}:buffer"][0], np.uint8)
+    return buf.view(np.float32).reshape(fmt["height"], fmt["width"])
+
+
+def rrd_verify(path) -> str:
+    res = subprocess.run([sys.executable, "-m", "rerun", "rrd", "verify", str(path)], capture_output=True, text=True,
+                         timeout=120)
+    assert res.returncode == 0, res.stderr[-2000:]
+    return res.stdout + res.stderr
+
+
+@pytest.fixture(scope="module")
+def recording(tiny_dataset, tmp_path_factory):
+    from synth.cli import main
+
+    out = tmp_path_factory.mktemp("view") / "rig.rrd"
+    assert main(["view", str(tiny_dataset), "--seq", "seq_00001", "--frames", "1:4", "--out", str(out)]) == 0
+    return out
+
+
+def test_recording_verifies_and_holds_the_rig_of_rig_json(recording, tiny_dataset):
+    assert "verified without error" in rrd_verify(recording)
+    ents = read_rrd(recording)
+    rig = json.loads((tiny_dataset / "rig.json").read_text())
+    for cam in rig["cameras"]:
+        rows = [r for t, r in ents[f"/world/ego/{cam['name']}"] if t is None]
+        pin = [r for r in rows if "Pinhole:image_from_camera" in r]
+        assert len(pin) == 1
+        K = np.asarray(pin[0]["Pinhole:image_from_camera"][0]).reshape(3, 3).T  # stored column-major
+        np.testing.assert_allclose(K, cam["K"], rtol=1e-6)
+        assert pin[0]["Pinhole:resolution"][0] == [cam["width"], cam["height"]]
+        tr = [r for r in rows if "Transform3D:translation" in r][0]
+        T = np.asarray(cam["T_ego_cam"])
+        np.testing.assert_allclose(tr["Transform3D:translation"][0], T[:3, 3], atol=1e-6)
+        np.testing.assert_allclose(np.asarray(tr["Transform3D:mat3x3"][0]).reshape(3, 3).T, T[:3, :3], atol=1e-6)
+
+
+def test_one_depth_image_per_camera_and_frame_equal_to_the_exr(recording, tiny_dataset):
+    from synth.dataset import open_dataset
+
+    ds = open_dataset(tiny_dataset)
+    ego = ds.ego("seq_00001")
+    ents = read_rrd(recording)
+    for cam in ds.camera_names:
+        rows = ents[f"/world/ego/{cam}/depth"]
+        assert sorted(t for t, _ in rows) == [round(ego[f]["timestamp_s"] * 1e9) for f in (1, 2, 3)]
+        for t, row in rows:
+            f = [f for f in (1, 2, 3) if round(ego[f]["timestamp_s"] * 1e9) == t][0]
+            assert row["DepthImage:meter"] == [1.0]
+            np.testing.assert_array_equal(depth_of(row), ds.read_depth("seq_00001", cam, f))
+        for what in ("rgb", "overlap"):
+            assert len([t for t, _ in ents[f"/world/ego/{cam}/{what}"] if t is not None]) == 3
+        assert [t for t, _ in ents[f"/world/ego/{cam}/ego_mask"] if t is None]
+    poses = {t: r for t, r in ents["/world/ego"]}
+    T = np.asarray(ego[2]["T_world_ego"])
+    np.testing.assert_allclose(poses[round(ego[2]["timestamp_s"] * 1e9)]["Transform3D:translation"][0], T[:3, 3],
+                               rtol=1e-6)
+    assert len(ents["/world/ego/points_gt"]) == 3
+
+
+@pytest.mark.parametrize("args, message", [
+    (["--seq", "seq_9"], "--seq 'seq_9' is not a sequence of"),
+    (["--frames", "4:9"], "--frames 4:9 is outside seq_00000's frames: A:B with 0 <= A < B <= 6"),
+    (["--frames", "x"], "--frames 'x' is not A:B"),
+])
+def test_bad_seq_and_frames_name_the_valid_range(tiny_dataset, tmp_path, capsys, args, message):
+    from synth.cli import main
+
+    assert main(["view", str(tiny_dataset), "--out", str(tmp_path / "r.rrd"), *args]) == 2
+    assert message in capsys.readouterr().err
+    assert not list(tmp_path.iterdir())
+
+
+def test_foreign_files_and_dataset_folders_are_refused(tiny_dataset, tmp_path, capsys):
+    from synth.cli import main
+
+    mine = tmp_path / "notes.rrd"
+    mine.write_text("my own file")
+    assert main(["view", str(tiny_dataset), "--out", str(mine)]) == 2
+    assert "exists and is not a Rerun recording" in capsys.readouterr().err
+    assert mine.read_text() == "my own file"
+    assert main(["view", str(tiny_dataset), "--out", str(tiny_dataset / "r.rrd")]) == 2
+    assert "inside the dataset" in capsys.readouterr().err
+    assert main(["view", str(tiny_dataset), "--out", str(tmp_path / "r.txt")]) == 2
+    assert "is named *.rrd" in capsys.readouterr().err
+
+
+def test_missing_extra_names_the_install_command(monkeypatch):
+    import synth.view as view
+
+    monkeypatch.setitem(sys.modules, "rerun", None)  # `import rerun` raises ImportError
+    with pytest.raises(view.ViewError, match=r"pip install -e '\.\[viz\]'"):
+        view.import_rerun()
