@@ -10,6 +10,12 @@ backward of every stage's consistency loss, timed on its own).
 
     python benchmarks/train_step.py                       # 96x160 and 192x320, 3 rounds
     python benchmarks/train_step.py --sizes 96x160 --rounds 5 --steps 5 --device cpu
+    python benchmarks/train_step.py --tiny --sizes 64x96 --threads 1 --precision fp32 bf16   # roofline
+
+Roofline columns: GFLOP of one step (forward + backward, convolutions and matrix products,
+`torch.utils.flop_counter`), the GFLOP/s it achieves, and the machine's own ceiling measured in the
+same worker (a 1024^3 `torch.mm` in the step's dtype and thread count), so every preset shows its
+fraction of the limit.
 
 Floors (2-core CPU): mcdp_m2 <= 1.5x mono2 per step (aim 1.3x); L_con <= 5 % of a step.
 """
@@ -59,7 +65,25 @@ def synthetic_batch(H: int, W: int, n_cams: int = 6, seed: int = 0):
     }
 
 
-def worker(preset: str, H: int, W: int, steps: int, device: str, threads: int = 0) -> dict:
+def mm_ceiling(dtype, dev, n: int = 1024, reps: int = 5) -> float:
+    """GFLOP/s of an n^3 matrix product in `dtype` on this worker's threads (the best of `reps`)."""
+    import torch
+
+    a = torch.randn(n, n, device=dev).to(dtype)
+    b = torch.randn(n, n, device=dev).to(dtype)
+    torch.mm(a, b)
+    best = float("inf")
+    for _ in range(reps):
+        t0 = time.perf_counter()
+        torch.mm(a, b)
+        if dev.type == "cuda":
+            torch.cuda.synchronize()
+        best = min(best, time.perf_counter() - t0)
+    return 2 * n**3 / best / 1e9
+
+
+def worker(preset: str, H: int, W: int, steps: int, device: str, threads: int = 0, precision: str = "fp32",
+           tiny: bool = False) -> dict:
     """Time `steps` optimiser steps (after 3 warm-up steps) of one preset; returns a result dict."""
     import resource
 
@@ -73,13 +97,14 @@ def worker(preset: str, H: int, W: int, steps: int, device: str, threads: int = 
     from mcdp.system import SelfSupervisedSystem
     from corelib.configlib import load_config
 
-    cfg = load_config(RunConfig, ROOT / "configs" / "train" / f"{preset}.yaml",
+    preset_dir = ROOT / "configs" / "train" / ("tiny" if tiny else "")
+    cfg = load_config(RunConfig, preset_dir / f"{preset}.yaml",
                       [f"train.height={H}", f"train.width={W}", "train.batch_size=1"])
     dev = torch.device(device)
     torch.manual_seed(0)
     pairs = [(i, (i + 1) % 6) for i in range(6)]
     system = SelfSupervisedSystem(cfg, pairs, 6).to(dev)
-    if dev.type == "cuda" and cfg.train.amp:
+    if precision == "bf16":  # autocast (AMX on a CPU that has it); geometry stays float32
         system.use_amp = True
         system.amp_dtype = torch.bfloat16
     opt = torch.optim.Adam(system.parameters(), lr=1e-4)
@@ -97,6 +122,11 @@ def worker(preset: str, H: int, W: int, steps: int, device: str, threads: int = 
 
     for _ in range(3):  # warm-up: allocator, oneDNN primitive caches
         one_step()
+    from torch.utils.flop_counter import FlopCounterMode
+
+    with FlopCounterMode(display=False) as fc:
+        one_step()
+    gflop = fc.get_total_flops() / 1e9
     if dev.type == "cuda":
         torch.cuda.reset_peak_memory_stats()
     sync()
@@ -125,8 +155,10 @@ def worker(preset: str, H: int, W: int, steps: int, device: str, threads: int = 
         peak_mb = torch.cuda.max_memory_allocated() / 2**20
     else:
         peak_mb = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024  # KiB on Linux
+    ceiling = mm_ceiling(torch.bfloat16 if precision == "bf16" else torch.float32, dev)
     return {"preset": preset, "H": H, "W": W, "step_s": statistics.median(times), "con_s": con_s,
-            "peak_mb": peak_mb, "threads": torch.get_num_threads(), "device": device}
+            "peak_mb": peak_mb, "threads": torch.get_num_threads(), "device": device, "precision": precision,
+            "gflop": gflop, "ceiling_gflops": ceiling}
 
 
 def main(argv=None) -> int:
@@ -138,44 +170,57 @@ def main(argv=None) -> int:
     ap.add_argument("--device", default="cpu", choices=["cpu", "cuda"])
     ap.add_argument("--threads", type=int, default=0, help="torch CPU threads (0 = torch default)")
     ap.add_argument("--json", default=None, help="also write the results here")
+    ap.add_argument("--precision", nargs="+", default=["fp32"], choices=["fp32", "bf16"],
+                    help="one or more: each is a column set of the table (bf16 = autocast)")
+    ap.add_argument("--tiny", action="store_true", help="the tiny presets (configs/train/tiny)")
     ap.add_argument("--_worker", nargs=4, metavar=("PRESET", "H", "W", "STEPS"), help=argparse.SUPPRESS)
     args = ap.parse_args(argv)
     if args._worker:
         p, H, W, s = args._worker
-        print(json.dumps(worker(p, int(H), int(W), int(s), args.device, args.threads)))
+        print(json.dumps(worker(p, int(H), int(W), int(s), args.device, args.threads, args.precision[0], args.tiny)))
         return 0
 
     results: dict = {}
     for size in args.sizes:
         H, W = (int(x) for x in size.lower().split("x"))
         for r in range(args.rounds):
-            for p in args.presets:
-                cmd = [sys.executable, __file__, "--device", args.device, "--threads", str(args.threads),
-                       "--_worker", p, str(H), str(W), str(args.steps)]
-                out = subprocess.run(cmd, capture_output=True, text=True, cwd=ROOT, env=dict(os.environ))
-                if out.returncode != 0:
-                    print(out.stderr, file=sys.stderr)
-                    return 1
-                res = json.loads(out.stdout.strip().splitlines()[-1])
-                results.setdefault((p, H, W), []).append(res)
-                print(f"  round {r + 1}/{args.rounds} {p:14s} {H}x{W}: {res['step_s']:.3f} s/step", file=sys.stderr)
+            for prec in args.precision:
+                for p in args.presets:
+                    cmd = [sys.executable, __file__, "--device", args.device, "--threads", str(args.threads),
+                           "--precision", prec, *(["--tiny"] if args.tiny else []),
+                           "--_worker", p, str(H), str(W), str(args.steps)]
+                    out = subprocess.run(cmd, capture_output=True, text=True, cwd=ROOT, env=dict(os.environ))
+                    if out.returncode != 0:
+                        print(out.stderr, file=sys.stderr)
+                        return 1
+                    res = json.loads(out.stdout.strip().splitlines()[-1])
+                    results.setdefault((p, H, W, prec), []).append(res)
+                    print(f"  round {r + 1}/{args.rounds} {prec} {p:14s} {H}x{W}: {res['step_s']:.3f} s/step",
+                          file=sys.stderr)
 
     rows = []
     print(f"\ntrain step, 1 rig sample (6 cameras x 3 frames), device {args.device}, "
           f"torch threads {next(iter(results.values()))[0]['threads']}, median of {args.rounds} rounds")
-    hdr = f"{'preset':14s} {'size':>8s} {'s/step':>8s} {'x mono2':>8s} {'L_con %':>8s} {'peak MiB':>9s}"
+    hdr = (f"{'preset':14s} {'prec':>5s} {'size':>8s} {'s/step':>8s} {'x mono2':>8s} {'L_con %':>8s} "
+           f"{'peak MiB':>9s} {'GFLOP':>7s} {'GFLOP/s':>8s} {'ceiling':>8s} {'% ceil':>7s} {'steps/CPU-min':>13s}")
     print(hdr + "\n" + "-" * len(hdr))
     for size in args.sizes:
         H, W = (int(x) for x in size.lower().split("x"))
-        base = statistics.median(r["step_s"] for r in results.get(("mono2", H, W), [{"step_s": float("nan")}]))
-        for p in args.presets:
-            rs = results[(p, H, W)]
-            t = statistics.median(r["step_s"] for r in rs)
-            con = statistics.median(r["con_s"] for r in rs)
-            peak = max(r["peak_mb"] for r in rs)
-            rows.append({"preset": p, "H": H, "W": W, "step_s": t, "ratio_mono2": t / base,
-                         "lcon_share": con / t, "peak_mb": peak})
-            print(f"{p:14s} {size:>8s} {t:8.3f} {t / base:8.2f} {100 * con / t:8.1f} {peak:9.0f}")
+        for prec in args.precision:
+            base = statistics.median(r["step_s"] for r in results.get(("mono2", H, W, prec), [{"step_s": float("nan")}]))
+            for p in args.presets:
+                rs = results[(p, H, W, prec)]
+                t = statistics.median(r["step_s"] for r in rs)
+                con = statistics.median(r["con_s"] for r in rs)
+                peak = max(r["peak_mb"] for r in rs)
+                gflop = statistics.median(r["gflop"] for r in rs)
+                ceil = statistics.median(r["ceiling_gflops"] for r in rs)
+                thr = rs[0]["threads"]
+                rows.append({"preset": p, "precision": prec, "H": H, "W": W, "step_s": t, "ratio_mono2": t / base,
+                             "lcon_share": con / t, "peak_mb": peak, "gflop": gflop, "gflops": gflop / t,
+                             "ceiling_gflops": ceil, "steps_per_cpu_min": 60 / (t * thr)})
+                print(f"{p:14s} {prec:>5s} {size:>8s} {t:8.3f} {t / base:8.2f} {100 * con / t:8.1f} {peak:9.0f} "
+                      f"{gflop:7.1f} {gflop / t:8.1f} {ceil:8.1f} {100 * gflop / t / ceil:7.1f} {60 / (t * thr):13.1f}")
     if args.json:
         Path(args.json).write_text(json.dumps(rows, indent=1))
     return 0
