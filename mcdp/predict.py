@@ -99,8 +99,8 @@ class Predictor:
 
     def _record(self, out: dict) -> None:
         last = self.stages[-1]
-        w = out["weights", last]
-        self._acc["images"] += int(w.shape[0]) if w is not None else 0
+        w = out.get(("weights", last))  # None for a method without basis weights
+        self._acc["images"] += int(out["depth", last, 0].shape[0])
         if w is None or last == "init" or "init" not in self.stages:
             return
         n = w.shape[1]

@@ -137,7 +137,7 @@ class Trainer:
         torch.manual_seed(tc.seed)
         self.system = SelfSupervisedSystem(cfg, ds.neighbours, len(ds.camera_names)).to(self.device)
         self.depth, self.pose = self.system.depth, self.system.pose
-        wnet = [p for p in self.depth.weight_nets.parameters()]
+        wnet = list(getattr(self.depth, "weight_nets", torch.nn.ModuleList()).parameters())  # MCDP's; or none
         wids = {id(p) for p in wnet}
         rest = [p for p in self.system.parameters() if id(p) not in wids]
         groups = [{"params": rest, "lr_mult": 1.0}]
