@@ -53,7 +53,8 @@ class ModelConfig(StrictModel):
 
     method: the depth network: ``mono2`` (Monodepth2: one sigmoid channel -> depth), ``mcdp``
         (n depth bases, initial weights 1/n, ``refine_steps`` weight networks), or the model of
-        another method registered in `mcdp.methods` (checked when the network is built).
+        another method registered in `mcdp.methods`. What a network needs of the other keys is
+        checked by the network (`mcdp.methods.check_model`), not here.
     bases: n, number of depth bases (mcdp only; mono2 always uses 1 channel).
     refine_steps: m, refinement steps (0 = bases only, the "M0" row).
     neighbours: which ring neighbours feed the weight network: ``left`` (i-1),
@@ -107,17 +108,9 @@ class ModelConfig(StrictModel):
                 f"model.init_depth ({self.init_depth}) must lie in (min_depth, max_depth) = "
                 f"({self.min_depth}, {self.max_depth})"
             )
-        if self.mono_head and (self.method != "mcdp" or self.refine_steps > 0):
-            raise ValueError("model.mono_head (the shared pretraining's extra head) needs model.method=mcdp and "
-                             "model.refine_steps=0")
-        if self.method == "mono2" and self.refine_steps > 0:
-            raise ValueError("model.refine_steps must be 0 for model.method=mono2 (refinement needs depth bases)")
+        if self.mono_head and self.refine_steps > 0:
+            raise ValueError("model.mono_head (the shared pretraining's extra head) needs model.refine_steps=0")
         return self
-
-    @property
-    def n_out(self) -> int:
-        """Decoder output channels: n bases for mcdp, 1 for mono2."""
-        return self.bases if self.method == "mcdp" else 1
 
 
 class LossConfig(StrictModel):

@@ -69,10 +69,12 @@ def _resolve(p: str) -> Path:
 def resolved_configs(cfg: PretrainConfig):
     """(DataConfig, RunConfig, hash) of a pretraining; the hash names what it learns from and how."""
     from mcdp.config import RunConfig
+    from mcdp.methods import check_model
     from synth.config import load_data_config
 
     dcfg = load_data_config(_resolve(cfg.data), cfg.data_overrides)
     rcfg = load_config(RunConfig, _resolve(cfg.train_preset), cfg.train_overrides)
+    check_model(rcfg.model)
     if not rcfg.model.mono_head:
         raise ConfigError(f"{cfg.train_preset}: a pretraining needs model.mono_head: true (both heads)")
     if rcfg.model.init_from is not None:
@@ -146,7 +148,7 @@ def _pretrain(cfg: PretrainConfig, out: Path, dcfg, rcfg, h: str, progress: bool
     render_s = time.perf_counter() - t0
     ds = open_dataset(str(out / "data"))
     t1 = time.perf_counter()
-    log(f"[pretrain] training {rcfg.train.steps} steps ({rcfg.model.n_out} bases + mono head) -> {out / 'run'}")
+    log(f"[pretrain] training {rcfg.train.steps} steps ({rcfg.model.bases} bases + mono head) -> {out / 'run'}")
     trainer = Trainer(rcfg, ds, out / "run", progress=progress)
     try:
         trainer.train()

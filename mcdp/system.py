@@ -23,6 +23,8 @@ Loss (paper eq. 9), with masks excluded from every mean::
   z-buffer; L1 in metres on pixels both cameras see (outside both ego masks).
 - L_vel (PackNet): | ||t_pred|| - ||t_odom|| | per camera and source frame, with
   the ego odometry motion transformed into each camera.
+- a method's own terms (`mcdp.methods.Method.loss_terms`, none for MCDP and Mono2), added
+  weighted as the method returns them.
 
 Example::
 
@@ -39,7 +41,7 @@ from mcdp.config import RunConfig
 from mcdp.data import directed_pairs, neighbour_table
 from mcdp.geometry import splat_depth, warp_by_depth
 from mcdp.losses import consistency_loss, photometric_error, reprojection_loss, smoothness_loss
-from mcdp.methods import build_depth_model
+from mcdp.methods import method_of
 from mcdp.model import PoseModel, is_refined, odometry_camera_motion, resize_mask_to
 
 
@@ -91,7 +93,9 @@ class SelfSupervisedSystem(torch.nn.Module):
     def __init__(self, cfg: RunConfig, neighbours, n_cams: int):
         super().__init__()
         self.cfg = cfg
-        self.depth = build_depth_model(cfg.model)
+        method = method_of(cfg.model)
+        self.depth = method.build(cfg.model)
+        self.loss_terms = method.loss_terms  # the method's own terms (`mcdp.methods.Method`), or None
         self.pose = PoseModel(cfg.model.pretrained) if cfg.scale.source != "odometry" else None
         self.register_buffer("nbr", neighbour_table(neighbours, n_cams), persistent=False)
         tgt, src = directed_pairs(neighbours)
@@ -199,6 +203,10 @@ class SelfSupervisedSystem(torch.nn.Module):
                     stage_loss = stage_loss + lam * lcon
             losses[f"stage/{stage}"] = stage_loss.detach()
             total = total + stage_loss
+        if self.loss_terms is not None:
+            for name, term in self.loss_terms(outputs, batch, cfg).items():
+                losses[name] = term.detach()
+                total = total + term
         losses["loss"] = total
         return losses
 

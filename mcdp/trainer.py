@@ -118,7 +118,8 @@ class Trainer:
         torch.manual_seed(tc.seed)
         self.system = SelfSupervisedSystem(cfg, ds.neighbours, len(ds.camera_names)).to(self.device)
         self.depth, self.pose = self.system.depth, self.system.pose
-        wnet = [p for p in self.depth.weight_nets.parameters()]
+        # a network without weight networks (Mono2, a registered method's own) has one group
+        wnet = list(self.depth.weight_nets.parameters()) if hasattr(self.depth, "weight_nets") else []
         wids = {id(p) for p in wnet}
         rest = [p for p in self.system.parameters() if id(p) not in wids]
         groups = [{"params": rest, "lr_mult": 1.0}]

@@ -14,7 +14,7 @@ from typing import Literal
 from pydantic import Field, field_validator, model_validator
 
 from corelib.configlib import ConfigError, StrictModel, config_to_dict, load_config
-from mcdp.methods import METHODS, PAPER_METHODS
+from mcdp.methods import METHODS, PAPER_METHODS, check_model
 from mcdp.pretrain import PretrainConfig
 
 
@@ -209,7 +209,7 @@ def check_nested_configs(cfg: SweepConfig) -> None:
         init_from = "pretrained.pt" if cfg.pretrain is not None else None
         for method in cfg.methods:
             for seed in cfg.seeds:
-                run_config_for(cfg, method, seed, init_from)
+                check_model(run_config_for(cfg, method, seed, init_from)[0].model)
     except ConfigError as exc:
         raise ConfigError(f"sweep {where}: {exc}") from None
 
