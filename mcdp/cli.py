@@ -5,7 +5,7 @@
     mcdp train configs/train/<preset>.yaml --data DATA --out RUN [key=value ...]   # resumes if RUN has a checkpoint
     mcdp eval RUN --data DATA [--split test] [--out metrics.json] [--checkpoint auto|best|last|PATH] [eval.key=value ...]
     mcdp predict RUN --data DATA --out PRED [--split test] [--max-samples N] [--ply]
-    mcdp pretrain configs/pretrain/tiny.yaml --out DIR [key=value ...]           # cached by its config hash
+    mcdp pretrain configs/pretrain/tiny.yaml --out DIR [key=value ...]           # added by study.cli
     mcdp sweep configs/sweep/cpu.yaml --out SWEEP [key=value ...]          # added by study.cli
 
 Exit codes: 0 success, 2 bad input (config, dataset, run folder; a message on
@@ -36,8 +36,7 @@ def _user_errors() -> tuple[type[BaseException], ...]:
     from mcdp.runs import RunError
     from mcdp.warmstart import WarmStartError
     from corelib.configlib import ConfigError
-    from synth.files import DatasetError
-    from synth.render import OutputFolderError
+    from synth.files import DatasetError, OutputFolderError
 
     return (ConfigError, DatasetError, RunError, NetworkError, OutputFolderError, WarmStartError, FolderError)
 
@@ -255,16 +254,13 @@ COMMANDS: list[tuple[str, str, Callable, Callable]] = [
 
 def build_parser(extra_commands: Iterable[Callable] = ()) -> argparse.ArgumentParser:
     """The parser of every subcommand; `extra_commands` add more (``add(subparsers)``: the study's
-    ``sweep``, assembled by `study.cli` so that this package never imports the layer above)."""
+    ``pretrain`` and ``sweep``, assembled by `study.cli` so that this package never imports the layer above)."""
     parser = argparse.ArgumentParser(prog="mcdp", description=__doc__.split("\n")[0])
     sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
     for name, help_, add_args, run in COMMANDS:
         p = sub.add_parser(name, help=help_, description=help_)
         add_args(p)
         p.set_defaults(_run=run)
-    from mcdp.pretrain import add_pretrain_parser
-
-    add_pretrain_parser(sub)  # mcdp pretrain CONFIG --out DIR [key=value ...]
     for add in extra_commands:
         add(sub)
     return parser

@@ -21,7 +21,7 @@ previous weights.
 
 Stages are named "init", "refine1", ..., "refine{m}" (the evaluator adds
 "final" = the last one). Method ``mono2`` has one sigmoid channel and only
-"init" (`MonoDepthModel`). The shared pretraining (``model.mono_head``, `mcdp.pretrain`) adds a
+"init" (`MonoDepthModel`). The shared pretraining (``model.mono_head``, `study.pretrain`) adds a
 one-channel Monodepth2 head as the decoder's last channel: stages "mono" (that
 head) and "init" (the n bases at weights 1/n), trained together on one trunk.
 

@@ -173,7 +173,7 @@ def pretrain_stage(cfg: SweepConfig, sweep_dir: Path, progress: bool, log) -> di
     """Make (or reuse) the sweep's shared pretraining; its record with ``weights`` (the path runs start from)."""
     if cfg.pretrain is None:
         return None
-    from mcdp.pretrain import WEIGHTS, resolved_configs, run_pretrain
+    from study.pretrain import WEIGHTS, resolved_configs, run_pretrain
 
     _, _, h = resolved_configs(cfg.pretrain)
     pdir = sweep_dir / "pretrain" / h[:12]

@@ -57,7 +57,7 @@ def main(argv: list[str] | None = None) -> int:
     from corelib.configlib import ConfigError
     from synth.files import DatasetError
     from synth.nuscenes_export import ExportError
-    from synth.render import OutputFolderError
+    from synth.files import OutputFolderError
 
     parser = _parser()
     args, rest = parser.parse_known_args(argv)
