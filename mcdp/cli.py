@@ -8,8 +8,9 @@
     mcdp pretrain configs/pretrain/tiny.yaml --out DIR [key=value ...]           # added by study.cli
     mcdp sweep configs/sweep/cpu.yaml --out SWEEP [key=value ...]          # added by study.cli
 
-Exit codes: 0 success, 2 bad input (config, dataset, run folder; a message on
-stderr, no traceback), 3 training diverged (NaN/inf loss), 4 disk full, 130 interrupted.
+Exit codes (`corelib.exitcodes`, the same in every command): 0 success, 2 bad input (config,
+dataset, run folder; a message on stderr, no traceback), 3 training diverged (NaN/inf loss), 4 disk
+full, 130 interrupted.
 
 Subcommands are registered in `COMMANDS` as (name, add_arguments, run); a new
 one is one more entry. The ``mcdp`` console script is `study.cli.main`: these
@@ -24,10 +25,7 @@ from pathlib import Path
 from typing import Callable, Iterable
 
 from corelib.atomic import atomic_write_json, disk_full_message, is_disk_full
-
-EXIT_USAGE = 2
-EXIT_DIVERGED = 3
-EXIT_DISK_FULL = 4
+from corelib.exitcodes import DIVERGED as EXIT_DIVERGED, DISK_FULL as EXIT_DISK_FULL, INTERRUPTED, USAGE as EXIT_USAGE
 
 
 def _user_errors() -> tuple[type[BaseException], ...]:
@@ -296,7 +294,7 @@ def main(argv: list[str] | None = None, extra_commands: Iterable[Callable] = ())
         return EXIT_DISK_FULL
     except KeyboardInterrupt:
         print(f"mcdp {args.command}: interrupted", file=sys.stderr)
-        return 130
+        return INTERRUPTED
 
 
 if __name__ == "__main__":

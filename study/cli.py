@@ -12,6 +12,7 @@ from __future__ import annotations
 import argparse
 import sys
 
+from corelib import exitcodes
 from mcdp import cli as mcdp_cli
 from corelib.configlib import resolve_path
 from study.config import load_sweep_config
@@ -93,7 +94,7 @@ def run_sweep_command(args: argparse.Namespace) -> int:
                         config_source=source + (f" + --engine {engine}" if engine else ""))
     if results["counters"].get("failed"):
         return EXIT_RUN_FAILED
-    return 3 if results["counters"].get("diverged") else 0
+    return exitcodes.DIVERGED if results["counters"].get("diverged") else exitcodes.OK
 
 
 def main(argv: list[str] | None = None) -> int:
