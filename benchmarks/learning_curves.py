@@ -83,14 +83,14 @@ class SupervisedRun:
 
     def __init__(self, cfg, ds):
         from mcdp.data import RigDataset, neighbour_table
-        from mcdp.model import DepthModel
+        from mcdp.methods import build_depth_model
 
         self.cfg, self.ds = cfg, ds
         tc = cfg.train
         if tc.threads > 0:
             torch.set_num_threads(tc.threads)
         torch.manual_seed(tc.seed)
-        self.model = DepthModel(cfg.model)
+        self.model = build_depth_model(cfg.model)
         if cfg.model.init_from:
             from mcdp.warmstart import warm_start
 

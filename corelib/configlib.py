@@ -23,6 +23,9 @@ from corelib.hashing import json_sha256
 
 T = TypeVar("T", bound="StrictModel")
 
+#: the checkout's root: presets named relative to it are found from any working directory
+PROJECT_ROOT = Path(__file__).resolve().parents[1]
+
 
 class ConfigError(ValueError):
     """A configuration value, key or file is invalid; the message names it."""
@@ -162,6 +165,18 @@ def nest(values: dict[str, Any]) -> dict[str, Any]:
             node = node.setdefault(p, {})
         node[parts[-1]] = value
     return out
+
+
+def resolve_path(p: str | Path, kind: str) -> Path:
+    """A preset path as the user typed it: relative to the working directory if it exists there, else
+    to the project root (``configs/...`` works from anywhere); ConfigError naming ``kind`` otherwise."""
+    p = Path(p)
+    if p.is_absolute() or p.exists():
+        return p
+    alt = PROJECT_ROOT / p
+    if alt.exists():
+        return alt
+    raise ConfigError(f"{kind} {p} does not exist (looked in {Path.cwd()} and {PROJECT_ROOT})")
 
 
 def load_config(cls: Type[T], path: str | Path | None = None, overrides: Iterable[str] = (),

@@ -5,11 +5,12 @@
     mcdp train configs/train/<preset>.yaml --data DATA --out RUN [key=value ...]   # resumes if RUN has a checkpoint
     mcdp eval RUN --data DATA [--split test] [--out metrics.json] [--checkpoint auto|best|last|PATH] [eval.key=value ...]
     mcdp predict RUN --data DATA --out PRED [--split test] [--max-samples N] [--ply] [--rrd pred.rrd]
-    mcdp pretrain configs/pretrain/tiny.yaml --out DIR [key=value ...]           # cached by its config hash
+    mcdp pretrain configs/pretrain/tiny.yaml --out DIR [key=value ...]           # added by study.cli
     mcdp sweep configs/sweep/cpu.yaml --out SWEEP [key=value ...]          # added by study.cli
 
-Exit codes: 0 success, 2 bad input (config, dataset, run folder; a message on
-stderr, no traceback), 3 training diverged (NaN/inf loss), 4 disk full, 130 interrupted.
+Exit codes (`corelib.exitcodes`, the same in every command): 0 success, 2 bad input (config,
+dataset, run folder; a message on stderr, no traceback), 3 training diverged (NaN/inf loss), 4 disk
+full, 130 interrupted.
 
 Subcommands are registered in `COMMANDS` as (name, add_arguments, run); a new
 one is one more entry. The ``mcdp`` console script is `study.cli.main`: these
@@ -24,10 +25,7 @@ from pathlib import Path
 from typing import Callable, Iterable
 
 from corelib.atomic import atomic_write_json, disk_full_message, is_disk_full
-
-EXIT_USAGE = 2
-EXIT_DIVERGED = 3
-EXIT_DISK_FULL = 4
+from corelib.exitcodes import DIVERGED as EXIT_DIVERGED, DISK_FULL as EXIT_DISK_FULL, INTERRUPTED, USAGE as EXIT_USAGE
 
 
 def _user_errors() -> tuple[type[BaseException], ...]:
@@ -36,8 +34,7 @@ def _user_errors() -> tuple[type[BaseException], ...]:
     from mcdp.runs import RunError
     from mcdp.warmstart import WarmStartError
     from corelib.configlib import ConfigError
-    from synth.files import DatasetError
-    from synth.render import OutputFolderError
+    from synth.files import DatasetError, OutputFolderError
     from synth.view import ViewError
 
     return (ConfigError, DatasetError, RunError, NetworkError, OutputFolderError, WarmStartError, FolderError,
@@ -69,33 +66,6 @@ def _outside_datasets(out: str | Path) -> None:
         raise FolderError(f"--out {out} is inside the dataset {inside}; nothing was written: write outside it")
 
 
-def rig_differences(run: Path, ds) -> list[str] | None:
-    """How the dataset's rig (per camera: size, K, T_ego_cam) differs from the one the run was trained on
-    (``run.json``'s ``rig``; None for a run written before it was recorded): [] when it is the same."""
-    import numpy as np
-
-    try:
-        trained = json.loads((run / "run.json").read_text()).get("rig")
-    except (OSError, ValueError, AttributeError):
-        return None
-    if not isinstance(trained, list):
-        return None
-    now = {c.name: c for c in ds.cameras}
-    diffs = [] if [c.get("name") for c in trained] == list(now) else \
-        [f"cameras {[c.get('name') for c in trained]} -> {list(now)}"]
-    for c in trained:
-        cam = now.get(c.get("name"))
-        if cam is None:
-            continue
-        if (c.get("width"), c.get("height")) != (cam.width, cam.height):
-            diffs.append(f"{cam.name} size {c.get('width')}x{c.get('height')} -> {cam.width}x{cam.height}")
-        for key, new in (("K", cam.K), ("T_ego_cam", cam.T_ego_cam)):
-            old = np.asarray(c.get(key), np.float64)
-            if old.shape != new.shape or not np.allclose(old, new, rtol=1e-6, atol=1e-6):
-                diffs.append(f"{cam.name} {key}")
-    return diffs
-
-
 def _open_dataset(path: str):
     from synth.dataset import open_dataset
 
@@ -125,7 +95,8 @@ def _train(args: argparse.Namespace) -> int:
     say = print if trainer.dist.is_main else (lambda *a, **k: None)  # torchrun: rank 0 speaks
     ranks = f", {trainer.dist.world} ranks (torchrun; global batch)" if trainer.dist.enabled else ""
     say(
-        f"mcdp train: method={m.method} bases={m.n_out} refine_steps={m.refine_steps} neighbours={m.neighbours} "
+        f"mcdp train: method={m.method} bases={getattr(trainer.depth, 'n_out', 1)} refine_steps={m.refine_steps} "
+        f"neighbours={m.neighbours} "
         f"lambda={cfg.loss.consistency_weight} scale={cfg.scale.source}"
         + (" [ORACLE: uses ground-truth median scale]" if cfg.scale.oracle else ""),
         file=sys.stderr,
@@ -178,9 +149,8 @@ def _eval_config(cfg, overrides: list[str]):
 
 def _eval(args: argparse.Namespace) -> int:
     from mcdp.evaluate import evaluate, format_tables
-    from mcdp.predict import Predictor
-    from mcdp.runs import RunError
-    from corelib.configlib import config_to_dict
+    from mcdp.predict import Predictor, run_record
+    from mcdp.runs import RunError, rig_differences
 
     out = Path(args.out) if args.out else Path(args.run) / f"metrics_{args.split}.json"
     _check_metrics_target(out)  # before the (long) evaluation
@@ -203,21 +173,7 @@ def _eval(args: argparse.Namespace) -> int:
     label = " [ORACLE: ground-truth median scale at inference]" if pred.oracle else ""
     print(f"mcdp eval: {pred.ckpt_path} (step {pred.step}) on {args.data} split {args.split}{label}", file=sys.stderr)
     metrics = evaluate(ds, pred.predict, args.split, ecfg, progress=not args.no_progress)
-    metrics["run"] = {
-        "run_dir": str(Path(args.run)),
-        "checkpoint": str(pred.ckpt_path),
-        "step": pred.step,
-        "method": pred.cfg.model.method,
-        "refine_steps": pred.cfg.model.refine_steps,
-        "bases": pred.cfg.model.n_out,
-        "consistency_weight": pred.cfg.loss.consistency_weight,
-        "scale_source": pred.cfg.scale.source,
-        "oracle": pred.oracle,
-        "data": str(Path(args.data)),
-        "config": config_to_dict(pred.cfg),
-        "rig_as_trained": None if rig_diff is None else not rig_diff,  # None: the run did not record its rig
-        "rig_differences": rig_diff,
-    }
+    metrics["run"] = run_record(pred, Path(args.run), str(Path(args.data)), rig_diff)
     out.parent.mkdir(parents=True, exist_ok=True)
     atomic_write_json(out, metrics, allow_nan=True)
     if pred.oracle:
@@ -317,16 +273,13 @@ COMMANDS: list[tuple[str, str, Callable, Callable]] = [
 
 def build_parser(extra_commands: Iterable[Callable] = ()) -> argparse.ArgumentParser:
     """The parser of every subcommand; `extra_commands` add more (``add(subparsers)``: the study's
-    ``sweep``, assembled by `study.cli` so that this package never imports the layer above)."""
+    ``pretrain`` and ``sweep``, assembled by `study.cli` so that this package never imports the layer above)."""
     parser = argparse.ArgumentParser(prog="mcdp", description=__doc__.split("\n")[0])
     sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
     for name, help_, add_args, run in COMMANDS:
         p = sub.add_parser(name, help=help_, description=help_)
         add_args(p)
         p.set_defaults(_run=run)
-    from mcdp.pretrain import add_pretrain_parser
-
-    add_pretrain_parser(sub)  # mcdp pretrain CONFIG --out DIR [key=value ...]
     for add in extra_commands:
         add(sub)
     return parser
@@ -362,7 +315,7 @@ def main(argv: list[str] | None = None, extra_commands: Iterable[Callable] = ())
         return EXIT_DISK_FULL
     except KeyboardInterrupt:
         print(f"mcdp {args.command}: interrupted", file=sys.stderr)
-        return 130
+        return INTERRUPTED
 
 
 if __name__ == "__main__":

@@ -12,16 +12,15 @@ checkpoint. Sections:
 - ``loss``: photometric / smoothness / consistency weights.
 - ``scale``: where metric scale comes from (no ground truth unless the labelled oracle).
 - ``train``: optimisation, resolution, seeding, logging cadence.
-- ``eval``: evaluation settings (`mcdp.evaluate.EvalConfig`).
+- ``eval``: evaluation settings (`EvalConfig`, read by `mcdp.evaluate`).
 """
 from __future__ import annotations
 
 import re
 from typing import Annotated, Any, Literal
 
-from pydantic import BeforeValidator, Field, model_validator
+from pydantic import BeforeValidator, Field, field_validator, model_validator
 
-from mcdp.evaluate import EvalConfig
 from corelib.configlib import StrictModel
 
 _SCI_FLOAT = re.compile(r"^[-+]?(\d+\.?\d*|\.\d+)[eE][-+]?\d+$")
@@ -53,7 +52,8 @@ class ModelConfig(StrictModel):
 
     method: the depth network: ``mono2`` (Monodepth2: one sigmoid channel -> depth), ``mcdp``
         (n depth bases, initial weights 1/n, ``refine_steps`` weight networks), or the model of
-        another method registered in `mcdp.methods` (checked when the network is built).
+        another method registered in `mcdp.methods`. What a network needs of the other keys is
+        checked by the network (`mcdp.methods.check_model`), not here.
     bases: n, number of depth bases (mcdp only; mono2 always uses 1 channel).
     refine_steps: m, refinement steps (0 = bases only, the "M0" row).
     neighbours: which ring neighbours feed the weight network: ``left`` (i-1),
@@ -74,9 +74,9 @@ class ModelConfig(StrictModel):
     weight_conv_channels, weight_fc: widths of the weight network's conv stack and FC layers.
     weight_init_std: std of the normal init of each weight network's last layer (bias 0), so
         a fresh step starts near the previous step's weights (paper: not stated).
-    mono_head: pretraining only (`mcdp.pretrain`): a one-channel Monodepth2 head beside the
+    mono_head: pretraining only (`study.pretrain`): a one-channel Monodepth2 head beside the
         n bases on the same encoder and decoder trunk (stages "mono" and "init").
-    init_from: path to a shared pretraining's ``pretrained.pt`` (`mcdp.pretrain`), or null. A
+    init_from: path to a shared pretraining's ``pretrained.pt`` (`study.pretrain`), or null. A
         fresh run copies the encoder and decoder from it (mono2 takes the mono head, mcdp the
         n basis channels); weight networks start fresh. Refused, naming the layer, when the
         architecture differs. The run records the file's path and sha256.
@@ -107,17 +107,9 @@ class ModelConfig(StrictModel):
                 f"model.init_depth ({self.init_depth}) must lie in (min_depth, max_depth) = "
                 f"({self.min_depth}, {self.max_depth})"
             )
-        if self.mono_head and (self.method != "mcdp" or self.refine_steps > 0):
-            raise ValueError("model.mono_head (the shared pretraining's extra head) needs model.method=mcdp and "
-                             "model.refine_steps=0")
-        if self.method == "mono2" and self.refine_steps > 0:
-            raise ValueError("model.refine_steps must be 0 for model.method=mono2 (refinement needs depth bases)")
+        if self.mono_head and self.refine_steps > 0:
+            raise ValueError("model.mono_head (the shared pretraining's extra head) needs model.refine_steps=0")
         return self
-
-    @property
-    def n_out(self) -> int:
-        """Decoder output channels: n bases for mcdp, 1 for mono2."""
-        return self.bases if self.method == "mcdp" else 1
 
 
 class LossConfig(StrictModel):
@@ -258,6 +250,35 @@ class TrainConfig(StrictModel):
                              f"= {px} pixels per camera image and step, above the limit {MAX_STEP_PIXELS}: the "
                              f"float32 input alone would be {gb:.1f} GB ({IMAGES_PER_SAMPLE} images a rig sample), "
                              "the activations many times that")
+        return self
+
+
+class EvalConfig(StrictModel):
+    """Evaluation settings (depths in metres; `mcdp.evaluate` reads them)."""
+
+    min_depth: float = Field(0.5, le=1000.0, allow_inf_nan=False)
+    max_depth: float = Field(80.0, le=1000.0, allow_inf_nan=False)
+    frame_stride: int = Field(1, le=10_000)  # evaluate every k-th frame
+    skip_ends: bool = True  # skip first and last frame of each sequence (no temporal neighbours)
+
+    @field_validator("min_depth")
+    @classmethod
+    def _min_pos(cls, v: float) -> float:
+        if not v > 0:
+            raise ValueError(f"must be > 0, got {v}")
+        return v
+
+    @field_validator("frame_stride")
+    @classmethod
+    def _stride_pos(cls, v: int) -> int:
+        if v < 1:
+            raise ValueError(f"must be >= 1, got {v}")
+        return v
+
+    @model_validator(mode="after")
+    def _range(self):
+        if not self.max_depth > self.min_depth:
+            raise ValueError(f"max_depth ({self.max_depth}) must be > min_depth ({self.min_depth})")
         return self
 
 

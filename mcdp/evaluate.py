@@ -61,9 +61,8 @@ from typing import Callable, Mapping
 
 import numpy as np
 import torch
-from pydantic import Field, field_validator, model_validator
 
-from corelib.configlib import StrictModel
+from mcdp.config import EvalConfig
 from synth.overlap import overlap_mask
 
 from . import geometry
@@ -82,35 +81,6 @@ __all__ = ["EvalConfig", "SCALINGS", "constant_depth_predictor", "evaluate", "fo
 
 SCALINGS = ("none", "median", "rig_median")
 REGIONS = ("all", "overlap", "non_overlap")
-
-
-class EvalConfig(StrictModel):
-    """Evaluation settings (depths in metres)."""
-
-    min_depth: float = Field(0.5, le=1000.0, allow_inf_nan=False)
-    max_depth: float = Field(80.0, le=1000.0, allow_inf_nan=False)
-    frame_stride: int = Field(1, le=10_000)  # evaluate every k-th frame
-    skip_ends: bool = True  # skip first and last frame of each sequence (no temporal neighbours)
-
-    @field_validator("min_depth")
-    @classmethod
-    def _min_pos(cls, v: float) -> float:
-        if not v > 0:
-            raise ValueError(f"must be > 0, got {v}")
-        return v
-
-    @field_validator("frame_stride")
-    @classmethod
-    def _stride_pos(cls, v: int) -> int:
-        if v < 1:
-            raise ValueError(f"must be >= 1, got {v}")
-        return v
-
-    @model_validator(mode="after")
-    def _range(self):
-        if not self.max_depth > self.min_depth:
-            raise ValueError(f"max_depth ({self.max_depth}) must be > min_depth ({self.min_depth})")
-        return self
 
 
 # --------------------------------------------------------------------------- helpers

@@ -16,7 +16,6 @@ from __future__ import annotations
 from typing import Optional, Sequence
 
 import torch
-import torch.nn as nn
 import torch.nn.functional as F
 
 __all__ = [
@@ -26,11 +25,6 @@ __all__ = [
     "reprojection_loss",
     "smoothness_loss",
     "consistency_loss",
-    "SSIMDissimilarity",
-    "PhotometricError",
-    "ReprojectionLoss",
-    "SmoothnessLoss",
-    "ConsistencyLoss",
     "INVALID_ERROR",
     "min_reprojection",
     "used_pixels",
@@ -134,6 +128,7 @@ def reprojection_loss(
     automask: bool = True,
     alpha: float = 0.85,
     out_of_view: str = "border",
+    ident: Optional[torch.Tensor] = None,
 ):
     """Monodepth2 photometric loss: per-pixel minimum over sources, with auto-masking.
 
@@ -155,10 +150,15 @@ def reprojection_loss(
         target: (B, 3, H, W) target image.
         warped_list: S tensors (B, 3, H, W): sources warped into the target (border padding).
         valid_list: S tensors (B, 1, H, W) float 0/1 from ``warp_by_depth``.
-        sources_list: S tensors (B, 3, H, W) unwarped sources (may be None if automask=False).
+        sources_list: S tensors (B, 3, H, W) unwarped sources (may be None if automask=False, or
+            when ``ident`` is given).
         mask: (B, 1, H, W) scene mask (0 = ego body / not to be used).
         automask: apply auto-masking.
         alpha: SSIM weight.
+        out_of_view: ``"identity"`` or ``"border"`` (above).
+        ident: (B, 1, H, W) the identity error min_s photometric_error(source_s, target), when
+            the caller has it already: it does not depend on depth, so the training step computes
+            it once per batch (not once per stage and scale) and passes it here.
 
     Returns:
         loss: scalar, masked_mean(per_pixel, used).
@@ -173,7 +173,7 @@ def reprojection_loss(
         raise ValueError(f"valid_list has {len(valid_list)} entries, warped_list {len(warped_list)}")
     if out_of_view not in ("identity", "border"):
         raise ValueError(f"out_of_view must be 'identity' or 'border', got {out_of_view!r}")
-    if automask or out_of_view == "identity":
+    if (automask or out_of_view == "identity") and ident is None:
         if sources_list is None or len(sources_list) != len(warped_list):
             n = None if sources_list is None else len(sources_list)
             raise ValueError(f"sources_list must hold {len(warped_list)} source images for auto-masking, got {n}")
@@ -183,8 +183,11 @@ def reprojection_loss(
         _check4(w, f"warped_list[{s}]", channels=C, like=target, doc=f"({B}, {C}, {H}, {W})")
         _check4(v, f"valid_list[{s}]", channels=1, like=target, doc=f"({B}, 1, {H}, {W})")
     errors = [photometric_error(w, target, alpha) for w in warped_list]
-    ident = None
-    if automask or out_of_view == "identity":
+    if not (automask or out_of_view == "identity"):
+        ident = None
+    elif ident is not None:
+        _check4(ident, "ident", channels=1, like=target, doc=f"({B}, 1, {H}, {W})")
+    else:
         idents = []
         for s, src in enumerate(sources_list):
             _check4(src, f"sources_list[{s}]", channels=C, like=target, doc=f"({B}, {C}, {H}, {W})")
@@ -323,47 +326,3 @@ def consistency_loss(
     _check4(mask, "mask", channels=1, like=depth_tgt, doc=doc)
     m = ((hit > 0) & (mask > 0)).to(depth_tgt.dtype)
     return masked_mean((depth_tgt - depth_splat).abs(), m)
-
-
-# --------------------------------------------------------------------------- module wrappers
-class SSIMDissimilarity(nn.Module):
-    """Module form of :func:`ssim_dissimilarity`."""
-
-    def forward(self, x: torch.Tensor, y: torch.Tensor) -> torch.Tensor:
-        return ssim_dissimilarity(x, y)
-
-
-class PhotometricError(nn.Module):
-    """Module form of :func:`photometric_error`."""
-
-    def __init__(self, alpha: float = 0.85):
-        super().__init__()
-        self.alpha = alpha
-
-    def forward(self, pred: torch.Tensor, target: torch.Tensor) -> torch.Tensor:
-        return photometric_error(pred, target, self.alpha)
-
-
-class ReprojectionLoss(nn.Module):
-    """Module form of :func:`reprojection_loss`."""
-
-    def __init__(self, automask: bool = True, alpha: float = 0.85):
-        super().__init__()
-        self.automask, self.alpha = automask, alpha
-
-    def forward(self, target, warped_list, valid_list, sources_list, mask):
-        return reprojection_loss(target, warped_list, valid_list, sources_list, mask, self.automask, self.alpha)
-
-
-class SmoothnessLoss(nn.Module):
-    """Module form of :func:`smoothness_loss`."""
-
-    def forward(self, disp: torch.Tensor, img: torch.Tensor, mask: Optional[torch.Tensor] = None) -> torch.Tensor:
-        return smoothness_loss(disp, img, mask)
-
-
-class ConsistencyLoss(nn.Module):
-    """Module form of :func:`consistency_loss`."""
-
-    def forward(self, depth_tgt, depth_splat, hit, mask) -> torch.Tensor:
-        return consistency_loss(depth_tgt, depth_splat, hit, mask)

@@ -3,8 +3,9 @@
 A method is an entry here: its name (the row key in sweeps and reports, and the name of its
 presets ``configs/train/<name>.yaml`` and ``configs/train/tiny/<name>.yaml``), its display
 label, the config values that make it this method (``defaults``: dotted keys, applied under
-the preset and the user's overrides) and the builder of its depth network. Table order =
-report order.
+the preset and the user's overrides; the presets must agree with them, tested), the builder of
+its depth network (which also checks what it needs of ``ModelConfig``: ``check_config``) and,
+optionally, loss terms of its own. Table order = report order.
 
 The depth network's contract (what `mcdp.system.SelfSupervisedSystem`, `mcdp.predict` and the
 warm start use) is the one of `mcdp.model.DepthModel`: ``__init__(ModelConfig)``, ``.stages``
@@ -12,10 +13,14 @@ warm start use) is the one of `mcdp.model.DepthModel`: ``__init__(ModelConfig)``
 oracle_gt_median=None, scales=None, refine_scales=None) -> {("disp" | "depth", stage, scale):
 (B*N, 1, h, w), "stages": [...], "scale": (B*N,)}``.
 
-To add a method: write its network in one module, then add one line to `METHODS` below (or
-call `register` from your own code before training)::
+A method's own loss terms (``loss_terms``): ``(outputs, batch, cfg) -> {name: scalar}``, each
+scalar already weighted; `mcdp.system.SelfSupervisedSystem` adds them to the step's loss and
+logs each under its name (the val loss that picks ``best.pt`` stays L_p + lambda L_con).
 
-    register(Method("toy", "Toy net", {"model.method": "toy"}, ToyDepth))
+To add a method: write its network (and loss terms) in one module, then add one line to
+`METHODS` below (or call `register` from your own code before training)::
+
+    register(Method("toy", "Toy net", {"model.method": "toy"}, ToyDepth, loss_terms=toy_loss))
 """
 from __future__ import annotations
 
@@ -26,7 +31,10 @@ import torch.nn as nn
 
 from corelib.configlib import ConfigError
 from mcdp.config import LossConfig, ModelConfig
-from mcdp.model import DepthModel
+from mcdp.model import DepthModel, MonoDepthModel
+
+#: a method's own loss terms: (outputs of the depth network, batch, RunConfig) -> {name: weighted scalar}
+LossTerms = Callable[[dict, dict, Any], dict]
 
 
 @dataclass(frozen=True)
@@ -35,6 +43,7 @@ class Method:
     label: str
     defaults: Mapping[str, Any] = field(default_factory=dict)
     build: Callable[[ModelConfig], nn.Module] = DepthModel
+    loss_terms: LossTerms | None = None
 
     @property
     def model(self) -> str:
@@ -55,7 +64,8 @@ def register(method: Method) -> Method:
 
 
 for _m in (
-    Method("mono2", "Mono2", {"model.method": "mono2", "model.refine_steps": 0, "loss.consistency_weight": 0.0}),
+    Method("mono2", "Mono2", {"model.method": "mono2", "model.refine_steps": 0, "loss.consistency_weight": 0.0},
+           MonoDepthModel),
     Method("mcdp_m0", "MCDP (m = 0)", {"model.method": "mcdp", "model.refine_steps": 0,
                                        "loss.consistency_weight": PAPER_LAMBDA}),
     Method("mcdp_m1_nocon", "MCDP (w/o L_con, m = 1)", {"model.method": "mcdp", "model.refine_steps": 1,
@@ -79,11 +89,23 @@ def label(name: str) -> str:
     return METHODS[name].label if name in METHODS else name
 
 
-def build_depth_model(cfg: ModelConfig) -> nn.Module:
-    """The depth network for ``cfg.method`` (the builder of the first method that trains it)."""
+def method_of(cfg: ModelConfig) -> Method:
+    """The method that trains ``cfg.method`` (the first registered one); ConfigError if none does."""
     for m in METHODS.values():
         if m.model == cfg.method:
-            return m.build(cfg)
+            return m
     models = sorted({m.model for m in METHODS.values()})
     raise ConfigError(f"model.method {cfg.method!r} is not a registered method's model (registered: "
                       f"{', '.join(models)}; see mcdp/methods.py)")
+
+
+def check_model(cfg: ModelConfig) -> None:
+    """ConfigError, naming the key, when ``cfg.method``'s network cannot be built from ``cfg`` (without building it)."""
+    check = getattr(method_of(cfg).build, "check_config", None)
+    if check is not None:
+        check(cfg)
+
+
+def build_depth_model(cfg: ModelConfig) -> nn.Module:
+    """The depth network for ``cfg.method`` (the builder of the first method that trains it)."""
+    return method_of(cfg).build(cfg)

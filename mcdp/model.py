@@ -21,13 +21,13 @@ previous weights.
 
 Stages are named "init", "refine1", ..., "refine{m}" (the evaluator adds
 "final" = the last one). Method ``mono2`` has one sigmoid channel and only
-"init". The shared pretraining (``model.mono_head``, `mcdp.pretrain`) adds a
+"init" (`MonoDepthModel`). The shared pretraining (``model.mono_head``, `study.pretrain`) adds a
 one-channel Monodepth2 head as the decoder's last channel: stages "mono" (that
 head) and "init" (the n bases at weights 1/n), trained together on one trunk.
 
 Example::
 
-    model = DepthModel(cfg.model)
+    model = DepthModel(cfg.model)   # MonoDepthModel for model.method=mono2 (mcdp.methods.build_depth_model)
     out = model(rgb, K, T_ego_cam, mask, nbr)      # shapes in DepthModel.forward
     depth = out["depth", "refine1", 0]             # (B*N, 1, H, W) metres
 """
@@ -37,6 +37,7 @@ import torch
 import torch.nn as nn
 import torch.nn.functional as F
 
+from corelib.configlib import ConfigError
 from mcdp.config import ModelConfig
 from mcdp.geometry import scale_intrinsics, warp_by_depth
 from mcdp.networks import DepthDecoder, PoseNet, ResnetEncoder, WeightNet
@@ -144,12 +145,34 @@ class DepthModel(nn.Module):
     """Depth network (+ bases and weight networks for MCDP), shared across cameras.
 
     Args:
-        cfg: `ModelConfig`.
+        cfg: `ModelConfig`; refused (`check_config`) when this network cannot be built from it.
+
+    ``n_out``: the decoder's depth channels: ``model.bases`` (MCDP), 1 (`MonoDepthModel`).
     """
+
+    #: the ``model.method`` this class builds (`mcdp.methods.build_depth_model` picks the class)
+    model = "mcdp"
+    #: n depth bases combined by weights (MCDP); False: Monodepth2's one sigmoid channel
+    has_bases = True
+
+    @classmethod
+    def check_config(cls, cfg: ModelConfig) -> None:
+        """ConfigError, naming the key, for a model config this network cannot be built from."""
+        if cfg.method != cls.model:
+            raise ConfigError(f"model.method={cfg.method}: {cls.__name__} builds model.method={cls.model}; build "
+                              "the network with mcdp.methods.build_depth_model")
+        if not cls.has_bases and cfg.refine_steps > 0:
+            raise ConfigError(f"model.refine_steps must be 0 for model.method={cfg.method} (refinement needs "
+                              "depth bases)")
+        if not cls.has_bases and cfg.mono_head:
+            raise ConfigError(f"model.mono_head (the shared pretraining's extra head) needs a model with depth "
+                              f"bases, not model.method={cfg.method}")
 
     def __init__(self, cfg: ModelConfig):
         super().__init__()
+        self.check_config(cfg)
         self.cfg = cfg
+        self.n_out = cfg.bases if self.has_bases else 1
         self.stages = (["mono"] if cfg.mono_head else []) + stage_names(cfg.refine_steps)
         self.slots = SLOTS[cfg.neighbours]
         self.encoder = ResnetEncoder(1, cfg.pretrained)
@@ -157,7 +180,7 @@ class DepthModel(nn.Module):
         if cfg.init_depth is not None:  # invert disp_to_depth at init_depth
             min_disp, max_disp = 1.0 / cfg.max_depth, 1.0 / cfg.min_depth
             init_sig = (1.0 / cfg.init_depth - min_disp) / (max_disp - min_disp)
-        n_dec = cfg.n_out + (1 if cfg.mono_head else 0)  # the mono head is the last channel
+        n_dec = self.n_out + (1 if cfg.mono_head else 0)  # the mono head is the last channel
         self.decoder = DepthDecoder(ResnetEncoder.num_ch_enc, n_out=n_dec, scales=cfg.scales, init_sigmoid=init_sig)
         c_levels = ResnetEncoder.num_ch_enc[:3]  # features at 1/2, 1/4, 1/8: 64, 64, 128 channels
         self.weight_nets = nn.ModuleList(
@@ -165,7 +188,7 @@ class DepthModel(nn.Module):
                 WeightNet(
                     c_levels,
                     len(self.slots),
-                    cfg.n_out,
+                    self.n_out,
                     c_red=cfg.weight_channels,
                     c_conv=cfg.weight_conv_channels,
                     c_fc=cfg.weight_fc,
@@ -215,7 +238,7 @@ class DepthModel(nn.Module):
         BN = B * N
         feats = self.encoder(rgb.reshape(BN, 3, H, W))
         bases = self.decoder(feats)  # {s: (BN, n, h, w)}
-        n = self.cfg.n_out
+        n = self.n_out
         mono = None
         if self.cfg.mono_head:  # pretraining: a Monodepth2 head beside the n bases, same trunk
             mono = {s: b[:, n:] for s, b in bases.items()}
@@ -294,6 +317,13 @@ class DepthModel(nn.Module):
             logits = logits + wnet(torch.cat(parts + valids, 1))
             emit(refine_stages[k], torch.softmax(logits, 1), scale)
         return out
+
+
+class MonoDepthModel(DepthModel):
+    """Monodepth2: the same encoder and decoder with one sigmoid depth channel, stage "init" only."""
+
+    model = "mono2"
+    has_bases = False
 
 
 class PoseModel(nn.Module):

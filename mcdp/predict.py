@@ -38,6 +38,7 @@ import torch
 import torch.nn.functional as F
 
 from corelib.atomic import atomic_write_bytes
+from corelib.configlib import config_to_dict
 from mcdp.data import RigReader, neighbour_table
 from mcdp.methods import build_depth_model
 from mcdp.runs import RunError, config_from_checkpoint, find_checkpoint, load_checkpoint, resolve_device
@@ -80,8 +81,8 @@ class Predictor:
         self.mask = torch.from_numpy(self.reader.mask).to(self.device)[None]
         self.oracle = self.cfg.scale.oracle
         self.stages = list(self.model.stages)
-        n = self.cfg.model.n_out if self.cfg.model.method == "mcdp" else 1
-        self.oracle_weights = bool(oracle_weights) and n > 1
+        self.n_out = getattr(self.model, "n_out", 1)  # depth bases of the network (1: nothing to weight)
+        self.oracle_weights = bool(oracle_weights) and self.n_out > 1
         self.oracle_range = (float(oracle_range[0]), float(oracle_range[1]))
         self._acc = {"images": 0, "weight_move": 0.0, "depth_change_m": 0.0, "oracle_weight_move": 0.0}
 
@@ -225,3 +226,16 @@ def write_prediction(pred: Predictor, seq: str, frame: int, out_dir: str | Path,
         write_ply(p, pts, cols)
         written.append(p)
     return written
+
+
+def run_record(pred: Predictor, run_dir: Path, data_path: str, rig_diff: list[str] | None) -> dict:
+    """The ``metrics["run"]`` record of an evaluated checkpoint (``mcdp eval`` and the sweep write it).
+
+    ``rig_diff``: `mcdp.runs.rig_differences` of the evaluated dataset (None: the run did not record its rig).
+    """
+    return {"run_dir": str(run_dir), "checkpoint": str(pred.ckpt_path), "step": pred.step,
+            "method": pred.cfg.model.method, "refine_steps": pred.cfg.model.refine_steps,
+            "bases": pred.n_out, "consistency_weight": pred.cfg.loss.consistency_weight,
+            "scale_source": pred.cfg.scale.source, "oracle": pred.oracle, "config": config_to_dict(pred.cfg),
+            "data": data_path, "rig_as_trained": None if rig_diff is None else not rig_diff,
+            "rig_differences": rig_diff}

@@ -16,8 +16,10 @@ Example::
 from __future__ import annotations
 
 import io
+import json
 from pathlib import Path
 
+import numpy as np
 import torch
 
 from corelib.atomic import atomic_write_bytes
@@ -123,3 +125,29 @@ def find_checkpoint(run_dir: str | Path, which: str = "auto") -> Path:
         if (ck / n).is_file():
             return ck / n
     raise RunError(f"run folder {run_dir} has no checkpoint {' or '.join(names)} in {ck}")
+
+
+# --------------------------------------------------------------------------- the rig a run was trained on
+def rig_differences(run: Path, ds) -> list[str] | None:
+    """How the dataset's rig (per camera: size, K, T_ego_cam) differs from the one the run was trained on
+    (``run.json``'s ``rig``; None for a run written before it was recorded): [] when it is the same."""
+    try:
+        trained = json.loads((run / "run.json").read_text()).get("rig")
+    except (OSError, ValueError, AttributeError):
+        return None
+    if not isinstance(trained, list):
+        return None
+    now = {c.name: c for c in ds.cameras}
+    diffs = [] if [c.get("name") for c in trained] == list(now) else \
+        [f"cameras {[c.get('name') for c in trained]} -> {list(now)}"]
+    for c in trained:
+        cam = now.get(c.get("name"))
+        if cam is None:
+            continue
+        if (c.get("width"), c.get("height")) != (cam.width, cam.height):
+            diffs.append(f"{cam.name} size {c.get('width')}x{c.get('height')} -> {cam.width}x{cam.height}")
+        for key, new in (("K", cam.K), ("T_ego_cam", cam.T_ego_cam)):
+            old = np.asarray(c.get(key), np.float64)
+            if old.shape != new.shape or not np.allclose(old, new, rtol=1e-6, atol=1e-6):
+                diffs.append(f"{cam.name} {key}")
+    return diffs

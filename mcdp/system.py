@@ -1,6 +1,30 @@
 """One self-supervised training step, in Monodepth2's order: inputs -> predict poses -> predict
-depth -> warp -> losses (`SelfSupervisedSystem.process_batch`); the loss is documented in
-`mcdp.trainer`'s module docstring (paper eq. 9).
+depth -> warp -> losses (`SelfSupervisedSystem.process_batch`). Each term is a tested function of
+`mcdp.losses`; this module only decides which pixels, stages and scales they see.
+
+Loss (paper eq. 9), with masks excluded from every mean::
+
+    L = sum over stages st in (init, refine1..m) of [ L_p(st) + lambda * L_con(st) ]
+        + velocity_weight * L_vel                        (scale.source = velocity)
+    L_p(st) = 1/S sum_s [ reprojection(st, s) + smoothness_weight * smooth(st, s) / 2^s ]
+    (s over the 4 decoder scales for "init"; over the first loss.refine_scales,
+    default full resolution only, for refined stages: see `LossConfig`)
+
+- reprojection: 0.85 SSIM + 0.15 L1, per-pixel minimum over frames t-1/t+1,
+  Monodepth2 auto-masking; a source pixel that lands on the ego body of the
+  source image is invalid; ego-body target pixels never count. With
+  ``loss.out_of_view=identity`` (default) a pixel no source sees scores its
+  identity error and the mean is over all scene pixels
+  (`mcdp.losses.identity_floored_error`).
+- the shared pretraining's stage "mono" (``model.mono_head``) is a stage like
+  "init": all decoder scales, no refinement.
+- L_con: every adjacent camera pair in both directions; the source camera's
+  full-resolution depth is forward-projected into the target camera with a
+  z-buffer; L1 in metres on pixels both cameras see (outside both ego masks).
+- L_vel (PackNet): | ||t_pred|| - ||t_odom|| | per camera and source frame, with
+  the ego odometry motion transformed into each camera.
+- a method's own terms (`mcdp.methods.Method.loss_terms`, none for MCDP and Mono2), added
+  weighted as the method returns them.
 
 Example::
 
@@ -16,16 +40,8 @@ import torch.nn.functional as F
 from mcdp.config import RunConfig
 from mcdp.data import directed_pairs, neighbour_table
 from mcdp.geometry import splat_depth, warp_by_depth
-from mcdp.losses import (
-    consistency_loss,
-    identity_floored_error,
-    masked_mean,
-    min_reprojection,
-    photometric_error,
-    smoothness_loss,
-    used_pixels,
-)
-from mcdp.methods import build_depth_model
+from mcdp.losses import consistency_loss, photometric_error, reprojection_loss, smoothness_loss
+from mcdp.methods import method_of
 from mcdp.model import PoseModel, is_refined, odometry_camera_motion, resize_mask_to
 
 
@@ -77,7 +93,9 @@ class SelfSupervisedSystem(torch.nn.Module):
     def __init__(self, cfg: RunConfig, neighbours, n_cams: int):
         super().__init__()
         self.cfg = cfg
-        self.depth = build_depth_model(cfg.model)
+        method = method_of(cfg.model)
+        self.depth = method.build(cfg.model)
+        self.loss_terms = method.loss_terms  # the method's own terms (`mcdp.methods.Method`), or None
         self.pose = PoseModel(cfg.model.pretrained) if cfg.scale.source != "odometry" else None
         self.register_buffer("nbr", neighbour_table(neighbours, n_cams), persistent=False)
         tgt, src = directed_pairs(neighbours)
@@ -149,9 +167,8 @@ class SelfSupervisedSystem(torch.nn.Module):
         lam = cfg.loss.consistency_weight
         need_con = lam > 0 if need_con is None else need_con
 
-        ident = None
-        mono2_mask = cfg.loss.out_of_view == "identity"
-        if cfg.loss.automask or mono2_mask:
+        ident = None  # the identity error does not depend on depth: once per batch, not per stage and scale
+        if cfg.loss.automask or cfg.loss.out_of_view == "identity":
             with torch.no_grad():
                 ident = torch.cat([photometric_error(sc, target, cfg.loss.ssim_alpha) for sc in sources], 1)
                 ident = ident.min(1, keepdim=True).values  # (BN, 1, H, W)
@@ -162,21 +179,13 @@ class SelfSupervisedSystem(torch.nn.Module):
             st_scales = scales[: cfg.loss.refine_scales] if is_refined(stage) else scales
             for s in st_scales:
                 depth = outputs["depth", stage, s].float()
-                errors, valid = [], []
+                warped, valid = [], []
                 for o, sm in zip((-1, 1), src_and_mask):
                     w, v = warp_by_depth(sm, depth, K, K, poses[o], padding_mode="border")
-                    errors.append(photometric_error(w[:, :C], target, cfg.loss.ssim_alpha))
-                    valid.append(v * (w[:, C:] > 0.99).to(v.dtype))
-                # == reprojection_loss(..., automask=True), with the identity error computed
-                # once per batch instead of once per stage and scale (it does not depend on depth);
-                if mono2_mask:
-                    per_pixel, used = identity_floored_error(errors, valid, ident, cfg.loss.automask)
-                    rep = masked_mean(per_pixel, mask)
-                    used = used * mask
-                else:
-                    per_pixel, seen = min_reprojection(errors, valid)
-                    used = used_pixels(per_pixel, seen, ident, mask)
-                    rep = masked_mean(per_pixel, used)
+                    warped.append(w[:, :C])
+                    valid.append(v * (w[:, C:] > 0.99).to(v.dtype))  # not onto the source's ego body
+                rep, _, used = reprojection_loss(target, warped, valid, None, mask, cfg.loss.automask,
+                                                 cfg.loss.ssim_alpha, cfg.loss.out_of_view, ident=ident)
                 smooth = smoothness_loss(outputs["disp", stage, s].float(), img_s[s], mask_s[s])
                 lp_sum = lp_sum + rep + cfg.loss.smoothness_weight * smooth / (2**s)
                 if s == 0:
@@ -194,6 +203,10 @@ class SelfSupervisedSystem(torch.nn.Module):
                     stage_loss = stage_loss + lam * lcon
             losses[f"stage/{stage}"] = stage_loss.detach()
             total = total + stage_loss
+        if self.loss_terms is not None:
+            for name, term in self.loss_terms(outputs, batch, cfg).items():
+                losses[name] = term.detach()
+                total = total + term
         losses["loss"] = total
         return losses
 
@@ -218,6 +231,3 @@ class SelfSupervisedSystem(torch.nn.Module):
             valid_src=m[:, src].reshape(B * P, 1, H, W),
         )
         return consistency_loss(d[:, tgt].reshape(B * P, 1, H, W), d_hat, hit, m[:, tgt].reshape(B * P, 1, H, W))
-
-
-# --------------------------------------------------------------------------- trainer

@@ -4,27 +4,8 @@ One step follows Monodepth2's stages: ``process_batch -> predict_poses ->
 compute_losses`` (the warps of ``generate_images_pred`` are made inside the
 loss loop so that no stage keeps all its warped images alive).
 
-Loss (paper eq. 9), with masks excluded from every mean::
-
-    L = sum over stages st in (init, refine1..m) of [ L_p(st) + lambda * L_con(st) ]
-        + velocity_weight * L_vel                        (scale.source = velocity)
-    L_p(st) = 1/S sum_s [ reprojection(st, s) + smoothness_weight * smooth(st, s) / 2^s ]
-    (s over the 4 decoder scales for "init"; over the first loss.refine_scales,
-    default full resolution only, for refined stages: see `LossConfig`)
-
-- reprojection: 0.85 SSIM + 0.15 L1, per-pixel minimum over frames t-1/t+1,
-  Monodepth2 auto-masking; a source pixel that lands on the ego body of the
-  source image is invalid; ego-body target pixels never count. With
-  ``loss.out_of_view=identity`` (default) a pixel no source sees scores its
-  identity error and the mean is over all scene pixels
-  (`mcdp.losses.identity_floored_error`).
-- the shared pretraining's stage "mono" (``model.mono_head``) is a stage like
-  "init": all decoder scales, no refinement.
-- L_con: every adjacent camera pair in both directions; the source camera's
-  full-resolution depth is forward-projected into the target camera with a
-  z-buffer; L1 in metres on pixels both cameras see (outside both ego masks).
-- L_vel (PackNet): | ||t_pred|| - ||t_odom|| | per camera and source frame, with
-  the ego odometry motion transformed into each camera.
+The loss (paper eq. 9) is specified in `mcdp.system`'s module docstring, beside the step that
+computes it.
 
 Guards: a NaN/inf loss or gradient (before the update) or validation loss stops
 training with `TrainingDiverged` naming the step (checkpoints stay the last finite

@@ -1,6 +1,6 @@
 """Start a run's depth network from a shared pretraining (``model.init_from``).
 
-The pretraining (`mcdp.pretrain`) trains one encoder + decoder trunk with two heads:
+The pretraining (`study.pretrain`) trains one encoder + decoder trunk with two heads:
 n basis channels and, as the decoder's last channel, a one-channel Monodepth2 head.
 `warm_start` copies the encoder and the decoder trunk into a fresh `DepthModel`; the
 output convolutions (``decoder.dispconv.*``) come from the head the method uses
@@ -53,8 +53,8 @@ def warm_start(model, path: str | Path) -> dict:
     n_src = int(obj["model"].get("bases", -1))
     if not obj["model"].get("mono_head"):
         raise WarmStartError(f"model.init_from: {p} was not trained with the mono head (model.mono_head=true)")
-    mono = model.cfg.method == "mono2"
-    n_dst = model.cfg.n_out
+    mono = not model.has_bases  # Monodepth2's one channel takes the pretraining's mono head
+    n_dst = model.n_out
     if not mono and n_dst != n_src:
         raise WarmStartError(
             f"model.init_from: layer decoder.dispconv: the pretraining {p} has {n_src} bases, this run "

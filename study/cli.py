@@ -1,8 +1,10 @@
-"""The `mcdp` command: the method's commands (`mcdp.cli`: train, eval, predict, pretrain) and the
-study's `sweep`, assembled here at the top of the house so that `mcdp` never imports `study`.
+"""The `mcdp` command: the method's commands (`mcdp.cli`: train, eval, predict) and the study's
+`pretrain` and `sweep` (they render worlds), assembled here at the top of the house so that `mcdp`
+never imports `study`. ``python -m mcdp`` runs this too (`mcdp.__main__`).
 
 Example::
 
+    mcdp pretrain configs/pretrain/tiny.yaml --out pretrain/tiny [key=value ...]   # cached by its config hash
     mcdp sweep configs/sweep/ci.yaml --out SWEEP [key=value ...]
 """
 from __future__ import annotations
@@ -10,10 +12,30 @@ from __future__ import annotations
 import argparse
 import sys
 
+from corelib import exitcodes
 from mcdp import cli as mcdp_cli
-from study.config import load_sweep_config, resolve_path
+from corelib.configlib import resolve_path
+from study.config import load_sweep_config
 from study.engines import EXIT_RUN_FAILED
+from study.pretrain import load_pretrain_config, run_pretrain
 from study.sweep import run_sweep
+
+
+def add_pretrain_parser(subparsers) -> argparse.ArgumentParser:
+    p = subparsers.add_parser("pretrain", help="shared self-supervised pretraining (cached by its config hash)",
+                              description="shared self-supervised pretraining: render its world, train both heads")
+    p.add_argument("config", help="pretraining config YAML, e.g. configs/pretrain/tiny.yaml")
+    p.add_argument("--out", required=True, help="pretraining folder (reused when its config hash matches)")
+    p.add_argument("--no-progress", action="store_true")
+    p.add_argument("overrides", nargs="*", help="overrides of the pretraining config, e.g. 'train_overrides=[train.steps=50]'")
+    p.set_defaults(_run=run_pretrain_command)
+    return p
+
+
+def run_pretrain_command(args: argparse.Namespace) -> int:
+    """Run the ``pretrain`` subcommand (a cached pretraining returns at once); 0 on success."""
+    run_pretrain(load_pretrain_config(args.config, args.overrides), args.out, progress=not args.no_progress)
+    return 0
 
 
 def add_sweep_parser(subparsers) -> argparse.ArgumentParser:
@@ -72,12 +94,12 @@ def run_sweep_command(args: argparse.Namespace) -> int:
                         config_source=source + (f" + --engine {engine}" if engine else ""))
     if results["counters"].get("failed"):
         return EXIT_RUN_FAILED
-    return 3 if results["counters"].get("diverged") else 0
+    return exitcodes.DIVERGED if results["counters"].get("diverged") else exitcodes.OK
 
 
 def main(argv: list[str] | None = None) -> int:
-    """The `mcdp` console script: `mcdp.cli.main` with the `sweep` subcommand added."""
-    return mcdp_cli.main(argv, extra_commands=(add_sweep_parser,))
+    """The `mcdp` console script: `mcdp.cli.main` with the `pretrain` and `sweep` subcommands added."""
+    return mcdp_cli.main(argv, extra_commands=(add_pretrain_parser, add_sweep_parser))
 
 
 if __name__ == "__main__":

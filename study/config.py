@@ -13,12 +13,10 @@ from typing import Literal
 
 from pydantic import Field, field_validator, model_validator
 
-from corelib.configlib import ConfigError, StrictModel, config_to_dict, load_config
-from mcdp.methods import METHODS, PAPER_METHODS
-from mcdp.pretrain import PretrainConfig
+from corelib.configlib import ConfigError, StrictModel, config_to_dict, load_config, resolve_path
+from mcdp.methods import METHODS, PAPER_METHODS, check_model
+from study.pretrain import PretrainConfig
 
-
-ROOT = Path(__file__).resolve().parents[1]
 
 
 SPLIT = "test"
@@ -63,7 +61,7 @@ class SweepConfig(StrictModel):
         machine's cores); unused when ``RAY_ADDRESS`` names a cluster to join.
     device: training / inference device.
     preview: write a preview sheet of one rig at the smallest and largest overlap.
-    pretrain: a shared self-supervised pretraining (`mcdp.pretrain.PretrainConfig`) that every
+    pretrain: a shared self-supervised pretraining (`study.pretrain.PretrainConfig`) that every
         run starts from (``model.init_from``), made once into ``SWEEP/pretrain/<hash>/`` and
         reused by its config hash; null = every run from scratch.
     keep_last: keep every run's ``checkpoints/last.pt`` (weights + Adam state: about three
@@ -155,17 +153,6 @@ def overlap_key(o: float) -> str:
     return f"overlap_{o:.2f}"
 
 
-def resolve_path(p: str | Path, kind: str) -> Path:
-    """A relative path: to the working directory if it exists there, else to the project root."""
-    p = Path(p)
-    if p.is_absolute() or p.exists():
-        return p
-    alt = ROOT / p
-    if alt.exists():
-        return alt
-    raise ConfigError(f"{kind} {p} does not exist (looked in {Path.cwd()} and {ROOT})")
-
-
 def load_sweep_config(path: str | Path | None, overrides=(), values: dict | None = None) -> SweepConfig:
     """A preset, then ``key=value`` overrides, then `values` (the command line's own flags, e.g. ``--engine``)."""
     return load_config(SweepConfig, path, overrides, values)
@@ -199,7 +186,7 @@ def check_nested_configs(cfg: SweepConfig) -> None:
     where = "pretrain"
     try:
         if cfg.pretrain is not None:
-            from mcdp.pretrain import resolved_configs
+            from study.pretrain import resolved_configs
 
             resolved_configs(cfg.pretrain)
         where = "data_overrides"
@@ -209,7 +196,7 @@ def check_nested_configs(cfg: SweepConfig) -> None:
         init_from = "pretrained.pt" if cfg.pretrain is not None else None
         for method in cfg.methods:
             for seed in cfg.seeds:
-                run_config_for(cfg, method, seed, init_from)
+                check_model(run_config_for(cfg, method, seed, init_from)[0].model)
     except ConfigError as exc:
         raise ConfigError(f"sweep {where}: {exc}") from None
 

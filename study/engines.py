@@ -30,13 +30,14 @@ import time
 import traceback
 from pathlib import Path
 
+from corelib import exitcodes
 from corelib.cluster import error_line
 from corelib.configlib import ConfigError
 from study.config import SweepConfig, run_config_for
 from study.stages import Counters, run_dir_for, run_stage
 
 
-EXIT_RUN_FAILED = 5  # `mcdp sweep`: some run failed (engine ray; the report lists it)
+EXIT_RUN_FAILED = exitcodes.RUN_FAILED  # `mcdp sweep`: some run failed (engine ray; the report lists it)
 
 
 def run_all(cfg: SweepConfig, todo: list, out: Path, counters: Counters, log, progress: bool,

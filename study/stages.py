@@ -173,7 +173,7 @@ def pretrain_stage(cfg: SweepConfig, sweep_dir: Path, progress: bool, log) -> di
     """Make (or reuse) the sweep's shared pretraining; its record with ``weights`` (the path runs start from)."""
     if cfg.pretrain is None:
         return None
-    from mcdp.pretrain import WEIGHTS, resolved_configs, run_pretrain
+    from study.pretrain import WEIGHTS, resolved_configs, run_pretrain
 
     _, _, h = resolved_configs(cfg.pretrain)
     pdir = sweep_dir / "pretrain" / h[:12]
@@ -195,7 +195,8 @@ def run_dir_for(sweep_dir: Path, overlap: float, method: str, seed: int) -> Path
 def run_stage(cfg: SweepConfig, overlap: float, data: dict, method: str, seed: int, sweep_dir: Path,
               counters: Counters, log, progress: bool, init_from: str | None = None) -> dict:
     """Train (or reuse / resume) and evaluate one (overlap, method, seed); returns its result row."""
-    from mcdp.runs import RunError
+    from mcdp.predict import run_record
+    from mcdp.runs import RunError, rig_differences
     from mcdp.trainer import Trainer, TrainingDiverged
     from synth.dataset import open_dataset
 
@@ -269,7 +270,7 @@ def run_stage(cfg: SweepConfig, overlap: float, data: dict, method: str, seed: i
     else:
         t0 = time.perf_counter()
         metrics, metrics_cut = evaluate_run(cfg, run_dir, ds, ecfg, progress, log, tag)
-        metrics["run"] = run_record(metrics["_predictor"], run_dir, data["path"])
+        metrics["run"] = run_record(metrics["_predictor"], run_dir, data["path"], rig_differences(run_dir, ds))
         metrics.pop("_predictor")
         metrics["sweep"] = {"eval_key": key, "overlap": overlap, "method": method, "seed": seed}
         if metrics_cut is not None:
@@ -308,15 +309,6 @@ def run_stage(cfg: SweepConfig, overlap: float, data: dict, method: str, seed: i
     return row
 
 
-def run_record(pred, run_dir: Path, data_path: str) -> dict:
-    """The ``metrics["run"]`` record of an evaluated checkpoint."""
-    return {"run_dir": str(run_dir), "checkpoint": str(pred.ckpt_path), "step": pred.step,
-            "method": pred.cfg.model.method, "refine_steps": pred.cfg.model.refine_steps,
-            "bases": pred.cfg.model.n_out, "consistency_weight": pred.cfg.loss.consistency_weight,
-            "scale_source": pred.cfg.scale.source, "oracle": pred.oracle, "config": config_to_dict(pred.cfg),
-            "data": data_path}
-
-
 def evaluate_run(cfg: SweepConfig, run_dir: Path, ds, ecfg, progress: bool, log, tag: str) -> tuple[dict, dict | None]:
     """Evaluate one run's checkpoint: as trained (+ the ORACLE-weights stage of a run with bases),
     and, for a run with refinement steps, a second time with its neighbours cut at inference.
@@ -335,7 +327,7 @@ def evaluate_run(cfg: SweepConfig, run_dir: Path, ds, ecfg, progress: bool, log,
     metrics["refinement"] = pred.refinement
     metrics["_predictor"] = pred
     metrics_cut = None
-    if pred.cfg.model.method == "mcdp" and pred.cfg.model.refine_steps > 0:
+    if pred.cfg.model.refine_steps > 0:
         cut = Predictor(run_dir, ds, cfg.checkpoint, cfg.device, cut=True)
         log(f"{tag}: evaluating it again with the neighbours cut at inference")
         metrics_cut = evaluate(ds, cut.predict, SPLIT, ecfg, progress=progress)

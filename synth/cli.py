@@ -67,9 +67,10 @@ def _parser() -> argparse.ArgumentParser:
 
 def main(argv: list[str] | None = None) -> int:
     from corelib.configlib import ConfigError
-    from synth.files import DatasetError
+    from corelib import exitcodes
+    from synth.files import DatasetError, OutputFolderError
+    from synth.gl_context import RenderBackendError
     from synth.nuscenes_export import ExportError
-    from synth.render import OutputFolderError
 
     parser = _parser()
     args, rest = parser.parse_known_args(argv)
@@ -117,9 +118,12 @@ def main(argv: list[str] | None = None) -> int:
             raise
         print(f"synth {args.cmd}: error: {disk_full_message(exc)}", file=sys.stderr)
         return 4
-    except RuntimeError as exc:  # back end missing, etc.
+    except RenderBackendError as exc:
         print(f"synth {args.cmd}: error: {exc}", file=sys.stderr)
-        return 3
+        return exitcodes.NO_BACKEND
+    except RuntimeError as exc:
+        print(f"synth {args.cmd}: error: {exc}", file=sys.stderr)
+        return exitcodes.FAILED
     return 1
 
 

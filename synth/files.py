@@ -24,6 +24,10 @@ class DatasetError(RuntimeError):
     """The dataset on disk is missing, incomplete, of another version or corrupt; the message names the file."""
 
 
+class OutputFolderError(RuntimeError):
+    """The output folder holds something else (another dataset or unrelated files)."""
+
+
 def write_json(path: str | Path, obj) -> None:
     """JSON written whole or not at all (`corelib.atomic`)."""
     atomic_write_json(path, obj)

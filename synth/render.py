@@ -34,17 +34,13 @@ from synth.config import DataConfig
 from corelib.configlib import build_config, config_hash, config_to_dict
 from corelib.hashing import sha256_file
 from synth.dataset import GENERATOR, INTEGRITY, MANIFEST, SCHEMA_VERSION, integrity_record
-from synth.files import frame_stem, read_json, write_depth_exr, write_json, write_png
+from synth.files import OutputFolderError, frame_stem, read_json, write_depth_exr, write_json, write_png  # noqa: F401 (re-exported)
 from synth.lighting import draw_sequence_lighting, frame_gains
 from synth.overlap import overlap_fraction_counts
 from synth.rig import Rig, build_rig, ego_body_mesh
 
 MARKER_DIR = ".synth"
 RECORD = "record.json"
-
-
-class OutputFolderError(RuntimeError):
-    """The output folder holds something else (another dataset or unrelated files)."""
 
 
 def sequence_id(index: int) -> str:

@@ -188,13 +188,13 @@ def _fake_pretraining(path: Path, bases: int = 8, mono_head: bool = True) -> dic
 
 
 def test_warm_start_copies_the_trunk_and_the_matching_head(tmp_path):
-    from mcdp.model import DepthModel
+    from mcdp.model import DepthModel, MonoDepthModel
     from corelib.hashing import sha256_file
     from mcdp.warmstart import warm_start
 
     p = tmp_path / "pretrained.pt"
     src = _fake_pretraining(p)
-    mono = DepthModel(cfg_of("mono2").model)
+    mono = MonoDepthModel(cfg_of("mono2").model)
     rec = warm_start(mono, p)
     assert rec["sha256"] == sha256_file(p) and rec["step"] == 7 and rec["path"] == str(p.resolve())
     sd = mono.state_dict()
@@ -230,10 +230,10 @@ def test_warm_start_refuses_another_architecture_naming_the_layer(tmp_path, over
 
 
 def test_warm_start_refuses_files_that_are_not_a_pretraining(tmp_path):
-    from mcdp.model import DepthModel
+    from mcdp.model import MonoDepthModel
     from mcdp.warmstart import WarmStartError, warm_start
 
-    model = DepthModel(cfg_of("mono2").model)
+    model = MonoDepthModel(cfg_of("mono2").model)
     with pytest.raises(WarmStartError, match="does not exist"):
         warm_start(model, tmp_path / "missing.pt")
     junk = tmp_path / "junk.pt"

@@ -173,10 +173,19 @@ def test_consistency_loss_hand_value():
     assert loss.item() == pytest.approx((0.5 + 2.0) / 2)
     loss.backward()
     assert torch.allclose(d.grad, torch.tensor([[[[-0.5, 0.0], [0.5, 0.0]]]]))
-    assert L.ConsistencyLoss()(d, s, torch.zeros_like(hit), mask).item() == 0.0
+    assert L.consistency_loss(d, s, torch.zeros_like(hit), mask).item() == 0.0
 
 
-def test_modules_match_functions():
-    x, y = rand(1, 3, 5, 5), rand(1, 3, 5, 5, seed=1)
-    assert torch.equal(L.PhotometricError()(x, y), L.photometric_error(x, y))
-    assert torch.equal(L.SSIMDissimilarity()(x, y), L.ssim_dissimilarity(x, y))
+@pytest.mark.parametrize("out_of_view", ["identity", "border"])
+def test_reprojection_with_a_given_identity_error_equals_the_computed_one(out_of_view):
+    """The training step passes the identity error it computed once per batch (`ident=`)."""
+    tgt, src, w = rand(2, 3, 8, 8, seed=0), rand(2, 3, 8, 8, seed=1), rand(2, 3, 8, 8, seed=2)
+    valid = (rand(2, 1, 8, 8, seed=3) > 0.3).float()
+    mask = torch.ones(2, 1, 8, 8)
+    ref = L.reprojection_loss(tgt, [w], [valid], [src], mask, out_of_view=out_of_view)
+    ident = L.photometric_error(src, tgt)
+    got = L.reprojection_loss(tgt, [w], [valid], None, mask, out_of_view=out_of_view, ident=ident)
+    for a, b in zip(ref, got):
+        assert torch.equal(a, b)
+    with pytest.raises(ValueError, match="ident must have shape"):
+        L.reprojection_loss(tgt, [w], [valid], None, mask, ident=ident[:, :, :4])

@@ -1,5 +1,5 @@
-"""The method registry (mcdp/methods.py): a new method is one module plus one registry line; the
-built-in presets agree with their registry entries."""
+"""The method registry (mcdp/methods.py): a new method (its network and its own loss term) is one
+module plus one registry line; the built-in presets agree with their registry entries."""
 from __future__ import annotations
 
 from pathlib import Path
@@ -9,9 +9,10 @@ import torch
 import torch.nn as nn
 import torch.nn.functional as F
 
-from corelib.configlib import ConfigError, load_config, read_yaml
+from corelib.configlib import ConfigError, config_to_dict, load_config, read_yaml
 from mcdp import methods
 from mcdp.config import ModelConfig, RunConfig
+from mcdp.data import collate
 from mcdp.model import disp_to_depth
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -37,10 +38,20 @@ class ToyDepth(nn.Module):
         return out
 
 
+TOY_WEIGHT = 1e-2
+
+
+def toy_loss(outputs: dict, batch: dict, cfg: RunConfig) -> dict:
+    """The toy method's own loss term: a pull of the full-resolution disparity towards its mean (weighted)."""
+    disp = outputs["disp", "init", 0]
+    return {"toy/flatness": TOY_WEIGHT * (disp - disp.mean()).abs().mean()}
+
+
 @pytest.fixture
 def toy():
     m = methods.register(methods.Method("toy", "Toy net", {"model.method": "toy", "model.refine_steps": 0,
-                                                           "loss.consistency_weight": 0.0}, ToyDepth))
+                                                           "loss.consistency_weight": 0.0}, ToyDepth,
+                                        loss_terms=toy_loss))
     yield m
     methods.METHODS.pop("toy")
 
@@ -62,6 +73,14 @@ def test_a_registered_toy_method_trains_two_steps_and_evaluates(toy, tiny_datase
     finally:
         tr.close()
     assert summary["steps"] == 2 and all(torch.isfinite(torch.tensor(summary["losses"])))
+    # its own loss term is in the step's loss, logged under its name
+    batch = next(iter(torch.utils.data.DataLoader(tr.train_set, batch_size=1, collate_fn=collate)))
+    with torch.no_grad():
+        out, losses = tr.system.process_batch(batch, 0, train=False)
+    assert losses["toy/flatness"].item() > 0
+    assert losses["loss"].item() == pytest.approx(
+        losses["stage/init"].item() + losses["toy/flatness"].item() + cfg.scale.velocity_weight
+        * losses["pose/velocity"].item(), rel=1e-6)
     pred = Predictor(tmp_path / "run", ds, "last")
     metrics = evaluate(ds, pred.predict, "test", EvalConfig(), progress=False)
     assert metrics["stages"]["final"]["median"]["mean"]["abs_rel"] > 0
@@ -83,7 +102,15 @@ def test_an_unregistered_model_is_refused_naming_the_key():
 @pytest.mark.parametrize("folder", ["configs/train", "configs/train/tiny"])
 @pytest.mark.parametrize("name", methods.PAPER_METHODS)
 def test_each_preset_agrees_with_its_registry_entry(folder, name):
-    data = read_yaml(ROOT / folder / f"{name}.yaml")
+    """A preset resolved on its own (``mcdp train PRESET``) is the config the sweep resolves for its method
+    (the registry's defaults under it): every registry value holds in it, whether the preset writes it
+    (model.method, refine_steps) or inherits it from the config's defaults (lambda)."""
+    path = ROOT / folder / f"{name}.yaml"
+    alone = config_to_dict(load_config(RunConfig, path))
+    assert alone == config_to_dict(load_config(RunConfig, path, base=dict(methods.METHODS[name].defaults)))
     for key, value in methods.METHODS[name].defaults.items():
         section, leaf = key.split(".")
-        assert data.get(section, {}).get(leaf, value) == value, f"{folder}/{name}.yaml: {key}"
+        assert alone[section][leaf] == value, f"{folder}/{name}.yaml: {key}"
+    assert "consistency_weight" not in read_yaml(path).get("loss", {}) or \
+        methods.METHODS[name].defaults["loss.consistency_weight"] != methods.PAPER_LAMBDA, \
+        f"{folder}/{name}.yaml writes lambda again: it is LossConfig's default"

@@ -12,6 +12,7 @@ from mcdp.data import directed_pairs, neighbour_table
 from mcdp.losses import reprojection_loss
 from mcdp.model import (
     DepthModel,
+    MonoDepthModel,
     PoseModel,
     combine_bases,
     disp_to_depth,
@@ -116,11 +117,15 @@ def test_m_refinements_give_m_plus_one_depth_maps(m):
 
 
 def test_mono2_has_one_channel_and_no_refinement():
-    model = DepthModel(build_config(ModelConfig, {"method": "mono2"}))
+    model = MonoDepthModel(build_config(ModelConfig, {"method": "mono2"}))
     assert model.decoder.dispconv[0].out_channels == 1
     assert len(model.weight_nets) == 0 and model.stages == ["init"]
+    from mcdp.methods import check_model
+
     with pytest.raises(Exception, match="refine_steps must be 0"):
-        build_config(ModelConfig, {"method": "mono2", "refine_steps": 1})
+        check_model(build_config(ModelConfig, {"method": "mono2", "refine_steps": 1}))
+    with pytest.raises(Exception, match="mono_head .* needs a model with depth bases"):
+        check_model(build_config(ModelConfig, {"method": "mono2", "mono_head": True}))
 
 
 def test_gradients_reach_every_weight_network_through_the_full_loss():

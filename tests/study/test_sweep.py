@@ -12,7 +12,7 @@ import pytest
 from corelib.configlib import ConfigError
 from study import cli as study_cli
 from study import config as sweep
-from mcdp.pretrain import load_pretrain_config, resolved_configs
+from study.pretrain import load_pretrain_config, resolved_configs
 from study.stages import STATUS
 
 

@@ -1,5 +1,9 @@
 """Shared self-supervised pretraining: this project's stand-in for the paper's ImageNet initialisation.
 
+It renders a world of its own (`synth.render`) and trains on it (`mcdp.trainer`): orchestration, so it
+lives here in the top layer, beside the sweep that uses it; the method library only reads its file
+(`mcdp.warmstart`).
+
 One monocular, self-supervised training (no ground truth, no cross-camera term) on
 a world of its own (its data config has its own seed, so no street of it is in a
 sweep's test split) trains an encoder and decoder trunk with two heads: n depth
@@ -25,7 +29,6 @@ interrupted pretraining resumes (render and training both resume).
 """
 from __future__ import annotations
 
-import argparse
 import json
 import sys
 import time
@@ -35,11 +38,10 @@ from typing import Callable
 from pydantic import Field
 
 from corelib.atomic import atomic_write_json
-from corelib.configlib import ConfigError, StrictModel, config_hash, config_to_dict, load_config
+from corelib.configlib import ConfigError, StrictModel, config_hash, config_to_dict, load_config, resolve_path
 
 MARKER = "pretrain.json"
 WEIGHTS = "pretrained.pt"
-ROOT = Path(__file__).resolve().parents[1]
 
 
 class PretrainConfig(StrictModel):
@@ -57,22 +59,15 @@ class PretrainConfig(StrictModel):
     workers: int = Field(2, ge=1, le=256)
 
 
-def _resolve(p: str) -> Path:
-    q = Path(p)
-    if q.is_absolute() or q.exists():
-        return q
-    if (ROOT / q).exists():
-        return ROOT / q
-    raise ConfigError(f"{p} does not exist (looked in {Path.cwd()} and {ROOT})")
-
-
 def resolved_configs(cfg: PretrainConfig):
     """(DataConfig, RunConfig, hash) of a pretraining; the hash names what it learns from and how."""
     from mcdp.config import RunConfig
+    from mcdp.methods import check_model
     from synth.config import load_data_config
 
-    dcfg = load_data_config(_resolve(cfg.data), cfg.data_overrides)
-    rcfg = load_config(RunConfig, _resolve(cfg.train_preset), cfg.train_overrides)
+    dcfg = load_data_config(resolve_path(cfg.data, "data preset"), cfg.data_overrides)
+    rcfg = load_config(RunConfig, resolve_path(cfg.train_preset, "training preset"), cfg.train_overrides)
+    check_model(rcfg.model)
     if not rcfg.model.mono_head:
         raise ConfigError(f"{cfg.train_preset}: a pretraining needs model.mono_head: true (both heads)")
     if rcfg.model.init_from is not None:
@@ -146,7 +141,7 @@ def _pretrain(cfg: PretrainConfig, out: Path, dcfg, rcfg, h: str, progress: bool
     render_s = time.perf_counter() - t0
     ds = open_dataset(str(out / "data"))
     t1 = time.perf_counter()
-    log(f"[pretrain] training {rcfg.train.steps} steps ({rcfg.model.n_out} bases + mono head) -> {out / 'run'}")
+    log(f"[pretrain] training {rcfg.train.steps} steps ({rcfg.model.bases} bases + mono head) -> {out / 'run'}")
     trainer = Trainer(rcfg, ds, out / "run", progress=progress)
     try:
         trainer.train()
@@ -168,15 +163,3 @@ def _pretrain(cfg: PretrainConfig, out: Path, dcfg, rcfg, h: str, progress: bool
 
 def load_pretrain_config(path: str | Path | None, overrides=()) -> PretrainConfig:
     return load_config(PretrainConfig, path, overrides)
-
-
-def add_pretrain_parser(subparsers) -> argparse.ArgumentParser:
-    p = subparsers.add_parser("pretrain", help="shared self-supervised pretraining (cached by its config hash)",
-                              description=__doc__.split("\n")[0])
-    p.add_argument("config", help="pretraining config YAML, e.g. configs/pretrain/tiny.yaml")
-    p.add_argument("--out", required=True, help="pretraining folder (reused when its config hash matches)")
-    p.add_argument("--no-progress", action="store_true")
-    p.add_argument("overrides", nargs="*", help="overrides of the pretraining config, e.g. 'train_overrides=[train.steps=50]'")
-    p.set_defaults(_run=lambda a: (run_pretrain(load_pretrain_config(a.config, a.overrides), a.out,
-                                                progress=not a.no_progress), 0)[1])
-    return p

@@ -1,0 +1,12 @@
+"""Exit codes of every command (`synth`, `mcdp`): one meaning each, whichever command returns it.
+
+The README lists them for users ("Exit codes").
+"""
+OK = 0
+FAILED = 1  # the command ran and found a problem (synth verify), or an unexpected run-time failure
+USAGE = 2  # a user error: config, dataset, run folder, output folder (the message names which)
+DIVERGED = 3  # training diverged (NaN/inf loss or gradient), also a sweep with a diverged run
+DISK_FULL = 4
+RUN_FAILED = 5  # mcdp sweep: some run failed (engine ray: twice); the others finished
+NO_BACKEND = 6  # synth: no usable OpenGL back end on this machine
+INTERRUPTED = 130
