@@ -150,7 +150,8 @@ def main(argv=None) -> None:
     ap.add_argument("--source", type=Path, help="a sweep folder whose pretraining and datasets are shared")
     ap.add_argument("--set", nargs="*", default=[], help="sweep-level overrides for every variant (key=value)")
     ap.add_argument("--variant", action="append", default=[],
-                    help="'NAME: key=value key=value [| link=m1,m2]' (train overrides; link: reuse the source's runs)")
+                    help="'NAME: key=value key=value [| link=m1,m2]' (train overrides; link: reuse the source's runs) "
+                         "or 'NAME: | source' (the source sweep's own runs at the --set overlaps and methods)")
     ap.add_argument("--only-table", action="store_true", help="do not run; tabulate finished variants")
     ap.add_argument("--reference", type=Path, help="a sweep's results.json whose Mono2 runs (same overlap and "
                     "seeds) are the comparison for variants without Mono2")
@@ -163,6 +164,16 @@ def main(argv=None) -> None:
         name, _, rest = v.partition(":")
         name = name.strip()
         rest, _, link = rest.partition("|")
+        if link.strip() == "source":  # the source sweep's own runs are this variant (no run: its init_from differs)
+            from study.config import load_sweep_config
+
+            want = load_sweep_config(args.base, args.set)
+            src = json.loads((args.source / "results.json").read_text())
+            ref = json.loads(args.reference.read_text()) if args.reference else None
+            sub = {**src, "overlaps": [o for o in src["overlaps"] if o in want.overlaps],
+                   "methods": [m for m in src["methods"] if m in want.methods]}
+            rows.append((name, with_reference(sub, ref)))
+            continue
         link_methods = [m for m in link.strip().removeprefix("link=").split(",") if m]
         if not name or "/" in name or name.startswith("."):
             raise SystemExit(f"--variant {v!r}: give 'NAME: overrides' with a plain NAME")

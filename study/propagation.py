@@ -106,9 +106,9 @@ def format_propagation(results: dict, label) -> str:
             dc = _cut_diff(results, o, m, "dep_con.mean")
             gain = _self_diff(results, o, m, "median.mean.abs_rel", "init.median.mean.abs_rel")
             closed = _agg(results, o, m, "refine.headroom_closed")
-            add(f"- overlap {o:.2f}, {label(m)}: propagation (as trained − cut, non-overlap px) {_pd(prop)}; "
-                f"direct use (overlap px) {_pd(direct)}; all px {_pd(allp)}; Dep Con (ratio) {_pd(dc)}; "
-                f"refinement final − init {_pd(gain)}; headroom closed {_num(closed['mean'], 2)}")
+            add(f"- overlap {o:.2f}, {label(m)}: propagation (as trained − cut, non-overlap px) {_pd(prop, 4)}; "
+                f"direct use (overlap px) {_pd(direct, 4)}; all px {_pd(allp, 4)}; Dep Con (ratio) {_pd(dc, 4)}; "
+                f"refinement final − init {_pd(gain, 4)}; headroom closed {_num(closed['mean'], 2)}")
     add("")
     return "\n".join(L)
 
