@@ -138,6 +138,10 @@ def _render(args) -> int:
     inside = dataset_containing(args.out)
     if inside is not None:
         raise ConfigError(f"--out {args.out} is inside the dataset {inside}; nothing was written: render outside it")
+    if args.engine == "ray":  # refused before anything is said or written
+        from corelib.cluster import import_ray
+
+        import_ray()
     size = render_size(cfg, shard[1])
     print(f"synth render: {size['rig_frames']} rig-frames, {size['images']} images of {cfg.camera.width}x"
           f"{cfg.camera.height} (RGB + depth): {size['max_bytes'] / 1e9:.3g} GB before compression, about a third "
