@@ -194,7 +194,9 @@ def test_a_full_disk_during_render_leaves_nothing_half_written_and_the_rerun_res
     monkeypatch.setattr(corelib.atomic, "open", FullDiskAfter(33), raising=False)
     capsys.readouterr()
     assert main(args) == 4
-    err = capsys.readouterr().err.strip()
+    err = capsys.readouterr().err.strip().splitlines()
+    assert err[0].startswith("synth render: ") and "rig-frames" in err[0]  # the size statement, before the work
+    err = "\n".join(err[1:])
     assert len(err.splitlines()) == 1 and "no space left on device" in err and str(out) in err, err
     monkeypatch.undo()
     files = [p for p in out.rglob("*") if p.is_file()]
