@@ -30,7 +30,7 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from mcdp.data import RigDataset, collate  # noqa: E402
-from mcdp.oracle import fit_oracle_weights  # noqa: E402
+from mcdp.oracle import fit_oracle_weights, ground_truth_at  # noqa: E402
 from mcdp.runs import config_from_checkpoint, find_checkpoint, load_checkpoint  # noqa: E402
 from mcdp.system import SelfSupervisedSystem  # noqa: E402
 from synth.dataset import open_dataset  # noqa: E402
@@ -89,15 +89,9 @@ def main(argv=None) -> None:
         k, frame = data.samples[int(i)]
         seq = data.seqs[k]
         bases = out["bases"][0].detach()
-        h, wd = bases.shape[-2:]
-        gts, valids = [], []
-        for c, name in enumerate(ds.camera_names):
-            g = torch.from_numpy(ds.read_depth(seq, name, frame).astype("float32"))[None, None]
-            m = torch.from_numpy(np.asarray(ds.mask(name), bool))[None, None]
-            v = (g >= 0.5) & (g <= 80.0) & m
-            gts.append(F.interpolate(g, size=(h, wd), mode="nearest"))
-            valids.append(F.interpolate(v.float(), size=(h, wd), mode="nearest") > 0.5)
-        w_o = fit_oracle_weights(bases, torch.cat(gts), torch.cat(valids), sys_t.depth.to_depth)
+        masks = [np.asarray(ds.mask(n), bool) for n in ds.camera_names]
+        gt, valid = ground_truth_at(ds, masks, seq, frame, tuple(bases.shape[-2:]), (0.5, 80.0))
+        w_o = fit_oracle_weights(bases, gt, valid, sys_t.depth.to_depth)
         d = tangent(w_o - w)
         for key, g in (("p", g_p), ("c", g_c)):
             gt_ = tangent(g)

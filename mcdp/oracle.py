@@ -29,6 +29,26 @@ def si_log_error(pred: torch.Tensor, gt: torch.Tensor, valid: torch.Tensor) -> t
     return (d.square().flatten(1).sum(1) / n) - mean.square()
 
 
+def ground_truth_at(ds, masks, seq: str, frame: int, size: tuple[int, int],
+                    depth_range: tuple[float, float]) -> tuple[torch.Tensor, torch.Tensor]:
+    """ORACLE input: every camera's ground truth at ``size`` (nearest) and its valid pixels.
+
+    Args:
+        ds: a dataset (``camera_names``, ``read_depth``); masks: per camera (H, W) bool scene masks.
+        depth_range: (min, max) metres that count, as in the evaluation.
+    Returns:
+        gt (N, 1, h, w) metres, valid (N, 1, h, w) bool.
+    """
+    lo, hi = depth_range
+    gts, valids = [], []
+    for c, name in enumerate(ds.camera_names):
+        g = torch.from_numpy(ds.read_depth(seq, name, frame).astype("float32"))[None, None]
+        v = (g >= lo) & (g <= hi) & torch.as_tensor(masks[c], dtype=torch.bool)[None, None]
+        gts.append(F.interpolate(g, size=size, mode="nearest"))
+        valids.append(F.interpolate(v.float(), size=size, mode="nearest") > 0.5)
+    return torch.cat(gts), torch.cat(valids)
+
+
 @torch.enable_grad()
 def fit_oracle_weights(
     bases: torch.Tensor,

@@ -112,18 +112,12 @@ class Predictor:
 
     def _oracle_depth(self, seq: str, frame: int, out: dict) -> torch.Tensor:
         """ORACLE: depth of this run's bases at weights fitted to the ground truth (`mcdp.oracle`)."""
-        from mcdp.oracle import fit_oracle_weights
+        from mcdp.oracle import fit_oracle_weights, ground_truth_at
 
         bases = out["bases"][0]  # (N, n, h, w)
-        gts, valids = [], []
-        h, w = bases.shape[-2:]
-        lo, hi = self.oracle_range
-        for c, name in enumerate(self.ds.camera_names):
-            g = torch.from_numpy(self.ds.read_depth(seq, name, frame).astype("float32"))[None, None]
-            v = (g >= lo) & (g <= hi) & torch.from_numpy(self.reader.mask_full[c])[None, None]
-            gts.append(F.interpolate(g, size=(h, w), mode="nearest"))
-            valids.append(F.interpolate(v.float(), size=(h, w), mode="nearest") > 0.5)
-        gt, valid = torch.cat(gts).to(self.device), torch.cat(valids).to(self.device)
+        gt, valid = ground_truth_at(self.ds, self.reader.mask_full, seq, frame, tuple(bases.shape[-2:]),
+                                    self.oracle_range)
+        gt, valid = gt.to(self.device), valid.to(self.device)
         wts = fit_oracle_weights(bases, gt, valid, self.model.to_depth)
         n = wts.shape[1]
         self._acc["oracle_weight_move"] += float((wts - 1.0 / n).abs().mean(1).sum())

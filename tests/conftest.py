@@ -1,6 +1,7 @@
 """Shared fixtures: one tiny dataset rendered once per test session (CPU, EGL/OSMesa llvmpipe)."""
 from __future__ import annotations
 
+import errno
 import os
 from pathlib import Path
 
@@ -70,3 +71,45 @@ def _tree_hash(path: Path) -> str:
 @pytest.fixture
 def tree_hash():
     return _tree_hash
+
+
+class _FullFile:
+    """A file whose next write stores half its bytes and then fails as a full disk does."""
+
+    def __init__(self, f):
+        self.f = f
+
+    def write(self, data):
+        self.f.write(bytes(data)[: len(data) // 2])
+        self.f.flush()
+        raise OSError(errno.ENOSPC, "No space left on device")
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        self.f.close()
+
+    def __getattr__(self, name):
+        return getattr(self.f, name)
+
+
+class FullDiskAfter:
+    """`open` for corelib.atomic: the disk fills once `n` files (whose path contains `part`) were written."""
+
+    def __init__(self, n: int, part: str = ""):
+        self.n, self.part, self.calls = n, part, 0
+
+    def __call__(self, file, mode="r", *args, **kw):
+        f = open(file, mode, *args, **kw)
+        if "w" in mode and self.part in str(file):
+            self.calls += 1
+            if self.calls > self.n:
+                return _FullFile(f)
+        return f
+
+
+@pytest.fixture
+def full_disk_after():
+    """`FullDiskAfter(n, part)`: an `open` to patch into corelib.atomic that fills the disk after n files."""
+    return FullDiskAfter

@@ -4,7 +4,6 @@ disk leaves nothing half-written, gives one line naming the file, and the rerun 
 refuses to overwrite a file that is not its own."""
 from __future__ import annotations
 
-import errno
 import json
 import os
 import shutil
@@ -147,51 +146,15 @@ def test_a_corrupt_data_file_is_refused_naming_the_file(tree_hash, data, capsys,
 
 
 # --------------------------------------------------------------------------- full disk
-class _FullFile:
-    """A file whose next write stores half its bytes and then fails as a full disk does."""
-
-    def __init__(self, f):
-        self.f = f
-
-    def write(self, data):
-        self.f.write(bytes(data)[: len(data) // 2])
-        self.f.flush()
-        raise OSError(errno.ENOSPC, "No space left on device")
-
-    def __enter__(self):
-        return self
-
-    def __exit__(self, *exc):
-        self.f.close()
-
-    def __getattr__(self, name):
-        return getattr(self.f, name)
-
-
-class FullDiskAfter:
-    """`open` for corelib.atomic: the disk fills once `n` files (whose path contains `part`) were written."""
-
-    def __init__(self, n: int, part: str = ""):
-        self.n, self.part, self.calls = n, part, 0
-
-    def __call__(self, file, mode="r", *args, **kw):
-        f = open(file, mode, *args, **kw)
-        if "w" in mode and self.part in str(file):
-            self.calls += 1
-            if self.calls > self.n:
-                return _FullFile(f)
-        return f
-
-
 def test_a_full_disk_during_render_leaves_nothing_half_written_and_the_rerun_resumes(tmp_path, capsys,
-                                                                                     monkeypatch):
+                                                                                     monkeypatch, full_disk_after):
     import corelib.atomic
     from synth.cli import main
 
     out = tmp_path / "d"
     args = ["render", str(TINY_DATA), "--out", str(out), "--no-progress", "dataset.frames=3"]
     # 8 static files, then 20 per sequence (18 PNG + 2 JSON; EXR is written by OpenEXR): in the second one
-    monkeypatch.setattr(corelib.atomic, "open", FullDiskAfter(33), raising=False)
+    monkeypatch.setattr(corelib.atomic, "open", full_disk_after(33), raising=False)
     capsys.readouterr()
     assert main(args) == 4
     err = capsys.readouterr().err.strip().splitlines()
@@ -211,7 +174,7 @@ def test_a_full_disk_during_render_leaves_nothing_half_written_and_the_rerun_res
 
 
 def test_a_full_disk_while_checkpointing_keeps_the_last_checkpoint_and_training_resumes(tiny_dataset, tmp_path,
-                                                                                       capsys, monkeypatch):
+                                                                                       capsys, monkeypatch, full_disk_after):
     import corelib.atomic
     from mcdp.cli import main
     from mcdp.runs import load_checkpoint
@@ -222,7 +185,7 @@ def test_a_full_disk_while_checkpointing_keeps_the_last_checkpoint_and_training_
     assert main(base + ["train.steps=2"]) == 0
     last = run / "checkpoints" / "last.pt"
     before = last.read_bytes()
-    monkeypatch.setattr(corelib.atomic, "open", FullDiskAfter(0, part=".pt.tmp"), raising=False)
+    monkeypatch.setattr(corelib.atomic, "open", full_disk_after(0, part=".pt.tmp"), raising=False)
     capsys.readouterr()
     assert main(base + ["train.steps=4"]) == 4
     err = capsys.readouterr().err.strip().splitlines()

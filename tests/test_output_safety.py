@@ -7,7 +7,6 @@ message naming the file, and that nothing outside the command's own output chang
 """
 from __future__ import annotations
 
-import errno
 import os
 import shutil
 from pathlib import Path
@@ -114,32 +113,12 @@ def test_readers_and_verify_refuse_a_file_symlinked_out_of_the_dataset(data, tmp
 
 
 # --------------------------------------------------------------------------- 3: full disk in export
-class _HalfThenFull:
-    def __init__(self, f):
-        self.f = f
-
-    def write(self, b):
-        self.f.write(bytes(b)[: len(b) // 2])
-        self.f.flush()
-        raise OSError(errno.ENOSPC, "No space left on device")
-
-    def __enter__(self):
-        return self
-
-    def __exit__(self, *exc):
-        self.f.close()
-
-    def __getattr__(self, name):
-        return getattr(self.f, name)
-
-
 @pytest.mark.parametrize("part", [".pcd.bin", ".depth.exr"])
-def test_a_full_disk_during_export_exits_4_and_leaves_no_part_file(data, tmp_path, capsys, monkeypatch, part):
+def test_a_full_disk_during_export_exits_4_and_leaves_no_part_file(data, tmp_path, capsys, monkeypatch, part,
+                                                                    full_disk_after):
     import corelib.atomic
 
-    def full_open(file, mode="r", *a, **kw):
-        f = open(file, mode, *a, **kw)
-        return _HalfThenFull(f) if "w" in mode and part in str(file) else f
+    full_open = full_disk_after(0, part)  # the first write of such a file stores half and fails
 
     out = tmp_path / "ns"
     args = ["export", str(data), "--format", "nuscenes", "--out", str(out), "--no-progress"]
