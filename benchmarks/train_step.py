@@ -10,7 +10,12 @@ backward of every stage's consistency loss, timed on its own).
 
     python benchmarks/train_step.py                       # 96x160 and 192x320, 3 rounds
     python benchmarks/train_step.py --sizes 96x160 --rounds 5 --steps 5 --device cpu
-    python benchmarks/train_step.py --tiny --sizes 64x96 --threads 1 --precision fp32 bf16   # roofline
+    python benchmarks/train_step.py --tiny --sizes 64x96 --threads 1 --modes before fp32 bf16   # roofline
+
+Modes: ``before`` is the step as it was before the speed work (SSIM's 3x3 mean by
+``F.avg_pool2d``, Adam's per-tensor loop, fp32): the same run's baseline for the ``x before``
+column. ``fp32`` and ``bf16`` are today's step (separable 3x3 sums, fused Adam) without and with
+bf16 autocast (AMX on a CPU that has it); ``cl`` is fp32 with the networks in channels-last memory.
 
 Roofline columns: GFLOP of one step (forward + backward, convolutions and matrix products,
 `torch.utils.flop_counter`), the GFLOP/s it achieves, and the machine's own ceiling measured in the
@@ -33,6 +38,7 @@ from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
 PRESETS = ["mono2", "mcdp_m0", "mcdp_m1_nocon", "mcdp_m1", "mcdp_m2"]
+MODES = ["before", "fp32", "bf16", "cl"]
 
 
 def synthetic_batch(H: int, W: int, n_cams: int = 6, seed: int = 0):
@@ -83,7 +89,7 @@ def mm_ceiling(dtype, dev, n: int = 1024, reps: int = 5) -> float:
 
 
 def worker(preset: str, H: int, W: int, steps: int, device: str, threads: int = 0, precision: str = "fp32",
-           tiny: bool = False) -> dict:
+           tiny: bool = False) -> dict:  # precision: one of MODES
     """Time `steps` optimiser steps (after 3 warm-up steps) of one preset; returns a result dict."""
     import resource
 
@@ -107,7 +113,14 @@ def worker(preset: str, H: int, W: int, steps: int, device: str, threads: int = 
     if precision == "bf16":  # autocast (AMX on a CPU that has it); geometry stays float32
         system.use_amp = True
         system.amp_dtype = torch.bfloat16
-    opt = torch.optim.Adam(system.parameters(), lr=1e-4)
+    if precision == "cl":
+        system = system.to(memory_format=torch.channels_last)
+    if precision == "before":  # the step before the speed work: avg_pool2d SSIM, per-tensor Adam
+        import torch.nn.functional as F
+        from mcdp import losses
+
+        losses._box3 = lambda t: F.avg_pool2d(t, 3, 1)
+    opt = torch.optim.Adam(system.parameters(), lr=1e-4, fused=precision != "before")
     batch = {k: v.to(dev) for k, v in synthetic_batch(H, W).items()}
 
     def sync():
@@ -170,8 +183,8 @@ def main(argv=None) -> int:
     ap.add_argument("--device", default="cpu", choices=["cpu", "cuda"])
     ap.add_argument("--threads", type=int, default=0, help="torch CPU threads (0 = torch default)")
     ap.add_argument("--json", default=None, help="also write the results here")
-    ap.add_argument("--precision", nargs="+", default=["fp32"], choices=["fp32", "bf16"],
-                    help="one or more: each is a column set of the table (bf16 = autocast)")
+    ap.add_argument("--modes", "--precision", dest="precision", nargs="+", default=["fp32"], choices=MODES,
+                    help="one or more: each is a row set of the table (see the module docstring)")
     ap.add_argument("--tiny", action="store_true", help="the tiny presets (configs/train/tiny)")
     ap.add_argument("--_worker", nargs=4, metavar=("PRESET", "H", "W", "STEPS"), help=argparse.SUPPRESS)
     args = ap.parse_args(argv)
@@ -201,8 +214,9 @@ def main(argv=None) -> int:
     rows = []
     print(f"\ntrain step, 1 rig sample (6 cameras x 3 frames), device {args.device}, "
           f"torch threads {next(iter(results.values()))[0]['threads']}, median of {args.rounds} rounds")
-    hdr = (f"{'preset':14s} {'prec':>5s} {'size':>8s} {'s/step':>8s} {'x mono2':>8s} {'L_con %':>8s} "
-           f"{'peak MiB':>9s} {'GFLOP':>7s} {'GFLOP/s':>8s} {'ceiling':>8s} {'% ceil':>7s} {'steps/CPU-min':>13s}")
+    hdr = (f"{'preset':14s} {'mode':>6s} {'size':>8s} {'s/step':>8s} {'x mono2':>8s} {'L_con %':>8s} "
+           f"{'peak MiB':>9s} {'GFLOP':>7s} {'GFLOP/s':>8s} {'ceiling':>8s} {'% ceil':>7s} {'steps/CPU-min':>13s} "
+           f"{'x before':>8s}")
     print(hdr + "\n" + "-" * len(hdr))
     for size in args.sizes:
         H, W = (int(x) for x in size.lower().split("x"))
@@ -216,11 +230,15 @@ def main(argv=None) -> int:
                 gflop = statistics.median(r["gflop"] for r in rs)
                 ceil = statistics.median(r["ceiling_gflops"] for r in rs)
                 thr = rs[0]["threads"]
+                before = results.get((p, H, W, "before"))
+                speedup = statistics.median(r["step_s"] for r in before) / t if before else float("nan")
                 rows.append({"preset": p, "precision": prec, "H": H, "W": W, "step_s": t, "ratio_mono2": t / base,
                              "lcon_share": con / t, "peak_mb": peak, "gflop": gflop, "gflops": gflop / t,
-                             "ceiling_gflops": ceil, "steps_per_cpu_min": 60 / (t * thr)})
-                print(f"{p:14s} {prec:>5s} {size:>8s} {t:8.3f} {t / base:8.2f} {100 * con / t:8.1f} {peak:9.0f} "
-                      f"{gflop:7.1f} {gflop / t:8.1f} {ceil:8.1f} {100 * gflop / t / ceil:7.1f} {60 / (t * thr):13.1f}")
+                             "ceiling_gflops": ceil, "steps_per_cpu_min": 60 / (t * thr),
+                             "x_before": speedup})
+                print(f"{p:14s} {prec:>6s} {size:>8s} {t:8.3f} {t / base:8.2f} {100 * con / t:8.1f} {peak:9.0f} "
+                      f"{gflop:7.1f} {gflop / t:8.1f} {ceil:8.1f} {100 * gflop / t / ceil:7.1f} {60 / (t * thr):13.1f} "
+                      f"{speedup:8.2f}")
     if args.json:
         Path(args.json).write_text(json.dumps(rows, indent=1))
     return 0

@@ -124,7 +124,10 @@ class Trainer:
         groups = [{"params": rest, "lr_mult": 1.0}]
         if wnet:  # the fresh weight networks learn at a rate of their own (train.weight_lr_mult)
             groups.append({"params": wnet, "lr_mult": tc.weight_lr_mult})
-        self.optimizer = torch.optim.Adam(groups, lr=tc.lr, betas=(0.9, 0.999))
+        # fused: one kernel for all parameters (CPU and CUDA); ~7x faster than the per-tensor loop on
+        # a CPU, the same update to float rounding (docs/results/train_step.md)
+        fused = self.device.type in ("cpu", "cuda")
+        self.optimizer = torch.optim.Adam(groups, lr=tc.lr, betas=(0.9, 0.999), fused=fused)
 
         oracle = cfg.scale.oracle
         self.train_set = RigDataset(ds, "train", tc.height, tc.width, oracle=oracle)

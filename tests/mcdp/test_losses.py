@@ -26,6 +26,21 @@ def test_ssim_hand_value_constant_images():
     assert torch.allclose(L.ssim_dissimilarity(x, y), torch.full_like(x, (1 - ssim) / 2))
 
 
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_ssim_box_filter_equals_avg_pool_values_and_gradients(seed):
+    # the separable 3x3 sum (_box3, the fast CPU path) is Monodepth2's avg_pool2d(3, 1), values and
+    # gradients, including non-contiguous inputs (a channel slice) and a grid of odd size
+    g = torch.Generator().manual_seed(seed)
+    t = torch.rand(2, 4, 11, 14, generator=g, dtype=torch.float64)[:, 1:].requires_grad_(True)
+    a = L._box3(t)
+    b = torch.nn.functional.avg_pool2d(t, 3, 1)
+    assert torch.allclose(a, b, atol=1e-12)
+    w = torch.rand(a.shape, generator=g, dtype=torch.float64)
+    ga, = torch.autograd.grad((a * w).sum(), t)
+    gb, = torch.autograd.grad((b * w).sum(), t)
+    assert torch.allclose(ga, gb, atol=1e-12)
+
+
 def test_photometric_error_identity_and_hand_value():
     x = rand(1, 3, 6, 6)
     assert torch.allclose(L.photometric_error(x, x), torch.zeros(1, 1, 6, 6), atol=1e-6)
