@@ -10,7 +10,8 @@ backward of every stage's consistency loss, timed on its own).
 
     python benchmarks/train_step.py                       # 96x160 and 192x320, 3 rounds
     python benchmarks/train_step.py --sizes 96x160 --rounds 5 --steps 5 --device cpu
-    python benchmarks/train_step.py --tiny --sizes 64x96 --threads 1 --modes before fp32 bf16   # roofline
+    python benchmarks/train_step.py --tiny --sizes 64x96 --threads 1 --modes before fp32 bf16 \
+        --presets mono2 mcdp_m2 --set scale.source=odometry   # roofline (the sweep's scale)
 
 Modes: ``before`` is the step as it was before the speed work (SSIM's 3x3 mean by
 ``F.avg_pool2d``, Adam's per-tensor loop, fp32): the same run's baseline for the ``x before``
@@ -89,7 +90,7 @@ def mm_ceiling(dtype, dev, n: int = 1024, reps: int = 5) -> float:
 
 
 def worker(preset: str, H: int, W: int, steps: int, device: str, threads: int = 0, precision: str = "fp32",
-           tiny: bool = False) -> dict:  # precision: one of MODES
+           tiny: bool = False, overrides: tuple = ()) -> dict:  # precision: one of MODES
     """Time `steps` optimiser steps (after 3 warm-up steps) of one preset; returns a result dict."""
     import resource
 
@@ -105,7 +106,7 @@ def worker(preset: str, H: int, W: int, steps: int, device: str, threads: int = 
 
     preset_dir = ROOT / "configs" / "train" / ("tiny" if tiny else "")
     cfg = load_config(RunConfig, preset_dir / f"{preset}.yaml",
-                      [f"train.height={H}", f"train.width={W}", "train.batch_size=1"])
+                      [f"train.height={H}", f"train.width={W}", "train.batch_size=1", *overrides])
     dev = torch.device(device)
     torch.manual_seed(0)
     pairs = [(i, (i + 1) % 6) for i in range(6)]
@@ -186,11 +187,14 @@ def main(argv=None) -> int:
     ap.add_argument("--modes", "--precision", dest="precision", nargs="+", default=["fp32"], choices=MODES,
                     help="one or more: each is a row set of the table (see the module docstring)")
     ap.add_argument("--tiny", action="store_true", help="the tiny presets (configs/train/tiny)")
+    ap.add_argument("--set", nargs="*", default=[], metavar="KEY=VALUE",
+                    help="config overrides for every preset (e.g. scale.source=odometry, the sweep's)")
     ap.add_argument("--_worker", nargs=4, metavar=("PRESET", "H", "W", "STEPS"), help=argparse.SUPPRESS)
     args = ap.parse_args(argv)
     if args._worker:
         p, H, W, s = args._worker
-        print(json.dumps(worker(p, int(H), int(W), int(s), args.device, args.threads, args.precision[0], args.tiny)))
+        print(json.dumps(worker(p, int(H), int(W), int(s), args.device, args.threads, args.precision[0], args.tiny,
+                                tuple(args.set))))
         return 0
 
     results: dict = {}
@@ -200,7 +204,7 @@ def main(argv=None) -> int:
             for prec in args.precision:
                 for p in args.presets:
                     cmd = [sys.executable, __file__, "--device", args.device, "--threads", str(args.threads),
-                           "--precision", prec, *(["--tiny"] if args.tiny else []),
+                           "--precision", prec, *(["--tiny"] if args.tiny else []), "--set", *args.set,
                            "--_worker", p, str(H), str(W), str(args.steps)]
                     out = subprocess.run(cmd, capture_output=True, text=True, cwd=ROOT, env=dict(os.environ))
                     if out.returncode != 0:
