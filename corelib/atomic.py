@@ -2,7 +2,14 @@
 
 A reader never sees a half-written file under the final name, whatever stops the writer (a
 crash, Ctrl-C, a full disk). A full disk is reported as `DiskFullError`: one line that names
-the file and says how to resume.
+the file and says how to resume. Any other error of the operating system names the final file,
+never the temporary one; `file_error_message` says it in one line (permission denied, read-only
+file system, a name too long, ...). A name that is legal but too long for its temporary name
+gets a shortened temporary name, so any file the file system can hold can be written.
+
+The temporary file of a writer killed with SIGKILL stays behind; `remove_stale_temps` (called when
+a command locks its output folder, `corelib.rundir.lock_folder`, or checks its output file,
+`corelib.rundir.check_output_file`) removes those of processes that no longer run.
 
 Example::
 
@@ -13,8 +20,10 @@ Example::
 from __future__ import annotations
 
 import errno
+import hashlib
 import json
 import os
+import re
 from contextlib import contextmanager
 from pathlib import Path
 from typing import Iterator
@@ -43,8 +52,120 @@ def disk_full_message(exc: OSError) -> str:
     return str(exc if isinstance(exc, DiskFullError) else DiskFullError(exc.filename or "(unnamed file)"))
 
 
+#: errors of the operating system that a user's input causes (a path, a folder's permissions or mount):
+#: reported in one line naming the file, exit code 2 (`corelib.exitcodes.USAGE`), no traceback
+USER_ERRNOS = {errno.EACCES: "permission denied", errno.EPERM: "operation not permitted",
+               errno.EROFS: "read-only file system", errno.ENAMETOOLONG: "file name too long",
+               errno.ENOTDIR: "a part of the path is a file, not a folder", errno.EISDIR: "is a folder",
+               errno.ELOOP: "too many levels of symbolic links", errno.ENOENT: "no such file or folder",
+               errno.EEXIST: "already exists"}
+
+
+def is_user_file_error(exc: BaseException) -> bool:
+    """An OSError a user can cause (`USER_ERRNOS`): permissions, a read-only mount, a name too long, ..."""
+    return isinstance(exc, OSError) and not is_disk_full(exc) and exc.errno in USER_ERRNOS
+
+
+def file_error_message(exc: OSError) -> str:
+    """One line for a `is_user_file_error` error: the file (both, for a rename) and what the OS said."""
+    what = USER_ERRNOS.get(exc.errno, exc.strerror or type(exc).__name__)
+    names = [str(n) for n in (exc.filename, exc.filename2) if n is not None]
+    where = " -> ".join(names) if names else "(the operating system named no file)"
+    if exc.errno == errno.ENAMETOOLONG:
+        what += f" (this file system allows {_name_max(Path(names[-1]).parent) if names else 255} bytes per name)"
+    elif exc.errno in (errno.EACCES, errno.EPERM, errno.EROFS):
+        what += ": choose a folder you can write (or read), or change its permissions"
+    return f"{where}: {what}"
+
+
+def _name_max(folder: Path) -> int:
+    """The longest file name (bytes) in `folder`'s file system (its nearest existing parent's)."""
+    for f in (folder, *folder.parents):
+        try:
+            return int(os.pathconf(f, "PC_NAME_MAX"))
+        except (OSError, ValueError):
+            continue
+    return 255
+
+
+_TMP_RE = re.compile(r"^\..+\.tmp(\d+)$")
+
+
 def _tmp_name(path: Path) -> Path:
-    return path.with_name(f".{path.name}.tmp{os.getpid()}")
+    """``.NAME.tmpPID`` beside `path`; when that is longer than the file system allows, a shortened
+    ``.PREFIX~HASH.tmpPID`` (a legal NAME stays writable)."""
+    name = f".{path.name}.tmp{os.getpid()}"
+    if len(os.fsencode(name)) <= 143 or len(os.fsencode(name)) <= _name_max(path.parent):
+        return path.with_name(name)
+    digest = hashlib.sha256(os.fsencode(path.name)).hexdigest()[:16]
+    prefix = os.fsencode(path.name)[:64].decode("utf-8", "ignore")
+    return path.with_name(f".{prefix}~{digest}.tmp{os.getpid()}")
+
+
+def _pid_alive(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except OSError:  # another user's process (EPERM): alive
+        return True
+    return True
+
+
+def remove_stale_temps(folder: str | Path, recursive: bool = True, name: str | None = None) -> list[Path]:
+    """Remove the temporary files (``.NAME.tmpPID``) that writers killed with SIGKILL left in `folder` (and
+    below, if `recursive`; only those of ``name``, if given): files whose process no longer runs. A live
+    writer's are kept. Returns what was removed."""
+    folder = Path(folder)
+    removed: list[Path] = []
+    stack = [folder]
+    while stack:
+        try:
+            entries = list(os.scandir(stack.pop()))
+        except OSError:
+            continue
+        for e in entries:
+            if recursive and e.is_dir(follow_symlinks=False):
+                stack.append(Path(e.path))
+                continue
+            m = _TMP_RE.match(e.name)
+            if (m is None or not e.is_file(follow_symlinks=False)
+                    or (name is not None and not e.name.startswith(f".{name}.tmp"))):
+                continue
+            pid = int(m.group(1))
+            if pid != os.getpid() and not _pid_alive(pid):
+                try:
+                    os.unlink(e.path)
+                    removed.append(Path(e.path))
+                except OSError:
+                    pass
+    return removed
+
+
+def check_writable(path: str | Path) -> None:
+    """Raise, before any work, the OSError that writing `path` atomically would raise: a name longer than
+    the file system allows, a part of the path that is a file, a folder that cannot be written (read-only
+    file system, permissions). Nothing is left behind; folders that do not exist yet are not created."""
+    path = Path(path)
+    missing = [path.name]
+    folder = path.parent
+    while not (folder.exists() or folder.is_symlink()) and folder != folder.parent:
+        missing.append(folder.name)
+        folder = folder.parent
+    limit = _name_max(folder)
+    for part in missing:
+        if len(os.fsencode(part)) > limit:
+            raise OSError(errno.ENAMETOOLONG, os.strerror(errno.ENAMETOOLONG), str(path))
+    if not folder.is_dir():
+        raise OSError(errno.ENOTDIR, os.strerror(errno.ENOTDIR), str(folder))
+    probe = folder / f".mcdp-write-probe.tmp{os.getpid()}"
+    try:
+        os.close(os.open(probe, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o600))
+        os.unlink(probe)
+    except FileExistsError:
+        pass
+    except OSError as exc:
+        raise OSError(exc.errno, exc.strerror, str(path if folder == path.parent else folder)) from None
 
 
 def _fsync(path: Path) -> None:
@@ -69,10 +190,12 @@ def atomic_path(path: str | Path, fsync: bool = True) -> Iterator[Path]:
     except BaseException as exc:
         try:
             tmp.unlink()
-        except FileNotFoundError:
+        except OSError:
             pass
         if is_disk_full(exc) and not isinstance(exc, DiskFullError):
             raise DiskFullError(path) from None
+        if isinstance(exc, OSError) and exc.errno is not None and str(tmp) in (exc.filename, exc.filename2):
+            raise OSError(exc.errno, exc.strerror, str(path)) from None  # the user's name, not the temporary one
         raise
 
 

@@ -12,7 +12,11 @@ folder, ``mcdp predict --out``, ``mcdp sweep --out``):
   second process writing the same folder is refused at once, naming the holder's pid.
 
 `check_output_file(path, is_ours, what)` does the same for a single file a command writes (``synth
-preview --out``, ``mcdp eval --out``): new, or a regular file the command recognises as its own.
+preview --out``, ``mcdp eval --out``): new, or a regular file the command recognises as its own,
+in a folder that can be written (`corelib.atomic.check_writable`), before any work.
+
+Both remove the temporary files that a writer killed with SIGKILL left behind
+(`corelib.atomic.remove_stale_temps`: the whole folder under the lock, the file's own beside it).
 
 Example::
 
@@ -31,7 +35,7 @@ import stat
 from pathlib import Path
 from typing import Callable
 
-from corelib.atomic import atomic_write_json
+from corelib.atomic import atomic_write_json, check_writable, remove_stale_temps
 
 MARKER = ".mcdp"
 LOCK = ".lock"
@@ -99,6 +103,7 @@ def lock_folder(folder: str | Path, lock_file: str | Path = LOCK) -> FolderLock:
     fh.truncate()
     fh.write(str(os.getpid()))
     fh.flush()
+    remove_stale_temps(folder)  # what a writer killed with SIGKILL left; no other writer runs here now
     return FolderLock(folder, fh)
 
 
@@ -116,7 +121,7 @@ def check_output_file(path: str | Path, is_ours: Callable[[Path], bool], what: s
                 if not parent.is_dir():
                     raise FolderError(f"{flag} {path}: {parent} is not a folder") from None
                 break
-        return path
+        return _writable(path)
     if stat.S_ISLNK(st.st_mode):
         raise FolderError(f"{flag} {path} is a symlink; nothing was written: give a new file name, not a link")
     if stat.S_ISDIR(st.st_mode):
@@ -126,4 +131,13 @@ def check_output_file(path: str | Path, is_ours: Callable[[Path], bool], what: s
                           "choose a new file name")
     if not is_ours(path):
         raise FolderError(f"{flag} {path} exists and is not a {what}; nothing was written: choose a new file name")
+    return _writable(path)
+
+
+def _writable(path: Path) -> Path:
+    """``path`` once its folder is known to be writable (the OSError otherwise, naming it), with the
+    temporary files of an earlier writer of it that was killed removed."""
+    check_writable(path)
+    if path.parent.is_dir():
+        remove_stale_temps(path.parent, recursive=False, name=path.name)
     return path

@@ -9,8 +9,11 @@
     mcdp sweep configs/sweep/cpu.yaml --out SWEEP [key=value ...]          # added by study.cli
 
 Exit codes (`corelib.exitcodes`, the same in every command): 0 success, 2 bad input (config,
-dataset, run folder; a message on stderr, no traceback), 3 training diverged (NaN/inf loss), 4 disk
-full, 130 interrupted.
+dataset, run folder, or a file the operating system refuses: permission denied, read-only file
+system, a name too long; one line on stderr naming it, no traceback), 3 training diverged (NaN/inf
+loss), 4 disk full, 130 interrupted.
+
+A config is checked before torch is imported (seconds): a wrong key fails at once.
 
 Subcommands are registered in `COMMANDS` as (name, add_arguments, run); a new
 one is one more entry. The ``mcdp`` console script is `study.cli.main`: these
@@ -24,21 +27,21 @@ import sys
 from pathlib import Path
 from typing import Callable, Iterable
 
-from corelib.atomic import atomic_write_json, disk_full_message, is_disk_full
+from corelib.atomic import (atomic_write_json, check_writable, disk_full_message, file_error_message, is_disk_full,
+                            is_user_file_error)
 from corelib.exitcodes import DIVERGED as EXIT_DIVERGED, DISK_FULL as EXIT_DISK_FULL, INTERRUPTED, USAGE as EXIT_USAGE
 
+#: (module, class) of every error a user can cause, and of a diverged training
+USER_ERRORS = [("corelib.configlib", "ConfigError"), ("corelib.rundir", "FolderError"), ("synth.files", "DatasetError"),
+               ("synth.files", "OutputFolderError"), ("mcdp.runs", "RunError"), ("mcdp.networks", "NetworkError"),
+               ("mcdp.warmstart", "WarmStartError"), ("synth.view", "ViewError")]
+DIVERGED = [("mcdp.trainer", "TrainingDiverged")]
 
-def _user_errors() -> tuple[type[BaseException], ...]:
-    from mcdp.networks import NetworkError
-    from corelib.rundir import FolderError
-    from mcdp.runs import RunError
-    from mcdp.warmstart import WarmStartError
-    from corelib.configlib import ConfigError
-    from synth.files import DatasetError, OutputFolderError
-    from synth.view import ViewError
 
-    return (ConfigError, DatasetError, RunError, NetworkError, OutputFolderError, WarmStartError, FolderError,
-            ViewError)
+def _loaded(errors: list[tuple[str, str]]) -> tuple[type[BaseException], ...]:
+    """The classes of ``errors`` whose modules are imported: a module not imported cannot have raised its
+    error, and importing it to catch one would import torch (seconds) to report a wrong config key."""
+    return tuple(getattr(sys.modules[m], c) for m, c in errors if m in sys.modules)
 
 
 def _is_metrics(path: Path) -> bool:
@@ -83,11 +86,13 @@ def _train_args(p: argparse.ArgumentParser) -> None:
 
 def _train(args: argparse.Namespace) -> int:
     from mcdp.config import RunConfig
-    from mcdp.trainer import Trainer
     from corelib.configlib import load_config
 
-    cfg = load_config(RunConfig, args.preset, args.overrides)
+    cfg = load_config(RunConfig, args.preset, args.overrides)  # before torch is imported
     _outside_datasets(args.out)
+    check_writable(Path(args.out) / "run.json")
+    from mcdp.trainer import Trainer
+
     ds = _open_dataset(args.data)
     trainer = Trainer(cfg, ds, args.out, progress=not args.no_progress)
     m, tc = cfg.model, cfg.train
@@ -135,26 +140,42 @@ def _eval_args(p: argparse.ArgumentParser) -> None:
     p.add_argument("overrides", nargs="*", help="evaluation overrides eval.key=value, e.g. eval.max_depth=60")
 
 
-def _eval_config(cfg, overrides: list[str]):
-    from mcdp.evaluate import EvalConfig
-    from corelib.configlib import ConfigError, build_config, config_to_dict, deep_merge, parse_overrides
+def _eval_overrides(overrides: list[str]) -> dict:
+    """The ``eval.*`` overrides, their keys checked (before torch is imported; values once the run's
+    eval config is read)."""
+    from mcdp.config import EvalConfig
+    from corelib.configlib import ConfigError, parse_overrides
 
     ov = parse_overrides(overrides)
     bad = [k for k in ov if k != "eval"]
     if bad:
         raise ConfigError(f"eval accepts only eval.* overrides, got {', '.join(bad)}")
+    ev = ov.get("eval", {})
+    unknown = [k for k in ev if k not in EvalConfig.model_fields] if isinstance(ev, dict) else []
+    if unknown:
+        raise ConfigError(f"eval overrides {' '.join(overrides)}: unknown key eval.{unknown[0]} (known: "
+                          f"{', '.join(EvalConfig.model_fields)})")
+    return ov
+
+
+def _eval_config(cfg, overrides: list[str]):
+    from mcdp.config import EvalConfig
+    from corelib.configlib import build_config, config_to_dict, deep_merge
+
+    ov = _eval_overrides(overrides)
     data = deep_merge(config_to_dict(cfg.eval), ov.get("eval", {}))
     return build_config(EvalConfig, data, source="eval overrides " + " ".join(overrides))
 
 
 def _eval(args: argparse.Namespace) -> int:
+    _eval_overrides(args.overrides)  # a wrong key fails before torch is imported
+    out = Path(args.out) if args.out else Path(args.run) / f"metrics_{args.split}.json"
+    _check_metrics_target(out)  # before the (long) evaluation: ours or new, in a folder that can be written
+    _outside_datasets(out)
     from mcdp.evaluate import evaluate, format_tables
     from mcdp.predict import Predictor, run_record
     from mcdp.runs import RunError, rig_differences
 
-    out = Path(args.out) if args.out else Path(args.run) / f"metrics_{args.split}.json"
-    _check_metrics_target(out)  # before the (long) evaluation
-    _outside_datasets(out)
     ds = _open_dataset(args.data)
     if not ds.has_depth:
         raise RunError(f"dataset {args.data} has no ground-truth depth (manifest has_depth=false); eval needs it")
@@ -214,6 +235,7 @@ def _predict(args: argparse.Namespace) -> int:
         import_rerun()  # the viz extra missing: one line naming the install command, before any work
     if args.out is not None:
         _outside_datasets(args.out)
+        check_writable(Path(args.out) / "predict.json")
     ds = _open_dataset(args.data)
     pred = Predictor(args.run, ds, args.checkpoint, args.device)
     samples = [(s, f) for s in ds.split(args.split) for f in range(0, ds.n_frames(s), args.stride)]
@@ -298,21 +320,22 @@ def main(argv: list[str] | None = None, extra_commands: Iterable[Callable] = ())
             args.overrides = list(args.overrides) + extra
     except SystemExit as exc:  # argparse already printed usage + error
         return int(exc.code or 0)
-    from mcdp.trainer import TrainingDiverged
-
     try:
         return int(args._run(args) or 0)
-    except _user_errors() as exc:
+    except _loaded(USER_ERRORS) as exc:
         print(f"mcdp {args.command}: error: {exc}", file=sys.stderr)
         return EXIT_USAGE
-    except TrainingDiverged as exc:
+    except _loaded(DIVERGED) as exc:
         print(f"mcdp {args.command}: training diverged: {exc}", file=sys.stderr)
         return EXIT_DIVERGED
     except OSError as exc:
-        if not is_disk_full(exc):
-            raise
-        print(f"mcdp {args.command}: error: {disk_full_message(exc)}", file=sys.stderr)
-        return EXIT_DISK_FULL
+        if is_disk_full(exc):
+            print(f"mcdp {args.command}: error: {disk_full_message(exc)}", file=sys.stderr)
+            return EXIT_DISK_FULL
+        if is_user_file_error(exc):
+            print(f"mcdp {args.command}: error: {file_error_message(exc)}", file=sys.stderr)
+            return EXIT_USAGE
+        raise
     except KeyboardInterrupt:
         print(f"mcdp {args.command}: interrupted", file=sys.stderr)
         return INTERRUPTED

@@ -24,14 +24,15 @@ To add a method: write its network (and loss terms) in one module, then add one 
 """
 from __future__ import annotations
 
+import importlib
 from dataclasses import dataclass, field
-from typing import Any, Callable, Mapping
-
-import torch.nn as nn
+from typing import TYPE_CHECKING, Any, Callable, Mapping
 
 from corelib.configlib import ConfigError
 from mcdp.config import LossConfig, ModelConfig
-from mcdp.model import DepthModel, MonoDepthModel
+
+if TYPE_CHECKING:  # this table is read before torch is imported (a config is checked first)
+    import torch.nn as nn
 
 #: a method's own loss terms: (outputs of the depth network, batch, RunConfig) -> {name: weighted scalar}
 LossTerms = Callable[[dict, dict, Any], dict]
@@ -42,13 +43,22 @@ class Method:
     name: str
     label: str
     defaults: Mapping[str, Any] = field(default_factory=dict)
-    build: Callable[[ModelConfig], nn.Module] = DepthModel
+    #: the network's class (or any builder), or its "module:name", imported when first built or checked
+    build: Callable[[ModelConfig], nn.Module] | str = "mcdp.model:DepthModel"
     loss_terms: LossTerms | None = None
 
     @property
     def model(self) -> str:
         """The ``model.method`` value this method trains."""
         return str(self.defaults.get("model.method", self.name))
+
+    @property
+    def builder(self) -> Callable[[ModelConfig], nn.Module]:
+        """`build`, imported if it was given as "module:name" (so this table never imports torch)."""
+        if isinstance(self.build, str):
+            module, name = self.build.split(":")
+            return getattr(importlib.import_module(module), name)
+        return self.build
 
 
 METHODS: dict[str, Method] = {}
@@ -65,7 +75,7 @@ def register(method: Method) -> Method:
 
 for _m in (
     Method("mono2", "Mono2", {"model.method": "mono2", "model.refine_steps": 0, "loss.consistency_weight": 0.0},
-           MonoDepthModel),
+           "mcdp.model:MonoDepthModel"),
     Method("mcdp_m0", "MCDP (m = 0)", {"model.method": "mcdp", "model.refine_steps": 0,
                                        "loss.consistency_weight": PAPER_LAMBDA}),
     Method("mcdp_m1_nocon", "MCDP (w/o L_con, m = 1)", {"model.method": "mcdp", "model.refine_steps": 1,
@@ -101,11 +111,11 @@ def method_of(cfg: ModelConfig) -> Method:
 
 def check_model(cfg: ModelConfig) -> None:
     """ConfigError, naming the key, when ``cfg.method``'s network cannot be built from ``cfg`` (without building it)."""
-    check = getattr(method_of(cfg).build, "check_config", None)
+    check = getattr(method_of(cfg).builder, "check_config", None)
     if check is not None:
         check(cfg)
 
 
 def build_depth_model(cfg: ModelConfig) -> nn.Module:
     """The depth network for ``cfg.method`` (the builder of the first method that trains it)."""
-    return method_of(cfg).build(cfg)
+    return method_of(cfg).builder(cfg)

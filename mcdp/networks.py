@@ -15,6 +15,7 @@ Example::
 from __future__ import annotations
 
 import math
+import re
 from pathlib import Path
 
 import torch
@@ -36,8 +37,22 @@ def read_weights_file(path: str | Path, field: str, hint: str, error: type[Excep
     try:
         return torch.load(p, map_location="cpu", weights_only=True)
     except Exception as exc:  # noqa: BLE001 - any unreadable file is a user error
-        first = str(exc).strip().splitlines()[0][:200] if str(exc).strip() else type(exc).__name__
-        raise error(f"{field}: cannot read {p} as a plain weights file: {first}") from None
+        raise error(f"{field}: cannot read {p} as a plain weights file: {load_error_line(exc)}") from None
+
+
+def load_error_line(exc: BaseException) -> str:
+    """Why ``torch.load(weights_only=True)`` refused a file, in one line, without torch's advice to load it
+    again with ``weights_only=False`` or to allow its globals (that would run the code in a file one was
+    handed): what it holds that is not a tensor or plain container, when torch names it."""
+    text = str(exc).strip()
+    if "weights only load failed" not in text.lower():
+        return text.splitlines()[0][:200] if text else type(exc).__name__
+    code = re.search(r"GLOBAL [\w.]+|Unsupported global: [^\s]+", text)
+    if code:
+        return (f"it holds Python objects, not only tensors and plain containers ({code.group(0)[:120]}); refused "
+                "unread: loading it could run code")
+    other = re.search(r"Unsupported operand [^\s.]+", text)
+    return "torch's safe loader cannot read it" + (f" ({other.group(0)[:80]})" if other else "")
 
 
 def load_resnet18_weights(path: str | Path) -> dict:

@@ -52,8 +52,9 @@ def load_checkpoint(path: Path) -> dict:
         # weights_only: tensors and plain containers only; a pickle that would run code is refused
         ckpt = torch.load(path, map_location="cpu", weights_only=True)
     except Exception as exc:  # noqa: BLE001
-        first = str(exc).strip().splitlines()[0][:200] if str(exc).strip() else type(exc).__name__
-        raise RunError(f"checkpoint {path} is unreadable or not a plain weights file: {first}") from None
+        from mcdp.networks import load_error_line  # torch's advice to load it unsafely is left out
+
+        raise RunError(f"checkpoint {path} is unreadable or not a plain weights file: {load_error_line(exc)}") from None
     if not isinstance(ckpt, dict) or ckpt.get("version") != CHECKPOINT_VERSION or "config" not in ckpt:
         raise RunError(f"checkpoint {path} is not an mcdp checkpoint of version {CHECKPOINT_VERSION}")
     return ckpt

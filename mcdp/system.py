@@ -94,7 +94,7 @@ class SelfSupervisedSystem(torch.nn.Module):
         super().__init__()
         self.cfg = cfg
         method = method_of(cfg.model)
-        self.depth = method.build(cfg.model)
+        self.depth = method.builder(cfg.model)
         self.loss_terms = method.loss_terms  # the method's own terms (`mcdp.methods.Method`), or None
         self.pose = PoseModel(cfg.model.pretrained) if cfg.scale.source != "odometry" else None
         self.register_buffer("nbr", neighbour_table(neighbours, n_cams), persistent=False)

@@ -93,7 +93,7 @@ class Trainer:
             if self.dist.is_main:
                 try:
                     self._lock = claim(self.run_dir, "run", legacy=("run.json", "checkpoints"))
-                except FolderError as exc:
+                except (FolderError, OSError) as exc:  # OSError: a folder that cannot be written
                     refused = exc
             if self.dist.any_true(refused is not None, self.device):
                 raise refused or FolderError(f"{self.run_dir}: rank 0 could not claim the run folder (its message "

@@ -15,10 +15,9 @@ import sys
 from corelib import exitcodes
 from mcdp import cli as mcdp_cli
 from corelib.configlib import resolve_path
-from study.config import load_sweep_config
-from study.engines import EXIT_RUN_FAILED
-from study.pretrain import load_pretrain_config, run_pretrain
-from study.sweep import run_sweep
+
+# the study's modules (and torch, which they import) are imported by the command that runs, once its
+# config is checked: a wrong key fails in well under a second
 
 
 def add_pretrain_parser(subparsers) -> argparse.ArgumentParser:
@@ -34,6 +33,8 @@ def add_pretrain_parser(subparsers) -> argparse.ArgumentParser:
 
 def run_pretrain_command(args: argparse.Namespace) -> int:
     """Run the ``pretrain`` subcommand (a cached pretraining returns at once); 0 on success."""
+    from study.pretrain import load_pretrain_config, run_pretrain
+
     run_pretrain(load_pretrain_config(args.config, args.overrides), args.out, progress=not args.no_progress)
     return 0
 
@@ -86,9 +87,15 @@ def _allow_intermixed(p: argparse.ArgumentParser) -> None:
 def run_sweep_command(args: argparse.Namespace) -> int:
     """Run the ``sweep`` subcommand; 0 on success, 5 if some run failed (engine ray: retried once, then a
     ``failed`` row), else 3 if some run diverged (the report says which); 2 for a usage / config error."""
+    from study.config import check_nested_configs, load_sweep_config
+
     preset = resolve_path(args.preset, "sweep preset")
     engine = getattr(args, "engine", None)
     cfg = load_sweep_config(preset, args.overrides, {"engine": engine} if engine else None)
+    check_nested_configs(cfg)  # its overrides' configs too, before the sweep's modules (and torch) are imported
+    from study.engines import EXIT_RUN_FAILED
+    from study.sweep import run_sweep
+
     source = str(preset) + (" + " + " ".join(args.overrides) if args.overrides else "")
     results = run_sweep(cfg, args.out, progress=not args.no_progress,
                         config_source=source + (f" + --engine {engine}" if engine else ""))

@@ -184,19 +184,23 @@ def check_nested_configs(cfg: SweepConfig) -> None:
     data config, each (method, seed)'s run config), so that a wrong key or value in ``data_overrides`` /
     ``train_overrides`` (or the pretraining's) is a ConfigError naming it before anything is rendered."""
     where = "pretrain"
-    try:
+    try:  # every config first, then what the networks need of them (that imports torch)
         if cfg.pretrain is not None:
             from study.pretrain import resolved_configs
 
-            resolved_configs(cfg.pretrain)
+            resolved_configs(cfg.pretrain, check_network=False)
         where = "data_overrides"
         for o in cfg.overlaps:
             data_config_for(cfg, o)
         where = "train_overrides"
         init_from = "pretrained.pt" if cfg.pretrain is not None else None
-        for method in cfg.methods:
-            for seed in cfg.seeds:
-                check_model(run_config_for(cfg, method, seed, init_from)[0].model)
+        runs = [run_config_for(cfg, method, seed, init_from)[0] for method in cfg.methods for seed in cfg.seeds]
+        where = "pretrain"
+        if cfg.pretrain is not None:
+            resolved_configs(cfg.pretrain)
+        where = "train_overrides"
+        for rcfg in runs:
+            check_model(rcfg.model)
     except ConfigError as exc:
         raise ConfigError(f"sweep {where}: {exc}") from None
 

@@ -59,15 +59,17 @@ class PretrainConfig(StrictModel):
     workers: int = Field(2, ge=1, le=256)
 
 
-def resolved_configs(cfg: PretrainConfig):
-    """(DataConfig, RunConfig, hash) of a pretraining; the hash names what it learns from and how."""
+def resolved_configs(cfg: PretrainConfig, check_network: bool = True):
+    """(DataConfig, RunConfig, hash) of a pretraining; the hash names what it learns from and how.
+    ``check_network=False``: the configs only, not what the network needs of them (imports torch)."""
     from mcdp.config import RunConfig
     from mcdp.methods import check_model
     from synth.config import load_data_config
 
     dcfg = load_data_config(resolve_path(cfg.data, "data preset"), cfg.data_overrides)
     rcfg = load_config(RunConfig, resolve_path(cfg.train_preset, "training preset"), cfg.train_overrides)
-    check_model(rcfg.model)
+    if check_network:
+        check_model(rcfg.model)
     if not rcfg.model.mono_head:
         raise ConfigError(f"{cfg.train_preset}: a pretraining needs model.mono_head: true (both heads)")
     if rcfg.model.init_from is not None:

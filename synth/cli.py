@@ -112,12 +112,15 @@ def main(argv: list[str] | None = None) -> int:
         print(f"synth {args.cmd}: error: {exc}", file=sys.stderr)
         return 2
     except OSError as exc:
-        from corelib.atomic import disk_full_message, is_disk_full
+        from corelib.atomic import disk_full_message, file_error_message, is_disk_full, is_user_file_error
 
-        if not is_disk_full(exc):
-            raise
-        print(f"synth {args.cmd}: error: {disk_full_message(exc)}", file=sys.stderr)
-        return 4
+        if is_disk_full(exc):
+            print(f"synth {args.cmd}: error: {disk_full_message(exc)}", file=sys.stderr)
+            return exitcodes.DISK_FULL
+        if is_user_file_error(exc):  # permission denied, read-only file system, a name too long, ...
+            print(f"synth {args.cmd}: error: {file_error_message(exc)}", file=sys.stderr)
+            return exitcodes.USAGE
+        raise
     except RenderBackendError as exc:
         print(f"synth {args.cmd}: error: {exc}", file=sys.stderr)
         return exitcodes.NO_BACKEND
