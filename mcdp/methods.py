@@ -15,7 +15,11 @@ oracle_gt_median=None, scales=None, refine_scales=None) -> {("disp" | "depth", s
 
 A method's own loss terms (``loss_terms``): ``(outputs, batch, cfg) -> {name: scalar}``, each
 scalar already weighted; `mcdp.system.SelfSupervisedSystem` adds them to the step's loss and
-logs each under its name (the val loss that picks ``best.pt`` stays L_p + lambda L_con).
+logs each under its name (the val loss that picks ``best.pt`` stays L_p + lambda L_con). Besides
+the depth network's outputs, ``outputs`` then holds the step's ``"poses"`` ({-1, +1}: (B*N, 4, 4)
+T_src_tgt, the camera motions of the temporal warps: predicted, or the odometry's under
+``scale.source=odometry``) and ``"pairs"`` ((P,), (P,) int64: the directed adjacent camera pairs
+(tgt, src)), e.g. for `mcdp.fsm`.
 
 To add a method: write its network (and loss terms) in one module, then add one line to
 `METHODS` below (or call `register` from your own code before training)::
@@ -31,6 +35,7 @@ import torch.nn as nn
 
 from corelib.configlib import ConfigError
 from mcdp.config import LossConfig, ModelConfig
+from mcdp.fsm import FsmDepthModel, fsm_loss
 from mcdp.model import DepthModel, MonoDepthModel
 
 #: a method's own loss terms: (outputs of the depth network, batch, RunConfig) -> {name: weighted scalar}
@@ -66,6 +71,8 @@ def register(method: Method) -> Method:
 for _m in (
     Method("mono2", "Mono2", {"model.method": "mono2", "model.refine_steps": 0, "loss.consistency_weight": 0.0},
            MonoDepthModel),
+    Method("fsm", "FSM", {"model.method": "fsm", "model.refine_steps": 0, "loss.consistency_weight": 0.0},
+           FsmDepthModel, loss_terms=fsm_loss),
     Method("mcdp_m0", "MCDP (m = 0)", {"model.method": "mcdp", "model.refine_steps": 0,
                                        "loss.consistency_weight": PAPER_LAMBDA}),
     Method("mcdp_m1_nocon", "MCDP (w/o L_con, m = 1)", {"model.method": "mcdp", "model.refine_steps": 1,

@@ -204,6 +204,8 @@ class SelfSupervisedSystem(torch.nn.Module):
             losses[f"stage/{stage}"] = stage_loss.detach()
             total = total + stage_loss
         if self.loss_terms is not None:
+            # what a method's own terms may need of the step besides the depth (`mcdp.methods`)
+            outputs["poses"], outputs["pairs"] = poses, (self.pair_tgt, self.pair_src)
             for name, term in self.loss_terms(outputs, batch, cfg).items():
                 losses[name] = term.detach()
                 total = total + term
