@@ -15,7 +15,11 @@ oracle_gt_median=None, scales=None, refine_scales=None) -> {("disp" | "depth", s
 
 A method's own loss terms (``loss_terms``): ``(outputs, batch, cfg) -> {name: scalar}``, each
 scalar already weighted; `mcdp.system.SelfSupervisedSystem` adds them to the step's loss and
-logs each under its name (the val loss that picks ``best.pt`` stays L_p + lambda L_con).
+logs each under its name (the val loss that picks ``best.pt`` stays L_p + lambda L_con). Besides
+the depth network's outputs, ``outputs`` then holds the step's ``"poses"`` ({-1, +1}: (B*N, 4, 4)
+T_src_tgt, the camera motions of the temporal warps: predicted, or the odometry's under
+``scale.source=odometry``) and ``"pairs"`` ((P,), (P,) int64: the directed adjacent camera pairs
+(tgt, src)), e.g. for `mcdp.fsm`.
 
 To add a method: write its network (and loss terms) in one module, then add one line to
 `METHODS` below (or call `register` from your own code before training)::
@@ -45,7 +49,8 @@ class Method:
     defaults: Mapping[str, Any] = field(default_factory=dict)
     #: the network's class (or any builder), or its "module:name", imported when first built or checked
     build: Callable[[ModelConfig], nn.Module] | str = "mcdp.model:DepthModel"
-    loss_terms: LossTerms | None = None
+    #: its own loss terms, or their "module:name" (imported when first used), or None
+    loss_terms: LossTerms | str | None = None
 
     @property
     def model(self) -> str:
@@ -55,10 +60,20 @@ class Method:
     @property
     def builder(self) -> Callable[[ModelConfig], nn.Module]:
         """`build`, imported if it was given as "module:name" (so this table never imports torch)."""
-        if isinstance(self.build, str):
-            module, name = self.build.split(":")
-            return getattr(importlib.import_module(module), name)
-        return self.build
+        return _resolve(self.build)
+
+    @property
+    def terms(self) -> LossTerms | None:
+        """`loss_terms`, imported if it was given as "module:name"."""
+        return None if self.loss_terms is None else _resolve(self.loss_terms)
+
+
+def _resolve(obj):
+    """``obj`` itself, or the object a "module:name" string names."""
+    if isinstance(obj, str):
+        module, name = obj.split(":")
+        return getattr(importlib.import_module(module), name)
+    return obj
 
 
 METHODS: dict[str, Method] = {}
@@ -76,6 +91,8 @@ def register(method: Method) -> Method:
 for _m in (
     Method("mono2", "Mono2", {"model.method": "mono2", "model.refine_steps": 0, "loss.consistency_weight": 0.0},
            "mcdp.model:MonoDepthModel"),
+    Method("fsm", "FSM", {"model.method": "fsm", "model.refine_steps": 0, "loss.consistency_weight": 0.0},
+           "mcdp.fsm:FsmDepthModel", loss_terms="mcdp.fsm:fsm_loss"),
     Method("mcdp_m0", "MCDP (m = 0)", {"model.method": "mcdp", "model.refine_steps": 0,
                                        "loss.consistency_weight": PAPER_LAMBDA}),
     Method("mcdp_m1_nocon", "MCDP (w/o L_con, m = 1)", {"model.method": "mcdp", "model.refine_steps": 1,

@@ -95,7 +95,7 @@ class SelfSupervisedSystem(torch.nn.Module):
         self.cfg = cfg
         method = method_of(cfg.model)
         self.depth = method.builder(cfg.model)
-        self.loss_terms = method.loss_terms  # the method's own terms (`mcdp.methods.Method`), or None
+        self.loss_terms = method.terms  # the method's own terms (`mcdp.methods.Method`), or None
         self.pose = PoseModel(cfg.model.pretrained) if cfg.scale.source != "odometry" else None
         self.register_buffer("nbr", neighbour_table(neighbours, n_cams), persistent=False)
         tgt, src = directed_pairs(neighbours)
@@ -204,6 +204,8 @@ class SelfSupervisedSystem(torch.nn.Module):
             losses[f"stage/{stage}"] = stage_loss.detach()
             total = total + stage_loss
         if self.loss_terms is not None:
+            # what a method's own terms may need of the step besides the depth (`mcdp.methods`)
+            outputs["poses"], outputs["pairs"] = poses, (self.pair_tgt, self.pair_src)
             for name, term in self.loss_terms(outputs, batch, cfg).items():
                 losses[name] = term.detach()
                 total = total + term

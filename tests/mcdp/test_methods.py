@@ -100,7 +100,7 @@ def test_an_unregistered_model_is_refused_naming_the_key():
 
 
 @pytest.mark.parametrize("folder", ["configs/train", "configs/train/tiny"])
-@pytest.mark.parametrize("name", methods.PAPER_METHODS)
+@pytest.mark.parametrize("name", list(methods.METHODS))
 def test_each_preset_agrees_with_its_registry_entry(folder, name):
     """A preset resolved on its own (``mcdp train PRESET``) is the config the sweep resolves for its method
     (the registry's defaults under it): every registry value holds in it, whether the preset writes it
