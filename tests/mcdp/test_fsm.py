@@ -3,6 +3,7 @@ per-pixel minimum do what they say, pose consistency is zero exactly for a rigid
 tiny preset trains, and cutting the neighbours at inference changes nothing."""
 from __future__ import annotations
 
+import json
 from pathlib import Path
 
 import numpy as np
@@ -184,5 +185,6 @@ def test_the_tiny_fsm_preset_trains_two_steps_and_its_cut_evaluation_equals_its_
     assert cut.cut and isinstance(cut.model, FsmDepthModel)
     a = evaluate(ds, pred.predict, "test", EvalConfig(), progress=False)
     c = evaluate(ds, cut.predict, "test", EvalConfig(), progress=False)
-    assert a["stages"] == c["stages"]  # nothing to cut: the network never reads the neighbours
+    # nothing to cut: the network never reads the neighbours (compared as JSON: NaN == NaN there)
+    assert json.dumps(a["stages"], sort_keys=True) == json.dumps(c["stages"], sort_keys=True)
     assert a["stages"]["final"]["median"]["mean"]["abs_rel"] > 0
