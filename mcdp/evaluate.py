@@ -64,6 +64,7 @@ import torch
 
 from mcdp.config import EvalConfig
 from synth.overlap import overlap_mask
+from synth.protocol import DatasetReader
 
 from . import geometry
 from .metrics import (
@@ -156,7 +157,7 @@ def _splat_pairs(depths, pairs, Ks, T_c_c, shapes, scene_masks):
 
 # --------------------------------------------------------------------------- evaluation
 def evaluate(
-    ds,
+    ds: DatasetReader,
     predict_fn: Callable[[str, int], Mapping[str, np.ndarray]],
     split: str = "test",
     cfg: EvalConfig | None = None,
@@ -165,8 +166,8 @@ def evaluate(
     """Evaluate depth predictions over a dataset split; returns the metrics.json dict (module docstring).
 
     Args:
-        ds: a ``synth.dataset`` Dataset (uses camera_names, cameras[.K .T_ego_cam
-            .width .height], neighbours, split, n_frames, read_depth, mask).
+        ds: the dataset (`synth.protocol.DatasetReader`; reads camera_names, cameras, neighbours,
+            split, n_frames, read_depth, mask, ground_truth).
         predict_fn: ``(seq, frame) -> {stage: (Ncam, H, W) float depth in metres}``
             at the dataset resolution, cameras in rig order, stages in order
             (the last one is also reported as "final").
@@ -312,13 +313,13 @@ def evaluate(
         "frame_stride": int(cfg.frame_stride),
         "skip_ends": bool(cfg.skip_ends),
         "cameras": names,
-        "ground_truth": dict(getattr(ds, "ground_truth", None) or {"kind": "unknown"}),  # read_depth's provenance
+        "ground_truth": dict(ds.ground_truth or {"kind": "unknown"}),  # read_depth's provenance
         "stages": out_stages,
     }
 
 
 # --------------------------------------------------------------------------- reference predictor
-def median_gt_depth(ds, split: str = "train", cfg: EvalConfig | None = None) -> float:
+def median_gt_depth(ds: DatasetReader, split: str = "train", cfg: EvalConfig | None = None) -> float:
     """Median ground-truth depth over a split's evaluable pixels (the constant of the reference predictor).
 
     Uses the same pixels as `evaluate` (depth range, self-occlusion masks, frame stride,
@@ -344,7 +345,7 @@ def median_gt_depth(ds, split: str = "train", cfg: EvalConfig | None = None) -> 
     return float(np.median(v))
 
 
-def constant_depth_predictor(ds, depth_m: float) -> Callable[[str, int], Mapping[str, np.ndarray]]:
+def constant_depth_predictor(ds: DatasetReader, depth_m: float) -> Callable[[str, int], Mapping[str, np.ndarray]]:
     """A `predict_fn` for `evaluate` that predicts `depth_m` metres at every pixel of every camera."""
     if not (np.isfinite(depth_m) and depth_m > 0):
         raise ValueError(f"depth_m must be a positive finite depth in metres, got {depth_m}")

@@ -1,7 +1,7 @@
 """Read a nuScenes dataroot (ours from `synth export --format nuscenes`, or the real one) as a `Dataset`.
 
 `open_nuscenes(root)` loads the tables with the official devkit (``nuscenes-devkit``, the ``nuscenes``
-extra) and returns a `NuScenesDataset` with the interface `mcdp` uses (`synth.dataset.Dataset`'s):
+extra) and returns a `NuScenesDataset` with the interface `mcdp` uses (`synth.protocol.DatasetReader`):
 cameras, neighbours, splits, sequences, ego poses, RGB, depth, masks. `synth.dataset.open_dataset`
 calls it for a folder that looks like a dataroot (`is_nuscenes_root`). docs/NUSCENES.md, "Reading a
 nuScenes dataroot", has the mapping and its limits; in short:
@@ -75,7 +75,7 @@ def _angles(K: np.ndarray, T: np.ndarray, width: int) -> tuple[float, float, flo
 
 
 class NuScenesDataset:
-    """A nuScenes dataroot behind `synth.dataset.Dataset`'s interface (module docstring). Holds plain
+    """A nuScenes dataroot as a `synth.protocol.DatasetReader` (module docstring). Holds plain
     records only (the devkit object is dropped after `open_nuscenes`), so it pickles cheaply."""
 
     def __init__(self, root: Path, version: str, cameras: list[CameraSpec], frames: dict[str, list[dict]],
@@ -104,7 +104,7 @@ class NuScenesDataset:
             "pixel_centre": pixel_centre,
         }
 
-    # --------------------------------------------------------------- the Dataset interface
+    # --------------------------------------------------------------- the DatasetReader interface
     @property
     def width(self) -> int:
         return self.cameras[0].width
