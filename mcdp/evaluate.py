@@ -69,9 +69,9 @@ from synth.protocol import DatasetReader
 from . import geometry
 from .metrics import (
     METRIC_NAMES,
-    _metric_terms,
-    _ratio_of_medians,
-    _reduce_terms,
+    metric_terms,
+    ratio_of_medians,
+    reduce_terms,
     clamp_depth,
     dep_con,
     nan_metrics,
@@ -264,10 +264,10 @@ def evaluate(
                 if p.size >= 10:
                     q10, q90 = np.percentile(p, [10, 90])
                     spread_acc[stage].append(float(q90 / max(q10, 1e-6)))
-            rig = _ratio_of_medians(np.concatenate(g_v), np.concatenate(p_v))
+            rig = ratio_of_medians(np.concatenate(g_v), np.concatenate(p_v))
             scales = {
                 "none": [1.0] * n_cam,
-                "median": [_ratio_of_medians(g, p) for g, p in zip(g_v, p_v)],
+                "median": [ratio_of_medians(g, p) for g, p in zip(g_v, p_v)],
                 "rig_median": [rig] * n_cam,
             }
             for sc in SCALINGS:
@@ -277,9 +277,9 @@ def evaluate(
                         for r in region_sel:
                             acc[stage][sc][r][c].append(nan_metrics())
                         continue
-                    terms = _metric_terms(g_v[c], clamp_depth(p_v[c] * s_c, cfg.min_depth, cfg.max_depth), lg_v[c])
+                    terms = metric_terms(g_v[c], clamp_depth(p_v[c] * s_c, cfg.min_depth, cfg.max_depth), lg_v[c])
                     for r, sel in region_sel.items():
-                        acc[stage][sc][r][c].append(_reduce_terms(terms, sel[c]))
+                        acc[stage][sc][r][c].append(reduce_terms(terms, sel[c]))
             # Dep Con: unscaled (metric) predictions, clamped like the "none" metrics
             metric_preds = [clamp_depth(p, cfg.min_depth, cfg.max_depth) for p in preds]
             d_hats, hits = _splat_pairs(metric_preds, pairs, Ks, T_c_c, shapes, scene_masks)

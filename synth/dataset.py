@@ -157,8 +157,14 @@ class Dataset:
 _PLAIN_NAME = re.compile(r"^[A-Za-z0-9][A-Za-z0-9._-]{0,127}$")
 
 
+def is_plain_name(name) -> bool:
+    """A string of letters, digits, ``. _ -`` (at most 128, starting with a letter or digit): no path
+    separator, never ``.`` or ``..``; safe as one folder or file name."""
+    return isinstance(name, str) and bool(_PLAIN_NAME.match(name)) and name not in (".", "..")
+
+
 def _plain(name, field: str, mpath: Path) -> str:
-    if not isinstance(name, str) or not _PLAIN_NAME.match(name) or name in (".", ".."):
+    if not is_plain_name(name):
         raise DatasetError(f"{mpath}: {field} {str(name)[:80]!r} is not a plain name (letters, digits, . _ -; "
                            "no path separators, no '..')")
     return name

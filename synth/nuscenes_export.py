@@ -43,7 +43,7 @@ import numpy as np
 
 from corelib.atomic import atomic_write_bytes
 from corelib.rundir import lock_folder
-from synth.dataset import _PLAIN_NAME, open_dataset
+from synth.dataset import is_plain_name, open_dataset
 from synth.files import DatasetError, read_json, read_png, write_json, write_png
 from synth.lidar import LidarConfig, luma, simulate_sweep
 
@@ -212,8 +212,7 @@ def export_nuscenes(dataset: str | Path, out: str | Path, version: str = DEFAULT
     """Write the nuScenes dataroot `out` from the synth dataset `dataset`; returns a summary dict.
     `lidar=None` exports cameras only (no LIDAR_TOP)."""
     src, out = Path(dataset), Path(out)
-    if not isinstance(version, str) or not _PLAIN_NAME.match(version) or version in _OWNED or version.endswith(
-            ".partial"):
+    if not is_plain_name(version) or version in _OWNED or version.endswith(".partial"):
         raise ExportError(f"--version {version!r} is not a plain folder name (letters, digits, . _ -)")
     if not 1 <= int(jpeg_quality) <= 100:
         raise ExportError(f"jpeg quality {jpeg_quality} is not in 1..100")
