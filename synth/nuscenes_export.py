@@ -95,14 +95,6 @@ def rotation_to_quaternion(R: np.ndarray) -> list[float]:
     return [float(x) for x in q]
 
 
-def quaternion_to_rotation(q) -> np.ndarray:
-    """3x3 rotation of a quaternion [w, x, y, z] (the inverse of `rotation_to_quaternion`)."""
-    w, x, y, z = np.asarray(q, np.float64) / np.linalg.norm(q)
-    return np.array([[1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
-                     [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
-                     [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)]])
-
-
 def _check_rigid(T: np.ndarray, where: str) -> np.ndarray:
     T = np.asarray(T, np.float64)
     if T.shape != (4, 4) or not np.all(np.isfinite(T)):
