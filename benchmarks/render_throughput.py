@@ -35,7 +35,7 @@ def main(argv=None) -> int:
     import numpy as np
 
     from synth.config import load_data_config
-    from synth.render import _get_renderer, make_rig, render_dataset
+    from synth.render import renderer_for, make_rig, render_dataset
 
     rows = []
     for size in args.sizes.split(","):
@@ -49,7 +49,7 @@ def main(argv=None) -> int:
         from scenes import build_scene
         from synth.lighting import draw_sequence_lighting
         rig = make_rig(cfg)
-        r = _get_renderer(cfg)
+        r = renderer_for(cfg)
         scene = build_scene(cfg.scene, args.frames, cfg.dataset.fps, np.random.default_rng(1))
         r.load_scene(scene, None)
         light = draw_sequence_lighting(cfg.lighting, rig.names, np.random.default_rng(2)).light

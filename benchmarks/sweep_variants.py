@@ -30,7 +30,7 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from study.results import CUT, ORACLE, _agg, paired_difference  # noqa: E402
+from study.results import CUT, ORACLE, method_agg, paired_difference  # noqa: E402
 
 
 def link_tree(src: Path, dst: Path) -> None:
@@ -124,7 +124,7 @@ def table(rows: list[tuple[str, dict]]) -> str:
     for name, res in rows:
         for o in res["overlaps"]:
             for m in res["methods"]:
-                g = lambda k, d=3: _ms(_agg(res, o, m, k), d)  # noqa: E731
+                g = lambda k, d=3: _ms(method_agg(res, o, m, k), d)  # noqa: E731
                 has_cut = m + CUT in res.get("evaluations", [])
                 prop = _pd(paired_difference(res, o, m, m + CUT, "median.non_overlap.abs_rel")) if has_cut else "—"
                 direct = _pd(paired_difference(res, o, m, m + CUT, "median.overlap.abs_rel")) if has_cut else "—"
@@ -139,7 +139,8 @@ def table(rows: list[tuple[str, dict]]) -> str:
                 for m in res["methods"]:
                     if m + ORACLE in res.get("evaluations", []):
                         L.append(f"| {name} | {o:.2f} | *{m} ORACLE weights* | "
-                                 f"{_ms(_agg(res, o, m + ORACLE, 'median.mean.abs_rel'))} | | | | | | | | | | | |")
+                                 f"{_ms(method_agg(res, o, m + ORACLE, 'median.mean.abs_rel'))}"
+                                 " | | | | | | | | | | | |")
     return "\n".join(L)
 
 

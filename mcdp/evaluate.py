@@ -64,13 +64,14 @@ import torch
 
 from mcdp.config import EvalConfig
 from synth.overlap import overlap_mask
+from synth.protocol import DatasetReader
 
 from . import geometry
 from .metrics import (
     METRIC_NAMES,
-    _metric_terms,
-    _ratio_of_medians,
-    _reduce_terms,
+    metric_terms,
+    ratio_of_medians,
+    reduce_terms,
     clamp_depth,
     dep_con,
     nan_metrics,
@@ -154,9 +155,108 @@ def _splat_pairs(depths, pairs, Ks, T_c_c, shapes, scene_masks):
     return d_out, h_out
 
 
+class _Rig:
+    """What `evaluate` reads of the rig once: camera names, sizes, K, T_ego_cam, scene masks, and the ordered
+    neighbour pairs (src j, tgt i) with their relative poses T_ci_cj."""
+
+    def __init__(self, ds: DatasetReader) -> None:
+        self.names = list(ds.camera_names)
+        specs = list(ds.cameras)
+        self.shapes = [(int(s.height), int(s.width)) for s in specs]
+        self.Ks = [np.asarray(s.K, dtype=np.float64) for s in specs]
+        self.Ts = [np.asarray(s.T_ego_cam, dtype=np.float64) for s in specs]
+        self.masks = [np.asarray(ds.mask(n), dtype=bool) for n in self.names]
+        for c, (m, shp) in enumerate(zip(self.masks, self.shapes)):
+            if m.shape != shp:
+                raise ValueError(f"ds.mask({self.names[c]!r}) has shape {m.shape}, camera is {shp}")
+        self.pairs = []  # ordered (src j, tgt i)
+        for a, b in ds.neighbours:
+            self.pairs += [(int(a), int(b)), (int(b), int(a))]
+        self.nbrs = {i: sorted({j for j, t in self.pairs if t == i}) for i in range(len(self.names))}
+        self.T_c_c = {(i, j): np.linalg.inv(self.Ts[i]) @ self.Ts[j] for j, i in self.pairs}  # T_ci_cj
+        self.pair_key = {(j, i): f"{self.names[j]}->{self.names[i]}" for j, i in self.pairs}
+
+
+class _Truth:
+    """One sample's ground truth: depth per camera, its valid pixels, and those pixels' depth, log depth and
+    region selectors (all / seen by a neighbour / not), gathered once (metrics only look at valid pixels)."""
+
+    def __init__(self, ds: DatasetReader, rig: _Rig, seq: str, f: int, cfg: EvalConfig) -> None:
+        self.gts = [np.asarray(ds.read_depth(seq, n, f), dtype=np.float64) for n in rig.names]
+        for c, g in enumerate(self.gts):
+            if g.shape != rig.shapes[c]:
+                raise ValueError(f"ds.read_depth({seq!r}, {rig.names[c]!r}, {f}) has shape {g.shape}, expected "
+                                 f"{rig.shapes[c]}")
+        self.valids = [valid_gt_mask(g, m, cfg.min_depth, cfg.max_depth) for g, m in zip(self.gts, rig.masks)]
+        overlaps = []
+        for i in range(len(rig.names)):
+            ov = np.zeros(rig.shapes[i], dtype=bool)
+            for j in rig.nbrs[i]:
+                ov |= overlap_mask(self.gts[i], rig.Ks[i], rig.Ts[i], self.gts[j], rig.Ks[j], rig.Ts[j],
+                                   mask_i=rig.masks[i], mask_j=rig.masks[j])
+            overlaps.append(ov)
+        self.g_v = [g[v] for g, v in zip(self.gts, self.valids)]  # 1-D, float64
+        self.lg_v = [np.log(g) for g in self.g_v]
+        ov_v = [o[v] for o, v in zip(overlaps, self.valids)]
+        self.region_sel = {"all": [None] * len(rig.names), "overlap": ov_v, "non_overlap": [~o for o in ov_v]}
+
+
+def _score(preds: list, truth: _Truth, rig: _Rig, cfg: EvalConfig, acc: dict, dc_acc: dict, spreads: list) -> None:
+    """Append one stage's per-image metrics of one sample (per scaling, region, camera) to `acc`, its Dep Con
+    per pair to `dc_acc` and its prediction spreads to `spreads`."""
+    n_cam = len(rig.names)
+    p_v = [p[v] for p, v in zip(preds, truth.valids)]
+    for p in p_v:  # collapse diagnostic (mcdp.diagnostics): p90/p10 of the prediction
+        if p.size >= 10:
+            q10, q90 = np.percentile(p, [10, 90])
+            spreads.append(float(q90 / max(q10, 1e-6)))
+    g_v = truth.g_v
+    rig_scale = ratio_of_medians(np.concatenate(g_v), np.concatenate(p_v))
+    scales = {
+        "none": [1.0] * n_cam,
+        "median": [ratio_of_medians(g, p) for g, p in zip(g_v, p_v)],
+        "rig_median": [rig_scale] * n_cam,
+    }
+    for sc in SCALINGS:
+        for c in range(n_cam):
+            s_c = scales[sc][c]
+            if g_v[c].size == 0 or np.isnan(s_c):
+                for r in truth.region_sel:
+                    acc[sc][r][c].append(nan_metrics())
+                continue
+            terms = metric_terms(g_v[c], clamp_depth(p_v[c] * s_c, cfg.min_depth, cfg.max_depth), truth.lg_v[c])
+            for r, sel in truth.region_sel.items():
+                acc[sc][r][c].append(reduce_terms(terms, sel[c]))
+    # Dep Con: unscaled (metric) predictions, clamped like the "none" metrics
+    metric_preds = [clamp_depth(p, cfg.min_depth, cfg.max_depth) for p in preds]
+    d_hats, hits = _splat_pairs(metric_preds, rig.pairs, rig.Ks, rig.T_c_c, rig.shapes, rig.masks)
+    for (j, i), d_hat, hit in zip(rig.pairs, d_hats, hits):
+        dc_acc[(j, i)].append(dep_con(metric_preds[i], d_hat, truth.gts[i], truth.valids[i] & hit))
+
+
+def _summary(rig: _Rig, acc: dict, dc_acc: dict, spreads: list) -> dict:
+    """One stage's entry of metrics.json from its per-image values (means over images, then cameras)."""
+    names, st = rig.names, {}
+    for sc in SCALINGS:
+        per = {r: {names[c]: _mean_dicts(acc[sc][r][c]) for c in range(len(names))} for r in REGIONS}
+        st[sc] = {
+            "mean": _mean_dicts(per["all"].values()),
+            "per_camera": per["all"],
+            "overlap": _mean_dicts(per["overlap"].values()),
+            "non_overlap": _mean_dicts(per["non_overlap"].values()),
+            "overlap_per_camera": per["overlap"],
+            "non_overlap_per_camera": per["non_overlap"],
+        }
+    per_pair = {rig.pair_key[p]: _nanmean(v) for p, v in dc_acc.items()}
+    per_cam = {names[i]: _nanmean(per_pair[rig.pair_key[(j, i)]] for j in rig.nbrs[i]) for i in range(len(names))}
+    st["dep_con"] = {"mean": _nanmean(per_pair.values()), "per_pair": per_pair, "per_camera": per_cam}
+    st["spread"] = {"ratio": float(np.median(spreads)) if spreads else float("nan")}
+    return st
+
+
 # --------------------------------------------------------------------------- evaluation
 def evaluate(
-    ds,
+    ds: DatasetReader,
     predict_fn: Callable[[str, int], Mapping[str, np.ndarray]],
     split: str = "test",
     cfg: EvalConfig | None = None,
@@ -165,8 +265,8 @@ def evaluate(
     """Evaluate depth predictions over a dataset split; returns the metrics.json dict (module docstring).
 
     Args:
-        ds: a ``synth.dataset`` Dataset (uses camera_names, cameras[.K .T_ego_cam
-            .width .height], neighbours, split, n_frames, read_depth, mask).
+        ds: the dataset (`synth.protocol.DatasetReader`; reads camera_names, cameras, neighbours,
+            split, n_frames, read_depth, mask, ground_truth).
         predict_fn: ``(seq, frame) -> {stage: (Ncam, H, W) float depth in metres}``
             at the dataset resolution, cameras in rig order, stages in order
             (the last one is also reported as "final").
@@ -182,23 +282,7 @@ def evaluate(
             wrong shapes / an inconsistent set of stages.
     """
     cfg = cfg if cfg is not None else EvalConfig()
-    names = list(ds.camera_names)
-    specs = list(ds.cameras)
-    n_cam = len(names)
-    shapes = [(int(s.height), int(s.width)) for s in specs]
-    Ks = [np.asarray(s.K, dtype=np.float64) for s in specs]
-    Ts = [np.asarray(s.T_ego_cam, dtype=np.float64) for s in specs]
-    scene_masks = [np.asarray(ds.mask(n), dtype=bool) for n in names]
-    for c, (m, shp) in enumerate(zip(scene_masks, shapes)):
-        if m.shape != shp:
-            raise ValueError(f"ds.mask({names[c]!r}) has shape {m.shape}, camera is {shp}")
-    pairs = []  # ordered (src j, tgt i)
-    for a, b in ds.neighbours:
-        pairs += [(int(a), int(b)), (int(b), int(a))]
-    nbrs = {i: sorted({j for j, t in pairs if t == i}) for i in range(n_cam)}
-    T_c_c = {(i, j): np.linalg.inv(Ts[i]) @ Ts[j] for j, i in pairs}  # T_ci_cj
-    pair_key = {(j, i): f"{names[j]}->{names[i]}" for j, i in pairs}
-
+    rig = _Rig(ds)
     samples = [(seq, f) for seq in ds.split(split) for f in _frames(ds.n_frames(seq), cfg)]
     if not samples:
         raise ValueError(f"split {split!r} has no frame to evaluate (skip_ends={cfg.skip_ends})")
@@ -213,24 +297,7 @@ def evaluate(
 
         it = tqdm(samples, desc=f"eval {split}", unit="sample")
     for seq, f in it:
-        gts = [np.asarray(ds.read_depth(seq, n, f), dtype=np.float64) for n in names]
-        for c, g in enumerate(gts):
-            if g.shape != shapes[c]:
-                raise ValueError(f"ds.read_depth({seq!r}, {names[c]!r}, {f}) has shape {g.shape}, expected {shapes[c]}")
-        valids = [valid_gt_mask(g, m, cfg.min_depth, cfg.max_depth) for g, m in zip(gts, scene_masks)]
-        overlaps = []
-        for i in range(n_cam):
-            ov = np.zeros(shapes[i], dtype=bool)
-            for j in nbrs[i]:
-                ov |= overlap_mask(gts[i], Ks[i], Ts[i], gts[j], Ks[j], Ts[j], mask_i=scene_masks[i],
-                                   mask_j=scene_masks[j])
-            overlaps.append(ov)
-        # metrics only ever look at valid pixels: gather them once per camera (1-D, float64)
-        g_v = [g[v] for g, v in zip(gts, valids)]
-        lg_v = [np.log(g) for g in g_v]
-        ov_v = [o[v] for o, v in zip(overlaps, valids)]
-        region_sel = {"all": [None] * n_cam, "overlap": ov_v, "non_overlap": [~o for o in ov_v]}
-
+        truth = _Truth(ds, rig, seq, f, cfg)
         raw = dict(predict_fn(seq, f))
         if not raw:
             raise ValueError(f"predict_fn({seq!r}, {f}) returned no stage")
@@ -241,8 +308,8 @@ def evaluate(
             keys.append("final")
         if stages is None:
             stages = keys
-            acc = {s: {sc: {r: [[] for _ in range(n_cam)] for r in region_sel} for sc in SCALINGS} for s in stages}
-            dc_acc = {s: {p: [] for p in pairs} for s in stages}
+            acc = {s: {sc: {r: [[] for _ in rig.names] for r in REGIONS} for sc in SCALINGS} for s in stages}
+            dc_acc = {s: {p: [] for p in rig.pairs} for s in stages}
             spread_acc = {s: [] for s in stages}
         elif keys != stages:
             raise ValueError(f"predict_fn({seq!r}, {f}) returned stages {keys}, earlier samples {stages}")
@@ -251,59 +318,16 @@ def evaluate(
             if stage == "final" and alias is not None:
                 for sc in SCALINGS:
                     for r in REGIONS:
-                        for c in range(n_cam):
+                        for c in range(len(rig.names)):
                             acc[stage][sc][r][c].append(acc[alias][sc][r][c][-1])
-                for p in pairs:
+                for p in rig.pairs:
                     dc_acc[stage][p].append(dc_acc[alias][p][-1])
                 spread_acc[stage] = spread_acc[alias]
                 continue
-            preds = _as_stack(raw[stage], names, shapes, stage)
-            p_v = [p[v] for p, v in zip(preds, valids)]
-            for p in p_v:  # collapse diagnostic (mcdp.diagnostics): p90/p10 of the prediction
-                if p.size >= 10:
-                    q10, q90 = np.percentile(p, [10, 90])
-                    spread_acc[stage].append(float(q90 / max(q10, 1e-6)))
-            rig = _ratio_of_medians(np.concatenate(g_v), np.concatenate(p_v))
-            scales = {
-                "none": [1.0] * n_cam,
-                "median": [_ratio_of_medians(g, p) for g, p in zip(g_v, p_v)],
-                "rig_median": [rig] * n_cam,
-            }
-            for sc in SCALINGS:
-                for c in range(n_cam):
-                    s_c = scales[sc][c]
-                    if g_v[c].size == 0 or np.isnan(s_c):
-                        for r in region_sel:
-                            acc[stage][sc][r][c].append(nan_metrics())
-                        continue
-                    terms = _metric_terms(g_v[c], clamp_depth(p_v[c] * s_c, cfg.min_depth, cfg.max_depth), lg_v[c])
-                    for r, sel in region_sel.items():
-                        acc[stage][sc][r][c].append(_reduce_terms(terms, sel[c]))
-            # Dep Con: unscaled (metric) predictions, clamped like the "none" metrics
-            metric_preds = [clamp_depth(p, cfg.min_depth, cfg.max_depth) for p in preds]
-            d_hats, hits = _splat_pairs(metric_preds, pairs, Ks, T_c_c, shapes, scene_masks)
-            for (j, i), d_hat, hit in zip(pairs, d_hats, hits):
-                dc_acc[stage][(j, i)].append(dep_con(metric_preds[i], d_hat, gts[i], valids[i] & hit))
+            preds = _as_stack(raw[stage], rig.names, rig.shapes, stage)
+            _score(preds, truth, rig, cfg, acc[stage], dc_acc[stage], spread_acc[stage])
 
-    out_stages = {}
-    for stage in stages:
-        st = {}
-        for sc in SCALINGS:
-            per = {r: {names[c]: _mean_dicts(acc[stage][sc][r][c]) for c in range(n_cam)} for r in REGIONS}
-            st[sc] = {
-                "mean": _mean_dicts(per["all"].values()),
-                "per_camera": per["all"],
-                "overlap": _mean_dicts(per["overlap"].values()),
-                "non_overlap": _mean_dicts(per["non_overlap"].values()),
-                "overlap_per_camera": per["overlap"],
-                "non_overlap_per_camera": per["non_overlap"],
-            }
-        per_pair = {pair_key[p]: _nanmean(v) for p, v in dc_acc[stage].items()}
-        per_cam = {names[i]: _nanmean(per_pair[pair_key[(j, i)]] for j in nbrs[i]) for i in range(n_cam)}
-        st["dep_con"] = {"mean": _nanmean(per_pair.values()), "per_pair": per_pair, "per_camera": per_cam}
-        st["spread"] = {"ratio": float(np.median(spread_acc[stage])) if spread_acc[stage] else float("nan")}
-        out_stages[stage] = st
-
+    out_stages = {stage: _summary(rig, acc[stage], dc_acc[stage], spread_acc[stage]) for stage in stages}
     return {
         "split": split,
         "n_samples": len(samples),
@@ -311,14 +335,14 @@ def evaluate(
         "max_depth": float(cfg.max_depth),
         "frame_stride": int(cfg.frame_stride),
         "skip_ends": bool(cfg.skip_ends),
-        "cameras": names,
-        "ground_truth": dict(getattr(ds, "ground_truth", None) or {"kind": "unknown"}),  # read_depth's provenance
+        "cameras": rig.names,
+        "ground_truth": dict(ds.ground_truth or {"kind": "unknown"}),  # read_depth's provenance
         "stages": out_stages,
     }
 
 
 # --------------------------------------------------------------------------- reference predictor
-def median_gt_depth(ds, split: str = "train", cfg: EvalConfig | None = None) -> float:
+def median_gt_depth(ds: DatasetReader, split: str = "train", cfg: EvalConfig | None = None) -> float:
     """Median ground-truth depth over a split's evaluable pixels (the constant of the reference predictor).
 
     Uses the same pixels as `evaluate` (depth range, self-occlusion masks, frame stride,
@@ -344,7 +368,7 @@ def median_gt_depth(ds, split: str = "train", cfg: EvalConfig | None = None) -> 
     return float(np.median(v))
 
 
-def constant_depth_predictor(ds, depth_m: float) -> Callable[[str, int], Mapping[str, np.ndarray]]:
+def constant_depth_predictor(ds: DatasetReader, depth_m: float) -> Callable[[str, int], Mapping[str, np.ndarray]]:
     """A `predict_fn` for `evaluate` that predicts `depth_m` metres at every pixel of every camera."""
     if not (np.isfinite(depth_m) and depth_m > 0):
         raise ValueError(f"depth_m must be a positive finite depth in metres, got {depth_m}")

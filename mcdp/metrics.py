@@ -83,10 +83,10 @@ def depth_metrics(gt, pred, valid) -> dict:
         raise ValueError("gt must be positive and finite on valid pixels")
     if not (np.all(p > 0) and np.all(np.isfinite(p))):
         raise ValueError("pred must be positive and finite on valid pixels (clamp it to [min_depth, max_depth])")
-    return _reduce_terms(_metric_terms(g, p), None)
+    return reduce_terms(metric_terms(g, p), None)
 
 
-def _metric_terms(g: np.ndarray, p: np.ndarray, log_g: np.ndarray | None = None) -> np.ndarray:
+def metric_terms(g: np.ndarray, p: np.ndarray, log_g: np.ndarray | None = None) -> np.ndarray:
     """Per-pixel terms (7, N) of every metric (``METRIC_NAMES`` order) for 1-D float64 g, p > 0."""
     d = g - p
     d2 = d * d
@@ -103,7 +103,7 @@ def _metric_terms(g: np.ndarray, p: np.ndarray, log_g: np.ndarray | None = None)
     ])
 
 
-def _reduce_terms(terms: np.ndarray, sel: np.ndarray | None) -> dict:
+def reduce_terms(terms: np.ndarray, sel: np.ndarray | None) -> dict:
     """Metrics dict from per-pixel terms (7, N) over the pixels selected by bool ``sel`` (None = all)."""
     if terms.shape[1] == 0 or (sel is not None and not sel.any()):
         return nan_metrics()
@@ -151,10 +151,10 @@ def median_scale(gt, pred, valid) -> float:
     p = _np(pred, "pred")
     v = _np(valid, "valid", dtype=bool)
     _same_shape(g, "gt", pred=p, valid=v)
-    return _ratio_of_medians(g[v], p[v])
+    return ratio_of_medians(g[v], p[v])
 
 
-def _ratio_of_medians(g: np.ndarray, p: np.ndarray) -> float:
+def ratio_of_medians(g: np.ndarray, p: np.ndarray) -> float:
     if g.size == 0:
         return float("nan")
     mp = float(np.median(p))
@@ -183,7 +183,7 @@ def rig_median_scale(gts: Sequence, preds: Sequence, valids: Sequence) -> float:
         ps.append(p[v])
     if not gs:
         return float("nan")
-    return _ratio_of_medians(np.concatenate(gs), np.concatenate(ps))
+    return ratio_of_medians(np.concatenate(gs), np.concatenate(ps))
 
 
 def dep_con(depth_i, depth_hat_i, gt_i, valid) -> float:

@@ -43,6 +43,7 @@ from mcdp.data import RigReader, neighbour_table
 from mcdp.methods import build_depth_model
 from mcdp.runs import RunError, config_from_checkpoint, find_checkpoint, load_checkpoint, resolve_device
 from mcdp.visual import depth_grid
+from synth.protocol import DatasetReader
 
 
 class Predictor:
@@ -50,12 +51,12 @@ class Predictor:
 
     Args:
         run_dir: run folder (or None when ``checkpoint`` is a path).
-        ds: opened `synth.dataset` dataset with the same cameras as in training.
+        ds: the dataset (`synth.protocol.DatasetReader`) with the same cameras as in training.
         checkpoint: ``auto`` | ``best`` | ``last`` | path.
         device: ``auto`` | ``cpu`` | ``cuda``.
     """
 
-    def __init__(self, run_dir, ds, checkpoint: str = "auto", device: str = "auto", cut: bool = False,
+    def __init__(self, run_dir, ds: DatasetReader, checkpoint: str = "auto", device: str = "auto", cut: bool = False,
                  oracle_weights: bool = False, oracle_range: tuple[float, float] = (0.5, 80.0)):
         self.ckpt_path = find_checkpoint(run_dir, checkpoint) if run_dir is not None else Path(checkpoint)
         ckpt = load_checkpoint(self.ckpt_path)

@@ -75,31 +75,12 @@ def offset_polyline(polyline: np.ndarray, offset_m: float) -> np.ndarray:
     return p + nl * (float(offset_m) / cos)[:, None]
 
 
-def resample(polyline: np.ndarray, step_m: float) -> np.ndarray:
-    """Resample at (approximately) equal arc-length steps of at most `step_m`; keeps both ends."""
-    if not step_m > 0:
-        raise ValueError(f"step_m must be > 0, got {step_m}")
-    p = check_polyline(polyline)
-    s = arc_length(p)
-    n = max(2, int(np.ceil(s[-1] / step_m)) + 1)
-    return interpolate(p, np.linspace(0.0, s[-1], n))
-
-
 def interpolate(polyline: np.ndarray, s_query: np.ndarray) -> np.ndarray:
     """Points at arc lengths `s_query` (K,) metres along the polyline, (K, 2); clamped to the ends."""
     p = check_polyline(polyline)
     s = arc_length(p)
     q = np.clip(np.asarray(s_query, dtype=np.float64), 0.0, s[-1])
     return np.stack([np.interp(q, s, p[:, 0]), np.interp(q, s, p[:, 1])], axis=1)
-
-
-def tangent_at(polyline: np.ndarray, s_query: np.ndarray) -> np.ndarray:
-    """Unit tangent (K, 2) of the segment containing each arc length in `s_query` (K,)."""
-    p = check_polyline(polyline)
-    s = arc_length(p)
-    d = segment_directions(p)
-    idx = np.clip(np.searchsorted(s, np.asarray(s_query, dtype=np.float64), side="right") - 1, 0, len(d) - 1)
-    return d[idx]
 
 
 def sub_polyline(polyline: np.ndarray, s0: float, s1: float) -> np.ndarray:

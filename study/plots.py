@@ -6,7 +6,7 @@ from __future__ import annotations
 from pathlib import Path
 
 from mcdp.methods import label
-from study.results import PRIOR_LABEL, REF_LABEL, SCALE_LABEL, _agg, _ref
+from study.results import PRIOR_LABEL, REF_LABEL, SCALE_LABEL, method_agg, yardstick_agg
 
 
 def make_plots(results: dict, plot_dir: Path) -> list[Path]:
@@ -21,7 +21,7 @@ def make_plots(results: dict, plot_dir: Path) -> list[Path]:
     paths = []
 
     def series(method, key):  # mean and 95 % t half-width over seeds
-        a = [_agg(results, o, method, key) for o in xs]
+        a = [method_agg(results, o, method, key) for o in xs]
         return [x["mean"] for x in a], [x.get("ci95", 0.0) if x["n"] > 1 else 0.0 for x in a]
 
     def save(fig, name: str) -> None:
@@ -43,8 +43,9 @@ def make_plots(results: dict, plot_dir: Path) -> list[Path]:
         for m in methods:
             y, e = series(m, f"{sc}.mean.abs_rel")
             ax.errorbar(xs, y, yerr=e, marker="o", capsize=3, label=label(m))
-        ax.plot(xs, [_ref(results, o, f"{sc}.mean.abs_rel")["mean"] for o in xs], "k--", label=REF_LABEL)
-        ax.plot(xs, [_ref(results, o, f"{sc}.mean.abs_rel", "prior")["mean"] for o in xs], "k:", label=PRIOR_LABEL)
+        ax.plot(xs, [yardstick_agg(results, o, f"{sc}.mean.abs_rel")["mean"] for o in xs], "k--", label=REF_LABEL)
+        ax.plot(xs, [yardstick_agg(results, o, f"{sc}.mean.abs_rel", "prior")["mean"] for o in xs], "k:",
+                label=PRIOR_LABEL)
         style(ax, f"abs_rel ({SCALE_LABEL[sc]} scaling), test split", "target overlap (fraction of hfov)",
               "abs_rel (lower is better)", legend=False)
     axes[0].legend(fontsize=8)
@@ -54,7 +55,7 @@ def make_plots(results: dict, plot_dir: Path) -> list[Path]:
     for m in methods:
         y, e = series(m, "dep_con.mean")
         ax.errorbar(xs, y, yerr=e, marker="o", capsize=3, label=label(m))
-    ax.plot(xs, [_ref(results, o, "dep_con.mean")["mean"] for o in xs], "k--", label=REF_LABEL)
+    ax.plot(xs, [yardstick_agg(results, o, "dep_con.mean")["mean"] for o in xs], "k--", label=REF_LABEL)
     style(ax, "Dep Con (unscaled; ratio |D - D_hat| / D_gt), mean over camera pairs", "target overlap (fraction of hfov)",
           "Dep Con (lower is better)")
     save(fig, "dep_con_vs_overlap.png")

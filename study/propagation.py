@@ -18,7 +18,7 @@ from __future__ import annotations
 
 import math
 
-from study.results import CUT, INERT_M, ORACLE, _agg, paired_difference
+from study.results import CUT, INERT_M, ORACLE, method_agg, paired_difference
 
 WORD = {-1: "**lower (better)**", 1: "**higher (worse)**", 0: "no difference beyond the interval"}
 
@@ -46,9 +46,9 @@ def _self_diff(results: dict, o: float, m: str, a: str, b: str) -> dict:
     fr = [f for f in results["flat"] if f["overlap"] == o and f["method"] == m]
     d = [f.get(a, math.nan) - f.get(b, math.nan) for f in fr]
     d = [x for x in d if isinstance(x, float) and math.isfinite(x)]
-    from study.results import _mean_std
+    from study.results import mean_std
 
-    ms = _mean_std(d)
+    ms = mean_std(d)
     differs = 0
     if math.isfinite(ms["mean"]) and math.isfinite(ms["ci95"]):
         differs = -1 if ms["mean"] + ms["ci95"] < 0 else (1 if ms["mean"] - ms["ci95"] > 0 else 0)
@@ -105,7 +105,7 @@ def format_propagation(results: dict, label) -> str:
             allp = _cut_diff(results, o, m, "median.mean.abs_rel")
             dc = _cut_diff(results, o, m, "dep_con.mean")
             gain = _self_diff(results, o, m, "median.mean.abs_rel", "init.median.mean.abs_rel")
-            closed = _agg(results, o, m, "refine.headroom_closed")
+            closed = method_agg(results, o, m, "refine.headroom_closed")
             add(f"- overlap {o:.2f}, {label(m)}: propagation (as trained − cut, non-overlap px) {_pd(prop, 4)}; "
                 f"direct use (overlap px) {_pd(direct, 4)}; all px {_pd(allp, 4)}; Dep Con (ratio) {_pd(dc, 4)}; "
                 f"refinement final − init {_pd(gain, 4)}; headroom closed {_num(closed['mean'], 2)}")
@@ -114,7 +114,7 @@ def format_propagation(results: dict, label) -> str:
 
 
 def _a(results: dict, o: float, m: str, key: str, digits: int = 3) -> str:
-    a = _agg(results, o, m, key)
+    a = method_agg(results, o, m, key)
     mu, hw = a.get("mean", math.nan), a.get("ci95", math.nan)
     if not (isinstance(mu, (int, float)) and math.isfinite(mu)):
         return "—"

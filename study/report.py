@@ -31,7 +31,7 @@ from mcdp.methods import label
 from mcdp.metrics import METRIC_NAMES
 from study.plots import make_plots
 from study.propagation import format_propagation
-from study.results import (PRIOR_LABEL, REF_LABEL, SCALE_LABEL, YARDSTICKS, _agg, _ref, _ref_flat,
+from study.results import (PRIOR_LABEL, REF_LABEL, SCALE_LABEL, YARDSTICKS, method_agg, yardstick_agg, yardstick_row,
                            paired_difference)
 
 
@@ -61,7 +61,7 @@ def write_csv(results: dict, path: Path) -> None:
             w.writerow({**f, "target_overlap": m.get("target"), "measured_overlap": m.get("measured_mean")})
         for which, _, name in YARDSTICKS:  # the yardsticks, one row per overlap each
             for d in results["data"]:
-                ref = _ref_flat(results, d["overlap"], which)
+                ref = yardstick_row(results, d["overlap"], which)
                 if ref:
                     w.writerow({**{k: v for k, v in ref.items() if k in keys}, "overlap": d["overlap"],
                                 "method": name, "status": "reference",
@@ -94,13 +94,33 @@ def _pct(p: float) -> str:
 
 
 def format_report(results: dict, plots: list[str]) -> str:
-    cfg = results["sweep_config"]
-    xs, methods, seeds = results["overlaps"], results["methods"], results["seeds"]
+    """The sweep's report.md: setup, summary and verdicts, one section per overlap, time per stage, plots."""
     cams = None
     for r in results["rows"]:
         if r.get("metrics"):
             cams = list(r["metrics"]["dep_con"]["per_camera"])
             break
+    L = _setup_section(results) + _summary_section(results)
+    for d in results["data"]:
+        L += _overlap_section(results, d, cams)
+    L += _timing_section(results)
+    add = L.append
+    add("## Plots\n")
+    for p in plots:
+        add(f"![{Path(p).stem}]({p})\n")
+    if results.get("previews"):
+        add("## Rig previews (smallest and largest overlap)\n")
+        for p in results["previews"]:
+            add(f"![{Path(p).stem}]({p})\n")
+    add("Every number: `results.csv` (one row per overlap × method × seed) and `results.json`.")
+    return "\n".join(L) + "\n"
+
+
+def _setup_section(results: dict) -> list[str]:
+    """Title, how the numbers were made (data, methods, seeds, pretraining, evaluation, yardsticks), collapsed,
+    ORACLE and failed runs."""
+    cfg = results["sweep_config"]
+    xs, methods, seeds = results["overlaps"], results["methods"], results["seeds"]
     L: list[str] = []
     add = L.append
     add("# Overlap sweep: MCDP vs Monodepth2 on synthetic six-camera data\n")
@@ -162,7 +182,14 @@ def format_report(results: dict, plots: list[str]) -> str:
                    f"{r['method']}_s{r['seed']}.errors.jsonl`)" if r.get("status") == "failed" else ""))
         add("")
 
-    # ---- summary
+    return L
+
+
+def _summary_section(results: dict) -> list[str]:
+    """abs_rel vs overlap per method and scaling, the paired verdict, propagation, verdicts."""
+    methods = results["methods"]
+    L: list[str] = []
+    add = L.append
     add("## Summary: abs_rel vs overlap\n")
     for sc in ("none", "median"):
         add(f"**{SCALE_LABEL[sc]} scaling** (abs_rel, lower is better; in brackets: change vs Mono2)\n")
@@ -170,17 +197,17 @@ def format_report(results: dict, plots: list[str]) -> str:
         add("|---|---|" + "---|" * (len(methods) + 2))
         for d in results["data"]:
             o = d["overlap"]
-            ref = _agg(results, o, "mono2", f"{sc}.mean.abs_rel")["mean"] if "mono2" in methods else float("nan")
+            ref = method_agg(results, o, "mono2", f"{sc}.mean.abs_rel")["mean"] if "mono2" in methods else float("nan")
             cells = []
             for m in methods:
-                a = _agg(results, o, m, f"{sc}.mean.abs_rel")
+                a = method_agg(results, o, m, f"{sc}.mean.abs_rel")
                 c = _fmt(a)
                 if m != "mono2" and "mono2" in methods:
                     c += f" ({_pct(_rel(a['mean'], ref))})"
                 cells.append(c)
             add(f"| {o:.2f} | {d['measured']['measured_mean']:.3f} | " + " | ".join(cells)
-                + f" | {_fmt(_ref(results, o, f'{sc}.mean.abs_rel'))}"
-                + f" | {_fmt(_ref(results, o, f'{sc}.mean.abs_rel', 'prior'))} |")
+                + f" | {_fmt(yardstick_agg(results, o, f'{sc}.mean.abs_rel'))}"
+                + f" | {_fmt(yardstick_agg(results, o, f'{sc}.mean.abs_rel', 'prior'))} |")
         add("")
     add("### Verdict per overlap: MCDP (m = 2) vs Mono2\n")
     add("Paired over seeds (same seed = same data order and start): mean difference MCDP (m = 2) − Mono2 with "
@@ -195,69 +222,83 @@ def format_report(results: dict, plots: list[str]) -> str:
     add(_verdicts(results))
     add("")
 
-    # ---- per overlap
-    for d in results["data"]:
-        o = d["overlap"]
-        mo = d["measured"]
-        add(f"## Overlap {o:.2f}\n")
-        add(f"Target overlap {mo['target']:.2f}, measured pixel overlap {mo['measured_mean']:.3f} (mean over the "
-            f"{mo['pairs_at_target']} of {mo['pairs']} adjacent pairs whose geometric target is {mo['target']:.2f}; "
-            f"over all pairs {mo['measured_all']:.3f}); hfov {_num(mo.get('hfov_deg'))}°, yaw spacing {_num(mo.get('yaw_spacing_deg'))}°. "
-            f"Dataset `{Path(d['path']).name}` ({d['splits']}), render {_sec(d['render_s'])} s"
-            + (" (reused)" if d["render_skipped"] else "") + ".\n")
-        add("| pair | target | measured |")
-        add("|---|---|---|")
-        for k, v in mo["per_pair"].items():
-            add(f"| {k} | {_num(v['target'])} | {_num(v['measured'])} |")
-        add("")
-        add(f"**Table 1 layout** (test split; Δ = relative change of abs_rel vs Mono2, negative = better)\n")
-        add("| Method | Scale | " + " | ".join(METRIC_NAMES) + " | Δ abs_rel |")
-        add("|---|---|" + "---|" * (len(METRIC_NAMES) + 1))
-        for sc in ("none", "median"):
-            ref = _agg(results, o, "mono2", f"{sc}.mean.abs_rel")["mean"]
-            for m in methods:
-                cells = [_fmt(_agg(results, o, m, f"{sc}.mean.{k}")) for k in METRIC_NAMES]
-                delta = "—" if m == "mono2" else _pct(_rel(_agg(results, o, m, f"{sc}.mean.abs_rel")["mean"], ref))
-                add(f"| {label(m)} | {SCALE_LABEL[sc]} | " + " | ".join(cells) + f" | {delta} |")
-            for which, ylabel, _ in YARDSTICKS:
-                cells = [_fmt(_ref(results, o, f"{sc}.mean.{k}", which)) for k in METRIC_NAMES]
-                add(f"| *{ylabel}* | {SCALE_LABEL[sc]} | " + " | ".join(cells)
-                    + f" | {_pct(_rel(_ref(results, o, f'{sc}.mean.abs_rel', which)['mean'], ref))} |")
-        add("")
-        if cams:
-            add("**Table 2 layout: Dep Con per camera** (unscaled predictions, lower is better; Δ = mean vs Mono2)\n")
-            add("| Method | " + " | ".join(cams) + " | mean | Δ mean |")
-            add("|---|" + "---|" * (len(cams) + 2))
-            ref = _agg(results, o, "mono2", "dep_con.mean")["mean"]
-            for m in methods:
-                cells = [_fmt(_agg(results, o, m, f"dep_con.camera.{c}")) for c in cams]
-                a = _agg(results, o, m, "dep_con.mean")
-                delta = "—" if m == "mono2" else _pct(_rel(a["mean"], ref))
-                add(f"| {label(m)} | " + " | ".join(cells) + f" | {_fmt(a)} | {delta} |")
-            a = _ref(results, o, "dep_con.mean")
-            add(f"| *{REF_LABEL}* | " + " | ".join(_fmt(_ref(results, o, f"dep_con.camera.{c}")) for c in cams)
-                + f" | {_fmt(a)} | {_pct(_rel(a['mean'], ref))} |")
-            add("")
-        add("**Overlap vs non-overlap pixels** (abs_rel; Δ vs Mono2 on the same region, negative = better)\n")
-        add("| Method | Scale | overlap | non-overlap | Δ overlap | Δ non-overlap |")
-        add("|---|---|---|---|---|---|")
-        for sc in ("none", "median"):
-            r_ov = _agg(results, o, "mono2", f"{sc}.overlap.abs_rel")["mean"]
-            r_no = _agg(results, o, "mono2", f"{sc}.non_overlap.abs_rel")["mean"]
-            for m in methods:
-                a_ov = _agg(results, o, m, f"{sc}.overlap.abs_rel")
-                a_no = _agg(results, o, m, f"{sc}.non_overlap.abs_rel")
-                d_ov = "—" if m == "mono2" else _pct(_rel(a_ov["mean"], r_ov))
-                d_no = "—" if m == "mono2" else _pct(_rel(a_no["mean"], r_no))
-                add(f"| {label(m)} | {SCALE_LABEL[sc]} | {_fmt(a_ov)} | {_fmt(a_no)} | {d_ov} | {d_no} |")
-            for which, ylabel, _ in YARDSTICKS:
-                a_ov = _ref(results, o, f"{sc}.overlap.abs_rel", which)
-                a_no = _ref(results, o, f"{sc}.non_overlap.abs_rel", which)
-                add(f"| *{ylabel}* | {SCALE_LABEL[sc]} | {_fmt(a_ov)} | {_fmt(a_no)} | "
-                    f"{_pct(_rel(a_ov['mean'], r_ov))} | {_pct(_rel(a_no['mean'], r_no))} |")
-        add("")
+    return L
 
-    # ---- timing
+
+def _overlap_section(results: dict, d: dict, cams: list[str] | None) -> list[str]:
+    """One overlap: measured overlap per pair, Table 1 and Table 2 layouts, overlap vs non-overlap pixels."""
+    methods = results["methods"]
+    o = d["overlap"]
+    mo = d["measured"]
+    L: list[str] = []
+    add = L.append
+    add(f"## Overlap {o:.2f}\n")
+    add(f"Target overlap {mo['target']:.2f}, measured pixel overlap {mo['measured_mean']:.3f} (mean over the "
+        f"{mo['pairs_at_target']} of {mo['pairs']} adjacent pairs whose geometric target is {mo['target']:.2f}; "
+        f"over all pairs {mo['measured_all']:.3f}); hfov {_num(mo.get('hfov_deg'))}°, yaw spacing {_num(mo.get('yaw_spacing_deg'))}°. "
+        f"Dataset `{Path(d['path']).name}` ({d['splits']}), render {_sec(d['render_s'])} s"
+        + (" (reused)" if d["render_skipped"] else "") + ".\n")
+    add("| pair | target | measured |")
+    add("|---|---|---|")
+    for k, v in mo["per_pair"].items():
+        add(f"| {k} | {_num(v['target'])} | {_num(v['measured'])} |")
+    add("")
+    add(f"**Table 1 layout** (test split; Δ = relative change of abs_rel vs Mono2, negative = better)\n")
+    add("| Method | Scale | " + " | ".join(METRIC_NAMES) + " | Δ abs_rel |")
+    add("|---|---|" + "---|" * (len(METRIC_NAMES) + 1))
+    for sc in ("none", "median"):
+        ref = method_agg(results, o, "mono2", f"{sc}.mean.abs_rel")["mean"]
+        for m in methods:
+            cells = [_fmt(method_agg(results, o, m, f"{sc}.mean.{k}")) for k in METRIC_NAMES]
+            abs_rel = method_agg(results, o, m, f"{sc}.mean.abs_rel")["mean"]
+            delta = "—" if m == "mono2" else _pct(_rel(abs_rel, ref))
+            add(f"| {label(m)} | {SCALE_LABEL[sc]} | " + " | ".join(cells) + f" | {delta} |")
+        for which, ylabel, _ in YARDSTICKS:
+            cells = [_fmt(yardstick_agg(results, o, f"{sc}.mean.{k}", which)) for k in METRIC_NAMES]
+            add(f"| *{ylabel}* | {SCALE_LABEL[sc]} | " + " | ".join(cells)
+                + f" | {_pct(_rel(yardstick_agg(results, o, f'{sc}.mean.abs_rel', which)['mean'], ref))} |")
+    add("")
+    if cams:
+        add("**Table 2 layout: Dep Con per camera** (unscaled predictions, lower is better; Δ = mean vs Mono2)\n")
+        add("| Method | " + " | ".join(cams) + " | mean | Δ mean |")
+        add("|---|" + "---|" * (len(cams) + 2))
+        ref = method_agg(results, o, "mono2", "dep_con.mean")["mean"]
+        for m in methods:
+            cells = [_fmt(method_agg(results, o, m, f"dep_con.camera.{c}")) for c in cams]
+            a = method_agg(results, o, m, "dep_con.mean")
+            delta = "—" if m == "mono2" else _pct(_rel(a["mean"], ref))
+            add(f"| {label(m)} | " + " | ".join(cells) + f" | {_fmt(a)} | {delta} |")
+        a = yardstick_agg(results, o, "dep_con.mean")
+        add(f"| *{REF_LABEL}* | " + " | ".join(_fmt(yardstick_agg(results, o, f"dep_con.camera.{c}")) for c in cams)
+            + f" | {_fmt(a)} | {_pct(_rel(a['mean'], ref))} |")
+        add("")
+    add("**Overlap vs non-overlap pixels** (abs_rel; Δ vs Mono2 on the same region, negative = better)\n")
+    add("| Method | Scale | overlap | non-overlap | Δ overlap | Δ non-overlap |")
+    add("|---|---|---|---|---|---|")
+    for sc in ("none", "median"):
+        r_ov = method_agg(results, o, "mono2", f"{sc}.overlap.abs_rel")["mean"]
+        r_no = method_agg(results, o, "mono2", f"{sc}.non_overlap.abs_rel")["mean"]
+        for m in methods:
+            a_ov = method_agg(results, o, m, f"{sc}.overlap.abs_rel")
+            a_no = method_agg(results, o, m, f"{sc}.non_overlap.abs_rel")
+            d_ov = "—" if m == "mono2" else _pct(_rel(a_ov["mean"], r_ov))
+            d_no = "—" if m == "mono2" else _pct(_rel(a_no["mean"], r_no))
+            add(f"| {label(m)} | {SCALE_LABEL[sc]} | {_fmt(a_ov)} | {_fmt(a_no)} | {d_ov} | {d_no} |")
+        for which, ylabel, _ in YARDSTICKS:
+            a_ov = yardstick_agg(results, o, f"{sc}.overlap.abs_rel", which)
+            a_no = yardstick_agg(results, o, f"{sc}.non_overlap.abs_rel", which)
+            add(f"| *{ylabel}* | {SCALE_LABEL[sc]} | {_fmt(a_ov)} | {_fmt(a_no)} | "
+                f"{_pct(_rel(a_ov['mean'], r_ov))} | {_pct(_rel(a_no['mean'], r_no))} |")
+    add("")
+
+    return L
+
+
+def _timing_section(results: dict) -> list[str]:
+    """Seconds per stage and overlap, totals, the latest invocation's counters."""
+    methods = results["methods"]
+    L: list[str] = []
+    add = L.append
     add("## Time per stage\n")
     add("Seconds of the invocation that did the work (a stage reused by a rerun keeps its recorded time; "
         "an interrupted and resumed stage counts only its last part).\n")
@@ -281,15 +322,7 @@ def format_report(results: dict, plots: list[str]) -> str:
     c = results["counters"]
     add("Latest invocation: " + ", ".join(f"{k} {v}" for k, v in c.items()) + ".\n")
 
-    add("## Plots\n")
-    for p in plots:
-        add(f"![{Path(p).stem}]({p})\n")
-    if results.get("previews"):
-        add("## Rig previews (smallest and largest overlap)\n")
-        for p in results["previews"]:
-            add(f"![{Path(p).stem}]({p})\n")
-    add("Every number: `results.csv` (one row per overlap × method × seed) and `results.json`.")
-    return "\n".join(L) + "\n"
+    return L
 
 
 def _pair_verdicts(results: dict, a: str = "mcdp_m2", b: str = "mono2") -> str:
@@ -323,14 +356,14 @@ def _verdicts(results: dict) -> str:
     for d in results["data"]:
         o = d["overlap"]
         for sc in ("none", "median"):
-            ref = _agg(results, o, "mono2", f"{sc}.mean.abs_rel")["mean"]
-            ref_no = _agg(results, o, "mono2", f"{sc}.non_overlap.abs_rel")["mean"]
+            ref = method_agg(results, o, "mono2", f"{sc}.mean.abs_rel")["mean"]
+            ref_no = method_agg(results, o, "mono2", f"{sc}.non_overlap.abs_rel")["mean"]
             beat, lost = [], []
             for m in methods:
                 if m == "mono2":
                     continue
-                v = _agg(results, o, m, f"{sc}.mean.abs_rel")["mean"]
-                v_no = _agg(results, o, m, f"{sc}.non_overlap.abs_rel")["mean"]
+                v = method_agg(results, o, m, f"{sc}.mean.abs_rel")["mean"]
+                v_no = method_agg(results, o, m, f"{sc}.non_overlap.abs_rel")["mean"]
                 if not (math.isfinite(v) and math.isfinite(ref)):
                     lost.append(f"{label(m)} (not comparable: NaN)")
                     continue
@@ -339,10 +372,10 @@ def _verdicts(results: dict) -> str:
                 entry = f"{label(m)} {v:.3f} vs {ref:.3f}" + (" (tie)" if v == ref else "") + f", {no}"
                 (beat if v < ref else lost).append(entry)
             head = f"- overlap {o:.2f}, {SCALE_LABEL[sc]}: "
-            cref = _ref(results, o, f"{sc}.mean.abs_rel")["mean"]
-            pref = _ref(results, o, f"{sc}.mean.abs_rel", "prior")["mean"]
+            cref = yardstick_agg(results, o, f"{sc}.mean.abs_rel")["mean"]
+            pref = yardstick_agg(results, o, f"{sc}.mean.abs_rel", "prior")["mean"]
             if sc == "median" and math.isfinite(cref) and math.isfinite(pref):
-                means = {m: _agg(results, o, m, f"{sc}.mean.abs_rel")["mean"] for m in methods}
+                means = {m: method_agg(results, o, m, f"{sc}.mean.abs_rel")["mean"] for m in methods}
                 short = [f"{label(m)} {v:.3f}" for m, v in means.items() if not (v <= 0.5 * cref and v < pref)]
                 lines.append(head + (f"**not all methods reach <= 0.5 x constant ({0.5 * cref:.3f}) and below the "
                                      f"flat-road prior ({pref:.3f})**: " + ", ".join(short) if short else
@@ -351,7 +384,7 @@ def _verdicts(results: dict) -> str:
                                      f"{max(means.values()):.3f}"))
             if math.isfinite(cref):
                 worse = [label(m) for m in methods
-                         if not _agg(results, o, m, f"{sc}.mean.abs_rel")["mean"] < cref]
+                         if not method_agg(results, o, m, f"{sc}.mean.abs_rel")["mean"] < cref]
                 lines.append(head + (f"**not better than the constant-depth reference** ({cref:.3f}): "
                                      + ", ".join(worse) if worse else
                                      f"every method beats the constant-depth reference ({cref:.3f})"))

@@ -107,7 +107,8 @@ def t_halfwidth(sd: float, n: int) -> float:
     return t * sd / math.sqrt(n)
 
 
-def _mean_std(values: list[float]) -> dict:
+def mean_std(values: list[float]) -> dict:
+    """Mean, sample std and 95 % t half-width of the finite `values` (NaN when none), with the counts."""
     v = [x for x in values if isinstance(x, (int, float)) and math.isfinite(x)]
     n_nan = len(values) - len(v)
     if not v:
@@ -126,7 +127,7 @@ def paired_difference(results: dict, overlap: float, a: str, b: str, key: str) -
     vb = {f["seed"]: f.get(key) for f in results["flat"] if f["overlap"] == overlap and f["method"] == b}
     d = [va[s] - vb[s] for s in va if s in vb and all(isinstance(x, (int, float)) and math.isfinite(x)
                                                       for x in (va[s], vb[s]))]
-    ms = _mean_std(d)
+    ms = mean_std(d)
     mu, hw = ms["mean"], ms["ci95"]
     differs = 0
     if math.isfinite(mu) and math.isfinite(hw):
@@ -150,7 +151,7 @@ def build_results(cfg, data: list[dict], rows: list[dict], counters: dict, total
             keys = [k for k in (fr[0] if fr else {}) if "." in k]
             aggregate.append({"overlap": o, "method": method, "seeds": [f["seed"] for f in fr],
                               "status": sorted({f["status"] for f in fr}),
-                              "metrics": {k: _mean_std([f.get(k, float("nan")) for f in fr]) for k in keys}})
+                              "metrics": {k: mean_std([f.get(k, float("nan")) for f in fr]) for k in keys}})
     timing = {
         "render_s": sum(_nz(d["render_s"]) for d in data),
         "train_s": sum(_nz(r.get("train_s")) for r in rows),
@@ -182,7 +183,8 @@ def _nz(x) -> float:
     return x if isinstance(x, (int, float)) and math.isfinite(x) else 0.0
 
 
-def _agg(results: dict, overlap: float, method: str, key: str) -> dict:
+def method_agg(results: dict, overlap: float, method: str, key: str) -> dict:
+    """A method's aggregate over seeds of `key` at one overlap (``{"mean", "std", "n", ...}``; NaN if absent)."""
     for a in results["aggregate"]:
         if a["overlap"] == overlap and a["method"] == method:
             return a["metrics"].get(key, {"mean": float("nan"), "std": float("nan"), "n": 0})
@@ -198,15 +200,16 @@ PRIOR_LABEL = "Flat-road prior (ref.)"
 YARDSTICKS = (("reference", REF_LABEL, "constant_reference"), ("prior", PRIOR_LABEL, "flat_road_prior"))
 
 
-def _ref_flat(results: dict, overlap: float, which: str = "reference") -> dict:
+def yardstick_row(results: dict, overlap: float, which: str = "reference") -> dict:
+    """A yardstick's numbers at one overlap as a flat row (`flat_row`; {} if absent)."""
     for d in results["data"]:
         if d["overlap"] == overlap and d.get(which):
             return flat_row({"metrics": d[which]["metrics"]})
     return {}
 
 
-def _ref(results: dict, overlap: float, key: str, which: str = "reference") -> dict:
+def yardstick_agg(results: dict, overlap: float, key: str, which: str = "reference") -> dict:
     """A yardstick's value of `key` at one overlap (``which``: reference = constant, prior = flat road),
-    in `_agg`'s shape (NaN if absent)."""
-    v = _ref_flat(results, overlap, which).get(key, float("nan"))
+    in `method_agg`'s shape (NaN if absent)."""
+    v = yardstick_row(results, overlap, which).get(key, float("nan"))
     return {"mean": v, "std": 0.0, "n": 1 if math.isfinite(v) else 0}

@@ -30,8 +30,8 @@ def _write_json(path: Path, obj) -> None:
     atomic_write_json(path, obj, allow_nan=True)
 
 
-def measured_overlap(manifest: dict) -> dict:
-    """Target and measured pixel overlap of a dataset (from its manifest).
+def measured_overlap(ov: dict) -> dict:
+    """Target and measured pixel overlap of a dataset (from its overlap record, `synth.dataset.Dataset.overlap`).
 
     ``measured_mean``: mean measured overlap over the adjacent pairs whose geometric
     target equals the sweep's target. In ``spacing`` mode the ring does not close, so
@@ -39,7 +39,6 @@ def measured_overlap(manifest: dict) -> dict:
     (a gap or a small overlap); they are listed per pair but not averaged.
     ``measured_all``: mean over every adjacent pair.
     """
-    ov = manifest.get("overlap", {})
     pp = ov.get("per_pair_measured", {})
     target = ov.get("target")
     same = [v["measured"] for v in pp.values()
@@ -89,23 +88,39 @@ class Counters(dict):
         self[key] = self.get(key, 0) + 1
 
 
+def _rendered(out: Path):
+    """The dataset rendered into `out` (a `synth.dataset.Dataset`), or None when there is none to reuse: no
+    manifest (never rendered, or interrupted) or one that does not open (rendering again repairs it)."""
+    from synth.dataset import MANIFEST, open_dataset
+    from synth.files import DatasetError
+
+    if not (out / MANIFEST).is_file():
+        return None
+    try:
+        return open_dataset(out)
+    except DatasetError:
+        return None
+
+
 def render_stage(cfg: SweepConfig, overlap: float, sweep_dir: Path, counters: Counters, log, progress: bool) -> dict:
     """Render (or reuse / resume) the dataset of one overlap; returns its record."""
+    from synth.dataset import open_dataset
+    from synth.protocol import SPLITS
     from synth.render import render_dataset
 
     dcfg = data_config_for(cfg, overlap)
     h = config_hash(dcfg)
     out = sweep_dir / "data" / overlap_key(overlap)
-    manifest = _read_json(out / "manifest.json")
+    ds = _rendered(out)
     status = _read_json(out.parent / f"{overlap_key(overlap)}.status.json") or {}
-    if manifest is not None and manifest.get("config_hash") == h:
+    if ds is not None and ds.config_hash == h:
         counters.bump("render_skipped")
         log(f"[sweep] overlap {overlap:.2f}: dataset {out} is complete (config hash {h[:12]}), reused")
         render_s, skipped = status.get("render_s", float("nan")), True
     else:
-        if manifest is not None:
+        if ds is not None:
             raise ConfigError(
-                f"{out} holds a dataset with another config (hash {str(manifest.get('config_hash'))[:12]}, "
+                f"{out} holds a dataset with another config (hash {str(ds.config_hash)[:12]}, "
                 f"requested {h[:12]}); the sweep's data settings changed: use a new --out or delete {out}")
         log(f"[sweep] overlap {overlap:.2f}: rendering {dcfg.dataset.sequences} sequences x {dcfg.dataset.frames} "
             f"frames at {dcfg.camera.width}x{dcfg.camera.height} into {out}")
@@ -119,13 +134,13 @@ def render_stage(cfg: SweepConfig, overlap: float, sweep_dir: Path, counters: Co
         counters.bump("rendered")
         if summary.get("skipped_sequences"):
             counters.bump("render_resumed")
-        manifest = _read_json(out / "manifest.json")
+        ds = open_dataset(out)
         _write_json(out.parent / f"{overlap_key(overlap)}.status.json", {"config_hash": h, "render_s": render_s})
-    ov = measured_overlap(manifest)
+    ov = measured_overlap(ds.overlap)
     log(f"[sweep] overlap {overlap:.2f}: target {ov['target']:.2f}, measured pixel overlap {ov['measured_mean']:.3f} "
         f"(mean of the {ov['pairs_at_target']}/{ov['pairs']} pairs at the target)")
     return {"overlap": overlap, "path": str(out), "config_hash": h, "render_s": render_s, "render_skipped": skipped,
-            "measured": ov, "splits": {k: len(v) for k, v in manifest["splits"].items()}}
+            "measured": ov, "splits": {k: len(ds.split(k)) for k in SPLITS}}
 
 
 def reference_stage(cfg: SweepConfig, d: dict, sweep_dir: Path, counters: Counters, log) -> dict:

@@ -39,7 +39,8 @@ MANIFEST = "manifest.json"
 # ----------------------------------------------------------------------------- reader
 
 class Dataset:
-    """Read access to a finished dataset (see module docstring). Never reads depth unless asked."""
+    """Read access to a finished dataset (see module docstring), a `synth.protocol.DatasetReader`; beyond it,
+    the generator's record: `manifest`, `config_hash`, `overlap`. Never reads depth unless asked."""
 
     def __init__(self, root: Path, manifest: dict, rig: dict) -> None:
         self.root = root
@@ -62,6 +63,16 @@ class Dataset:
     @property
     def fps(self) -> float:
         return float(self.manifest["fps"])
+
+    @property
+    def config_hash(self) -> str | None:
+        """The hash of the generator config the dataset was rendered with (`corelib.configlib.config_hash`)."""
+        return self.manifest.get("config_hash")
+
+    @property
+    def overlap(self) -> dict:
+        """The rig's overlap record: target, mode, per-pair measured pixel overlap (docs/DATASET.md)."""
+        return self.manifest.get("overlap", {})
 
     def split(self, name: str) -> list[str]:
         splits = self.manifest["splits"]
@@ -146,8 +157,14 @@ class Dataset:
 _PLAIN_NAME = re.compile(r"^[A-Za-z0-9][A-Za-z0-9._-]{0,127}$")
 
 
+def is_plain_name(name) -> bool:
+    """A string of letters, digits, ``. _ -`` (at most 128, starting with a letter or digit): no path
+    separator, never ``.`` or ``..``; safe as one folder or file name."""
+    return isinstance(name, str) and bool(_PLAIN_NAME.match(name)) and name not in (".", "..")
+
+
 def _plain(name, field: str, mpath: Path) -> str:
-    if not isinstance(name, str) or not _PLAIN_NAME.match(name) or name in (".", ".."):
+    if not is_plain_name(name):
         raise DatasetError(f"{mpath}: {field} {str(name)[:80]!r} is not a plain name (letters, digits, . _ -; "
                            "no path separators, no '..')")
     return name

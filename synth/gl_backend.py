@@ -30,8 +30,8 @@ import numpy as np
 
 from scenes.model import Mesh, Scene
 
-from synth.gl_context import RenderBackendError, _create_context, select_backend
-from synth.shaders import _FS_MAIN, _FS_SHADOW, _FS_SKY, _VS_MAIN, _VS_SHADOW, _VS_SKY
+from synth.gl_context import RenderBackendError, create_context, select_backend
+from synth.shaders import FS_MAIN, FS_SHADOW, FS_SKY, VS_MAIN, VS_SHADOW, VS_SKY
 
 __all__ = ["LightState", "RenderBackendError", "Renderer", "projection_from_K", "select_backend"]
 
@@ -114,14 +114,14 @@ class Renderer:
         self.width, self.height = int(width), int(height)
         self.znear, self.zfar = float(znear), float(zfar)
         self.shadow_size, self.shadow_extent = int(shadow_size), float(shadow_extent_m)
-        self._ctx = _create_context(self.platform, self.width, self.height)
+        self._ctx = create_context(self.platform, self.width, self.height)
         from OpenGL import GL
 
         self.GL = GL
         self.gl_renderer = GL.glGetString(GL.GL_RENDERER).decode()
-        self._prog_main = self._program(_VS_MAIN, _FS_MAIN)
-        self._prog_shadow = self._program(_VS_SHADOW, _FS_SHADOW)
-        self._prog_sky = self._program(_VS_SKY, _FS_SKY)
+        self._prog_main = self._program(VS_MAIN, FS_MAIN)
+        self._prog_shadow = self._program(VS_SHADOW, FS_SHADOW)
+        self._prog_sky = self._program(VS_SKY, FS_SKY)
         self._empty_vao = GL.glGenVertexArrays(1)
         self._make_framebuffers()
         self._static: _GpuMesh | None = None

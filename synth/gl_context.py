@@ -6,7 +6,7 @@ PyOpenGL fixes its platform at import) and OSMesa is the fallback.
 Example::
 
     platform = select_backend("auto")           # "egl" or "osmesa"; RenderBackendError says what to install
-    ctx = _create_context(platform, 320, 192)
+    ctx = create_context(platform, 320, 192)
 """
 from __future__ import annotations
 
@@ -32,8 +32,8 @@ _PROBE = r"""
 import os, sys
 os.environ["PYOPENGL_PLATFORM"] = sys.argv[1]
 sys.path.insert(0, sys.argv[2])
-from synth.gl_context import _create_context
-ctx = _create_context(sys.argv[1], 16, 16)
+from synth.gl_context import create_context
+ctx = create_context(sys.argv[1], 16, 16)
 from OpenGL import GL
 print(GL.glGetString(GL.GL_RENDERER).decode())
 """
@@ -146,7 +146,8 @@ class _OSMesaContext:
         self.osmesa.OSMesaDestroyContext(self.context)
 
 
-def _create_context(platform: str, width: int, height: int):
+def create_context(platform: str, width: int, height: int):
+    """An off-screen OpenGL context of `platform` (``egl`` | ``osmesa``) with a `width` x `height` surface."""
     if platform == "egl":
         return _EGLContext(width, height)
     if platform == "osmesa":

@@ -43,7 +43,7 @@ import numpy as np
 
 from corelib.atomic import atomic_write_bytes
 from corelib.rundir import lock_folder
-from synth.dataset import _PLAIN_NAME, open_dataset
+from synth.dataset import is_plain_name, open_dataset
 from synth.files import DatasetError, read_json, read_png, write_json, write_png
 from synth.lidar import LidarConfig, luma, simulate_sweep
 
@@ -93,14 +93,6 @@ def rotation_to_quaternion(R: np.ndarray) -> list[float]:
     if q[0] < 0:
         q = -q
     return [float(x) for x in q]
-
-
-def quaternion_to_rotation(q) -> np.ndarray:
-    """3x3 rotation of a quaternion [w, x, y, z] (the inverse of `rotation_to_quaternion`)."""
-    w, x, y, z = np.asarray(q, np.float64) / np.linalg.norm(q)
-    return np.array([[1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
-                     [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
-                     [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)]])
 
 
 def _check_rigid(T: np.ndarray, where: str) -> np.ndarray:
@@ -212,8 +204,7 @@ def export_nuscenes(dataset: str | Path, out: str | Path, version: str = DEFAULT
     """Write the nuScenes dataroot `out` from the synth dataset `dataset`; returns a summary dict.
     `lidar=None` exports cameras only (no LIDAR_TOP)."""
     src, out = Path(dataset), Path(out)
-    if not isinstance(version, str) or not _PLAIN_NAME.match(version) or version in _OWNED or version.endswith(
-            ".partial"):
+    if not is_plain_name(version) or version in _OWNED or version.endswith(".partial"):
         raise ExportError(f"--version {version!r} is not a plain folder name (letters, digits, . _ -)")
     if not 1 <= int(jpeg_quality) <= 100:
         raise ExportError(f"jpeg quality {jpeg_quality} is not in 1..100")

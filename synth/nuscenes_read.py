@@ -1,7 +1,7 @@
 """Read a nuScenes dataroot (ours from `synth export --format nuscenes`, or the real one) as a `Dataset`.
 
 `open_nuscenes(root)` loads the tables with the official devkit (``nuscenes-devkit``, the ``nuscenes``
-extra) and returns a `NuScenesDataset` with the interface `mcdp` uses (`synth.dataset.Dataset`'s):
+extra) and returns a `NuScenesDataset` with the interface `mcdp` uses (`synth.protocol.DatasetReader`):
 cameras, neighbours, splits, sequences, ego poses, RGB, depth, masks. `synth.dataset.open_dataset`
 calls it for a folder that looks like a dataroot (`is_nuscenes_root`). docs/NUSCENES.md, "Reading a
 nuScenes dataroot", has the mapping and its limits; in short:
@@ -35,7 +35,7 @@ import cv2
 import numpy as np
 
 from synth.files import DatasetError, read_png
-from synth.nuscenes_tables import EXPORT_DIR, _get, _load, _splits, _version
+from synth.nuscenes_tables import EXPORT_DIR, get_record, load_tables, read_splits, resolve_version
 from synth.rig import CameraSpec
 
 RIG_ORDER = ("CAM_FRONT", "CAM_FRONT_RIGHT", "CAM_BACK_RIGHT", "CAM_BACK", "CAM_BACK_LEFT", "CAM_FRONT_LEFT")
@@ -75,7 +75,7 @@ def _angles(K: np.ndarray, T: np.ndarray, width: int) -> tuple[float, float, flo
 
 
 class NuScenesDataset:
-    """A nuScenes dataroot behind `synth.dataset.Dataset`'s interface (module docstring). Holds plain
+    """A nuScenes dataroot as a `synth.protocol.DatasetReader` (module docstring). Holds plain
     records only (the devkit object is dropped after `open_nuscenes`), so it pickles cheaply."""
 
     def __init__(self, root: Path, version: str, cameras: list[CameraSpec], frames: dict[str, list[dict]],
@@ -104,7 +104,7 @@ class NuScenesDataset:
             "pixel_centre": pixel_centre,
         }
 
-    # --------------------------------------------------------------- the Dataset interface
+    # --------------------------------------------------------------- the DatasetReader interface
     @property
     def width(self) -> int:
         return self.cameras[0].width
@@ -293,7 +293,7 @@ def open_nuscenes(root: str | Path, version: str | None = None, masks: str | Pat
     root = Path(root)
     if not root.is_dir():
         raise DatasetError(f"{root}: dataset folder does not exist")
-    version = _version(root, version)
+    version = resolve_version(root, version)
     marker = root / EXPORT_DIR / "export.json"
     export = None
     if marker.is_file():
@@ -305,7 +305,7 @@ def open_nuscenes(root: str | Path, version: str | None = None, masks: str | Pat
         pixel_centre = "half" if export is not None else "integer"
     if pixel_centre not in ("half", "integer"):
         raise DatasetError(f"pixel_centre must be 'half' or 'integer', got {pixel_centre!r}")
-    nusc = _load(root, version)
+    nusc = load_tables(root, version)
     tab = root / version
 
     channels = {s["channel"] for s in nusc.sensor}
@@ -327,7 +327,7 @@ def open_nuscenes(root: str | Path, version: str | None = None, masks: str | Pat
             if tok in seen:
                 raise DatasetError(f"{tab / 'sample.json'}: scene {name}: the next chain loops at sample {tok}")
             seen.add(tok)
-            s = _get(nusc, "sample", tok, f"scene {name} ({scene['token']})")
+            s = get_record(nusc, "sample", tok, f"scene {name} ({scene['token']})")
             recs.append(s)
             tok = s.get("next")
         if not recs:
@@ -341,10 +341,10 @@ def open_nuscenes(root: str | Path, version: str | None = None, masks: str | Pat
                     raise DatasetError(f"{tab / 'sample_data.json'}: sample {s['token']} (scene {name}) has no "
                                        f"key-frame {ch} sample_data")
                 sd = s["data"][ch]
-                sd = _get(nusc, "sample_data", sd, f"sample {s['token']}")
+                sd = get_record(nusc, "sample_data", sd, f"sample {s['token']}")
                 who = f"sample_data {sd['token']} ({ch})"
-                cs = _get(nusc, "calibrated_sensor", sd["calibrated_sensor_token"], who)
-                pose = _get(nusc, "ego_pose", sd["ego_pose_token"], who)
+                cs = get_record(nusc, "calibrated_sensor", sd["calibrated_sensor_token"], who)
+                pose = get_record(nusc, "ego_pose", sd["ego_pose_token"], who)
                 vals = (np.asarray(cs.get("camera_intrinsic"), np.float64), np.asarray(cs["rotation"], np.float64),
                         np.asarray(cs["translation"], np.float64))
                 if ch not in calib:
@@ -369,10 +369,10 @@ def open_nuscenes(root: str | Path, version: str | None = None, masks: str | Pat
             fr["T_world_ego"] = front["T_world_ego"]
             fr["timestamp_s"] = front["timestamp"] / 1e6
             if LIDAR in s["data"]:
-                sd = _get(nusc, "sample_data", s["data"][LIDAR], f"sample {s['token']}")
+                sd = get_record(nusc, "sample_data", s["data"][LIDAR], f"sample {s['token']}")
                 who = f"sample_data {sd['token']} ({LIDAR})"
-                cs = _get(nusc, "calibrated_sensor", sd["calibrated_sensor_token"], who)
-                pose = _get(nusc, "ego_pose", sd["ego_pose_token"], who)
+                cs = get_record(nusc, "calibrated_sensor", sd["calibrated_sensor_token"], who)
+                pose = get_record(nusc, "ego_pose", sd["ego_pose_token"], who)
                 path = root / sd["filename"]
                 if not path.is_file():
                     raise DatasetError(f"{path}: LiDAR file is missing ({who})")
@@ -410,7 +410,7 @@ def open_nuscenes(root: str | Path, version: str | None = None, masks: str | Pat
         cameras.append(CameraSpec(ch, int(w), int(h), K, T, *_angles(K, T, w)))
     m, mask_source = _masks(root, cameras, masks)
 
-    splits, split_source = _splits(root, list(frames), version)
+    splits, split_source = read_splits(root, list(frames), version)
     if export is not None and isinstance(export.get("fps"), (int, float)):
         fps = float(export["fps"])
     else:

@@ -4,7 +4,7 @@ it with errors that name the broken record and token, and the train / val / test
 Example::
 
     if is_nuscenes_root(root):
-        nusc = _load(root, _version(root, None))
+        nusc = load_tables(root, resolve_version(root, None))
 """
 from __future__ import annotations
 
@@ -33,7 +33,8 @@ def is_nuscenes_root(root: str | Path) -> bool:
         version_dirs(root))
 
 
-def _version(root: Path, version: str | None) -> str:
+def resolve_version(root: Path, version: str | None) -> str:
+    """`version` checked to be a version folder of `root`, or (None) the only one; DatasetError otherwise."""
     if version is not None:
         if not (root / version / "sample.json").is_file():
             raise DatasetError(f"{root / version / 'sample.json'}: missing; {root} has no nuScenes version "
@@ -68,7 +69,8 @@ def _diagnose_key_error(root: Path, version: str, exc: KeyError) -> str:
     return f"{root / version}: the devkit could not index the tables: no record with token {exc}"
 
 
-def _load(root: Path, version: str):
+def load_tables(root: Path, version: str):
+    """The devkit's ``NuScenes`` object of `root`'s `version`; DatasetError naming the broken record."""
     try:
         from nuscenes.nuscenes import NuScenes
     except ImportError:
@@ -82,7 +84,8 @@ def _load(root: Path, version: str):
                            f"{str(exc)[:120]})") from None
 
 
-def _get(nusc, table: str, token, who: str) -> dict:
+def get_record(nusc, table: str, token, who: str) -> dict:
+    """``nusc.get(table, token)``; DatasetError naming `who` refers to the missing token."""
     try:
         return nusc.get(table, token)
     except KeyError:
@@ -90,7 +93,9 @@ def _get(nusc, table: str, token, who: str) -> dict:
                            f"{table}.json") from None
 
 
-def _splits(root: Path, scenes: list[str], version: str) -> tuple[dict[str, list[str]], str]:
+def read_splits(root: Path, scenes: list[str], version: str) -> tuple[dict[str, list[str]], str]:
+    """(train / val / test scene names, their source): ``mcdp_synth/splits.json`` if the dataroot has one,
+    else the devkit's official splits of the scenes present (test = val where there is no test scene)."""
     f = root / EXPORT_DIR / "splits.json"
     if f.is_file():
         try:

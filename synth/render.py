@@ -78,7 +78,8 @@ _RENDERER = None
 _RENDERER_KEY = None
 
 
-def _get_renderer(cfg: DataConfig):
+def renderer_for(cfg: DataConfig):
+    """This process's renderer for `cfg`'s image size and render settings (made once, remade when they change)."""
     global _RENDERER, _RENDERER_KEY
     from synth.gl_backend import Renderer  # imported in the worker: OpenGL never crosses a fork
 
@@ -97,7 +98,7 @@ def render_masks(cfg: DataConfig, rig: Rig) -> dict[str, np.ndarray]:
     """Self-occlusion masks: (H, W) uint8, 255 = scene, 0 = ego body; exact, from the ego mesh alone."""
     from synth.gl_backend import LightState
 
-    r = _get_renderer(cfg)
+    r = renderer_for(cfg)
     tex = np.full((1, 4, 4, 3), 128, np.uint8)
     scene = Scene(Mesh.empty(), [], tex, ["flat"], np.eye(4)[None], "ego_only")
     r.load_scene(scene, make_ego_mesh(cfg))
@@ -133,7 +134,7 @@ def render_sequence(cfg_dict: dict, out_dir: str, index: int, progress_queue=Non
     for name in rig.names:
         from synth.files import read_png
         masks[name] = read_png(mask_dir / f"{name}.png", gray=True)
-    r = _get_renderer(cfg)
+    r = renderer_for(cfg)
     r.load_scene(scene, make_ego_mesh(cfg))
     files: dict[str, str] = {}
     counts: dict[str, list[int]] = {}

@@ -11,7 +11,7 @@ vec3 to_srgb(vec3 c) {
 }
 """
 
-_VS_MAIN = """
+VS_MAIN = """
 #version 330 core
 layout(location=0) in vec3 a_pos;
 layout(location=1) in vec3 a_nrm;
@@ -43,7 +43,7 @@ void main() {
 }
 """
 
-_FS_MAIN = """
+FS_MAIN = """
 #version 330 core
 in vec3 v_nrm_w;
 in vec2 v_uv;
@@ -86,27 +86,27 @@ layout(location=1) out vec2 o_depth;
 }
 """
 
-_FS_MAIN = _FS_MAIN % {"to_srgb": _GLSL_TO_SRGB}
+FS_MAIN = FS_MAIN % {"to_srgb": _GLSL_TO_SRGB}
 
-_VS_SHADOW = """
+VS_SHADOW = """
 #version 330 core
 layout(location=0) in vec3 a_pos;
 uniform mat4 u_light_mvp;
 void main() { gl_Position = u_light_mvp * vec4(a_pos, 1.0); }
 """
 
-_FS_SHADOW = """
+FS_SHADOW = """
 #version 330 core
 void main() { }
 """
 
-_VS_SKY = """
+VS_SKY = """
 #version 330 core
 const vec2 P[3] = vec2[3](vec2(-1.0, -1.0), vec2(3.0, -1.0), vec2(-1.0, 3.0));
 void main() { gl_Position = vec4(P[gl_VertexID], 1.0, 1.0); }
 """
 
-_FS_SKY = """
+FS_SKY = """
 #version 330 core
 uniform mat3 u_R_world_cam;
 uniform mat3 u_K_inv;
@@ -132,4 +132,4 @@ layout(location=1) out vec2 o_depth;
 """
 
 
-_FS_SKY = _FS_SKY % {"to_srgb": _GLSL_TO_SRGB}
+FS_SKY = FS_SKY % {"to_srgb": _GLSL_TO_SRGB}

@@ -101,32 +101,43 @@ def test_the_method_library_neither_renders_nor_reads_generator_configs():
     assert not bad, "\n".join(sorted(bad))
 
 
-#: cross-module imports of private names that are still to be given public names (issue 21, item 5);
-#: the list may only shrink
-PRIVATE_IMPORTS_LEFT = {
-    ("mcdp.evaluate", "mcdp.metrics"), ("study.plots", "study.results"), ("study.propagation", "study.results"),
-    ("study.report", "study.results"), ("synth.gl_backend", "synth.gl_context"), ("synth.gl_backend", "synth.shaders"),
-    ("synth.nuscenes_export", "synth.dataset"), ("synth.nuscenes_read", "synth.nuscenes_tables"),
-}
+def _private(name: str) -> bool:
+    return name.startswith("_") and not name.startswith("__")
 
 
-def test_no_module_imports_a_private_name_of_another():
-    mods = modules()
-    found = set()
-    for name, path in mods.items():
-        pkg = name if path.name == "__init__.py" else name.rsplit(".", 1)[0]
-        for node in ast.walk(ast.parse(path.read_text())):
-            if not isinstance(node, ast.ImportFrom):
-                continue
+def private_uses(name: str, path: Path, mods: dict[str, Path]) -> set[tuple[str, str]]:
+    """(name, other module, private name) for each ``from other import _x`` in module `name` and each
+    ``other._x`` read through an imported module (``import a.b as m; m._x``, ``a.b._x``)."""
+    pkg = name if path.name == "__init__.py" else name.rsplit(".", 1)[0]
+    tree = ast.parse(path.read_text())
+    found, alias = set(), {}
+    for node in ast.walk(tree):
+        if isinstance(node, ast.Import):
+            for a in node.names:
+                if a.name in mods:
+                    alias[a.asname or a.name] = a.name
+        elif isinstance(node, ast.ImportFrom):
             base = node.module or ""
             if node.level:
                 up = pkg.split(".")[: len(pkg.split(".")) - (node.level - 1)]
                 base = ".".join(up + ([base] if base else []))
-            if base not in mods or base == name:
-                continue
-            if any(a.name.startswith("_") and not a.name.startswith("__") for a in node.names):
-                found.add((name, base))
-    new = found - PRIVATE_IMPORTS_LEFT
-    assert not new, "private names imported across modules:\n" + "\n".join(f"{a} from {b}" for a, b in sorted(new))
-    fixed = PRIVATE_IMPORTS_LEFT - found
-    assert not fixed, f"fixed, remove from PRIVATE_IMPORTS_LEFT: {sorted(fixed)}"
+            for a in node.names:
+                if f"{base}.{a.name}" in mods:
+                    alias[a.asname or a.name] = f"{base}.{a.name}"
+                elif base in mods and base != name and _private(a.name):
+                    found.add((name, base, a.name))
+    for node in ast.walk(tree):
+        if isinstance(node, ast.Attribute) and _private(node.attr):
+            owner = ast.unparse(node.value)
+            owner = alias.get(owner, owner if owner in mods and "." in owner else None)
+            if owner is not None and owner != name:
+                found.add((name, owner, node.attr))
+    return found
+
+
+def test_no_module_imports_a_private_name_of_another():
+    """A name another module needs is public (no leading underscore): modules are cut at seams."""
+    mods = modules()
+    found = set().union(*(private_uses(name, path, mods) for name, path in mods.items()))
+    assert not found, "private names used across modules:\n" + "\n".join(
+        f"{a} uses {b}.{n}" for a, b, n in sorted(found))

@@ -54,6 +54,34 @@ def build_highway(cfg: SceneConfig, n_frames: int, fps: float, rng: np.random.Ge
     world = World(path.polyline(s_ego0 - 2.0, s_ego0 + D + 6.0, step_m=0.5), R_view)
 
     road = path.polyline(s_ego0 - R_view - 20, s_ego0 + D + R_view + 20, step_m=4.0, offset_m=c)
+    _carriageway(world, road, xs, R_view, rng)
+    tang = vertex_tangents(road)
+    yaw = np.arctan2(tang[:, 1], tang[:, 0])
+    _roadside(world, road, yaw, xs, cfg, rng)
+
+    # traffic: every lane of both directions follows the road (lanes are offsets of the ego path)
+    lanes = []
+    rng_s = (s_ego0 - 0.8 * R_view, s_ego0 + 0.8 * R_view)
+    for i in range(n):
+        dl = xs.lane_offset(i) + c  # lateral offset relative to the ego lane
+        if i == n - 1:
+            lanes.append(LaneTraffic(path, 0.0, +1, speed, rng_s))  # ego lane: constant gaps
+        else:
+            lanes.append(LaneTraffic(path, dl, +1, speed * rng.uniform(0.85, 1.25), rng_s))
+        lanes.append(LaneTraffic(path, -xs.lane_offset(i) + c, -1, rng.uniform(20.0, 32.0), rng_s))
+    movers = populate_lanes(lanes, t, T_world_ego, cfg.traffic_density, int(round(14 * cfg.traffic_density)), rng,
+                            min_gap_m=20.0)
+
+    static = world.static_mesh()
+    textures, materials = make_textures(rng, cfg.texture_size)
+    info = {"family": "highway", "speed_mps": speed, "n_movers": len(movers), "n_triangles": int(static.n_triangles),
+            "turn": turn, "lanes_per_dir": int(n), "lane_w_m": float(lane_w), "n_dropped_objects": int(world.n_dropped)}
+    return Scene(static, movers, textures, materials, T_world_ego, "highway", info)
+
+
+def _carriageway(world: World, road: np.ndarray, xs: CrossSection, R_view: float, rng: np.random.Generator) -> None:
+    """Ground (to `R_view` beyond the road), asphalt, lane markings, gravel verges, the median barrier, guardrails
+    or barriers, noise walls."""
     lo, hi = road.min(0) - R_view, road.max(0) + R_view
     world.add(ground_tiles(lo[0], hi[0], lo[1], hi[1], -0.03, "grass"), check=False)
     world.add(ground_strip(road, xs.asphalt_hw, 0.0, LAYER["asphalt"], uv_scale=uv_scale_for("asphalt")), check=False)
@@ -88,9 +116,12 @@ def build_highway(cfg: SceneConfig, n_frames: int, fps: float, rng: np.random.Ge
         if side > 0:
             wall = wall[::-1]
         world.add(sweep(road, wall, LAYER["barrier_concrete"], uv_scale=uv_scale_for("barrier_concrete")))
+
+
+def _roadside(world: World, road: np.ndarray, yaw: np.ndarray, xs: CrossSection, cfg: SceneConfig,
+              rng: np.random.Generator) -> None:
+    """Lamp posts on the median, signs on the shoulders, trees on the embankments, warehouses set back."""
     # lamp posts on the median (one arm each way), signs on the right shoulder of each direction
-    tang = vertex_tangents(road)
-    yaw = np.arctan2(tang[:, 1], tang[:, 0])
     step = rng.uniform(40.0, 60.0)
     idx_step = max(1, int(round(step / 4.0)))
     for i in range(int(rng.integers(0, idx_step)), len(road), idx_step):
@@ -134,25 +165,6 @@ def build_highway(cfg: SceneConfig, n_frames: int, fps: float, rng: np.random.Ge
             world.add(building(rng.uniform(20, 50), rng.uniform(15, 30), rng.uniform(6, 16), facade,
                                tuple(rng.uniform(0.85, 1.1, 3))).transformed(
                 pose_2d(q[0], q[1], yaw[i] + (0.0 if side > 0 else np.pi))))
-
-    # traffic: every lane of both directions follows the road (lanes are offsets of the ego path)
-    lanes = []
-    rng_s = (s_ego0 - 0.8 * R_view, s_ego0 + 0.8 * R_view)
-    for i in range(n):
-        dl = xs.lane_offset(i) + c  # lateral offset relative to the ego lane
-        if i == n - 1:
-            lanes.append(LaneTraffic(path, 0.0, +1, speed, rng_s))  # ego lane: constant gaps
-        else:
-            lanes.append(LaneTraffic(path, dl, +1, speed * rng.uniform(0.85, 1.25), rng_s))
-        lanes.append(LaneTraffic(path, -xs.lane_offset(i) + c, -1, rng.uniform(20.0, 32.0), rng_s))
-    movers = populate_lanes(lanes, t, T_world_ego, cfg.traffic_density, int(round(14 * cfg.traffic_density)), rng,
-                            min_gap_m=20.0)
-
-    static = world.static_mesh()
-    textures, materials = make_textures(rng, cfg.texture_size)
-    info = {"family": "highway", "speed_mps": speed, "n_movers": len(movers), "n_triangles": int(static.n_triangles),
-            "turn": turn, "lanes_per_dir": int(n), "lane_w_m": float(lane_w), "n_dropped_objects": int(world.n_dropped)}
-    return Scene(static, movers, textures, materials, T_world_ego, "highway", info)
 
 
 def _posts(world: World, road: np.ndarray, d: float, w: float, h: float, spacing: float) -> None:

@@ -1,7 +1,8 @@
 """Tests for mcdp.evaluate on a fake two-camera dataset with an analytic wall (no rendering)."""
 import json
 import math
-from dataclasses import dataclass
+from dataclasses import asdict, dataclass
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -22,9 +23,13 @@ class FakeCamera:
     hfov_deg: float
     yaw_deg: float
 
+    def to_json(self):
+        return {k: v.tolist() if isinstance(v, np.ndarray) else v for k, v in asdict(self).items()}
+
 
 class FakeDataset:
-    """Dataset-like object (synth.dataset API subset): two forward cameras, j = i shifted right.
+    """A `synth.protocol.DatasetReader` (tests/synth/test_protocol.py checks it): two forward cameras,
+    j = i shifted right.
 
     The wall is fronto-parallel at z = 10 m for both cameras and the baseline gives an
     exact 3-pixel disparity, so the z-buffered splat of the true depth is exact.
@@ -46,12 +51,35 @@ class FakeDataset:
         self.neighbours = [(0, 1)]
         self._n = n_frames
         self.depth_reads = []
+        self.root = Path("fake")
+        self.fps = 10.0
+        self.has_depth = True
+        self.ground_truth = {"kind": "unknown"}
+
+    @property
+    def sequences(self):
+        return ["s0", "s1", "s_train"]
 
     def split(self, name):
         return {"train": ["s_train"], "val": [], "test": ["s0", "s1"]}[name]
 
     def n_frames(self, seq):
         return self._n
+
+    def ego(self, seq):
+        return [{"timestamp_s": f / self.fps, "T_world_ego": np.eye(4).tolist()} for f in range(self._n)]
+
+    def T_world_ego(self, seq):
+        return np.stack([np.eye(4)] * self._n)
+
+    def rgb_path(self, seq, cam_name, frame):
+        return self.root / seq / cam_name / f"{frame:06d}.png"
+
+    def depth_path(self, seq, cam_name, frame):
+        return self.root / seq / cam_name / f"{frame:06d}.depth.exr"
+
+    def read_rgb(self, seq, cam_name, frame):
+        return np.full((H, W, 3), 128, np.uint8)
 
     def read_depth(self, seq, cam_name, frame):
         self.depth_reads.append((seq, cam_name, frame))

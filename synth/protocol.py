@@ -1,0 +1,110 @@
+"""The dataset seam: what training, evaluation and prediction (`mcdp`), the sweep (`study`) and the rig
+viewer (`synth.view`, which `mcdp predict --rrd` records through) read from a dataset, and nothing more.
+
+Implemented by `synth.dataset.Dataset` (a rendered dataset), `synth.nuscenes_read.NuScenesDataset` (a
+nuScenes dataroot) and the tests' fake (tests/mcdp/test_evaluate.py); tests/synth/test_protocol.py checks
+all three. A reader may have more (`Dataset.manifest`, `read_bytes`, `NuScenesDataset.lidar_points_world`,
+...), but a consumer that takes any dataset reads only these members, or probes an extra with
+``getattr`` / ``hasattr`` and works without it. docs/INTERFACES.md lists the same members.
+
+Conventions (docs/INTERFACES.md): metres; OpenCV camera axes; ``T_a_b`` maps points of frame b into
+frame a; `K` in pixels of the stored image with pixel centres at +0.5; depth is z-depth, 0 = no value.
+"""
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Protocol, Sequence, runtime_checkable
+
+import numpy as np
+
+SPLITS = ("train", "val", "test")  # the split names `DatasetReader.split` knows
+
+
+@runtime_checkable
+class Camera(Protocol):
+    """One camera of the rig (`synth.rig.CameraSpec`)."""
+
+    @property
+    def name(self) -> str: ...
+
+    @property
+    def width(self) -> int: ...
+
+    @property
+    def height(self) -> int: ...
+
+    @property
+    def K(self) -> np.ndarray:
+        """(3, 3) float64 pinhole matrix in pixels of the stored image."""
+
+    @property
+    def T_ego_cam(self) -> np.ndarray:
+        """(4, 4) float64 camera -> ego."""
+
+    def to_json(self) -> dict:
+        """The camera as plain JSON (a run's ``run.json`` ``rig``, compared by ``mcdp eval``)."""
+
+
+@runtime_checkable
+class DatasetReader(Protocol):
+    """Read access to a multi-camera dataset: a rig, sequences of frames, their images, depth and poses."""
+
+    @property
+    def root(self) -> Path:
+        """The dataset's folder (recorded in a run's ``run.json``, named in messages)."""
+
+    @property
+    def cameras(self) -> Sequence[Camera]:
+        """The rig's cameras in rig order."""
+
+    @property
+    def camera_names(self) -> list[str]:
+        """``[c.name for c in cameras]``."""
+
+    @property
+    def neighbours(self) -> list[tuple[int, int]]:
+        """Adjacent camera pairs (i, j) as indices into `cameras`."""
+
+    @property
+    def sequences(self) -> list[str]:
+        """Every sequence id, sorted."""
+
+    @property
+    def fps(self) -> float:
+        """Frames per second of the sequences."""
+
+    @property
+    def has_depth(self) -> bool:
+        """Whether `read_depth` has ground truth to read."""
+
+    @property
+    def ground_truth(self) -> dict:
+        """Provenance of `read_depth` (``{"kind": ...}``; the evaluator copies it into metrics.json)."""
+
+    def split(self, name: str) -> list[str]:
+        """Sequence ids of split `name` (one of `SPLITS`); DatasetError for an unknown split."""
+
+    def n_frames(self, seq: str) -> int:
+        """Number of frames of sequence `seq`."""
+
+    def ego(self, seq: str) -> list[dict]:
+        """Per frame: ``timestamp_s`` (s from the sequence's start), ``T_world_ego`` (4x4 list), ..."""
+
+    def T_world_ego(self, seq: str) -> np.ndarray:
+        """(F, 4, 4) float64 ego -> world per frame."""
+
+    def rgb_path(self, seq: str, cam: str, frame: int) -> Path:
+        """The file `read_rgb` reads."""
+
+    def depth_path(self, seq: str, cam: str, frame: int) -> Path:
+        """The file `read_depth` reads (a rendered depth map, or the LiDAR sweep it is projected from)."""
+
+    def read_rgb(self, seq: str, cam: str, frame: int) -> np.ndarray:
+        """(H, W, 3) uint8 RGB at the camera's size."""
+
+    def read_depth(self, seq: str, cam: str, frame: int) -> np.ndarray:
+        """(H, W) float32 z-depth in metres, 0 = no value."""
+
+    def mask(self, cam: str) -> np.ndarray:
+        """(H, W) bool, True = scene, False = ego body."""
+
