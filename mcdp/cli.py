@@ -15,8 +15,8 @@ loss), 4 disk full, 130 interrupted.
 
 A config is checked before torch is imported (seconds): a wrong key fails at once.
 
-Subcommands are registered in `COMMANDS` as (name, add_arguments, run); a new
-one is one more entry. The ``mcdp`` console script is `study.cli.main`: these
+Subcommands are registered in `COMMANDS` as `corelib.cli.Command` (name, help, add_arguments,
+run), the one CLI style of `synth` and `mcdp`; a new one is one more entry. The ``mcdp`` console script is `study.cli.main`: these
 commands plus the study's ``sweep``.
 """
 from __future__ import annotations
@@ -25,23 +25,18 @@ import argparse
 import json
 import sys
 from pathlib import Path
-from typing import Callable, Iterable
+from typing import Iterable
 
-from corelib.atomic import (atomic_write_json, check_writable, disk_full_message, file_error_message, is_disk_full,
-                            is_user_file_error)
-from corelib.exitcodes import DIVERGED as EXIT_DIVERGED, DISK_FULL as EXIT_DISK_FULL, INTERRUPTED, USAGE as EXIT_USAGE
+from corelib import cli
+from corelib.atomic import atomic_write_json, check_writable
+from corelib.cli import Command
+from corelib.exitcodes import DIVERGED as EXIT_DIVERGED, USAGE as EXIT_USAGE
 
 #: (module, class) of every error a user can cause, and of a diverged training
 USER_ERRORS = [("corelib.configlib", "ConfigError"), ("corelib.rundir", "FolderError"), ("synth.files", "DatasetError"),
                ("synth.files", "OutputFolderError"), ("mcdp.runs", "RunError"), ("mcdp.networks", "NetworkError"),
                ("mcdp.warmstart", "WarmStartError"), ("synth.view", "ViewError")]
 DIVERGED = [("mcdp.trainer", "TrainingDiverged")]
-
-
-def _loaded(errors: list[tuple[str, str]]) -> tuple[type[BaseException], ...]:
-    """The classes of ``errors`` whose modules are imported: a module not imported cannot have raised its
-    error, and importing it to catch one would import torch (seconds) to report a wrong config key."""
-    return tuple(getattr(sys.modules[m], c) for m, c in errors if m in sys.modules)
 
 
 def _is_metrics(path: Path) -> bool:
@@ -286,59 +281,20 @@ def _record_source(out: Path, run: str, pred, data: str) -> None:
 
 
 # --------------------------------------------------------------------------- main
-COMMANDS: list[tuple[str, str, Callable, Callable]] = [
-    ("train", "train a model (resumes if RUN has a checkpoint)", _train_args, _train),
-    ("eval", "evaluate a run on a split -> metrics.json and per-camera tables", _eval_args, _eval),
-    ("predict", "write depth grids, EXR depth and optional PLY for a split", _predict_args, _predict),
+COMMANDS: list[Command] = [
+    Command("train", "train a model (resumes if RUN has a checkpoint)", _train_args, _train),
+    Command("eval", "evaluate a run on a split -> metrics.json and per-camera tables", _eval_args, _eval),
+    Command("predict", "write depth grids, EXR depth and optional PLY for a split", _predict_args, _predict),
 ]
 
-
-def build_parser(extra_commands: Iterable[Callable] = ()) -> argparse.ArgumentParser:
-    """The parser of every subcommand; `extra_commands` add more (``add(subparsers)``: the study's
-    ``pretrain`` and ``sweep``, assembled by `study.cli` so that this package never imports the layer above)."""
-    parser = argparse.ArgumentParser(prog="mcdp", description=__doc__.split("\n")[0])
-    sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
-    for name, help_, add_args, run in COMMANDS:
-        p = sub.add_parser(name, help=help_, description=help_)
-        add_args(p)
-        p.set_defaults(_run=run)
-    for add in extra_commands:
-        add(sub)
-    return parser
+#: errors -> exit codes (`corelib.cli`: first match wins; then a full disk, a refused file, Ctrl-C)
+RULES = [(USER_ERRORS, EXIT_USAGE, "error"), (DIVERGED, EXIT_DIVERGED, "training diverged")]
 
 
-def main(argv: list[str] | None = None, extra_commands: Iterable[Callable] = ()) -> int:
-    parser = build_parser(extra_commands)
-    try:
-        # key=value overrides may come before or after the options (argparse would only
-        # take positionals in one run), so unknown key=value words are collected here.
-        args, extra = parser.parse_known_args(argv)
-        stray = [e for e in extra if e.startswith("-") or "=" not in e]
-        if stray or (extra and not hasattr(args, "overrides")):
-            parser.error(f"unrecognized arguments: {' '.join(stray or extra)}")
-        if extra:
-            args.overrides = list(args.overrides) + extra
-    except SystemExit as exc:  # argparse already printed usage + error
-        return int(exc.code or 0)
-    try:
-        return int(args._run(args) or 0)
-    except _loaded(USER_ERRORS) as exc:
-        print(f"mcdp {args.command}: error: {exc}", file=sys.stderr)
-        return EXIT_USAGE
-    except _loaded(DIVERGED) as exc:
-        print(f"mcdp {args.command}: training diverged: {exc}", file=sys.stderr)
-        return EXIT_DIVERGED
-    except OSError as exc:
-        if is_disk_full(exc):
-            print(f"mcdp {args.command}: error: {disk_full_message(exc)}", file=sys.stderr)
-            return EXIT_DISK_FULL
-        if is_user_file_error(exc):
-            print(f"mcdp {args.command}: error: {file_error_message(exc)}", file=sys.stderr)
-            return EXIT_USAGE
-        raise
-    except KeyboardInterrupt:
-        print(f"mcdp {args.command}: interrupted", file=sys.stderr)
-        return INTERRUPTED
+def main(argv: list[str] | None = None, extra_commands: Iterable[Command] = ()) -> int:
+    """The method's commands; `extra_commands` add more (the study's ``pretrain`` and ``sweep``, assembled
+    by `study.cli` so that this package never imports the layer above)."""
+    return cli.main("mcdp", __doc__.split("\n")[0], [*COMMANDS, *extra_commands], argv, RULES)
 
 
 if __name__ == "__main__":

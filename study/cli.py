@@ -13,6 +13,7 @@ import argparse
 import sys
 
 from corelib import exitcodes
+from corelib.cli import Command
 from mcdp import cli as mcdp_cli
 from corelib.configlib import resolve_path
 
@@ -20,15 +21,11 @@ from corelib.configlib import resolve_path
 # config is checked: a wrong key fails in well under a second
 
 
-def add_pretrain_parser(subparsers) -> argparse.ArgumentParser:
-    p = subparsers.add_parser("pretrain", help="shared self-supervised pretraining (cached by its config hash)",
-                              description="shared self-supervised pretraining: render its world, train both heads")
+def _pretrain_args(p: argparse.ArgumentParser) -> None:
     p.add_argument("config", help="pretraining config YAML, e.g. configs/pretrain/tiny.yaml")
     p.add_argument("--out", required=True, help="pretraining folder (reused when its config hash matches)")
     p.add_argument("--no-progress", action="store_true")
     p.add_argument("overrides", nargs="*", help="overrides of the pretraining config, e.g. 'train_overrides=[train.steps=50]'")
-    p.set_defaults(_run=run_pretrain_command)
-    return p
 
 
 def run_pretrain_command(args: argparse.Namespace) -> int:
@@ -39,11 +36,7 @@ def run_pretrain_command(args: argparse.Namespace) -> int:
     return 0
 
 
-def add_sweep_parser(subparsers) -> argparse.ArgumentParser:
-    """Add the ``sweep`` subcommand to an argparse subparsers object; returns its parser."""
-    p = subparsers.add_parser(
-        "sweep", help="render + train + eval every method over camera overlaps -> report",
-        description="render + train + eval every method over camera overlaps -> report.md, results.csv/json, plots")
+def _sweep_args(p: argparse.ArgumentParser) -> None:
     p.add_argument("preset", help="sweep preset YAML, e.g. configs/sweep/ci.yaml")
     p.add_argument("--out", required=True, help="sweep folder; a rerun resumes and skips finished work")
     p.add_argument("--no-progress", action="store_true", help="no progress bars (log lines only)")
@@ -54,9 +47,7 @@ def add_sweep_parser(subparsers) -> argparse.ArgumentParser:
     p.add_argument("overrides", nargs="*",
                    help="sweep config overrides key=value, e.g. 'overlaps=[0.2,0.5]' seeds=[0,1] "
                         "'train_overrides=[train.steps=100]'")
-    p.set_defaults(_run=run_sweep_command)
     _allow_intermixed(p)
-    return p
 
 
 def _allow_intermixed(p: argparse.ArgumentParser) -> None:
@@ -104,9 +95,18 @@ def run_sweep_command(args: argparse.Namespace) -> int:
     return exitcodes.DIVERGED if results["counters"].get("diverged") else exitcodes.OK
 
 
+#: the study's commands, added to the method's (`mcdp.cli.COMMANDS`) in the one CLI style (`corelib.cli`)
+COMMANDS = [
+    Command("pretrain", "shared self-supervised pretraining: render its world, train both heads (cached by its "
+            "config hash)", _pretrain_args, run_pretrain_command),
+    Command("sweep", "render + train + eval every method over camera overlaps -> report.md, results.csv/json, "
+            "plots", _sweep_args, run_sweep_command),
+]
+
+
 def main(argv: list[str] | None = None) -> int:
     """The `mcdp` console script: `mcdp.cli.main` with the `pretrain` and `sweep` subcommands added."""
-    return mcdp_cli.main(argv, extra_commands=(add_pretrain_parser, add_sweep_parser))
+    return mcdp_cli.main(argv, extra_commands=COMMANDS)
 
 
 if __name__ == "__main__":

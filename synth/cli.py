@@ -1,4 +1,4 @@
-"""The `synth` command: render, verify, preview and merge datasets.
+"""The `synth` command: render, verify, preview, merge, export and view datasets (`COMMANDS`).
 
 Examples::
 
@@ -18,11 +18,10 @@ import json
 import sys
 from pathlib import Path
 
+from corelib.cli import Command
 
-def _parser() -> argparse.ArgumentParser:
-    p = argparse.ArgumentParser(prog="synth", description="Synthetic surround-view driving datasets.")
-    sub = p.add_subparsers(dest="cmd", required=True)
-    r = sub.add_parser("render", help="render a dataset from a preset (+ key=value overrides)")
+
+def _render_args(r: argparse.ArgumentParser) -> None:
     r.add_argument("config", help="preset YAML, e.g. configs/data/tiny.yaml; then key=value overrides, "
                    "e.g. rig.overlap=0.3 seed=2")
     r.add_argument("--out", required=True, help="output dataset folder (new, empty, or a partial render to resume)")
@@ -33,17 +32,42 @@ def _parser() -> argparse.ArgumentParser:
     r.add_argument("--no-progress", action="store_true")
     r.add_argument("--yes", action="store_true", help="start a render larger than synth.config.MAX_RENDER_BYTES "
                    "(500 GB uncompressed) without refusing")
-    v = sub.add_parser("verify", help="check a dataset's integrity and contract; non-zero exit on any problem")
+    r.set_defaults(overrides=[])
+
+
+def _verify_args(v: argparse.ArgumentParser) -> None:
     v.add_argument("data")
-    pv = sub.add_parser("preview", help="contact sheet: 6 cameras x (RGB, depth, mask, overlap)")
+
+
+def _preview_args(pv: argparse.ArgumentParser) -> None:
     pv.add_argument("data")
     pv.add_argument("--out", required=True, help="PNG file to write")
     pv.add_argument("--sequence", default=None)
     pv.add_argument("--frame", type=int, default=0)
-    m = sub.add_parser("merge", help="merge shard folders rendered with one config into one dataset")
+
+
+def _preview(args) -> int:
+    from synth.dataset import open_dataset
+    from synth.preview import make_preview
+
+    print(f"wrote {make_preview(open_dataset(args.data), args.out, args.sequence, args.frame)}")
+    return 0
+
+
+def _merge_args(m: argparse.ArgumentParser) -> None:
     m.add_argument("shards", nargs="+")
     m.add_argument("--out", required=True)
-    e = sub.add_parser("export", help="write a dataset in another format (nuScenes dataroot; docs/NUSCENES.md)")
+
+
+def _merge(args) -> int:
+    from synth.render import merge_datasets
+
+    res = merge_datasets([Path(s) for s in args.shards], Path(args.out))
+    print(json.dumps(res))
+    return 0 if res["complete"] else 1
+
+
+def _export_args(e: argparse.ArgumentParser) -> None:
     e.add_argument("data", help="finished synth dataset folder")
     e.add_argument("--format", required=True, choices=["nuscenes", "gltf"],
                    help="nuscenes: a nuScenes dataroot; gltf: per sequence the world and movers as GLB + poses JSON "
@@ -54,80 +78,39 @@ def _parser() -> argparse.ArgumentParser:
     e.add_argument("--no-lidar", action="store_true", help="cameras only, no synthetic LIDAR_TOP")
     e.add_argument("--jpeg-quality", type=int, default=95)
     e.add_argument("--no-progress", action="store_true")
-    w = sub.add_parser("view", help="Rerun recording (.rrd) of a sequence: rig, images, depth, masks, points "
-                       "(pip install -e '.[viz]'; open with `rerun FILE.rrd`)")
+    e.set_defaults(overrides=[])
+
+
+def _view_args(w: argparse.ArgumentParser) -> None:
     w.add_argument("data", help="finished synth dataset folder (or a nuScenes dataroot)")
     w.add_argument("--out", required=True, help="recording to write, *.rrd (new, or a recording written before)")
     w.add_argument("--seq", default=None, help="sequence id (default: the first)")
     w.add_argument("--frames", default=None, help="A:B, frames A..B-1 (default: all)")
     w.add_argument("--point-stride", type=int, default=2, help="every k-th pixel row and column in the point "
                    "cloud (default 2)")
-    return p
+
+
+def _view(args) -> int:
+    from synth.view import record_rig
+
+    s = record_rig(args.data, args.out, args.seq, args.frames, args.point_stride)
+    print(f"wrote {s['out']}: {s['sequence']} frames {s['frames'][0]}:{s['frames'][1]}, {s['bytes'] / 1e6:.2f} MB "
+          f"({s['bytes_per_rig_frame'] / 1e6:.3f} MB per rig-frame) in {s['seconds']:.1f} s; open it with "
+          f"`rerun {s['out']}`")
+    return 0
 
 
 def main(argv: list[str] | None = None) -> int:
+    from corelib import cli, exitcodes
     from corelib.configlib import ConfigError
-    from corelib import exitcodes
     from synth.files import DatasetError, OutputFolderError
     from synth.gl_context import RenderBackendError
     from synth.nuscenes_export import ExportError
 
-    parser = _parser()
-    args, rest = parser.parse_known_args(argv)
-    # dotted key=value overrides may stand anywhere after the subcommand
-    bad = [a for a in rest if "=" not in a or a.startswith("-")]
-    if bad or (rest and args.cmd not in ("render", "export")):
-        parser.error(f"unrecognized arguments: {' '.join(bad or rest)}")
-    args.overrides = rest
-    try:
-        if args.cmd == "render":
-            return _render(args)
-        if args.cmd == "verify":
-            return _verify(args)
-        if args.cmd == "preview":
-            from synth.dataset import open_dataset
-            from synth.preview import make_preview
-
-            ds = open_dataset(args.data)
-            path = make_preview(ds, args.out, args.sequence, args.frame)
-            print(f"wrote {path}")
-            return 0
-        if args.cmd == "export":
-            return _export(args) if args.format == "nuscenes" else _export_gltf(args)
-        if args.cmd == "view":
-            from synth.view import record_rig
-
-            s = record_rig(args.data, args.out, args.seq, args.frames, args.point_stride)
-            print(f"wrote {s['out']}: {s['sequence']} frames {s['frames'][0]}:{s['frames'][1]}, {s['bytes'] / 1e6:.2f} MB "
-                  f"({s['bytes_per_rig_frame'] / 1e6:.3f} MB per rig-frame) in {s['seconds']:.1f} s; open it with "
-                  f"`rerun {s['out']}`")
-            return 0
-        if args.cmd == "merge":
-            from synth.render import merge_datasets
-
-            res = merge_datasets([Path(s) for s in args.shards], Path(args.out))
-            print(json.dumps(res))
-            return 0 if res["complete"] else 1
-    except (ConfigError, DatasetError, OutputFolderError, ExportError, ValueError) as exc:
-        print(f"synth {args.cmd}: error: {exc}", file=sys.stderr)
-        return 2
-    except OSError as exc:
-        from corelib.atomic import disk_full_message, file_error_message, is_disk_full, is_user_file_error
-
-        if is_disk_full(exc):
-            print(f"synth {args.cmd}: error: {disk_full_message(exc)}", file=sys.stderr)
-            return exitcodes.DISK_FULL
-        if is_user_file_error(exc):  # permission denied, read-only file system, a name too long, ...
-            print(f"synth {args.cmd}: error: {file_error_message(exc)}", file=sys.stderr)
-            return exitcodes.USAGE
-        raise
-    except RenderBackendError as exc:
-        print(f"synth {args.cmd}: error: {exc}", file=sys.stderr)
-        return exitcodes.NO_BACKEND
-    except RuntimeError as exc:
-        print(f"synth {args.cmd}: error: {exc}", file=sys.stderr)
-        return exitcodes.FAILED
-    return 1
+    rules = [((ConfigError, DatasetError, OutputFolderError, ExportError, ValueError), exitcodes.USAGE, "error"),
+             ((RenderBackendError,), exitcodes.NO_BACKEND, "error"),
+             ((RuntimeError,), exitcodes.FAILED, "error")]
+    return cli.main("synth", "Synthetic surround-view driving datasets.", COMMANDS, argv, rules)
 
 
 def _render(args) -> int:
@@ -221,6 +204,19 @@ def _verify(args) -> int:
     print(f"OK {args.data}: schema v{m['schema_version']}, {len(m['sequences'])} sequences, "
           f"{len(m['files'])} files verified")
     return 0
+
+
+#: the subcommands, in the one CLI style of `synth` and `mcdp` (`corelib.cli`)
+COMMANDS = [
+    Command("render", "render a dataset from a preset (+ key=value overrides)", _render_args, _render),
+    Command("verify", "check a dataset's integrity and contract; non-zero exit on any problem", _verify_args, _verify),
+    Command("preview", "contact sheet: 6 cameras x (RGB, depth, mask, overlap)", _preview_args, _preview),
+    Command("merge", "merge shard folders rendered with one config into one dataset", _merge_args, _merge),
+    Command("export", "write a dataset in another format (nuScenes dataroot: docs/NUSCENES.md; glTF)", _export_args,
+            lambda args: _export(args) if args.format == "nuscenes" else _export_gltf(args)),
+    Command("view", "Rerun recording (.rrd) of a sequence: rig, images, depth, masks, points "
+            "(pip install -e '.[viz]'; open with `rerun FILE.rrd`)", _view_args, _view),
+]
 
 
 if __name__ == "__main__":

@@ -1,0 +1,93 @@
+"""One command-line style for `synth` and `mcdp`: a table of subcommands and one error rule.
+
+A CLI is a list of `Command` (name, help, add_arguments, run) handed to `main`. Why a table of
+plain argparse subcommands rather than a CLI library (click, typer): argparse is in the standard
+library (nothing to pin), the commands take dotted ``key=value`` overrides anywhere after the
+subcommand, which argparse collects as unknown words, and a new command is one more table entry.
+
+The one error rule (`corelib.exitcodes`): every error a user can cause ends in ONE line on stderr,
+``PROG COMMAND: error: ...`` naming the file or key, with its exit code, and no traceback.
+"""
+from __future__ import annotations
+
+import argparse
+import sys
+from typing import Callable, Iterable, NamedTuple, Sequence
+
+from corelib.atomic import disk_full_message, file_error_message, is_disk_full, is_user_file_error
+from corelib.exitcodes import DISK_FULL, INTERRUPTED, USAGE
+
+
+class Command(NamedTuple):
+    """One subcommand: ``add_arguments(parser)`` declares its options (a command that takes dotted
+    overrides sets an ``overrides`` default); ``run(args) -> exit code``."""
+    name: str
+    help: str
+    add_arguments: Callable[[argparse.ArgumentParser], None]
+    run: Callable[[argparse.Namespace], int]
+
+
+#: an error mapping: (exception classes, or (module, class) names looked up only in modules already
+#: imported, exit code, what the line says before the message)
+ErrorRule = tuple[Sequence, int, str]
+
+
+def build_parser(prog: str, description: str, commands: Iterable[Command]) -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(prog=prog, description=description)
+    sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
+    for c in commands:
+        p = sub.add_parser(c.name, help=c.help, description=c.help)
+        c.add_arguments(p)
+        p.set_defaults(_run=c.run)
+    return parser
+
+
+def _classes(errors: Sequence) -> tuple[type[BaseException], ...]:
+    """The classes of ``errors``; a (module, class) pair counts only if its module is imported: a module
+    not imported cannot have raised its error, and importing it to catch one could import torch (seconds)
+    just to report a wrong config key."""
+    out = []
+    for e in errors:
+        if isinstance(e, tuple):
+            m, c = e
+            if m in sys.modules:
+                out.append(getattr(sys.modules[m], c))
+        else:
+            out.append(e)
+    return tuple(out)
+
+
+def main(prog: str, description: str, commands: Iterable[Command], argv: list[str] | None,
+         rules: Sequence[ErrorRule]) -> int:
+    """Parse ``argv``, run its command, and turn the errors of ``rules`` (first match wins), a full disk
+    (exit 4), a file the operating system refuses (exit 2) and Ctrl-C (130) into one line each."""
+    parser = build_parser(prog, description, commands)
+    try:
+        # key=value overrides may come before or after the options (argparse would only take
+        # positionals in one run), so unknown key=value words are collected here.
+        args, extra = parser.parse_known_args(argv)
+        stray = [e for e in extra if e.startswith("-") or "=" not in e]
+        if stray or (extra and not hasattr(args, "overrides")):
+            parser.error(f"unrecognized arguments: {' '.join(stray or extra)}")
+        if extra:
+            args.overrides = list(args.overrides) + extra
+    except SystemExit as exc:  # argparse already printed usage + error
+        return int(exc.code or 0)
+    where = f"{prog} {args.command}"
+    try:
+        return int(args._run(args) or 0)
+    except KeyboardInterrupt:
+        print(f"{where}: interrupted", file=sys.stderr)
+        return INTERRUPTED
+    except Exception as exc:  # noqa: BLE001 (matched against the rules below; anything else is re-raised)
+        for errors, code, label in rules:
+            if isinstance(exc, _classes(errors)):
+                print(f"{where}: {label}: {exc}", file=sys.stderr)
+                return code
+        if isinstance(exc, OSError) and is_disk_full(exc):
+            print(f"{where}: error: {disk_full_message(exc)}", file=sys.stderr)
+            return DISK_FULL
+        if isinstance(exc, OSError) and is_user_file_error(exc):  # permission denied, read-only fs, a name too long
+            print(f"{where}: error: {file_error_message(exc)}", file=sys.stderr)
+            return USAGE
+        raise
