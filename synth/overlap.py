@@ -54,44 +54,74 @@ def overlap_mask(depth_i, K_i, T_ego_cam_i, depth_j, K_j, T_ego_cam_j, mask_i=No
         raise ValueError(f"depth_i and depth_j must have shape (H, W), got {gi.shape} and {gj.shape}")
     Ki, Kj = _arr(K_i, "K_i", (3, 3)), _arr(K_j, "K_j", (3, 3))
     Ti, Tj = _arr(T_ego_cam_i, "T_ego_cam_i", (4, 4)), _arr(T_ego_cam_j, "T_ego_cam_j", (4, 4))
-    (H, W), (Hj, Wj) = gi.shape, gj.shape
+    H, W = gi.shape
     valid = gi > 0
     if mask_i is not None:
         valid &= _arr(mask_i, "mask_i", (H, W), bool)
-    v, u = np.nonzero(valid)
-    z = gi[v, u]
-    pts = (np.linalg.inv(Ki) @ np.stack([u + 0.5, v + 0.5, np.ones_like(z)])) * z
-    T_j_i = np.linalg.inv(Tj) @ Ti
-    pj = T_j_i[:3, :3] @ pts + T_j_i[:3, 3:4]
-    zj = pj[2]
-    front = zj > EPS_Z
-    uvw = Kj @ pj
-    zs = np.where(front, zj, 1.0)
-    uj, vj = uvw[0] / zs, uvw[1] / zs
-    ok = front & (uj >= 0) & (uj < Wj) & (vj >= 0) & (vj < Hj)
-    col = np.clip(np.floor(np.where(ok, uj, 0)).astype(np.int64), 0, Wj - 1)
-    row = np.clip(np.floor(np.where(ok, vj, 0)).astype(np.int64), 0, Hj - 1)
-    if mask_j is not None:
-        ok &= _arr(mask_j, "mask_j", (Hj, Wj), bool)[row, col]
-    pad = np.pad(gj, 1, mode="constant")  # 0 outside the image: no surface
-    near = np.max(np.stack([pad[row + dr, col + dc] for dr in range(3) for dc in range(3)]), axis=0)
-    ok &= (near > 0) & (zj <= (1.0 + z_tol) * near)
+    mj = None if mask_j is None else _arr(mask_j, "mask_j", gj.shape, bool)
+    v, u, pts = _points(gi, Ki, valid)
+    seen = _seen_by_j(pts, np.linalg.inv(Tj) @ Ti, Kj, _near(gj), mj, z_tol)
     out = np.zeros((H, W), bool)
-    out[v[ok], u[ok]] = True
+    out[v[seen], u[seen]] = True
     return out
 
 
-def overlap_fraction_counts(depths: dict, masks: dict, cameras: list, neighbours) -> dict[str, list[int]]:
+def _points(depth: np.ndarray, K: np.ndarray, valid: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Pixel rows, columns and camera-frame 3-D points (3, N) of the `valid` pixels of a float64 depth map."""
+    v, u = np.nonzero(valid)
+    z = depth[v, u]
+    pts = (np.linalg.inv(K) @ np.stack([u + 0.5, v + 0.5, np.ones_like(z)])) * z
+    return v, u, pts
+
+
+def _near(depth: np.ndarray) -> np.ndarray:
+    """Maximum of `depth` over each pixel's 3x3 neighbourhood, 0 outside the image (no surface)."""
+    H, W = depth.shape
+    pad = np.pad(depth, 1, mode="constant")
+    near = pad[:H, :W].copy()
+    for dr in range(3):
+        for dc in range(3):
+            if dr or dc:
+                np.maximum(near, pad[dr:dr + H, dc:dc + W], out=near)
+    return near
+
+
+def _seen_by_j(pts: np.ndarray, T_j_i: np.ndarray, K_j: np.ndarray, near_j: np.ndarray, mask_j, z_tol: float):
+    """Indices into `pts` (camera i's points) that camera j sees: in front, inside, on scene, z-test."""
+    Hj, Wj = near_j.shape
+    pj = T_j_i[:3, :3] @ pts + T_j_i[:3, 3:4]
+    zj = pj[2]
+    front = zj > EPS_Z
+    uvw = K_j @ pj
+    zs = np.where(front, zj, 1.0)
+    uj, vj = uvw[0] / zs, uvw[1] / zs
+    idx = np.flatnonzero(front & (uj >= 0) & (uj < Wj) & (vj >= 0) & (vj < Hj))
+    col = np.clip(np.floor(uj[idx]).astype(np.int64), 0, Wj - 1)
+    row = np.clip(np.floor(vj[idx]).astype(np.int64), 0, Hj - 1)
+    keep = np.ones(idx.size, bool) if mask_j is None else mask_j[row, col]
+    near = near_j[row, col]
+    keep &= (near > 0) & (zj[idx] <= (1.0 + z_tol) * near)
+    return idx[keep]
+
+
+def overlap_fraction_counts(depths: dict, masks: dict, cameras: list, neighbours,
+                            z_tol: float = Z_TOL) -> dict[str, list[int]]:
     """For each ordered adjacent pair i->j: [valid pixels of i, of those overlapping j] (one rig frame).
 
-    `depths` and `masks` are keyed by camera name; `cameras` are `synth.rig.CameraSpec`s."""
+    `depths` and `masks` are keyed by camera name; `cameras` are `synth.rig.CameraSpec`s. The same
+    numbers as `overlap_mask` pair by pair; each camera's points and 3x3 depth maximum are computed
+    once per frame, not once per pair and direction."""
+    prep = {}
+    for c in {k for pair in neighbours for k in pair}:
+        cam = cameras[c]
+        m = np.asarray(masks[cam.name]) > 127
+        g = _arr(depths[cam.name], "depth")
+        _, _, pts = _points(g, _arr(cam.K, "K", (3, 3)), (g > 0) & m)
+        prep[c] = (pts, _near(g), m, _arr(cam.T_ego_cam, "T_ego_cam", (4, 4)))
     out = {}
     for a, b in neighbours:
         for i, j in ((a, b), (b, a)):
-            ci, cj = cameras[i], cameras[j]
-            mi, mj = masks[ci.name] > 127, masks[cj.name] > 127
-            valid = (depths[ci.name] > 0) & mi
-            ov = overlap_mask(depths[ci.name], ci.K, ci.T_ego_cam, depths[cj.name], cj.K, cj.T_ego_cam,
-                              mask_i=mi, mask_j=mj)
-            out[f"{ci.name}->{cj.name}"] = [int(valid.sum()), int(ov.sum())]
+            (pts, _, _, Ti), (_, near_j, mj, Tj) = prep[i], prep[j]
+            seen = _seen_by_j(pts, np.linalg.inv(Tj) @ Ti, _arr(cameras[j].K, "K", (3, 3)), near_j, mj, z_tol)
+            out[f"{cameras[i].name}->{cameras[j].name}"] = [int(pts.shape[1]), int(seen.size)]
     return out

@@ -36,7 +36,7 @@ from corelib.hashing import sha256_file
 from synth.dataset import GENERATOR, INTEGRITY, MANIFEST, SCHEMA_VERSION, integrity_record
 from synth.files import OutputFolderError, frame_stem, read_json, write_depth_exr, write_json, write_png  # noqa: F401 (re-exported)
 from synth.lighting import draw_sequence_lighting, frame_gains
-from synth.overlap import overlap_fraction_counts
+from synth.pipeline import FrameSink, ScenePrefetch, build_sequence_scene
 from synth.rig import Rig, build_rig, ego_body_mesh
 
 MARKER_DIR = ".synth"
@@ -110,8 +110,10 @@ def render_masks(cfg: DataConfig, rig: Rig) -> dict[str, np.ndarray]:
     return masks
 
 
-def render_sequence(cfg_dict: dict, out_dir: str, index: int, progress_queue=None) -> dict:
-    """Render sequence `index` into `out_dir/<seq>/` (via `<seq>.partial/`); returns its record."""
+def render_sequence(cfg_dict: dict, out_dir: str, index: int, progress_queue=None,
+                    prefetch: ScenePrefetch | None = None) -> dict:
+    """Render sequence `index` into `out_dir/<seq>/` (via `<seq>.partial/`); returns its record. Files and
+    overlap counts are done on `synth.pipeline.FrameSink`'s threads; `prefetch` may hold the scene."""
     cfg = build_config(DataConfig, cfg_dict, "resolved config")
     rig = make_rig(cfg)
     seq = sequence_id(index)
@@ -121,49 +123,38 @@ def render_sequence(cfg_dict: dict, out_dir: str, index: int, progress_queue=Non
         shutil.rmtree(partial)
     partial.mkdir(parents=True)
     ss = np.random.SeedSequence([cfg.seed, index])
-    scene_ss, light_ss, flicker_ss = ss.spawn(3)
+    _, light_ss, flicker_ss = ss.spawn(3)
     t0 = time.perf_counter()
-    from scenes import build_scene
-
-    scene = build_scene(cfg.scene, cfg.dataset.frames, cfg.dataset.fps, np.random.default_rng(scene_ss))
+    scene = (prefetch.take(index) if prefetch is not None else None) or build_sequence_scene(cfg, index)
     t_scene = time.perf_counter() - t0
     seq_light = draw_sequence_lighting(cfg.lighting, rig.names, np.random.default_rng(light_ss))
     flicker_rng = np.random.default_rng(flicker_ss)
-    masks = {name: None for name in rig.names}
-    mask_dir = out / "masks"
-    for name in rig.names:
-        from synth.files import read_png
-        masks[name] = read_png(mask_dir / f"{name}.png", gray=True)
+    from synth.files import read_png
+    masks = {name: read_png(out / "masks" / f"{name}.png", gray=True) for name in rig.names}
     r = renderer_for(cfg)
     r.load_scene(scene, make_ego_mesh(cfg))
-    files: dict[str, str] = {}
-    counts: dict[str, list[int]] = {}
-    frames_json = []
     for name in rig.names:
         (partial / name).mkdir()
-    for f in range(cfg.dataset.frames):
-        gains = frame_gains(seq_light, flicker_rng)
-        T_world_ego = scene.T_world_ego[f]
-        depths = {}
-        for cam in rig.cameras:
-            res = r.render(cam.K, T_world_ego @ cam.T_ego_cam, f, seq_light.light, gains[cam.name])
-            stem = frame_stem(f)
-            png = partial / cam.name / f"{stem}.png"
-            exr = partial / cam.name / f"{stem}.depth.exr"
-            # per-file fsync is skipped inside the .partial folder (7 ms a file); one sync seals it below
-            write_png(png, res["rgb"], cfg.render.png_compression, fsync=False)
-            write_depth_exr(exr, res["depth"], fsync=False)
-            for p in (png, exr):
-                files[f"{seq}/{cam.name}/{p.name}"] = sha256_file(p)
-            depths[cam.name] = res["depth"]
-        for k, (n_valid, n_in) in overlap_fraction_counts(depths, masks, rig.cameras, rig.neighbours).items():
-            c = counts.setdefault(k, [0, 0])
-            c[0] += n_valid
-            c[1] += n_in
-        frames_json.append({"frame": f, "timestamp_s": f / cfg.dataset.fps, "T_world_ego": T_world_ego.tolist(),
-                            "lighting": {"camera_gain": {k: list(v) for k, v in gains.items()}}})
-        if progress_queue is not None:
-            progress_queue.put(1)
+    frames_json = []
+    with FrameSink() as sink:
+        for f in range(cfg.dataset.frames):
+            gains = frame_gains(seq_light, flicker_rng)
+            T_world_ego = scene.T_world_ego[f]
+            depths = {}
+            for cam in rig.cameras:
+                res = r.render(cam.K, T_world_ego @ cam.T_ego_cam, f, seq_light.light, gains[cam.name])
+                stem = frame_stem(f)
+                sink.png(f"{seq}/{cam.name}/{stem}.png", partial / cam.name / f"{stem}.png", res["rgb"],
+                         cfg.render.png_compression)
+                sink.exr(f"{seq}/{cam.name}/{stem}.depth.exr", partial / cam.name / f"{stem}.depth.exr",
+                         res["depth"])
+                depths[cam.name] = res["depth"]
+            sink.overlap(depths, masks, rig.cameras, rig.neighbours)
+            frames_json.append({"frame": f, "timestamp_s": f / cfg.dataset.fps, "T_world_ego": T_world_ego.tolist(),
+                                "lighting": {"camera_gain": {k: list(v) for k, v in gains.items()}}})
+            if progress_queue is not None:
+                progress_queue.put(1)
+        files, counts = sink.results()
     ego = {"sequence": seq, "index": index, "fps": cfg.dataset.fps, "scene": scene.info,
            "lighting": seq_light.to_json(), "frames": frames_json}
     write_json(partial / "ego.json", ego)
@@ -308,15 +299,17 @@ def _render_into(cfg: DataConfig, out: Path, rig: Rig, backend: str, workers: in
                  engine: str, progress: bool, log) -> dict:
     k, N = shard
     t0 = time.perf_counter()
+    n = cfg.dataset.sequences
+    done = set(complete_sequences(out, n))
+    todo = [i for i in range(n) if i % N == k and i not in done]
+    prefetch = ScenePrefetch(cfg) if engine == "local" and (workers == 1 or len(todo) <= 1) else None
+    if prefetch is not None and todo:  # the first scene builds while the masks render
+        prefetch.start(todo[0])
     if not (out / "rig.json").is_file() or not all((out / "masks" / f"{n}.png").is_file() for n in rig.names):
         _write_static(cfg, out, rig)
     for p in out.glob("*.partial"):
         shutil.rmtree(p)
-    n = cfg.dataset.sequences
-    mine = [i for i in range(n) if i % N == k]
-    done = set(complete_sequences(out, n))
-    todo = [i for i in mine if i not in done]
-    skipped = len(mine) - len(todo)
+    skipped = len([i for i in range(n) if i % N == k]) - len(todo)
     cfg_dict = config_to_dict(cfg)
     log(f"synth render: {len(todo)} sequence(s) to render, {skipped} already complete, shard {k}/{N}, "
         f"backend {backend}, " + ("Ray tasks" if engine == "ray" else f"{workers} worker(s)")
@@ -331,8 +324,13 @@ def _render_into(cfg: DataConfig, out: Path, rig: Rig, backend: str, workers: in
         records = _render_ray(cfg_dict, out, todo, bar) if todo else []
     elif workers == 1 or len(todo) <= 1:
         q = _BarQueue(bar)
-        for i in todo:
-            records.append(render_sequence(cfg_dict, str(out), i, q))
+        try:
+            for pos, i in enumerate(todo):
+                if pos + 1 < len(todo):  # the next scene builds while this sequence renders
+                    prefetch.start(todo[pos + 1])
+                records.append(render_sequence(cfg_dict, str(out), i, q, prefetch))
+        finally:
+            prefetch.close()
     else:
         ctx = mp.get_context("spawn")
         with procs.manager(ctx) as manager:  # the manager and the workers die with this process

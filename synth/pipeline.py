@@ -1,0 +1,128 @@
+"""The work of rendering that is not rendering, moved off the GL thread: file writes, checksums,
+overlap counts and the next sequence's scene.
+
+The renderer owns one GL context and draws on the calling thread; while llvmpipe rasterises the
+next camera, a small thread pool encodes and writes the previous ones (cv2's PNG encoder, zlib
+inside OpenEXR, hashlib and file I/O run without the GIL) and counts the z-tested overlap of the
+previous rig frame. Every file is still written whole (a temporary name, then a rename), with the
+same bytes as when written inline, and the results are collected in submission order, so the
+record's ``files`` (and the manifest) list the same hashes in the same order.
+
+Example::
+
+    with FrameSink() as sink:
+        sink.png("seq/CAM/000000.png", path, rgb, compression=3)
+        sink.exr("seq/CAM/000000.depth.exr", path_exr, depth)
+        sink.overlap(depths, masks, rig.cameras, rig.neighbours)
+        files, counts = sink.results()
+"""
+from __future__ import annotations
+
+import hashlib
+from collections import deque
+from concurrent.futures import Future, ThreadPoolExecutor
+from pathlib import Path
+
+import numpy as np
+
+from corelib.atomic import atomic_write_bytes
+from corelib.hashing import sha256_file
+from scenes.model import Scene
+from synth.config import DataConfig
+from synth.files import encode_png, write_depth_exr
+from synth.overlap import overlap_fraction_counts
+
+WRITE_THREADS = 2
+MAX_PENDING = 40  # tasks in flight before `submit` waits (about three rig frames of six cameras)
+
+
+def _png_task(path: Path, rgb: np.ndarray, compression: int) -> str:
+    data = encode_png(rgb, compression)
+    # per-file fsync is skipped inside the .partial folder; one sync seals it (render_sequence)
+    atomic_write_bytes(path, data, fsync=False)
+    return hashlib.sha256(data).hexdigest()
+
+
+def _exr_task(path: Path, depth: np.ndarray) -> str:
+    write_depth_exr(path, depth, fsync=False)
+    return sha256_file(path)
+
+
+class FrameSink:
+    """A bounded thread pool for one sequence's files and overlap counts, collected in order."""
+
+    def __init__(self, threads: int = WRITE_THREADS, max_pending: int = MAX_PENDING) -> None:
+        self._pool = ThreadPoolExecutor(max_workers=threads, thread_name_prefix="synth-write")
+        self._max_pending = max_pending
+        self._pending: deque[Future] = deque()
+        self._files: list[tuple[str, Future]] = []
+        self._counts: list[Future] = []
+
+    def _submit(self, fn, *args) -> Future:
+        while len(self._pending) >= self._max_pending:
+            self._pending.popleft().result()  # raises a task's error (a full disk) here, on the GL thread
+        fut = self._pool.submit(fn, *args)
+        self._pending.append(fut)
+        return fut
+
+    def png(self, key: str, path: Path, rgb: np.ndarray, compression: int) -> None:
+        self._files.append((key, self._submit(_png_task, path, rgb, compression)))
+
+    def exr(self, key: str, path: Path, depth: np.ndarray) -> None:
+        self._files.append((key, self._submit(_exr_task, path, depth)))
+
+    def overlap(self, depths: dict, masks: dict, cameras: list, neighbours) -> None:
+        self._counts.append(self._submit(overlap_fraction_counts, dict(depths), masks, cameras, neighbours))
+
+    def results(self) -> tuple[dict[str, str], dict[str, list[int]]]:
+        """Wait for every task: ({key: sha256} in submission order, overlap counts summed over frames)."""
+        files = {key: fut.result() for key, fut in self._files}
+        counts: dict[str, list[int]] = {}
+        for fut in self._counts:
+            for k, (n_valid, n_in) in fut.result().items():
+                c = counts.setdefault(k, [0, 0])
+                c[0] += n_valid
+                c[1] += n_in
+        return files, counts
+
+    def close(self) -> None:
+        self._pool.shutdown(wait=True, cancel_futures=True)
+
+    def __enter__(self) -> "FrameSink":
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+
+def build_sequence_scene(cfg: DataConfig, index: int) -> Scene:
+    """The scene of sequence `index`: a function of the config and `(seed, index)` only (the first of
+    the three seed sequences `render_sequence` spawns)."""
+    from scenes import build_scene
+
+    scene_ss = np.random.SeedSequence([cfg.seed, index]).spawn(3)[0]
+    return build_scene(cfg.scene, cfg.dataset.frames, cfg.dataset.fps, np.random.default_rng(scene_ss))
+
+
+class ScenePrefetch:
+    """Builds sequences' scenes on one background thread, ahead of the renderer that needs them.
+
+    A scene depends only on the config and `(seed, index)`, so one built early is the same arrays as
+    one built when needed. `take(index)` returns the scene (waiting for it), or None when it was
+    never started (the caller builds it inline)."""
+
+    def __init__(self, cfg: DataConfig) -> None:
+        self._cfg = cfg
+        self._pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="synth-scene")
+        self._futures: dict[int, Future] = {}
+
+    def start(self, index: int) -> None:
+        if index not in self._futures:
+            self._futures[index] = self._pool.submit(build_sequence_scene, self._cfg, index)
+
+    def take(self, index: int) -> Scene | None:
+        fut = self._futures.pop(index, None)
+        return None if fut is None else fut.result()
+
+    def close(self) -> None:
+        self._pool.shutdown(wait=True, cancel_futures=True)
