@@ -16,9 +16,9 @@ TINY_DIGEST_RENDERER = "llvmpipe (LLVM 15.0.6, 256 bits)"
 
 
 def test_tiny_preset_files_are_todays_bytes(tiny_dataset, tiny_config):
-    from synth.render import _get_renderer
+    from synth.render import renderer_for
 
-    if _get_renderer(tiny_config).gl_renderer != TINY_DIGEST_RENDERER:
+    if renderer_for(tiny_config).gl_renderer != TINY_DIGEST_RENDERER:
         pytest.skip(f"the recorded digest is of {TINY_DIGEST_RENDERER}")
     files = json.loads((tiny_dataset / "manifest.json").read_text())["files"]
     assert json_sha256(files) == TINY_FILES_DIGEST
