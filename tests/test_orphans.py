@@ -61,7 +61,7 @@ def _kill_parent_and_check(argv: list[str], n_workers: int, sig: int, tmp_path: 
             kids = _spawned_children(proc.pid)
         time.sleep(1.0)  # the workers are past their initializer
         os.kill(proc.pid, sig)
-        proc.wait(timeout=30)
+        proc.wait(timeout=120)  # a loaded machine (fsync of its first files) can take tens of seconds
         t1 = time.monotonic()
         while _alive(kids) and time.monotonic() - t1 < 20:
             time.sleep(0.2)
