@@ -204,8 +204,9 @@ class TrainConfig(StrictModel):
     threads: torch intra-op CPU threads (0 = torch's default). On a shared
         machine 1 avoids the heavy slow-down of oversubscribed OpenMP threads.
     grad_clip: max global grad norm (> 0, finite), or null.
-    weight_lr_mult: the MCDP weight networks' learning rate is ``lr * weight_lr_mult`` (1 = one rate
-        for every parameter). They start fresh while the encoder and decoder come from a
+    weight_lr_mult: the learning rate of the depth network's fresh layers (MCDP's weight networks,
+        `mcdp.surround`'s cross-view attention: ``DepthModel.fresh_parameters``) is ``lr *
+        weight_lr_mult`` (1 = one rate for every parameter). They start fresh while the encoder and decoder come from a
         pretraining, and at one small rate they did not move in a 100-step fine-tuning
         (docs/results/refinement.md).
     """

@@ -11,7 +11,9 @@ The depth network's contract (what `mcdp.system.SelfSupervisedSystem`, `mcdp.pre
 warm start use) is the one of `mcdp.model.DepthModel`: ``__init__(ModelConfig)``, ``.stages``
 (stage names, the last is evaluated), ``.cfg`` and ``forward(rgb, K, T_ego_cam, mask, nbr,
 oracle_gt_median=None, scales=None, refine_scales=None) -> {("disp" | "depth", stage, scale):
-(B*N, 1, h, w), "stages": [...], "scale": (B*N,)}``.
+(B*N, 1, h, w), "stages": [...], "scale": (B*N,)}``. Optional: ``fresh_parameters()`` (the layers no
+pretraining initialises: they learn at ``train.weight_lr_mult`` x the rate) and ``uses_neighbours``
+(True: the depth uses the neighbours' images at inference, so the sweep also evaluates it with them cut).
 
 A method's own loss terms (``loss_terms``): ``(outputs, batch, cfg) -> {name: scalar}``, each
 scalar already weighted; `mcdp.system.SelfSupervisedSystem` adds them to the step's loss and
@@ -93,6 +95,8 @@ for _m in (
            "mcdp.model:MonoDepthModel"),
     Method("fsm", "FSM", {"model.method": "fsm", "model.refine_steps": 0, "loss.consistency_weight": 0.0},
            "mcdp.fsm:FsmDepthModel", loss_terms="mcdp.fsm:fsm_loss"),
+    Method("surround", "SurroundDepth", {"model.method": "surround", "model.refine_steps": 0,
+                                         "loss.consistency_weight": 0.0}, "mcdp.surround:SurroundDepthModel"),
     Method("mcdp_m0", "MCDP (m = 0)", {"model.method": "mcdp", "model.refine_steps": 0,
                                        "loss.consistency_weight": PAPER_LAMBDA}),
     Method("mcdp_m1_nocon", "MCDP (w/o L_con, m = 1)", {"model.method": "mcdp", "model.refine_steps": 1,

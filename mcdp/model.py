@@ -198,6 +198,22 @@ class DepthModel(nn.Module):
             ]
         )
 
+    #: whether the depth of a camera depends on its neighbours' images at inference (then the evaluation
+    #: also cuts them: ``Predictor(cut=True)``); MCDP with refinement steps, `mcdp.surround`
+    @property
+    def uses_neighbours(self) -> bool:
+        return len(self.weight_nets) > 0
+
+    def fresh_parameters(self) -> list[nn.Parameter]:
+        """Parameters no pretraining initialises (`mcdp.warmstart` copies only ``encoder.*`` and
+        ``decoder.*``); they learn at ``train.weight_lr_mult`` x the rate."""
+        return [p for name, p in self.named_parameters() if not name.startswith(("encoder.", "decoder."))]
+
+    def encode(self, x: torch.Tensor, B: int, N: int, nbr: torch.Tensor) -> list[torch.Tensor]:
+        """Encoder features of the B*N images x (BN, 3, H, W); a method may mix the cameras here
+        (`mcdp.surround`). nbr: (N, 2) neighbour table, all -1 when the neighbours are cut."""
+        return self.encoder(x)
+
     def to_depth(self, sig: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         """(disp, depth) of a (combined) sigmoid map with this model's depth range."""
         return disp_to_depth(sig, self.cfg.min_depth, self.cfg.max_depth)
@@ -236,7 +252,7 @@ class DepthModel(nn.Module):
         """
         B, N, _, H, W = rgb.shape
         BN = B * N
-        feats = self.encoder(rgb.reshape(BN, 3, H, W))
+        feats = self.encode(rgb.reshape(BN, 3, H, W), B, N, nbr)
         bases = self.decoder(feats)  # {s: (BN, n, h, w)}
         n = self.n_out
         mono = None

@@ -118,11 +118,12 @@ class Trainer:
         torch.manual_seed(tc.seed)
         self.system = SelfSupervisedSystem(cfg, ds.neighbours, len(ds.camera_names)).to(self.device)
         self.depth, self.pose = self.system.depth, self.system.pose
-        wnet = list(getattr(self.depth, "weight_nets", torch.nn.ModuleList()).parameters())  # MCDP's; or none
+        fresh = getattr(self.depth, "fresh_parameters", None)  # optional member of a depth network (mcdp.methods)
+        wnet = list(fresh()) if fresh is not None else []  # MCDP's weight networks, SurroundDepth's attention
         wids = {id(p) for p in wnet}
         rest = [p for p in self.system.parameters() if id(p) not in wids]
         groups = [{"params": rest, "lr_mult": 1.0}]
-        if wnet:  # the fresh weight networks learn at a rate of their own (train.weight_lr_mult)
+        if wnet:  # the fresh layers learn at a rate of their own (train.weight_lr_mult)
             groups.append({"params": wnet, "lr_mult": tc.weight_lr_mult})
         # fused: one kernel for all parameters (CPU and CUDA); ~7x faster than the per-tensor loop on
         # a CPU, the same update to float rounding (docs/results/train_step.md)

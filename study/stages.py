@@ -326,7 +326,8 @@ def run_stage(cfg: SweepConfig, overlap: float, data: dict, method: str, seed: i
 
 def evaluate_run(cfg: SweepConfig, run_dir: Path, ds, ecfg, progress: bool, log, tag: str) -> tuple[dict, dict | None]:
     """Evaluate one run's checkpoint: as trained (+ the ORACLE-weights stage of a run with bases),
-    and, for a run with refinement steps, a second time with its neighbours cut at inference.
+    and, for a network whose depth uses the neighbours at inference (``uses_neighbours``: MCDP's refinement,
+    the cross-view attention of `mcdp.surround`), a second time with its neighbours cut at inference.
 
     Returns (metrics, metrics_cut or None); ``metrics["_predictor"]`` is the as-trained predictor and
     ``metrics["refinement"]`` / ``metrics_cut["refinement"]`` record how much the refinement acted.
@@ -342,7 +343,7 @@ def evaluate_run(cfg: SweepConfig, run_dir: Path, ds, ecfg, progress: bool, log,
     metrics["refinement"] = pred.refinement
     metrics["_predictor"] = pred
     metrics_cut = None
-    if pred.cfg.model.refine_steps > 0:
+    if getattr(pred.model, "uses_neighbours", False):  # MCDP's refinement, SurroundDepth's cross-view attention
         cut = Predictor(run_dir, ds, cfg.checkpoint, cfg.device, cut=True)
         log(f"{tag}: evaluating it again with the neighbours cut at inference")
         metrics_cut = evaluate(ds, cut.predict, SPLIT, ecfg, progress=progress)

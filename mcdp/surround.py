@@ -1,0 +1,130 @@
+"""A SurroundDepth-style cross-view network (Wei et al., "SurroundDepth: Entangling Surrounding Views
+for Self-Supervised Multi-Camera Depth Estimation", CoRL 2022), the method ``surround``: the rig's
+overlap used at INFERENCE, by attention, without geometry.
+
+Monodepth2's encoder and decoder (one sigmoid channel, stage "init"), with a cross-view transformer
+block (`CrossViewBlock`) on the encoder's two coarsest feature maps (1/16: 256 channels, 1/32: 512
+channels; SurroundDepth's CVT sits on every scale of its encoder, downsampled: the coarse scales are
+where a token covers enough of the scene to find itself in a neighbour). Each block turns the N
+cameras' feature maps of one rig into N*h*w tokens, adds a learned **camera embedding** (one vector
+per camera index of the rig, as SurroundDepth's per-view embeddings) and a fixed 2-D sinusoidal
+position inside the image, and lets every token attend to every token of every camera (one pre-norm
+transformer layer: multi-head attention + MLP). No extrinsics, no depth: what links a pixel to its
+neighbour's is learned from the images alone (geometry-free, unlike MCDP's warps). The block's result
+is added to the features through a 1x1 convolution that starts at **zero**, so at its first step the
+network is exactly its warm start (the shared pretraining's Monodepth2 head) and what it becomes is
+what the attention learned.
+
+**Cut** (``Predictor(cut=True)``, the neighbour table all -1): attention restricted to each camera
+itself (a block-diagonal mask), so as trained - cut is what the other cameras contribute at inference.
+
+Poses: with ``scale.source=odometry`` (the sweep) the rig motion is given, one rigid motion of the
+rig by construction, which is what SurroundDepth's joint pose estimates; with ``velocity`` each camera's
+motion comes from the shared pose network as for Monodepth2 (SurroundDepth's joint pose decoder and its
+SfM pseudo-depth pretraining are not built: the odometry scale replaces what both are for).
+
+Sizes (module constants, not config keys: a new key would change the config hash of every existing
+run): ``D_MODEL = 128`` token channels, ``HEADS = 4``, ``MLP_RATIO = 2``, ``MAX_CAMERAS = 16``.
+
+Warm start (``model.init_from``): encoder and decoder from the shared pretraining exactly as for
+``mono2``; the cross-view blocks (``cross_view.*``) start fresh and learn at ``train.weight_lr_mult``
+x the rate (`mcdp.model.DepthModel.fresh_parameters`).
+"""
+from __future__ import annotations
+
+import math
+
+import torch
+import torch.nn as nn
+import torch.nn.functional as F
+
+from corelib.configlib import ConfigError
+from mcdp.model import MonoDepthModel
+from mcdp.networks import ResnetEncoder
+
+D_MODEL = 128
+HEADS = 4
+MLP_RATIO = 2
+MAX_CAMERAS = 16
+#: encoder levels with a cross-view block (0 = 1/2 ... 4 = 1/32)
+LEVELS = (3, 4)
+
+
+def sinusoid_2d(h: int, w: int, d: int, device=None) -> torch.Tensor:
+    """(h*w, d) fixed position code of a pixel in an h x w map: sin/cos of y and x at d/4 frequencies each,
+    on coordinates normalised to [0, 1] (the same code at any resolution)."""
+    f = torch.exp(torch.arange(d // 4, device=device, dtype=torch.float32) * (-math.log(100.0) / max(d // 4 - 1, 1)))
+    y = (torch.arange(h, device=device, dtype=torch.float32) + 0.5) / h
+    x = (torch.arange(w, device=device, dtype=torch.float32) + 0.5) / w
+    ay = (y[:, None] * f[None] * 2 * math.pi)[:, None].expand(h, w, -1)
+    ax = (x[:, None] * f[None] * 2 * math.pi)[None].expand(h, w, -1)
+    return torch.cat([ay.sin(), ay.cos(), ax.sin(), ax.cos()], -1).reshape(h * w, d)
+
+
+class CrossViewBlock(nn.Module):
+    """One transformer layer over the tokens of all cameras of a rig at one feature level.
+
+    forward(f (B*N, c, h, w), B, N, cut) -> (B*N, c, h, w): f + out(block(tokens)), ``out`` zero at init.
+    """
+
+    def __init__(self, channels: int):
+        super().__init__()
+        d = D_MODEL
+        self.inp = nn.Conv2d(channels, d, 1)
+        self.camera = nn.Parameter(torch.randn(MAX_CAMERAS, d) * 0.02)
+        self.norm1 = nn.LayerNorm(d)
+        self.qkv = nn.Linear(d, 3 * d)
+        self.proj = nn.Linear(d, d)
+        self.norm2 = nn.LayerNorm(d)
+        self.mlp = nn.Sequential(nn.Linear(d, MLP_RATIO * d), nn.GELU(), nn.Linear(MLP_RATIO * d, d))
+        self.out = nn.Conv2d(d, channels, 1)
+        nn.init.zeros_(self.out.weight)
+        nn.init.zeros_(self.out.bias)
+
+    def forward(self, f: torch.Tensor, B: int, N: int, cut: bool) -> torch.Tensor:
+        BN, c, h, w = f.shape
+        d, T = D_MODEL, N * h * w
+        x = self.inp(f).reshape(B, N, d, h * w).transpose(2, 3)  # (B, N, hw, d)
+        x = x + self.camera[:N].view(1, N, 1, d).to(x.dtype) + sinusoid_2d(h, w, d, f.device).to(x.dtype)[None, None]
+        x = x.reshape(B, T, d)
+        q, k, v = self.qkv(self.norm1(x)).view(B, T, 3, HEADS, d // HEADS).permute(2, 0, 3, 1, 4)
+        allowed = None
+        if cut:  # each camera attends to itself only
+            cam = torch.arange(N, device=f.device).repeat_interleave(h * w)
+            allowed = cam[:, None] == cam[None, :]
+        a = F.scaled_dot_product_attention(q, k, v, attn_mask=allowed)  # (B, HEADS, T, d / HEADS)
+        x = x + self.proj(a.transpose(1, 2).reshape(B, T, d))
+        x = x + self.mlp(self.norm2(x))
+        x = x.view(B, N, h * w, d).transpose(2, 3).reshape(BN, d, h, w)
+        return f + self.out(x)
+
+
+class SurroundDepthModel(MonoDepthModel):
+    """Monodepth2's network with cross-view attention between the cameras' encoder features."""
+
+    model = "surround"
+
+    @classmethod
+    def check_config(cls, cfg) -> None:
+        super().check_config(cfg)
+        if cfg.neighbours != "both":
+            raise ConfigError(f"model.neighbours={cfg.neighbours}: model.method=surround attends to every camera; "
+                              "leave model.neighbours at its default (both)")
+
+    def __init__(self, cfg):
+        super().__init__(cfg)
+        self.cross_view = nn.ModuleDict({str(lv): CrossViewBlock(ResnetEncoder.num_ch_enc[lv]) for lv in LEVELS})
+
+    @property
+    def uses_neighbours(self) -> bool:
+        return True
+
+    def encode(self, x: torch.Tensor, B: int, N: int, nbr: torch.Tensor) -> list[torch.Tensor]:
+        if N > MAX_CAMERAS:
+            raise ValueError(f"model.method=surround has camera embeddings for at most {MAX_CAMERAS} cameras, "
+                             f"the rig has {N}")
+        feats = self.encoder(x)
+        cut = bool((nbr < 0).all())
+        for lv, block in self.cross_view.items():
+            feats[int(lv)] = block(feats[int(lv)], B, N, cut)
+        return feats

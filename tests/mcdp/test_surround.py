@@ -1,0 +1,129 @@
+"""The SurroundDepth-style network (mcdp/surround.py): its warm start is Monodepth2 exactly, it is
+equivariant to a permutation of the cameras (with their embeddings), one camera's image changes
+another camera's depth (not for mono2, not with the neighbours cut), and the tiny preset trains two
+steps and evaluates, as trained and cut."""
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+import torch
+
+from corelib.configlib import load_config
+from mcdp.config import RunConfig
+from mcdp.model import MonoDepthModel
+from mcdp.surround import CrossViewBlock, SurroundDepthModel
+
+ROOT = Path(__file__).resolve().parents[2]
+TINY = ROOT / "configs" / "train" / "tiny"
+N = 6
+
+
+def build(seed: int, active: bool = True) -> SurroundDepthModel:
+    """The tiny preset's network; ``active``: the cross-view outputs get random weights (they start at 0)."""
+    torch.manual_seed(seed)
+    model = SurroundDepthModel(load_config(RunConfig, TINY / "surround.yaml").model).eval()
+    if active:
+        for block in model.cross_view.values():
+            torch.nn.init.normal_(block.out.weight, std=0.2)
+    return model
+
+
+def inputs(seed: int):
+    g = torch.Generator().manual_seed(seed)
+    rgb = torch.rand(1, N, 3, 64, 96, generator=g)
+    K = torch.tensor([[60.0, 0, 48], [0, 60.0, 32], [0, 0, 1]]).expand(1, N, 3, 3)
+    T = torch.eye(4).expand(1, N, 4, 4)
+    mask = torch.ones(1, N, 1, 64, 96)
+    nbr = torch.tensor([[(i - 1) % N, (i + 1) % N] for i in range(N)])
+    return rgb, K, T, mask, nbr
+
+
+def depth(model, rgb, nbr, K, T, mask) -> torch.Tensor:
+    with torch.no_grad():
+        return model(rgb, K, T, mask, nbr)["depth", "init", 0]
+
+
+@pytest.mark.parametrize("seed", [0, 1])
+def test_at_its_warm_start_it_is_monodepth2_exactly(seed, one_thread):
+    """The cross-view blocks add through a zero convolution: with the same encoder and decoder, the
+    depth equals Monodepth2's, bit for bit."""
+    model = build(seed, active=False)
+    mono = MonoDepthModel(load_config(RunConfig, TINY / "mono2.yaml").model).eval()
+    mono.load_state_dict({k: v for k, v in model.state_dict().items() if not k.startswith("cross_view.")})
+    rgb, K, T, mask, nbr = inputs(seed)
+    assert torch.equal(depth(model, rgb, nbr, K, T, mask), depth(mono, rgb, nbr, K, T, mask))
+    assert {n.split(".")[0] for n, _ in model.named_parameters() if "cross_view" in n} == {"cross_view"}
+    assert all(n.startswith("cross_view.") for n, _ in
+               ((n, p) for n, p in model.named_parameters() if any(p is q for q in model.fresh_parameters())))
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_equivariant_to_a_permutation_of_the_cameras_with_their_embeddings(seed, one_thread):
+    model = build(seed)
+    for block in model.cross_view.values():  # embeddings as after training (they start at std 0.02)
+        torch.nn.init.normal_(block.camera, std=1.0)
+    rgb, K, T, mask, nbr = inputs(seed)
+    perm = torch.randperm(N, generator=torch.Generator().manual_seed(seed + 10))
+    out = depth(model, rgb, nbr, K, T, mask)
+    for block in model.cross_view.values():
+        block.camera.data[:N] = block.camera.data[perm].clone()
+    out_p = depth(model, rgb[:, perm], nbr, K, T, mask)
+    err = float((out_p - out[perm]).abs().max())
+    assert err < 1e-4, err  # float rounding of a different summation order
+    # the embeddings are what tells the cameras apart: without permuting them back the result differs
+    for block in model.cross_view.values():
+        block.camera.data[:N] = block.camera.data[torch.argsort(perm)].clone()
+    off = float((depth(model, rgb[:, perm], nbr, K, T, mask) - out[perm]).abs().max())
+    assert off > max(100 * err, 1e-3), (off, err)
+
+
+@pytest.mark.parametrize("seed", [0, 1])
+def test_one_cameras_image_changes_another_cameras_depth_unless_cut(seed, one_thread):
+    rgb, K, T, mask, nbr = inputs(seed)
+    rgb2 = rgb.clone()
+    rgb2[:, 0] = torch.rand(rgb2[:, 0].shape, generator=torch.Generator().manual_seed(99))
+    model = build(seed)
+    d, d2 = depth(model, rgb, nbr, K, T, mask), depth(model, rgb2, nbr, K, T, mask)
+    assert (d[1:] - d2[1:]).abs().max() > 1e-6  # measured 3e-5 .. 1e-4 (seeds 0-3); cameras 1..5 see camera 0's change (exactly 0 when cut)
+    cut = torch.full_like(nbr, -1)
+    d, d2 = depth(model, rgb, cut, K, T, mask), depth(model, rgb2, cut, K, T, mask)
+    assert torch.equal(d[1:], d2[1:]) and (d[0] - d2[0]).abs().max() > 1e-3
+    mono = MonoDepthModel(load_config(RunConfig, TINY / "mono2.yaml").model).eval()
+    assert torch.equal(depth(mono, rgb, nbr, K, T, mask)[1:], depth(mono, rgb2, nbr, K, T, mask)[1:])
+
+
+def test_the_cut_mask_is_block_diagonal():
+    """Cut: a token attends to the tokens of its own camera only (queried through the attention itself)."""
+    torch.manual_seed(0)
+    block = CrossViewBlock(8)
+    torch.nn.init.normal_(block.out.weight, std=0.1)
+    f = torch.randn(3 * 4, 8, 2, 3)
+    f2 = f.clone()
+    f2[5] += 1.0  # rig 1, camera 1
+    with torch.no_grad():
+        a, b = block(f, 3, 4, cut=True), block(f2, 3, 4, cut=True)
+        full_a, full_b = block(f, 3, 4, cut=False), block(f2, 3, 4, cut=False)
+    changed = (a - b).flatten(1).abs().amax(1) > 0
+    assert changed.tolist() == [i == 5 for i in range(12)]
+    changed = (full_a - full_b).flatten(1).abs().amax(1) > 0
+    assert changed.tolist() == [4 <= i < 8 for i in range(12)]  # the whole rig 1, no other rig
+
+
+def test_the_tiny_surround_preset_trains_two_steps_and_evaluates_as_trained_and_cut(tiny_dataset, ds, tmp_path):
+    from mcdp.cli import main
+    from mcdp.evaluate import EvalConfig, evaluate
+    from mcdp.predict import Predictor
+
+    run = tmp_path / "surround"
+    rc = main(["train", str(TINY / "surround.yaml"), "--data", str(tiny_dataset), "--out", str(run), "--no-progress",
+               "train.steps=2", "scale.source=odometry"])
+    assert rc == 0 and (run / "checkpoints" / "last.pt").is_file()
+    pred, cut = Predictor(run, ds, "last"), Predictor(run, ds, "last", cut=True)
+    assert isinstance(pred.model, SurroundDepthModel) and pred.model.uses_neighbours
+    # two steps moved the zero convolutions off zero: the fresh layers learn
+    assert all(float(b.out.weight.detach().abs().max()) > 0 for b in pred.model.cross_view.values())
+    a = evaluate(ds, pred.predict, "test", EvalConfig(), progress=False)
+    c = evaluate(ds, cut.predict, "test", EvalConfig(), progress=False)
+    fa, fc = a["stages"]["final"]["median"]["mean"]["abs_rel"], c["stages"]["final"]["median"]["mean"]["abs_rel"]
+    assert 0 < fa < 1 and 0 < fc < 1 and fa != fc
