@@ -69,9 +69,10 @@ def format_propagation(results: dict, label) -> str:
     L: list[str] = []
     add = L.append
     add("## Does the refinement act, use the neighbours, and propagate?\n")
-    add("Every MCDP run with refinement is evaluated twice on the same checkpoint: as trained and with its "
-        "neighbours **cut** at inference (the weight networks see zeros and valid = 0 for both neighbours, as a "
-        "camera without neighbours). *As trained − cut* on **non-overlap** pixels is the propagation the paper "
+    add("Every run whose network reads the other cameras at inference (MCDP with refinement, SurroundDepth) is "
+        "evaluated twice on the same checkpoint: as trained and with its neighbours **cut** at inference (MCDP: "
+        "the weight networks see zeros and valid = 0 for both neighbours, as a camera without neighbours; "
+        "SurroundDepth: attention within each camera only). *As trained − cut* on **non-overlap** pixels is the propagation the paper "
         "claims; on overlap pixels it is the direct use. **ORACLE** = the run's own bases at per-image weights "
         "fitted to ground truth (scale-invariant log error, 100 Adam steps on the n logits): the best its bases "
         "can express, a yardstick that reads ground truth. Median-scaled abs_rel; mean over seeds ± 95 % "

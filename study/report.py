@@ -30,9 +30,9 @@ from mcdp.diagnostics import COLLAPSE_RATIO
 from mcdp.methods import label
 from mcdp.metrics import METRIC_NAMES
 from study.plots import make_plots
+from study.mechanisms import format_mechanisms
 from study.propagation import format_propagation
-from study.results import (PRIOR_LABEL, REF_LABEL, SCALE_LABEL, YARDSTICKS, method_agg, yardstick_agg, yardstick_row,
-                           paired_difference)
+from study.results import PRIOR_LABEL, REF_LABEL, SCALE_LABEL, YARDSTICKS, method_agg, yardstick_agg, yardstick_row
 
 
 def write_all(results: dict, out: str | Path) -> None:
@@ -209,12 +209,7 @@ def _summary_section(results: dict) -> list[str]:
                 + f" | {_fmt(yardstick_agg(results, o, f'{sc}.mean.abs_rel'))}"
                 + f" | {_fmt(yardstick_agg(results, o, f'{sc}.mean.abs_rel', 'prior'))} |")
         add("")
-    add("### Verdict per overlap: MCDP (m = 2) vs Mono2\n")
-    add("Paired over seeds (same seed = same data order and start): mean difference MCDP (m = 2) − Mono2 with "
-        "its 95 % Student-t interval; *differs* only when the interval excludes 0. Median-scaled abs_rel "
-        "(accuracy) and Dep Con, the paper's unitless ratio mean |D − D̂| / D_gt (consistency), on all, overlap and "
-        "non-overlap pixels.\n")
-    add(_pair_verdicts(results))
+    add(format_mechanisms(results, label))
     add("")
     add(format_propagation(results, label))
     add("")
@@ -323,27 +318,6 @@ def _timing_section(results: dict) -> list[str]:
     add("Latest invocation: " + ", ".join(f"{k} {v}" for k, v in c.items()) + ".\n")
 
     return L
-
-
-def _pair_verdicts(results: dict, a: str = "mcdp_m2", b: str = "mono2") -> str:
-    """One line per overlap: does method a differ from b beyond the paired 95 % interval?"""
-    if a not in results["methods"] or b not in results["methods"]:
-        return f"- {a} or {b} is not part of this sweep: no verdict.\n"
-    if len(results["seeds"]) < 2:
-        return "- One seed only: no interval, no verdict.\n"
-    lines = []
-    word = {-1: "**lower (better)**", 1: "**higher (worse)**", 0: "no difference beyond the interval"}
-    for d in results["data"]:
-        o = d["overlap"]
-        parts = []
-        for key, name, unit in (("median.mean.abs_rel", "accuracy", ""),
-                                ("median.overlap.abs_rel", "overlap px", ""),
-                                ("median.non_overlap.abs_rel", "non-overlap px", ""),
-                                ("dep_con.mean", "Dep Con (ratio)", "")):
-            pd = paired_difference(results, o, a, b, key)
-            parts.append(f"{name} {pd['mean']:+.3f} ± {pd['ci95']:.3f}{unit}: {word[pd['differs']]}")
-        lines.append(f"- overlap {o:.2f}: " + "; ".join(parts))
-    return "\n".join(lines)
 
 
 def _verdicts(results: dict) -> str:

@@ -69,5 +69,5 @@ def test_run_all_reports_every_run_in_process(monkeypatch, tmp_path):
     p.stage("runs")
     rows = engines.run_all(cfg, todo, tmp_path, Counters(), lambda s: None, False, None, on_done=p.run_done)
     assert [(r["overlap"], r["method"]) for r in rows] == [(d["overlap"], m) for d, m, _ in todo]
-    assert p.done == len(todo) == 10
-    assert lines[-1].startswith("[sweep] progress: 10/10 runs done")
+    assert p.done == len(todo) == 14  # 2 overlaps x 7 methods x 1 seed
+    assert lines[-1].startswith("[sweep] progress: 14/14 runs done")

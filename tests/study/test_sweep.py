@@ -154,13 +154,15 @@ def test_ci_sweep_end_to_end_rerun_and_resume(tmp_path, capsys):
         assert rec["path"] == str(Path(pre["weights"]).resolve()) and rec["sha256"] == pre["sha256"]
 
     rows = list(csv.DictReader((out / "results.csv").open()))
-    # beside each run: <m>@oracle for every method with bases, <m>@cut for every one with refinement
-    with_bases = [m for m in cfg.methods if m != "mono2"]
+    # beside each run: <m>@oracle for every method with bases, <m>@cut for every one whose network reads
+    # its neighbours at inference (MCDP with refinement, SurroundDepth; not FSM: nothing to cut)
+    with_bases = [m for m in cfg.methods if m.startswith("mcdp")]
     refined = [m for m in with_bases if m != "mcdp_m0"]
-    n_rows = n + len(cfg.overlaps) * len(cfg.seeds) * (len(with_bases) + len(refined))
+    cut = refined + ["surround"]
+    n_rows = n + len(cfg.overlaps) * len(cfg.seeds) * (len(with_bases) + len(cut))
     assert len(rows) == n_rows + 2 * len(cfg.overlaps)
     assert {r["method"] for r in rows[:n_rows]} == (set(cfg.methods) | {m + "@oracle" for m in with_bases}
-                                                   | {m + "@cut" for m in refined})
+                                                   | {m + "@cut" for m in cut})
     assert [r["method"] for r in rows[n_rows:]] == (["constant_reference"] * len(cfg.overlaps)
                                                      + ["flat_road_prior"] * len(cfg.overlaps))
     for row in rows[:n_rows]:  # every refined run records how much its refinement acted
@@ -174,13 +176,13 @@ def test_ci_sweep_end_to_end_rerun_and_resume(tmp_path, capsys):
     report = (out / "report.md").read_text()
     for o in ("0.20", "0.50"):
         assert f"## Overlap {o}" in report
-    for label in ("Mono2", "MCDP (m = 0)", "MCDP (w/o L_con, m = 1)", "MCDP (m = 1)", "MCDP (m = 2)"):
+    for label in ("Mono2", "FSM", "SurroundDepth", "MCDP (m = 0)", "MCDP (w/o L_con, m = 1)", "MCDP (m = 1)", "MCDP (m = 2)"):
         assert label in report
     assert "Dep Con per camera" in report and "non-overlap" in report and "Time per stage" in report
     assert "seeds: [0]" in report
     assert report.count("Constant depth (ref.)") >= 1 + 4 * len(cfg.overlaps)  # setup + summary/Table 1/2/regions
     assert report.count("Flat-road prior (ref.)") >= 1 + 3 * len(cfg.overlaps)
-    assert "Verdict per overlap: MCDP (m = 2) vs Mono2" in report and "shared self-supervised pretraining" in report
+    assert "Which mechanism gains from the overlap?" in report and "shared self-supervised pretraining" in report
     assert "Does the refinement act, use the neighbours, and propagate?" in report and "Inert refinements" in report
 
     # rerun: a no-op that skips every stage and reports the same numbers
