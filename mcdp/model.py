@@ -355,14 +355,35 @@ class PoseModel(nn.Module):
         super().__init__()
         self.net = PoseNet(pretrained)
 
-    def forward(self, rgb: torch.Tensor) -> dict[int, torch.Tensor]:
+    def forward(self, rgb: torch.Tensor, T_ego_cam: torch.Tensor | None = None) -> dict[int, torch.Tensor]:
+        """``T_ego_cam`` (B, N, 4, 4) given: **joint** pose (SurroundDepth's scheme, `mcdp.surround`): the
+        cameras' predictions are moved into the ego frame, averaged into one rigid motion of the rig and
+        moved back through the extrinsics, so every camera moves as one rig."""
         B, N, _, C, H, W = rgb.shape
         a = torch.cat([rgb[:, :, 0], rgb[:, :, 1]], 0).reshape(2 * B * N, C, H, W)  # earlier frames
         b = torch.cat([rgb[:, :, 1], rgb[:, :, 2]], 0).reshape(2 * B * N, C, H, W)  # later frames
         axisangle, translation = self.net(a, b)  # (2BN, 3) each
         aa_m, aa_p = axisangle.float().split(B * N)
         t_m, t_p = translation.float().split(B * N)
-        return {
-            -1: pose_from_axisangle(aa_m, t_m, invert=True).view(B, N, 4, 4),
-            1: pose_from_axisangle(aa_p, t_p, invert=False).view(B, N, 4, 4),
-        }
+        if T_ego_cam is None:
+            return {
+                -1: pose_from_axisangle(aa_m, t_m, invert=True).view(B, N, 4, 4),
+                1: pose_from_axisangle(aa_p, t_p, invert=False).view(B, N, 4, 4),
+            }
+        return {-1: rig_motion(aa_m, t_m, T_ego_cam, invert=True), 1: rig_motion(aa_p, t_p, T_ego_cam)}
+
+
+def rig_motion(aa: torch.Tensor, t: torch.Tensor, T_ego_cam: torch.Tensor, invert: bool = False) -> torch.Tensor:
+    """One rigid rig motion from every camera's predicted motion [R(aa) | t] (camera frames, (B*N, 3) each):
+    in the ego frame camera j's motion is R_ec R R_ec^T (axis-angle R_ec aa) with translation
+    R_ec t + t_ec - R_ego t_ec; the axis-angles and translations are averaged over the cameras and the
+    result is moved back into every camera, (B, N, 4, 4) (inverted, as the -1 motion, if ``invert``)."""
+    B, N = T_ego_cam.shape[:2]
+    X = T_ego_cam.float()
+    R_ec, t_ec = X[..., :3, :3], X[..., :3, 3]  # (B, N, 3, 3), (B, N, 3)
+    aa_e = (R_ec @ aa.view(B, N, 3, 1)).squeeze(-1)  # (B, N, 3)
+    R_e = rotation_from_axisangle(aa_e.reshape(B * N, 3)).view(B, N, 3, 3)
+    t_e = (R_ec @ t.view(B, N, 3, 1)).squeeze(-1) + t_ec - (R_e @ t_ec.unsqueeze(-1)).squeeze(-1)
+    M_ego = pose_from_axisangle(aa_e.mean(1), t_e.mean(1))  # (B, 4, 4)
+    M = torch.linalg.inv(X) @ M_ego[:, None] @ X  # (B, N, 4, 4)
+    return torch.linalg.inv(M) if invert else M

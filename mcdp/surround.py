@@ -18,10 +18,13 @@ what the attention learned.
 **Cut** (``Predictor(cut=True)``, the neighbour table all -1): attention restricted to each camera
 itself (a block-diagonal mask), so as trained - cut is what the other cameras contribute at inference.
 
-Poses: with ``scale.source=odometry`` (the sweep) the rig motion is given, one rigid motion of the
-rig by construction, which is what SurroundDepth's joint pose estimates; with ``velocity`` each camera's
-motion comes from the shared pose network as for Monodepth2 (SurroundDepth's joint pose decoder and its
-SfM pseudo-depth pretraining are not built: the odometry scale replaces what both are for).
+Poses (SurroundDepth's joint pose): with ``scale.source=odometry`` (the sweep) the rig motion is given,
+one rigid motion of the rig by construction; with a pose network (``velocity``) the shared pose network
+predicts each camera's motion and `mcdp.model.rig_motion` averages them in the ego frame into one rigid
+rig motion, moved back into every camera through the extrinsics (SurroundDepth fuses the cameras'
+features before one pose decoder; averaging the decoded motions is the same constraint with Monodepth2's
+pose network). SurroundDepth's SfM pseudo-depth pretraining is not built: the odometry / velocity scale
+replaces what it is for (metric scale).
 
 Sizes (module constants, not config keys: a new key would change the config hash of every existing
 run): ``D_MODEL = 128`` token channels, ``HEADS = 4``, ``MLP_RATIO = 2``, ``MAX_CAMERAS = 16``.
@@ -103,6 +106,8 @@ class SurroundDepthModel(MonoDepthModel):
     """Monodepth2's network with cross-view attention between the cameras' encoder features."""
 
     model = "surround"
+    #: with a pose network (scale.source velocity): one rigid rig motion (`mcdp.model.rig_motion`)
+    joint_pose = True
 
     @classmethod
     def check_config(cls, cfg) -> None:

@@ -118,7 +118,9 @@ class SelfSupervisedSystem(torch.nn.Module):
             poses = odom
         else:
             with torch.autocast(self.device.type, dtype=self.amp_dtype, enabled=self.use_amp):
-                poses = self.pose(net_rgb)
+                # a network that moves the rig as one (`joint_pose`: mcdp.surround) gets the extrinsics
+                joint = batch["T_ego_cam"] if getattr(self.depth, "joint_pose", False) else None
+                poses = self.pose(net_rgb, joint)
             t_pred = torch.stack([poses[o][..., :3, 3].norm(dim=-1) for o in (-1, 1)])  # (2, B, N)
             t_odom = torch.stack([odom[o][..., :3, 3].norm(dim=-1) for o in (-1, 1)])
             stats["velocity"] = (t_pred - t_odom).abs().mean()

@@ -127,3 +127,48 @@ def test_the_tiny_surround_preset_trains_two_steps_and_evaluates_as_trained_and_
     c = evaluate(ds, cut.predict, "test", EvalConfig(), progress=False)
     fa, fc = a["stages"]["final"]["median"]["mean"]["abs_rel"], c["stages"]["final"]["median"]["mean"]["abs_rel"]
     assert 0 < fa < 1 and 0 < fc < 1 and fa != fc
+
+
+@pytest.mark.parametrize("seed", [0, 1])
+def test_joint_pose_is_one_rigid_rig_motion_and_keeps_one_that_already_is(seed, ds):
+    """rig_motion: from any per-camera predictions, every camera's motion is the same ego motion (FSM's
+    pose-consistency error ~0); from predictions that already are one rig motion, it returns them."""
+    from mcdp.data import RigDataset, collate
+    from mcdp.fsm import pose_consistency
+    from mcdp.model import odometry_camera_motion, pose_from_axisangle, rig_motion
+
+    b = collate([RigDataset(ds, "train", 64, 96)[seed]])
+    T = b["T_ego_cam"].float()
+    n = T.shape[1]
+    g = torch.Generator().manual_seed(seed)
+    aa, t = torch.randn(n, 3, generator=g) * 0.05, torch.randn(n, 3, generator=g)
+    raw = {1: pose_from_axisangle(aa, t).view(1, n, 4, 4), -1: torch.linalg.inv(pose_from_axisangle(aa, t)).view(1, n, 4, 4)}
+    assert float(sum(pose_consistency(raw, T))) > 1e-2  # six unrelated motions
+    joint = {1: rig_motion(aa, t, T), -1: rig_motion(aa, t, T, invert=True)}
+    tr, rot = pose_consistency(joint, T)
+    assert float(tr) < 1e-9 and float(rot) < 1e-9
+    # odometry motions are one rig motion already: decompose them and average: the same motions back
+    mot = odometry_camera_motion(b["T_world_ego"], T, 1)[0]  # (N, 4, 4)
+    R, tt = mot[:, :3, :3].double(), mot[:, :3, 3]
+    ang = torch.arccos(((R.diagonal(dim1=-2, dim2=-1).sum(-1) - 1) / 2).clamp(-1, 1))
+    axis = torch.stack([R[:, 2, 1] - R[:, 1, 2], R[:, 0, 2] - R[:, 2, 0], R[:, 1, 0] - R[:, 0, 1]], -1)
+    aa_o = (axis / (2 * torch.sin(ang).clamp(min=1e-12))[:, None] * ang[:, None]).float()
+    back = rig_motion(aa_o, tt, T)[0]
+    assert torch.allclose(back, mot, atol=1e-4), float((back - mot).abs().max())
+
+
+def test_the_system_feeds_the_extrinsics_to_the_pose_network_for_surround_only(ds):
+    from mcdp.data import RigDataset, collate
+    from mcdp.fsm import pose_consistency
+    from mcdp.system import SelfSupervisedSystem
+
+    b = collate([RigDataset(ds, "train", 64, 96)[0]])
+    for name, rigid in (("surround", True), ("mono2", False)):
+        cfg = load_config(RunConfig, TINY / f"{name}.yaml", ["scale.source=velocity"])
+        torch.manual_seed(0)
+        system = SelfSupervisedSystem(cfg, ds.neighbours, len(ds.camera_names))
+        with torch.no_grad():
+            poses, _ = system.predict_poses(b, b["rgb"])
+        n = len(ds.camera_names)
+        tr, rot = pose_consistency({o: p.view(1, n, 4, 4) for o, p in poses.items()}, b["T_ego_cam"])
+        assert (float(tr) + float(rot) < 1e-8) == rigid, (name, float(tr), float(rot))
