@@ -143,7 +143,8 @@ def _setup_section(results: dict) -> list[str]:
         add(f"- every run starts from one shared self-supervised pretraining (no ground truth; its own world: "
             f"`{' '.join(cfg['pretrain']['data_overrides'])}`): `{pre['weights']}`, config hash `{pre['config_hash'][:12]}`, "
             f"{pre['step']} steps, render {_sec(pre.get('render_s'))} s + train {_sec(pre.get('train_s'))} s; "
-            "mono2 starts from its mono head, every MCDP variant from its bases; weight networks start fresh")
+            "Mono2, FSM and SurroundDepth start from its mono head, every MCDP variant from its bases; MCDP's weight "
+            "networks and SurroundDepth's cross-view blocks start fresh")
     else:
         add("- every (overlap, method, seed) is trained from scratch on its own dataset; no pretraining is shared "
             "between overlaps or methods")
