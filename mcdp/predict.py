@@ -16,7 +16,9 @@ Two switches serve the overlap experiment (`study.stages`):
   without neighbours. As trained minus cut is what the neighbours contribute.
 - `Predictor.refinement` accumulates, over every predicted image, how much the refinement acts:
   mean |w - 1/n| of the last stage's weights and the mean |refined - init| depth (metres, scene
-  pixels, training size). Near zero means an inert refinement.
+  pixels, training size). Near zero means an inert refinement. A cut predictor given the as-trained
+  one as ``reference`` (which then keeps its depths: ``keep=True``) also records ``cut_change_m``, the
+  mean |as trained - cut| depth of the same images: what cutting the neighbours changes, in metres.
 
 `write_prediction` writes, per rig sample::
 
@@ -56,8 +58,12 @@ class Predictor:
         device: ``auto`` | ``cpu`` | ``cuda``.
     """
 
+    #: at most this many bytes of depth maps kept for a cut predictor's comparison (``keep=True``)
+    KEEP_BYTES = 64 << 20
+
     def __init__(self, run_dir, ds: DatasetReader, checkpoint: str = "auto", device: str = "auto", cut: bool = False,
-                 oracle_weights: bool = False, oracle_range: tuple[float, float] = (0.5, 80.0)):
+                 oracle_weights: bool = False, oracle_range: tuple[float, float] = (0.5, 80.0), keep: bool = False,
+                 reference: "Predictor | None" = None):
         self.ckpt_path = find_checkpoint(run_dir, checkpoint) if run_dir is not None else Path(checkpoint)
         ckpt = load_checkpoint(self.ckpt_path)
         self.cfg = config_from_checkpoint(ckpt, source=str(self.ckpt_path))
@@ -85,7 +91,11 @@ class Predictor:
         self.n_out = getattr(self.model, "n_out", 1)  # depth bases of the network (1: nothing to weight)
         self.oracle_weights = bool(oracle_weights) and self.n_out > 1
         self.oracle_range = (float(oracle_range[0]), float(oracle_range[1]))
-        self._acc = {"images": 0, "weight_move": 0.0, "depth_change_m": 0.0, "oracle_weight_move": 0.0}
+        self._acc = {"images": 0, "weight_move": 0.0, "depth_change_m": 0.0, "oracle_weight_move": 0.0,
+                     "cut_images": 0, "cut_change_m": 0.0}
+        self.kept: dict | None = {} if keep else None  # (seq, frame) -> last stage's depth at training size
+        self._kept_bytes = 0
+        self.reference = reference
 
     @property
     def refinement(self) -> dict:
@@ -97,7 +107,21 @@ class Predictor:
                "depth_change_m": a["depth_change_m"] / k if len(self.stages) > 1 else float("nan")}
         if self.oracle_weights:
             out["oracle_weight_move"] = a["oracle_weight_move"] / k
+        if self.reference is not None:
+            out["cut_change_m"] = a["cut_change_m"] / a["cut_images"] if a["cut_images"] else float("nan")
         return out
+
+    def _compare(self, seq: str, frame: int, depth: torch.Tensor) -> None:
+        """Keep this depth (``keep``) and/or add its mean |difference| to the reference's (``reference``)."""
+        m = self.mask.reshape(-1, 1, *self.mask.shape[-2:]).float()
+        if self.kept is not None and self._kept_bytes + depth.numel() * 4 <= self.KEEP_BYTES:
+            self.kept[seq, frame] = depth.float().cpu()
+            self._kept_bytes += depth.numel() * 4
+        ref = None if self.reference is None or self.reference.kept is None else self.reference.kept.get((seq, frame))
+        if ref is not None:
+            diff = (depth.float() - ref.to(depth.device)).abs() * m
+            self._acc["cut_change_m"] += float((diff.flatten(1).sum(1) / m.flatten(1).sum(1).clamp(min=1)).sum())
+            self._acc["cut_images"] += int(depth.shape[0])
 
     def _record(self, out: dict) -> None:
         last = self.stages[-1]
@@ -136,6 +160,8 @@ class Predictor:
             gtm = torch.from_numpy(self.reader.gt_median(seq, frame)).to(self.device)[None]
         out = self.model(x, self.K, self.T_ego_cam, self.mask, self.nbr, gtm, scales=1)
         self._record(out)
+        if self.kept is not None or self.reference is not None:
+            self._compare(seq, frame, out["depth", self.stages[-1], 0])
         res = {st: out["depth", st, 0].float() for st in self.stages}
         if self.oracle_weights:  # "final" is named explicitly so that the yardstick stays apart from it
             res["final"] = res[self.stages[-1]]

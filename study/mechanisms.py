@@ -16,7 +16,7 @@ from __future__ import annotations
 
 import math
 
-from study.results import CUT, paired_difference
+from study.results import CUT, method_agg, paired_difference
 
 BASE = "mono2"
 #: as trained − cut (median-scaled abs_rel, all px) smaller than this is negligible even when beyond its
@@ -78,10 +78,12 @@ def format_mechanisms(results: dict, label) -> str:
         add("One seed only: no interval, no verdict.\n")
         return "\n".join(L)
     meas = {d["overlap"]: d["measured"]["measured_mean"] for d in results["data"]}
-    add("| overlap | measured | Method | " + " | ".join(name for _, name in KEYS) + " | as trained − cut |")
-    add("|---|---|---|" + "---|" * (len(KEYS) + 1))
+    add("| overlap | measured | Method | " + " | ".join(name for _, name in KEYS)
+        + " | as trained − cut | mean abs(trained − cut) depth, m |")
+    add("|---|---|---|" + "---|" * (len(KEYS) + 2))
     diffs: dict[str, dict[str, dict[float, dict]]] = {m: {k: {} for k, _ in KEYS} for m in methods}
     cuts: dict[str, dict[float, dict]] = {m: {} for m in methods}
+    change: dict[str, dict[float, float]] = {m: {} for m in methods}
     for d in results["data"]:
         o = d["overlap"]
         for m in methods:
@@ -93,9 +95,12 @@ def format_mechanisms(results: dict, label) -> str:
             if m + CUT in evaluations:
                 cuts[m][o] = paired_difference(results, o, m, m + CUT, "median.mean.abs_rel")
                 cut = _pd(cuts[m][o], 4)
+                ch = method_agg(results, o, m, "cut.depth_change_m")
+                change[m][o] = ch.get("mean", math.nan)
+                moved = _num(ch.get("mean"), 4) + (f" ± {_num(ch.get('ci95'), 4)}" if ch.get("n", 0) > 1 else "")
             else:
-                cut = "0 (reads no other camera)"
-            add(f"| {o:.2f} | {_num(meas.get(o))} | {label(m)} | " + " | ".join(cells) + f" | {cut} |")
+                cut, moved = "0 (reads no other camera)", "0"
+            add(f"| {o:.2f} | {_num(meas.get(o))} | {label(m)} | " + " | ".join(cells) + f" | {cut} | {moved} |")
     add("")
     add("### Verdicts: which mechanism gains from overlap, and from which overlap on\n")
     for m in methods:
@@ -111,6 +116,10 @@ def format_mechanisms(results: dict, label) -> str:
                    f"below {USE_FLOOR} at every overlap)")
             if tiny:
                 inf += " (beyond the interval but below " + f"{USE_FLOOR} at " + ", ".join(f"{o:.2f}" for o in tiny) + ")"
+            moved = [v for v in change[m].values() if math.isfinite(v)]
+            if moved:
+                inf += (f"; cutting them changes its depth by {min(moved):.4f} to {max(moved):.4f} m on average "
+                        "(mean abs(as trained − cut))")
         else:
             inf = "reads no other camera at inference (by construction)"
         add(f"- **{label(m)}**: accuracy vs Mono2 {acc}; on non-overlap pixels {non}; Dep Con {dc}; {inf}.")

@@ -59,6 +59,7 @@ def flat_rows(row: dict) -> list[dict[str, Any]]:
         rc = row.get("refinement_cut") or {}
         cut["refine.weight_move"] = _f(rc.get("weight_move"))
         cut["refine.depth_change_m"] = _f(rc.get("depth_change_m"))
+        base["cut.depth_change_m"] = _f(rc.get("cut_change_m"))  # mean |as trained - cut| depth, metres
         extra[CUT] = cut
     for suffix in (CUT, ORACLE):
         if suffix in extra:

@@ -199,7 +199,7 @@ def pretrain_stage(cfg: SweepConfig, sweep_dir: Path, progress: bool, log) -> di
 
 def _eval_key(run_hash: str, step: int, eval_cfg: dict, data_hash: str, checkpoint: str, ckpt_name: str) -> str:
     return config_hash({"run": run_hash, "step": step, "eval": eval_cfg, "data": data_hash, "checkpoint": checkpoint,
-                        "file": ckpt_name, "protocol": "as-trained+cut+oracle-weights"})
+                        "file": ckpt_name, "protocol": "as-trained+cut+cut-change+oracle-weights"})
 
 
 def run_dir_for(sweep_dir: Path, overlap: float, method: str, seed: int) -> Path:
@@ -318,7 +318,8 @@ def run_stage(cfg: SweepConfig, overlap: float, data: dict, method: str, seed: i
         f"dep_con {m['dep_con']['mean']:.4f}"
         + (f"; refinement |w - 1/n| {r['weight_move']:.4f}, |refined - init| {r['depth_change_m']:.3f} m"
            if r.get("weight_move") == r.get("weight_move") and "weight_move" in r else "")
-        + (f"; cut median {row['metrics_cut']['median']['mean']['abs_rel']:.4f}" if "metrics_cut" in row else "")
+        + (f"; cut median {row['metrics_cut']['median']['mean']['abs_rel']:.4f}, |trained - cut| "
+           f"{(row.get('refinement_cut') or {}).get('cut_change_m', float('nan')):.4f} m" if "metrics_cut" in row else "")
         + (f"; ORACLE weights median {row['metrics_oracle']['median']['mean']['abs_rel']:.4f}"
            if "metrics_oracle" in row else ""))
     return row
@@ -337,14 +338,16 @@ def evaluate_run(cfg: SweepConfig, run_dir: Path, ds, ecfg, progress: bool, log,
 
     rng = (ecfg.min_depth, ecfg.max_depth)
     pred = Predictor(run_dir, ds, cfg.checkpoint, cfg.device, oracle_weights=True, oracle_range=rng)
+    cuts = bool(getattr(pred.model, "uses_neighbours", False))  # MCDP's refinement, SurroundDepth's attention
+    pred.kept = {} if cuts else None  # its depths are compared with the cut evaluation's
     log(f"{tag}: evaluating {pred.ckpt_path.name} (step {pred.step}) on the {SPLIT} split"
         + (" (+ ORACLE weights of its bases)" if pred.oracle_weights else ""))
     metrics = evaluate(ds, pred.predict, SPLIT, ecfg, progress=progress)
     metrics["refinement"] = pred.refinement
     metrics["_predictor"] = pred
     metrics_cut = None
-    if getattr(pred.model, "uses_neighbours", False):  # MCDP's refinement, SurroundDepth's cross-view attention
-        cut = Predictor(run_dir, ds, cfg.checkpoint, cfg.device, cut=True)
+    if cuts:
+        cut = Predictor(run_dir, ds, cfg.checkpoint, cfg.device, cut=True, reference=pred)
         log(f"{tag}: evaluating it again with the neighbours cut at inference")
         metrics_cut = evaluate(ds, cut.predict, SPLIT, ecfg, progress=progress)
         metrics_cut["refinement"] = cut.refinement

@@ -119,7 +119,8 @@ def test_the_tiny_surround_preset_trains_two_steps_and_evaluates_as_trained_and_
     rc = main(["train", str(TINY / "surround.yaml"), "--data", str(tiny_dataset), "--out", str(run), "--no-progress",
                "train.steps=2", "scale.source=odometry"])
     assert rc == 0 and (run / "checkpoints" / "last.pt").is_file()
-    pred, cut = Predictor(run, ds, "last"), Predictor(run, ds, "last", cut=True)
+    pred = Predictor(run, ds, "last", keep=True)
+    cut = Predictor(run, ds, "last", cut=True, reference=pred)
     assert isinstance(pred.model, SurroundDepthModel) and pred.model.uses_neighbours
     # two steps moved the zero convolutions off zero: the fresh layers learn
     assert all(float(b.out.weight.detach().abs().max()) > 0 for b in pred.model.cross_view.values())
@@ -127,6 +128,9 @@ def test_the_tiny_surround_preset_trains_two_steps_and_evaluates_as_trained_and_
     c = evaluate(ds, cut.predict, "test", EvalConfig(), progress=False)
     fa, fc = a["stages"]["final"]["median"]["mean"]["abs_rel"], c["stages"]["final"]["median"]["mean"]["abs_rel"]
     assert 0 < fa < 1 and 0 < fc < 1 and fa != fc
+    # what cutting changes, in metres, on the same images (the sweep's "acting" number)
+    ch = cut.refinement["cut_change_m"]
+    assert cut.refinement["images"] == pred.refinement["images"] > 0 and 0 < ch < 1, cut.refinement
 
 
 @pytest.mark.parametrize("seed", [0, 1])

@@ -32,7 +32,9 @@ def _results():
                              "median.overlap.abs_rel": v, "median.non_overlap.abs_rel": v, "dep_con.mean": v / 5})
     return {"methods": ["mono2", "fsm", "surround"], "seeds": [0, 1, 2], "flat": flat,
             "evaluations": ["mono2", "fsm", "surround", "surround" + CUT],
-            "data": [{"overlap": o, "measured": {"measured_mean": o * 0.7}} for o in xs]}
+            "data": [{"overlap": o, "measured": {"measured_mean": o * 0.7}} for o in xs],
+            "aggregate": [{"overlap": o, "method": "surround",
+                           "metrics": {"cut.depth_change_m": {"mean": 0.05 * o, "ci95": 0.01, "n": 3}}} for o in xs]}
 
 
 def test_the_section_states_each_mechanisms_verdict():
@@ -44,6 +46,7 @@ def test_the_section_states_each_mechanisms_verdict():
     assert "uses the other cameras at inference (as trained − cut beyond the interval and >= 0.0005) at 0.60" in sur
     assert "- **In one line**: FSM gain(s) accuracy over Mono2 from some overlap on" in md
     assert "| 0.60 | 0.420 | SurroundDepth |" in md and "0 (reads no other camera)" in md
+    assert "cutting them changes its depth by 0.0050 to 0.0300 m on average" in sur and "| 0.0300 ± 0.0100 |" in md
     one_seed = {**_results(), "seeds": [0]}
     assert "One seed only: no interval, no verdict." in format_mechanisms(one_seed, str)
     assert format_mechanisms({**_results(), "methods": ["fsm", "surround"]}, str) == ""
