@@ -1,6 +1,11 @@
 """The tables of a nuScenes dataroot through the official devkit: finding the version folder, loading
 it with errors that name the broken record and token, and the train / val / test scene lists.
 
+Without the devkit (an environment with the ``viz`` extra: rerun-sdk needs numpy >= 2, nuscenes-devkit
+1.2.0 numpy < 2) `load_tables` reads the tables the reader uses as plain JSON (`PlainTables`: the same
+records, with the devkit's ``sample["data"]`` / ``sample_data["channel"]`` reverse index), so
+`synth view` can record a dataroot; the official splits still need the devkit.
+
 Example::
 
     if is_nuscenes_root(root):
@@ -69,13 +74,51 @@ def _diagnose_key_error(root: Path, version: str, exc: KeyError) -> str:
     return f"{root / version}: the devkit could not index the tables: no record with token {exc}"
 
 
+class PlainTables:
+    """The part of the devkit's ``NuScenes`` that `synth.nuscenes_read` uses, from the JSON tables alone:
+    ``sensor``, ``scene``, ``get(table, token)``, ``dataroot``, ``version``, and the reverse index the
+    devkit adds (``sample_data["channel"]``, ``sample["data"][channel]`` = the key-frame sample_data)."""
+
+    TABLES = ("sensor", "calibrated_sensor", "ego_pose", "scene", "sample", "sample_data")
+
+    def __init__(self, root: Path, version: str) -> None:
+        self.dataroot, self.version = str(root), version
+        self._by_token: dict[str, dict[str, dict]] = {}
+        for name in self.TABLES:
+            f = root / version / f"{name}.json"
+            try:
+                rows = json.loads(f.read_text())
+            except OSError as exc:
+                raise DatasetError(f"{f}: cannot read the table ({type(exc).__name__})") from None
+            except ValueError as exc:
+                raise DatasetError(f"{f}: not valid JSON ({exc})") from None
+            if not isinstance(rows, list) or not all(isinstance(r, dict) and "token" in r for r in rows):
+                raise DatasetError(f"{f}: must be a list of records with a token")
+            setattr(self, name, rows)
+            self._by_token[name] = {r["token"]: r for r in rows}
+        for sd in self.sample_data:
+            cs = self.get("calibrated_sensor", sd["calibrated_sensor_token"])
+            sd["channel"] = self.get("sensor", cs["sensor_token"])["channel"]
+        for s in self.sample:
+            s["data"] = {}
+        for sd in self.sample_data:
+            if sd.get("is_key_frame"):
+                self.get("sample", sd["sample_token"])["data"][sd["channel"]] = sd["token"]
+
+    def get(self, table: str, token) -> dict:
+        return self._by_token[table][token]  # KeyError for a missing token, as the devkit
+
+
 def load_tables(root: Path, version: str):
-    """The devkit's ``NuScenes`` object of `root`'s `version`; DatasetError naming the broken record."""
+    """The devkit's ``NuScenes`` object of `root`'s `version` (`PlainTables` without the devkit);
+    DatasetError naming the broken record."""
     try:
         from nuscenes.nuscenes import NuScenes
     except ImportError:
-        raise DatasetError(f"{root} is a nuScenes dataroot; {INSTALL_HINT}") from None
+        NuScenes = None
     try:
+        if NuScenes is None:
+            return PlainTables(root, version)
         return NuScenes(version=version, dataroot=str(root), verbose=False)
     except KeyError as exc:
         raise DatasetError(_diagnose_key_error(root, version, exc)) from None
@@ -110,7 +153,11 @@ def read_splits(root: Path, scenes: list[str], version: str) -> tuple[dict[str, 
                     raise DatasetError(f"{f}: splits.{name} names scene {str(s)[:60]!r}, which is not in "
                                        f"{version}/scene.json")
         return {k: list(v) for k, v in sp.items()}, f"{EXPORT_DIR}/splits.json"
-    from nuscenes.utils.splits import create_splits_scenes
+    try:
+        from nuscenes.utils.splits import create_splits_scenes
+    except ImportError:
+        raise DatasetError(f"{root}: no {EXPORT_DIR}/splits.json, and the official splits come from the devkit; "
+                           f"{INSTALL_HINT}") from None
 
     official = create_splits_scenes()
     mini = version.endswith("mini")

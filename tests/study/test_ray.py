@@ -11,6 +11,7 @@ from __future__ import annotations
 import csv
 import json
 import math
+import re
 import shutil
 from pathlib import Path
 
@@ -59,9 +60,21 @@ def local_sweep(tmp_path_factory):
     shutil.rmtree(out, ignore_errors=True)
 
 
-def test_ray_sweep_gives_the_local_engines_results(local_ray, local_sweep, tmp_path):
+def test_ray_sweep_gives_the_local_engines_results(local_ray, local_sweep, tmp_path, capsys):
     out = tmp_path / "ray"
+    capsys.readouterr()
     assert sweep_main([str(CI), "--out", str(out), "--engine", "ray", *SMALL]) == 0
+    err = capsys.readouterr().err.splitlines()
+    # --no-progress: the same progress lines as the local engine, every Ray run counted as it finishes
+    prog = [ln for ln in err if ln.startswith("[sweep] progress: ")]
+    done = [int(re.match(r"\[sweep\] progress: (\d+)/2 runs done, elapsed \S+, ", ln).group(1)) for ln in prog]
+    assert done == sorted(done) and done[-1] == 2, prog
+    runs = [ln for ln in prog if ln.endswith("stage: runs")]
+    assert [int(ln.split("/")[0].rsplit(" ", 1)[1]) for ln in runs] == [0, 1, 2], prog
+    assert "ETA after the first run" in runs[0] and re.search(r"ETA \S+ \(\d+\.\d s/run over 2 run\(s\)\)", runs[2])
+    assert any(ln.endswith("stage: render of overlap 0.30") for ln in prog), prog
+    assert re.fullmatch(rf"\[sweep\] finished: 2/2 runs in \S+ wall time; report: {re.escape(str(out / 'report.md'))}",
+                        [ln for ln in err if ln.startswith("[sweep] ")][-1]), err[-3:]
     loc, ray = json.loads((local_sweep / "results.json").read_text()), json.loads((out / "results.json").read_text())
     assert ray["sweep_config"]["engine"] == "ray" and loc["sweep_config"]["engine"] == "local"
     assert [(r["overlap"], r["method"], r["seed"], r["status"]) for r in ray["rows"]] == \

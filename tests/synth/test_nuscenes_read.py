@@ -6,6 +6,7 @@ from __future__ import annotations
 import json
 import math
 import shutil
+import sys
 import warnings
 from pathlib import Path
 
@@ -259,3 +260,24 @@ def test_ambiguous_version_is_refused(ns_root, tmp_path):
     with pytest.raises(DatasetError, match="several nuScenes versions.*v1.0-other, v1.0-synth"):
         open_nuscenes(root)
     assert open_nuscenes(root, version="v1.0-other").version == "v1.0-other"
+
+
+def test_without_the_devkit_the_plain_json_reader_gives_the_same_dataset(ns_root, pair, monkeypatch):
+    """Beside the viz extra (numpy >= 2) the devkit cannot be installed: the plain-JSON tables, LiDAR
+    reader, projection and quaternion give what the devkit gives."""
+    ns, _ = pair
+    for m in ("nuscenes", "nuscenes.nuscenes", "nuscenes.utils.data_classes", "nuscenes.utils.geometry_utils",
+              "nuscenes.utils.splits", "pyquaternion"):
+        monkeypatch.setitem(sys.modules, m, None)  # importing it raises ImportError
+    plain = open_nuscenes(ns_root)
+    assert plain.manifest == ns.manifest
+    for a, b in zip(plain.cameras, ns.cameras):
+        np.testing.assert_array_equal(a.K, b.K)
+        np.testing.assert_allclose(a.T_ego_cam, b.T_ego_cam, rtol=0, atol=1e-12)
+    for q in ns.sequences:
+        np.testing.assert_allclose(plain.T_world_ego(q), ns.T_world_ego(q), rtol=0, atol=1e-9)
+        assert [e["sample_token"] for e in plain.ego(q)] == [e["sample_token"] for e in ns.ego(q)]
+    q = ns.sequences[0]
+    np.testing.assert_allclose(plain.lidar_points_world(q, 2), ns.lidar_points_world(q, 2), rtol=0, atol=1e-9)
+    for cam in ns.camera_names:
+        np.testing.assert_array_equal(plain.read_depth(q, cam, 2), ns.read_depth(q, cam, 2))

@@ -89,6 +89,36 @@ def test_one_depth_image_per_camera_and_frame_equal_to_the_exr(recording, tiny_d
     assert len(ents["/world/ego/points_gt"]) == 3
 
 
+def test_a_nuscenes_dataroot_records_its_lidar_sweep_in_the_world_frame(tiny_dataset, tmp_path):
+    """The LiDAR branch: our nuScenes export of the tiny render, opened by `synth.dataset.open_dataset`
+    (the plain-JSON reader here: this environment cannot have nuscenes-devkit, which pins numpy < 2),
+    recorded by `synth view`: world/lidar holds `lidar_points_world` of each frame at that frame's time."""
+    from synth.cli import main
+    from synth.dataset import open_dataset
+    from synth.nuscenes_export import export_nuscenes
+    from synth.nuscenes_read import NuScenesDataset
+
+    root = tmp_path / "ns"
+    export_nuscenes(tiny_dataset, root, version="v1.0-synth")
+    ds = open_dataset(root)
+    assert isinstance(ds, NuScenesDataset)
+    seq = ds.sequences[0]
+    out = tmp_path / "ns.rrd"
+    assert main(["view", str(root), "--seq", seq, "--frames", "1:3", "--out", str(out)]) == 0
+    assert "verified without error" in rrd_verify(out)
+    ents = read_rrd(out)
+    ego = ds.ego(seq)
+    rows = {t: r for t, r in ents["/world/lidar"] if t is not None}
+    assert sorted(rows) == [round(ego[f]["timestamp_s"] * 1e9) for f in (1, 2)]
+    for f in (1, 2):
+        want = ds.lidar_points_world(seq, f)
+        assert len(want) > 1000  # a real sweep, not an empty branch
+        got = np.asarray(rows[round(ego[f]["timestamp_s"] * 1e9)]["Points3D:positions"], np.float64)
+        np.testing.assert_allclose(got, want, rtol=0, atol=1e-6 * max(1.0, np.abs(want).max()))
+    assert not [t for t, _ in ents["/world/lidar"] if t is None]
+    assert len([t for t, _ in ents[f"/world/ego/{ds.camera_names[0]}/depth"] if t is not None]) == 2
+
+
 @pytest.mark.parametrize("args, message", [
     (["--seq", "seq_9"], "--seq 'seq_9' is not a sequence of"),
     (["--frames", "4:9"], "--frames 4:9 is outside seq_00000's frames: A:B with 0 <= A < B <= 6"),
