@@ -36,7 +36,8 @@ import cv2
 import numpy as np
 
 from synth.files import DatasetError, read_png
-from synth.nuscenes_tables import EXPORT_DIR, get_record, load_tables, read_splits, resolve_version
+from synth.nuscenes_tables import (EXPORT_DIR, get_record, lidar_xyz, load_tables, read_splits, resolve_version,
+                                   rotation_matrix, view_points)
 from synth.rig import CameraSpec
 
 RIG_ORDER = ("CAM_FRONT", "CAM_FRONT_RIGHT", "CAM_BACK_RIGHT", "CAM_BACK", "CAM_BACK_LEFT", "CAM_FRONT_LEFT")
@@ -50,48 +51,6 @@ RIG_TOL = 1e-9  # calibrated_sensor values that differ by more are two rigs
 NO_MASKS = "no self-occlusion masks: every pixel counts as scene"
 
 
-def _rotation(q: np.ndarray) -> np.ndarray:
-    """3x3 rotation of a quaternion [w, x, y, z] (normalised first): pyquaternion's ``rotation_matrix``,
-    or the same formula where pyquaternion (a devkit dependency) is not installed."""
-    try:
-        from pyquaternion import Quaternion
-    except ImportError:  # pyquaternion's arithmetic step by step, so both give the same bits
-        q = np.array(q, dtype=float)
-        ss = np.dot(q, q)
-        if not abs(1.0 - ss) < 1e-14 and ss > 0:
-            q = q / np.sqrt(ss)
-        w, x, y, z = q
-        qm = np.array([[w, -x, -y, -z], [x, w, -z, y], [y, z, w, -x], [z, -y, x, w]])
-        qb = np.array([[w, -x, -y, -z], [x, w, z, -y], [y, -z, w, x], [z, y, -x, w]])
-        return np.dot(qm, qb.conj().transpose())[1:][:, 1:]
-    return Quaternion(q).rotation_matrix
-
-
-def _lidar_xyz(path: Path) -> np.ndarray:
-    """(3, N) float32 x, y, z of a LIDAR_TOP ``.bin`` (5 float32 per point): the devkit's
-    ``LidarPointCloud.from_file``, or the same read without the devkit."""
-    try:
-        from nuscenes.utils.data_classes import LidarPointCloud
-    except ImportError:
-        if not str(path).endswith(".bin"):
-            raise AssertionError(f"Unsupported filetype {path}") from None
-        return np.fromfile(str(path), dtype=np.float32).reshape((-1, 5))[:, :3].T
-    return LidarPointCloud.from_file(str(path)).points[:3]
-
-
-def _view_points(pc: np.ndarray, K: np.ndarray) -> np.ndarray:
-    """(2, N) pixel coordinates of camera-frame points (3, N): the devkit's ``view_points(..., normalize=True)``
-    or the same product without the devkit."""
-    try:
-        from nuscenes.utils.geometry_utils import view_points
-    except ImportError:  # the devkit's arithmetic step by step, so both give the same bits
-        pad = np.eye(4)
-        pad[:3, :3] = K
-        uvw = np.dot(pad, np.concatenate((pc, np.ones((1, pc.shape[1])))))[:3, :]
-        return (uvw / uvw[2:3, :].repeat(3, 0).reshape(3, pc.shape[1]))[:2]
-    return view_points(pc, K, normalize=True)[:2]
-
-
 def _T(rotation, translation, where: str) -> np.ndarray:
     try:
         q = np.asarray(rotation, np.float64)
@@ -103,7 +62,7 @@ def _T(rotation, translation, where: str) -> np.ndarray:
         raise DatasetError(f"{where}: rotation must be a unit quaternion [w, x, y, z] and translation 3 finite "
                            "numbers") from None
     T = np.eye(4)
-    T[:3, :3] = _rotation(q)
+    T[:3, :3] = rotation_matrix(q)
     T[:3, 3] = t
     return T
 
@@ -251,7 +210,7 @@ class NuScenesDataset:
         p = self.depth_path(seq, frame=frame, cam=self.camera_names[0])
         lid = self._rec(seq, frame)["lidar"]
         try:
-            pts = _lidar_xyz(p).astype(np.float64)
+            pts = lidar_xyz(p).astype(np.float64)
         except Exception as exc:  # noqa: BLE001 - the devkit raises bare errors for unreadable files
             raise DatasetError(f"{p}: missing or not a readable LiDAR point cloud ({type(exc).__name__}: "
                                f"{str(exc)[:80]})") from None
@@ -272,7 +231,7 @@ class NuScenesDataset:
         pc = T[:3, :3] @ g + T[:3, 3:4]
         z = pc[2]
         keep = (z >= LIDAR_MIN_DEPTH) & (z <= LIDAR_MAX_DEPTH)
-        uv = _view_points(pc[:, keep], c.K)
+        uv = view_points(pc[:, keep], c.K)
         u, v, z = np.floor(uv[0]), np.floor(uv[1]), z[keep]
         inside = (u >= 0) & (u < c.width) & (v >= 0) & (v < c.height)
         u, v, z = u[inside].astype(np.int64), v[inside].astype(np.int64), z[inside]

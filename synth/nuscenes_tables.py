@@ -16,6 +16,8 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
+import numpy as np
+
 from synth.files import DatasetError
 
 
@@ -169,3 +171,46 @@ def read_splits(root: Path, scenes: list[str], version: str) -> tuple[dict[str, 
         test = list(pick["val"])
         source += " (test = val: this dataroot has no test scene)"
     return {"train": pick["train"], "val": pick["val"], "test": test}, source
+
+
+# ---------------------------------------------------------------- the devkit's arithmetic, with or without it
+def rotation_matrix(q: np.ndarray) -> np.ndarray:
+    """3x3 rotation of a quaternion [w, x, y, z] (normalised first): pyquaternion's ``rotation_matrix``,
+    or the same formula where pyquaternion (a devkit dependency) is not installed."""
+    try:
+        from pyquaternion import Quaternion
+    except ImportError:  # pyquaternion's arithmetic step by step, so both give the same bits
+        q = np.array(q, dtype=float)
+        ss = np.dot(q, q)
+        if not abs(1.0 - ss) < 1e-14 and ss > 0:
+            q = q / np.sqrt(ss)
+        w, x, y, z = q
+        qm = np.array([[w, -x, -y, -z], [x, w, -z, y], [y, z, w, -x], [z, -y, x, w]])
+        qb = np.array([[w, -x, -y, -z], [x, w, z, -y], [y, -z, w, x], [z, y, -x, w]])
+        return np.dot(qm, qb.conj().transpose())[1:][:, 1:]
+    return Quaternion(q).rotation_matrix
+
+
+def lidar_xyz(path: Path) -> np.ndarray:
+    """(3, N) float32 x, y, z of a LIDAR_TOP ``.bin`` (5 float32 per point): the devkit's
+    ``LidarPointCloud.from_file``, or the same read without the devkit."""
+    try:
+        from nuscenes.utils.data_classes import LidarPointCloud
+    except ImportError:
+        if not str(path).endswith(".bin"):
+            raise AssertionError(f"Unsupported filetype {path}") from None
+        return np.fromfile(str(path), dtype=np.float32).reshape((-1, 5))[:, :3].T
+    return LidarPointCloud.from_file(str(path)).points[:3]
+
+
+def view_points(pc: np.ndarray, K: np.ndarray) -> np.ndarray:
+    """(2, N) pixel coordinates of camera-frame points (3, N): the devkit's ``view_points(..., normalize=True)``
+    or the same product without the devkit."""
+    try:
+        from nuscenes.utils.geometry_utils import view_points
+    except ImportError:  # the devkit's arithmetic step by step, so both give the same bits
+        pad = np.eye(4)
+        pad[:3, :3] = K
+        uvw = np.dot(pad, np.concatenate((pc, np.ones((1, pc.shape[1])))))[:3, :]
+        return (uvw / uvw[2:3, :].repeat(3, 0).reshape(3, pc.shape[1]))[:2]
+    return view_points(pc, K, normalize=True)[:2]
