@@ -3,8 +3,8 @@
 One signature, ``run_all(cfg, todo, out, counters, log, progress, init_from, on_done) -> rows``: the
 rows come back in the order of `todo` (the table order) whatever finishes first, and the
 per-run counters (trained, train_skipped, evaluated, ...) are summed into `counters`, so the
-results, resumption and skipping are the same whichever engine ran them. ``on_done()`` is called
-in this process once per finished run, as it finishes (the sweep's progress, `study.progress`).
+results, resumption and skipping are the same whichever engine ran them. ``on_done(row)`` is called
+in this process once per finished run with its row, as it finishes (the sweep's progress, `study.progress`).
 
 - ``engine: local``, ``jobs: 1``: one run after the other in this process.
 - ``engine: local``, ``jobs: N``: N spawned processes (`concurrent.futures`); the first failure
@@ -43,14 +43,14 @@ EXIT_RUN_FAILED = exitcodes.RUN_FAILED  # `mcdp sweep`: some run failed (engine 
 def run_all(cfg: SweepConfig, todo: list, out: Path, counters: Counters, log, progress: bool,
             init_from: str | None = None, on_done=None) -> list[dict]:
     """Run every (data record, method, seed) of `todo` with the sweep's engine; the rows in `todo`'s order."""
-    on_done = on_done or (lambda: None)
+    on_done = on_done or (lambda row: None)
     if cfg.engine == "ray":
         return _run_ray(cfg, todo, out, counters, log, init_from, on_done)
     if cfg.jobs == 1 or len(todo) == 1:
         rows = []
         for d, method, seed in todo:
             rows.append(run_stage(cfg, d["overlap"], d, method, seed, out, counters, log, progress, init_from))
-            on_done()
+            on_done(rows[-1])
         return rows
     return _run_parallel(cfg, todo, out, counters, log, init_from, on_done)
 
@@ -69,7 +69,7 @@ def _merge(counters: Counters, c: dict) -> None:
 
 
 def _run_parallel(cfg: SweepConfig, todo: list, out: Path, counters: Counters, log,
-                  init_from: str | None = None, on_done=lambda: None) -> list[dict]:
+                  init_from: str | None = None, on_done=lambda row: None) -> list[dict]:
     """The runs ``cfg.jobs`` at a time in spawned processes (see the module docstring)."""
     import multiprocessing as mp
     from concurrent.futures import ProcessPoolExecutor, as_completed
@@ -88,7 +88,7 @@ def _run_parallel(cfg: SweepConfig, todo: list, out: Path, counters: Counters, l
                 row, c = fut.result()
                 rows[index[fut]] = row
                 _merge(counters, c)
-                on_done()
+                on_done(row)
         except BaseException:
             for f in futures:
                 f.cancel()
@@ -134,7 +134,7 @@ def _resources(cfg: SweepConfig, method: str, seed: int, init_from: str | None, 
 
 
 def _run_ray(cfg: SweepConfig, todo: list, out: Path, counters: Counters, log, init_from: str | None,
-             on_done=lambda: None) -> list[dict]:
+             on_done=lambda row: None) -> list[dict]:
     """Every run as one Ray task (see the module docstring); failed runs become rows."""
     from corelib.cluster import import_ray
 
@@ -170,11 +170,11 @@ def _run_ray(cfg: SweepConfig, todo: list, out: Path, counters: Counters, log, i
                     log(f"[sweep] overlap {d['overlap']:.2f} {method} seed {seed}: FAILED (rerun once; "
                         f"{rows[i]['failed_attempts']} attempt(s) raised): {rows[i]['error']} (tracebacks: "
                         f"{errors_path(out, d['overlap'], method, seed)})")
-                    on_done()
+                    on_done(rows[i])
                     continue
                 rows[i] = row
                 _merge(counters, c)
-                on_done()
+                on_done(row)
     except BaseException:  # interrupted: nothing more runs for this sweep; a rerun resumes
         for ref in pending:
             ray.cancel(ref, force=True)

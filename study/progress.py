@@ -8,9 +8,10 @@ per finished run (at most one every `min_interval_s` seconds, the last run alway
 
     [sweep] progress: 4/10 runs done, elapsed 1m12s, ETA 1m48s (27.0 s/run over 4 runs), stage: runs
 
-The ETA is (time spent in the runs stage / runs finished in it) x runs left: with ``jobs > 1`` that
-is the wall time per run at the achieved parallelism. Runs a rerun skips count as finished at once, so
-a resumed sweep's first ETAs are optimistic.
+The ETA is (time spent in the runs stage / runs that did work in it) x runs left: with ``jobs > 1``
+that is the wall time per run at the achieved parallelism. Runs a rerun skips (trained and evaluated
+before) count as done but not in the rate, so a resumed sweep's ETA is that of the work left, assuming
+the runs still to come are not skipped.
 
 Example::
 
@@ -52,7 +53,7 @@ class SweepProgress:
 
     # ------------------------------------------------------------------ state
     def eta_s(self) -> float | None:
-        """Seconds left, from the runs finished in the runs stage so far; None before the first."""
+        """Seconds left, from the runs that did work in the runs stage so far; None before the first."""
         if self._runs_t0 is None or self._runs_done == 0:
             return None
         per_run = (self.clock() - self._runs_t0) / self._runs_done
@@ -61,7 +62,7 @@ class SweepProgress:
     def line(self) -> str:
         eta = self.eta_s()
         if eta is None:
-            eta_text = "ETA after the first run"
+            eta_text = "ETA after the first run" if self.done < self.total else "ETA 0s"
         else:
             per = (self.clock() - self._runs_t0) / self._runs_done
             eta_text = f"ETA {fmt_duration(eta)} ({per:.1f} s/run over {self._runs_done} run(s))"
@@ -76,10 +77,13 @@ class SweepProgress:
             self._runs_t0 = self.clock()
         self._emit(force=True)
 
-    def run_done(self, n: int = 1) -> None:
-        """`n` more runs finished (trained and evaluated, skipped, diverged or failed)."""
+    def run_done(self, row: dict | None = None, n: int = 1) -> None:
+        """`n` more runs finished (trained and evaluated, skipped, diverged or failed); ``row``: the run's
+        result row (`study.stages.run_stage`), whose ``train_skipped`` and ``eval_skipped`` both true mean it
+        was skipped: done, but not counted in the time per run."""
         self.done = min(self.done + int(n), self.total)
-        if self._runs_t0 is not None:
+        skipped = bool(row) and bool(row.get("train_skipped")) and bool(row.get("eval_skipped"))
+        if self._runs_t0 is not None and not skipped:
             self._runs_done += int(n)
         if self._bar is not None:
             self._bar.update(int(n))

@@ -44,6 +44,28 @@ def test_lines_count_runs_and_eta_is_time_per_run_times_runs_left():
     assert [int(re.search(r"(\d+)/4 runs", ln).group(1)) for ln in done] == [0, 1, 2, 3, 4]
 
 
+def test_skipped_runs_count_as_done_but_not_in_the_time_per_run():
+    """A resumed sweep: 3 runs skipped at once, then a run that took 100 s: the ETA is 100 s x runs left,
+    not 25 s (the rate over every finished run); an all-skipped rerun ends at ETA 0s."""
+    clock, lines = Clock(), []
+    skipped = {"train_skipped": True, "eval_skipped": True}
+    p = SweepProgress(6, lines.append, clock=clock)
+    p.stage("runs")
+    for _ in range(3):
+        p.run_done(skipped)
+    assert p.done == 3 and p.eta_s() is None and "ETA after the first run" in lines[-1]
+    clock.t += 100
+    p.run_done({"train_skipped": False, "eval_skipped": False})
+    assert p.eta_s() == pytest.approx(200.0)  # 100 s per run x 2 left
+    p.run_done({"train_skipped": True, "eval_skipped": False})  # trained before, evaluated now: work
+    assert p._runs_done == 2
+    q = SweepProgress(2, lines.append, clock=clock)
+    q.stage("runs")
+    q.run_done(skipped)
+    q.run_done(skipped)
+    assert lines[-1].startswith("[sweep] progress: 2/2 runs done") and "ETA 0s" in lines[-1]
+
+
 def test_min_interval_thins_lines_but_keeps_the_last_run():
     clock, lines = Clock(), []
     p = SweepProgress(10, lines.append, min_interval_s=60, clock=clock)
