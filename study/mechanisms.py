@@ -16,7 +16,7 @@ from __future__ import annotations
 
 import math
 
-from study.results import CUT, method_agg, paired_difference
+from study.results import CUT, INERT_M, method_agg, paired_difference
 
 BASE = "mono2"
 #: as trained − cut (median-scaled abs_rel, all px) smaller than this is negligible even when beyond its
@@ -109,17 +109,21 @@ def format_mechanisms(results: dict, label) -> str:
         dc = from_which_overlap(diffs[m]["dep_con.mean"])
         if cuts[m]:
             used = [o for o, pd in sorted(cuts[m].items()) if pd["differs"] != 0 and abs(pd["mean"]) >= USE_FLOOR]
-            tiny = [o for o, pd in sorted(cuts[m].items()) if pd["differs"] != 0 and abs(pd["mean"]) < USE_FLOOR]
-            inf = ("uses the other cameras at inference (as trained − cut beyond the interval and >= "
-                   f"{USE_FLOOR}) at " + ", ".join(f"{o:.2f}" for o in used) if used else
-                   "**does not use the other cameras at inference** (as trained − cut within the interval or "
-                   f"below {USE_FLOOR} at every overlap)")
-            if tiny:
-                inf += " (beyond the interval but below " + f"{USE_FLOOR} at " + ", ".join(f"{o:.2f}" for o in tiny) + ")"
             moved = [v for v in change[m].values() if math.isfinite(v)]
-            if moved:
-                inf += (f"; cutting them changes its depth by {min(moved):.4f} to {max(moved):.4f} m on average "
-                        "(mean abs(as trained − cut))")
+            if not moved:
+                depth = "how much cutting them changes its depth was not recorded"
+            elif max(moved) < INERT_M:
+                depth = (f"**its depth barely reads the other cameras**: cutting them changes it by {min(moved):.4f} "
+                         f"to {max(moved):.4f} m on average (< {INERT_M * 100:.0f} cm: inert)")
+            else:
+                depth = (f"its depth reads the other cameras: cutting them changes it by {min(moved):.4f} to "
+                         f"{max(moved):.4f} m on average")
+            acc_use = ("and its accuracy with them differs from without (as trained − cut beyond the interval and >= "
+                       f"{USE_FLOOR}) at " + ", ".join(f"{o:.2f}" for o in used) if used else
+                       f"**{'and' if moved and max(moved) < INERT_M else 'but'} its accuracy does not depend on them** "
+                       "(as trained − cut within the interval or below "
+                       f"{USE_FLOOR} at every overlap)")
+            inf = f"{depth}, {acc_use}"
         else:
             inf = "reads no other camera at inference (by construction)"
         add(f"- **{label(m)}**: accuracy vs Mono2 {acc}; on non-overlap pixels {non}; Dep Con {dc}; {inf}.")

@@ -107,9 +107,11 @@ def format_propagation(results: dict, label) -> str:
             dc = _cut_diff(results, o, m, "dep_con.mean")
             gain = _self_diff(results, o, m, "median.mean.abs_rel", "init.median.mean.abs_rel")
             closed = method_agg(results, o, m, "refine.headroom_closed")
+            refine = (f"; refinement final − init {_pd(gain, 4)}; headroom closed {_num(closed['mean'], 2)}"
+                      if math.isfinite(gain["mean"]) else "")  # a network without an init stage: no refinement
             add(f"- overlap {o:.2f}, {label(m)}: propagation (as trained − cut, non-overlap px) {_pd(prop, 4)}; "
-                f"direct use (overlap px) {_pd(direct, 4)}; all px {_pd(allp, 4)}; Dep Con (ratio) {_pd(dc, 4)}; "
-                f"refinement final − init {_pd(gain, 4)}; headroom closed {_num(closed['mean'], 2)}")
+                f"direct use (overlap px) {_pd(direct, 4)}; all px {_pd(allp, 4)}; Dep Con (ratio) {_pd(dc, 4)}"
+                + refine)
     add("")
     return "\n".join(L)
 

@@ -326,7 +326,7 @@ def _verdicts(results: dict) -> str:
     if "mono2" not in methods:
         return "- Mono2 is not part of this sweep: no comparison.\n"
     if len(methods) == 1:
-        return "- Only Mono2 is part of this sweep: no MCDP comparison.\n"
+        return "- Only Mono2 is part of this sweep: no comparison.\n"
     lines = []
     for d in results["data"]:
         o = d["overlap"]
@@ -364,9 +364,9 @@ def _verdicts(results: dict) -> str:
                                      + ", ".join(worse) if worse else
                                      f"every method beats the constant-depth reference ({cref:.3f})"))
             if not lost:
-                lines.append(head + "every MCDP variant beats Mono2 (" + "; ".join(beat) + ")")
+                lines.append(head + "every other method beats Mono2 (" + "; ".join(beat) + ")")
             elif not beat:
-                lines.append(head + "**no MCDP variant beats Mono2** (" + "; ".join(lost) + ")")
+                lines.append(head + "**no other method beats Mono2** (" + "; ".join(lost) + ")")
             else:
                 lines.append(head + "beat Mono2: " + "; ".join(beat) + ". **Did not beat Mono2**: " + "; ".join(lost))
     if len(results["seeds"]) == 1:

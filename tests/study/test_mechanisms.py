@@ -43,10 +43,11 @@ def test_the_section_states_each_mechanisms_verdict():
     sur = next(line for line in md.splitlines() if line.startswith("- **SurroundDepth**"))
     assert "accuracy vs Mono2 gains from overlap 0.30 on" in fsm and "by construction" in fsm
     assert "accuracy vs Mono2 gains at no overlap of the sweep" in sur
-    assert "uses the other cameras at inference (as trained − cut beyond the interval and >= 0.0005) at 0.60" in sur
+    assert "its accuracy with them differs from without (as trained − cut beyond the interval and >= 0.0005) at 0.60" in sur
     assert "- **In one line**: FSM gain(s) accuracy over Mono2 from some overlap on" in md
     assert "| 0.60 | 0.420 | SurroundDepth |" in md and "0 (reads no other camera)" in md
-    assert "cutting them changes its depth by 0.0050 to 0.0300 m on average" in sur and "| 0.0300 ± 0.0100 |" in md
+    assert "its depth reads the other cameras: cutting them changes it by 0.0050 to 0.0300 m" in sur
+    assert "| 0.0300 ± 0.0100 |" in md
     one_seed = {**_results(), "seeds": [0]}
     assert "One seed only: no interval, no verdict." in format_mechanisms(one_seed, str)
     assert format_mechanisms({**_results(), "methods": ["fsm", "surround"]}, str) == ""
