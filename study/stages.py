@@ -333,11 +333,29 @@ def evaluate_run(cfg: SweepConfig, run_dir: Path, ds, ecfg, progress: bool, log,
     Returns (metrics, metrics_cut or None); ``metrics["_predictor"]`` is the as-trained predictor and
     ``metrics["refinement"]`` / ``metrics_cut["refinement"]`` record how much the refinement acted.
     """
-    from mcdp.evaluate import evaluate
+    import torch
+
     from mcdp.predict import Predictor
 
     rng = (ecfg.min_depth, ecfg.max_depth)
     pred = Predictor(run_dir, ds, cfg.checkpoint, cfg.device, oracle_weights=True, oracle_range=rng)
+    threads_before = torch.get_num_threads()
+    if pred.cfg.train.threads > 0 and pred.device.type == "cpu":
+        # the run's thread count, as in training: a rerun that only evaluates would otherwise use torch's
+        # default in each of `jobs` processes at once (oversubscribed: an evaluate-only rerun of the CPU sweep,
+        # 2 jobs on 2 cores, took a median 147 s per MCDP (m = 2) evaluation against 46 s right after training)
+        torch.set_num_threads(pred.cfg.train.threads)
+    try:
+        return _evaluate_both(cfg, run_dir, ds, ecfg, progress, log, tag, pred)
+    finally:
+        torch.set_num_threads(threads_before)
+
+
+def _evaluate_both(cfg: SweepConfig, run_dir: Path, ds, ecfg, progress: bool, log, tag: str, pred):
+    """`evaluate_run` once the predictor and the thread count are set."""
+    from mcdp.evaluate import evaluate
+    from mcdp.predict import Predictor
+
     cuts = bool(getattr(pred.model, "uses_neighbours", False))  # MCDP's refinement, SurroundDepth's attention
     pred.kept = {} if cuts else None  # its depths are compared with the cut evaluation's
     log(f"{tag}: evaluating {pred.ckpt_path.name} (step {pred.step}) on the {SPLIT} split"
