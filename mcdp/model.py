@@ -198,10 +198,10 @@ class DepthModel(nn.Module):
             ]
         )
 
-    #: whether the depth of a camera depends on its neighbours' images at inference (then the evaluation
-    #: also cuts them: ``Predictor(cut=True)``); MCDP with refinement steps, `mcdp.surround`
     @property
     def uses_neighbours(self) -> bool:
+        """Whether a camera's depth depends on its neighbours' images at inference (then the sweep also
+        evaluates it with them cut: ``Predictor(cut=True)``): MCDP with refinement steps, `mcdp.surround`."""
         return len(self.weight_nets) > 0
 
     def fresh_parameters(self) -> list[nn.Parameter]:

@@ -113,12 +113,12 @@ class Predictor:
 
     def _compare(self, seq: str, frame: int, depth: torch.Tensor) -> None:
         """Keep this depth (``keep``) and/or add its mean |difference| to the reference's (``reference``)."""
-        m = self.mask.reshape(-1, 1, *self.mask.shape[-2:]).float()
         if self.kept is not None and self._kept_bytes + depth.numel() * 4 <= self.KEEP_BYTES:
             self.kept[seq, frame] = depth.float().cpu()
             self._kept_bytes += depth.numel() * 4
         ref = None if self.reference is None or self.reference.kept is None else self.reference.kept.get((seq, frame))
         if ref is not None:
+            m = self.mask.reshape(-1, 1, *self.mask.shape[-2:]).float()
             diff = (depth.float() - ref.to(depth.device)).abs() * m
             self._acc["cut_change_m"] += float((diff.flatten(1).sum(1) / m.flatten(1).sum(1).clamp(min=1)).sum())
             self._acc["cut_images"] += int(depth.shape[0])

@@ -16,27 +16,23 @@ from __future__ import annotations
 
 import math
 
-from study.results import CUT, INERT_M, method_agg, paired_difference
+from study.results import CUT, INERT_M, VERDICT_WORD, method_agg, paired_difference
+from study.results import fmt_num as _num
 
 BASE = "mono2"
 #: as trained − cut (median-scaled abs_rel, all px) smaller than this is negligible even when beyond its
 #: interval: a tenth of a percent of a typical abs_rel of 0.2 (float noise of identical seeds is ~1e-5)
 USE_FLOOR = 0.0005
-WORD = {-1: "**lower (better)**", 1: "**higher (worse)**", 0: "no difference beyond the interval"}
 #: (results key, column name) of the paired comparisons against Mono2
 KEYS = (("median.mean.abs_rel", "accuracy, all px"), ("median.overlap.abs_rel", "overlap px"),
         ("median.non_overlap.abs_rel", "non-overlap px"), ("dep_con.mean", "Dep Con (ratio)"))
-
-
-def _num(x, digits: int = 3) -> str:
-    return f"{x:.{digits}f}" if isinstance(x, (int, float)) and math.isfinite(x) else "nan"
 
 
 def _pd(pd: dict, digits: int = 3, word: bool = False) -> str:
     mu = pd["mean"]
     s = (f"{mu:+.{digits}f}" if isinstance(mu, (int, float)) and math.isfinite(mu) else "nan") + f" ± {_num(pd['ci95'], digits)}"
     if word:
-        s += f": {WORD[pd['differs']]}"
+        s += f": {VERDICT_WORD[pd['differs']]}"
     elif pd["differs"]:
         s = f"**{s}**"
     return s

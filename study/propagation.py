@@ -18,10 +18,8 @@ from __future__ import annotations
 
 import math
 
-from study.results import CUT, INERT_M, ORACLE, method_agg, paired_difference
-
-WORD = {-1: "**lower (better)**", 1: "**higher (worse)**", 0: "no difference beyond the interval"}
-
+from study.results import CUT, INERT_M, ORACLE, VERDICT_WORD, method_agg, paired_difference
+from study.results import fmt_num as _num
 
 def refined_methods(results: dict) -> list[str]:
     """Methods of the sweep that were also evaluated with their neighbours cut."""
@@ -29,12 +27,8 @@ def refined_methods(results: dict) -> list[str]:
     return [m for m in results["methods"] if m + CUT in names]
 
 
-def _num(x, digits: int = 3) -> str:
-    return f"{x:.{digits}f}" if isinstance(x, (int, float)) and math.isfinite(x) else "nan"
-
-
 def _pd(pd: dict, digits: int = 3) -> str:
-    return f"{pd['mean']:+.{digits}f} ± {_num(pd['ci95'], digits)}: {WORD[pd['differs']]}"
+    return f"{pd['mean']:+.{digits}f} ± {_num(pd['ci95'], digits)}: {VERDICT_WORD[pd['differs']]}"
 
 
 def _cut_diff(results: dict, o: float, m: str, key: str) -> dict:

@@ -33,6 +33,7 @@ from study.plots import make_plots
 from study.mechanisms import format_mechanisms
 from study.propagation import format_propagation
 from study.results import PRIOR_LABEL, REF_LABEL, SCALE_LABEL, YARDSTICKS, method_agg, yardstick_agg, yardstick_row
+from study.results import fmt_num as _num
 
 
 def write_all(results: dict, out: str | Path) -> None:
@@ -373,10 +374,6 @@ def _verdicts(results: dict) -> str:
         lines.append("- One training seed only: differences smaller than the seed-to-seed spread (unknown here) "
                      "are not evidence either way.")
     return "\n".join(lines)
-
-
-def _num(x, digits: int = 3) -> str:
-    return f"{x:.{digits}f}" if isinstance(x, (int, float)) and math.isfinite(x) else "nan"
 
 
 def _sec(x) -> str:

@@ -23,6 +23,15 @@ def _f(x) -> float:
     return float(x) if isinstance(x, (int, float)) and x is not None else float("nan")
 
 
+#: how a paired difference reads in the report (`paired_difference`'s ``differs``)
+VERDICT_WORD = {-1: "**lower (better)**", 1: "**higher (worse)**", 0: "no difference beyond the interval"}
+
+
+def fmt_num(x, digits: int = 3) -> str:
+    """A number for the report; 'nan' for anything not finite."""
+    return f"{x:.{digits}f}" if isinstance(x, (int, float)) and math.isfinite(x) else "nan"
+
+
 CUT = "@cut"  # method suffix of a run evaluated with its neighbours cut at inference
 ORACLE = "@oracle"  # method suffix of the ORACLE-weights yardstick of a run's bases
 INERT_M = 0.01  # a refinement whose refined depth differs from its init stage by < 1 cm on average is inert

@@ -338,7 +338,9 @@ def evaluate_run(cfg: SweepConfig, run_dir: Path, ds, ecfg, progress: bool, log,
     from mcdp.predict import Predictor
 
     rng = (ecfg.min_depth, ecfg.max_depth)
-    pred = Predictor(run_dir, ds, cfg.checkpoint, cfg.device, oracle_weights=True, oracle_range=rng)
+    # keep=True: its depths (<= 64 MiB) are what the cut evaluation of a network that reads its neighbours
+    # is compared with
+    pred = Predictor(run_dir, ds, cfg.checkpoint, cfg.device, oracle_weights=True, oracle_range=rng, keep=True)
     threads_before = torch.get_num_threads()
     if pred.cfg.train.threads > 0 and pred.device.type == "cpu":
         # the run's thread count, as in training: a rerun that only evaluates would otherwise use torch's
@@ -357,7 +359,6 @@ def _evaluate_both(cfg: SweepConfig, run_dir: Path, ds, ecfg, progress: bool, lo
     from mcdp.predict import Predictor
 
     cuts = bool(getattr(pred.model, "uses_neighbours", False))  # MCDP's refinement, SurroundDepth's attention
-    pred.kept = {} if cuts else None  # its depths are compared with the cut evaluation's
     log(f"{tag}: evaluating {pred.ckpt_path.name} (step {pred.step}) on the {SPLIT} split"
         + (" (+ ORACLE weights of its bases)" if pred.oracle_weights else ""))
     metrics = evaluate(ds, pred.predict, SPLIT, ecfg, progress=progress)
