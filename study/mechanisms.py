@@ -16,24 +16,21 @@ from __future__ import annotations
 
 import math
 
-from study.results import CUT, INERT_M, VERDICT_WORD, method_agg, paired_difference
+from study.results import CUT, INERT_M, USE_FLOOR, fmt_diff, method_agg, paired_difference, verdict_word
 from study.results import fmt_num as _num
 
 BASE = "mono2"
-#: as trained − cut (median-scaled abs_rel, all px) smaller than this is negligible even when beyond its
-#: interval: a tenth of a percent of a typical abs_rel of 0.2 (float noise of identical seeds is ~1e-5)
-USE_FLOOR = 0.0005
 #: (results key, column name) of the paired comparisons against Mono2
 KEYS = (("median.mean.abs_rel", "accuracy, all px"), ("median.overlap.abs_rel", "overlap px"),
         ("median.non_overlap.abs_rel", "non-overlap px"), ("dep_con.mean", "Dep Con (ratio)"))
 
 
-def _pd(pd: dict, digits: int = 3, word: bool = False) -> str:
-    mu = pd["mean"]
-    s = (f"{mu:+.{digits}f}" if isinstance(mu, (int, float)) and math.isfinite(mu) else "nan") + f" ± {_num(pd['ci95'], digits)}"
+def _pd(pd: dict, digits: int = 3, word: bool = False, floor: float = 0.0) -> str:
+    """'mean ± half-width', with its verdict word, or in bold when beyond the interval (and not below `floor`)."""
+    s = fmt_diff(pd, digits)
     if word:
-        s += f": {VERDICT_WORD[pd['differs']]}"
-    elif pd["differs"]:
+        s += f": {verdict_word(pd, floor)}"
+    elif pd["differs"] and abs(pd["mean"]) >= floor:
         s = f"**{s}**"
     return s
 
@@ -90,7 +87,7 @@ def format_mechanisms(results: dict, label) -> str:
                 cells.append(_pd(pd))
             if m + CUT in evaluations:
                 cuts[m][o] = paired_difference(results, o, m, m + CUT, "median.mean.abs_rel")
-                cut = _pd(cuts[m][o], 4)
+                cut = _pd(cuts[m][o], 4, floor=USE_FLOOR)
                 ch = method_agg(results, o, m, "cut.depth_change_m")
                 change[m][o] = ch.get("mean", math.nan)
                 moved = _num(ch.get("mean"), 4) + (f" ± {_num(ch.get('ci95'), 4)}" if ch.get("n", 0) > 1 else "")

@@ -18,7 +18,7 @@ from __future__ import annotations
 
 import math
 
-from study.results import CUT, INERT_M, ORACLE, VERDICT_WORD, method_agg, paired_difference
+from study.results import CUT, INERT_M, ORACLE, USE_FLOOR, fmt_diff, method_agg, paired_difference, verdict_word
 from study.results import fmt_num as _num
 
 def refined_methods(results: dict) -> list[str]:
@@ -27,8 +27,8 @@ def refined_methods(results: dict) -> list[str]:
     return [m for m in results["methods"] if m + CUT in names]
 
 
-def _pd(pd: dict, digits: int = 3) -> str:
-    return f"{pd['mean']:+.{digits}f} ± {_num(pd['ci95'], digits)}: {VERDICT_WORD[pd['differs']]}"
+def _pd(pd: dict, digits: int = 3, floor: float = 0.0) -> str:
+    return f"{fmt_diff(pd, digits)}: {verdict_word(pd, floor)}"
 
 
 def _cut_diff(results: dict, o: float, m: str, key: str) -> dict:
@@ -101,10 +101,10 @@ def format_propagation(results: dict, label) -> str:
             dc = _cut_diff(results, o, m, "dep_con.mean")
             gain = _self_diff(results, o, m, "median.mean.abs_rel", "init.median.mean.abs_rel")
             closed = method_agg(results, o, m, "refine.headroom_closed")
-            refine = (f"; refinement final − init {_pd(gain, 4)}; headroom closed {_num(closed['mean'], 2)}"
+            refine = (f"; refinement final − init {_pd(gain, 4, USE_FLOOR)}; headroom closed {_num(closed['mean'], 2)}"
                       if math.isfinite(gain["mean"]) else "")  # a network without an init stage: no refinement
-            add(f"- overlap {o:.2f}, {label(m)}: propagation (as trained − cut, non-overlap px) {_pd(prop, 4)}; "
-                f"direct use (overlap px) {_pd(direct, 4)}; all px {_pd(allp, 4)}; Dep Con (ratio) {_pd(dc, 4)}"
+            add(f"- overlap {o:.2f}, {label(m)}: propagation (as trained − cut, non-overlap px) {_pd(prop, 4, USE_FLOOR)}; "
+                f"direct use (overlap px) {_pd(direct, 4, USE_FLOOR)}; all px {_pd(allp, 4, USE_FLOOR)}; Dep Con (ratio) {_pd(dc, 4)}"
                 + refine)
     add("")
     return "\n".join(L)

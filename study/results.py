@@ -32,6 +32,30 @@ def fmt_num(x, digits: int = 3) -> str:
     return f"{x:.{digits}f}" if isinstance(x, (int, float)) and math.isfinite(x) else "nan"
 
 
+#: a difference of median-scaled abs_rel smaller than this is negligible even when beyond its interval:
+#: a tenth of a percent of a typical abs_rel of 0.2 (float noise of identical seeds is ~1e-5)
+USE_FLOOR = 0.0005
+
+
+def fmt_diff(pd: dict, digits: int = 3) -> str:
+    """A paired difference 'mean ± half-width'; a non-zero mean that rounds to zero at `digits` is
+    written in scientific notation (so '+0.0000' never stands for a difference that is there)."""
+    mu, ci = pd["mean"], pd["ci95"]
+    if not (isinstance(mu, (int, float)) and math.isfinite(mu)):
+        return f"nan ± {fmt_num(ci, digits)}"
+    if mu != 0 and abs(mu) < 0.5 * 10 ** -digits:
+        return f"{mu:+.1e} ± " + (f"{ci:.1e}" if isinstance(ci, (int, float)) and math.isfinite(ci) else "nan")
+    return f"{mu:+.{digits}f} ± {fmt_num(ci, digits)}"
+
+
+def verdict_word(pd: dict, floor: float = 0.0) -> str:
+    """VERDICT_WORD of a paired difference; beyond its interval but smaller than `floor` in size is
+    said to be negligible, not better or worse."""
+    if pd["differs"] != 0 and abs(pd["mean"]) < floor:
+        return f"beyond the interval but negligible (< {floor:g})"
+    return VERDICT_WORD[pd["differs"]]
+
+
 CUT = "@cut"  # method suffix of a run evaluated with its neighbours cut at inference
 ORACLE = "@oracle"  # method suffix of the ORACLE-weights yardstick of a run's bases
 INERT_M = 0.01  # a refinement whose refined depth differs from its init stage by < 1 cm on average is inert

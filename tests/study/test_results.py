@@ -30,3 +30,16 @@ def test_paired_difference_pairs_by_seed_and_says_which_side():
     assert same["differs"] == 0
     nan = paired_difference(_results([float("nan"), 1.0], [1.0, 1.0]), 0.3, "mcdp_m2", "mono2", "x")
     assert nan["n"] == 1 and nan["differs"] == 0
+
+
+def test_a_difference_that_rounds_to_zero_is_still_written_and_a_negligible_one_is_not_called_better():
+    from study.results import fmt_diff, verdict_word
+
+    tiny = {"mean": 1.5e-05, "ci95": 1.3e-05, "differs": 1}
+    assert fmt_diff(tiny, 4) == "+1.5e-05 ± 1.3e-05"  # not '+0.0000 ± 0.0000'
+    assert fmt_diff({"mean": -0.0123, "ci95": 0.004, "differs": -1}, 3) == "-0.012 ± 0.004"
+    assert fmt_diff({"mean": 0.0, "ci95": 0.0, "differs": 0}, 3) == "+0.000 ± 0.000"
+    assert fmt_diff({"mean": float("nan"), "ci95": float("nan"), "differs": 0}) == "nan ± nan"
+    assert verdict_word(tiny, 0.0005).startswith("beyond the interval but negligible")
+    assert "worse" in verdict_word(tiny)  # without a floor it is a difference
+    assert "better" in verdict_word({"mean": -0.01, "ci95": 0.004, "differs": -1}, 0.0005)
