@@ -79,13 +79,22 @@ _RENDERER_KEY = None
 
 
 def renderer_for(cfg: DataConfig):
-    """This process's renderer for `cfg`'s image size and render settings (made once, remade when they change)."""
+    """This process's renderer for `cfg`'s image size and render settings (made once, remade when they change).
+
+    It also limits numpy's BLAS (OpenBLAS) to one thread in this process: the renderer inverts a 4x4 pose
+    and a 3x3 K per camera, and with a second BLAS thread each such call waits for a core that llvmpipe
+    and the writer threads keep busy (2.7 ms per 4x4 inverse measured while rendering on 2 cores, 3 us
+    alone). Same results: LAPACK does not split a 4x4 inverse between threads (docs/results/render_throughput.md).
+    """
     global _RENDERER, _RENDERER_KEY
+    from threadpoolctl import threadpool_limits
+
     from synth.gl_backend import Renderer  # imported in the worker: OpenGL never crosses a fork
 
     key = (cfg.camera.width, cfg.camera.height, cfg.render.backend, cfg.render.shadow_map_size, cfg.rig.znear_m,
            cfg.rig.zfar_m)
     if _RENDERER is None or _RENDERER_KEY != key:
+        threadpool_limits(limits=1, user_api="blas")  # for the process, not only this block (see above)
         if _RENDERER is not None:
             _RENDERER.close()
         _RENDERER = Renderer(cfg.camera.width, cfg.camera.height, backend=cfg.render.backend,

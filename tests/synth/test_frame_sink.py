@@ -83,3 +83,15 @@ def test_a_prefetched_scene_is_the_inline_scene(tiny_config):
     assert np.array_equal(a.textures, b.textures) and np.array_equal(a.T_world_ego, b.T_world_ego)
     assert np.array_equal(a.static.positions, b.static.positions)
     assert np.array_equal(a.static.indices, b.static.indices)
+
+
+def test_a_rendering_process_does_its_small_matrix_algebra_on_one_blas_thread(tiny_config):
+    """renderer_for limits numpy's BLAS to one thread (a second one waits for a core llvmpipe keeps busy)."""
+    from threadpoolctl import threadpool_info
+
+    from synth.render import renderer_for
+
+    renderer_for(tiny_config)
+    blas = [p for p in threadpool_info() if p["user_api"] == "blas"]
+    assert blas, "numpy links no BLAS that threadpoolctl sees"
+    assert all(p["num_threads"] == 1 for p in blas), blas
