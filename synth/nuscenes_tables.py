@@ -5,7 +5,8 @@ Without the devkit (an environment with the ``viz`` extra: rerun-sdk needs numpy
 1.2.0 numpy < 2) `load_tables` reads the tables the reader uses as plain JSON (`PlainTables`: the same
 records, with the devkit's ``sample["data"]`` / ``sample_data["channel"]`` reverse index), so
 `synth view` can record a dataroot; the official splits still need the devkit. Beside them, nuScenes'
-rotation convention both ways: `rotation_matrix` (the reader) and `rotation_to_quaternion` (the export).
+rotation convention both ways: `rotation_matrix` and `pose_matrix` (the reader), `rotation_to_quaternion` (the
+export).
 
 Example::
 
@@ -215,6 +216,23 @@ def rotation_to_quaternion(R: np.ndarray) -> list[float]:
     if q[0] < 0:
         q = -q
     return [float(x) for x in q]
+
+
+def pose_matrix(rotation, translation, where: str) -> np.ndarray:
+    """4x4 of a nuScenes pose record (rotation [w, x, y, z], translation); DatasetError naming `where`."""
+    try:
+        q = np.asarray(rotation, np.float64)
+        t = np.asarray(translation, np.float64)
+        if q.shape != (4,) or t.shape != (3,) or not (np.isfinite(q).all() and np.isfinite(t).all()) or \
+                not abs(np.linalg.norm(q) - 1.0) < 1e-3:
+            raise ValueError
+    except (TypeError, ValueError):
+        raise DatasetError(f"{where}: rotation must be a unit quaternion [w, x, y, z] and translation 3 finite "
+                           "numbers") from None
+    T = np.eye(4)
+    T[:3, :3] = rotation_matrix(q)
+    T[:3, 3] = t
+    return T
 
 
 def lidar_xyz(path: Path) -> np.ndarray:
