@@ -73,6 +73,34 @@ def format_mechanisms(results: dict, label) -> str:
     if len(results["seeds"]) < 2:
         add("One seed only: no interval, no verdict.\n")
         return "\n".join(L)
+    diffs, cuts, change = _table(results, methods, evaluations, label, add)
+    add("")
+    add("### Verdicts: which mechanism gains from overlap, and from which overlap on\n")
+    for m in methods:
+        acc = from_which_overlap(diffs[m]["median.mean.abs_rel"])
+        non = from_which_overlap(diffs[m]["median.non_overlap.abs_rel"])
+        dc = from_which_overlap(diffs[m]["dep_con.mean"])
+        inf = _reads_others(cuts[m], change[m]) if cuts[m] else "reads no other camera at inference (by construction)"
+        add(f"- **{label(m)}**: accuracy vs Mono2 {acc}; on non-overlap pixels {non}; Dep Con {dc}; {inf}.")
+    gainers = [label(m) for m in methods if "from overlap" in from_which_overlap(diffs[m]["median.mean.abs_rel"])]
+    add("- **In one line**: " + (", ".join(gainers) + " gain(s) accuracy over Mono2 from some overlap on"
+                                 if gainers else "no mechanism is more accurate than Mono2 from any overlap on")
+        + " (median-scaled abs_rel, all pixels, beyond the paired 95 % interval).")
+    add("")
+    add("Per overlap, every paired comparison in words:\n")
+    for d in results["data"]:
+        o = d["overlap"]
+        for m in methods:
+            add(f"- overlap {o:.2f}, {label(m)} − Mono2: "
+                + "; ".join(f"{name} {_pd(diffs[m][key][o], 3, word=True)}" for key, name in KEYS))
+    add("")
+    return "\n".join(L)
+
+
+def _table(results: dict, methods: list[str], evaluations, label, add) -> tuple[dict, dict, dict]:
+    """The table (one row per overlap and method, through `add`); returns its paired differences vs Mono2
+    ({method: {key: {overlap: pd}}}), as trained − cut ({method: {overlap: pd}}) and the mean depth change
+    when cut ({method: {overlap: m}})."""
     meas = {d["overlap"]: d["measured"]["measured_mean"] for d in results["data"]}
     add("| overlap | measured | Method | " + " | ".join(name for _, name in KEYS)
         + " | as trained − cut | mean abs(trained − cut) depth, m |")
@@ -97,42 +125,25 @@ def format_mechanisms(results: dict, label) -> str:
             else:
                 cut, moved = "0 (reads no other camera)", "0"
             add(f"| {o:.2f} | {_num(meas.get(o))} | {label(m)} | " + " | ".join(cells) + f" | {cut} | {moved} |")
-    add("")
-    add("### Verdicts: which mechanism gains from overlap, and from which overlap on\n")
-    for m in methods:
-        acc = from_which_overlap(diffs[m]["median.mean.abs_rel"])
-        non = from_which_overlap(diffs[m]["median.non_overlap.abs_rel"])
-        dc = from_which_overlap(diffs[m]["dep_con.mean"])
-        if cuts[m]:
-            used = [o for o, pd in sorted(cuts[m].items()) if pd["differs"] != 0 and abs(pd["mean"]) >= USE_FLOOR]
-            moved = [v for v in change[m].values() if math.isfinite(v)]
-            if not moved:
-                depth = "how much cutting them changes its depth was not recorded"
-            elif max(moved) < INERT_M:
-                depth = (f"**its depth barely reads the other cameras**: cutting them changes it by {min(moved):.4f} "
-                         f"to {max(moved):.4f} m on average (< {INERT_M * 100:.0f} cm: inert)")
-            else:
-                depth = (f"its depth reads the other cameras: cutting them changes it by {min(moved):.4f} to "
-                         f"{max(moved):.4f} m on average")
-            acc_use = ("and its accuracy with them differs from without (as trained − cut beyond the interval and >= "
-                       f"{USE_FLOOR}) at " + ", ".join(f"{o:.2f}" for o in used) if used else
-                       f"**{'and' if moved and max(moved) < INERT_M else 'but'} its accuracy does not depend on them** "
-                       "(as trained − cut within the interval or below "
-                       f"{USE_FLOOR} at every overlap)")
-            inf = f"{depth}, {acc_use}"
-        else:
-            inf = "reads no other camera at inference (by construction)"
-        add(f"- **{label(m)}**: accuracy vs Mono2 {acc}; on non-overlap pixels {non}; Dep Con {dc}; {inf}.")
-    gainers = [label(m) for m in methods if "from overlap" in from_which_overlap(diffs[m]["median.mean.abs_rel"])]
-    add("- **In one line**: " + (", ".join(gainers) + " gain(s) accuracy over Mono2 from some overlap on"
-                                 if gainers else "no mechanism is more accurate than Mono2 from any overlap on")
-        + " (median-scaled abs_rel, all pixels, beyond the paired 95 % interval).")
-    add("")
-    add("Per overlap, every paired comparison in words:\n")
-    for d in results["data"]:
-        o = d["overlap"]
-        for m in methods:
-            add(f"- overlap {o:.2f}, {label(m)} − Mono2: "
-                + "; ".join(f"{name} {_pd(diffs[m][key][o], 3, word=True)}" for key, name in KEYS))
-    add("")
-    return "\n".join(L)
+    return diffs, cuts, change
+
+
+def _reads_others(cuts: dict[float, dict], change: dict[float, float]) -> str:
+    """The verdict's clause on a network that reads the other cameras: how much cutting them moves its depth,
+    and whether its accuracy depends on them (as trained − cut per overlap: `cuts`; depth change: `change`)."""
+    used = [o for o, pd in sorted(cuts.items()) if pd["differs"] != 0 and abs(pd["mean"]) >= USE_FLOOR]
+    moved = [v for v in change.values() if math.isfinite(v)]
+    if not moved:
+        depth = "how much cutting them changes its depth was not recorded"
+    elif max(moved) < INERT_M:
+        depth = (f"**its depth barely reads the other cameras**: cutting them changes it by {min(moved):.4f} "
+                 f"to {max(moved):.4f} m on average (< {INERT_M * 100:.0f} cm: inert)")
+    else:
+        depth = (f"its depth reads the other cameras: cutting them changes it by {min(moved):.4f} to "
+                 f"{max(moved):.4f} m on average")
+    acc_use = ("and its accuracy with them differs from without (as trained − cut beyond the interval and >= "
+               f"{USE_FLOOR}) at " + ", ".join(f"{o:.2f}" for o in used) if used else
+               f"**{'and' if moved and max(moved) < INERT_M else 'but'} its accuracy does not depend on them** "
+               "(as trained − cut within the interval or below "
+               f"{USE_FLOOR} at every overlap)")
+    return f"{depth}, {acc_use}"
