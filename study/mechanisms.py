@@ -16,10 +16,9 @@ from __future__ import annotations
 
 import math
 
-from study.results import CUT, INERT_M, VERDICT_WORD, method_agg, paired_difference
+from study.results import BASELINE, CUT, INERT_M, VERDICT_WORD, method_agg, paired_difference
 from study.results import fmt_num as _num
 
-BASE = "mono2"
 #: as trained − cut (median-scaled abs_rel, all px) smaller than this is negligible even when beyond its
 #: interval: a tenth of a percent of a typical abs_rel of 0.2 (float noise of identical seeds is ~1e-5)
 USE_FLOOR = 0.0005
@@ -57,8 +56,8 @@ def from_which_overlap(diffs: dict[float, dict]) -> str:
 def format_mechanisms(results: dict, label) -> str:
     """Markdown: each method − Mono2 per overlap (accuracy, overlap / non-overlap px, Dep Con, cut) and
     the verdict lines; '' without Mono2 or a second method."""
-    methods = [m for m in results["methods"] if m != BASE]
-    if BASE not in results["methods"] or not methods:
+    methods = [m for m in results["methods"] if m != BASELINE]
+    if BASELINE not in results["methods"] or not methods:
         return ""
     evaluations = results.get("evaluations", [])
     L: list[str] = []
@@ -113,7 +112,7 @@ def _table(results: dict, methods: list[str], evaluations, label, add) -> tuple[
         for m in methods:
             cells = []
             for key, _ in KEYS:
-                pd = paired_difference(results, o, m, BASE, key)
+                pd = paired_difference(results, o, m, BASELINE, key)
                 diffs[m][key][o] = pd
                 cells.append(_pd(pd))
             if m + CUT in evaluations:

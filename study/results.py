@@ -32,6 +32,8 @@ def fmt_num(x, digits: int = 3) -> str:
     return f"{x:.{digits}f}" if isinstance(x, (int, float)) and math.isfinite(x) else "nan"
 
 
+#: the method every other one is compared with (paired differences, the "vs Mono2" columns of the report)
+BASELINE = "mono2"
 CUT = "@cut"  # method suffix of a run evaluated with its neighbours cut at inference
 ORACLE = "@oracle"  # method suffix of the ORACLE-weights yardstick of a run's bases
 INERT_M = 0.01  # a refinement whose refined depth differs from its init stage by < 1 cm on average is inert
