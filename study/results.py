@@ -16,9 +16,6 @@ from mcdp.metrics import METRIC_NAMES
 SCALE_LABEL = {"none": "metric", "median": "median", "rig_median": "rig median"}
 
 
-LOWER_BETTER = {"abs_rel", "sq_rel", "rmse", "rmse_log"}
-
-
 def _f(x) -> float:
     return float(x) if isinstance(x, (int, float)) and x is not None else float("nan")
 
