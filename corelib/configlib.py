@@ -93,14 +93,18 @@ def load_yaml_text(text: str) -> Any:
     return yaml.load(text, Loader=_Loader)
 
 
+def override_key(item: str) -> str:
+    """The dotted key of a ``key=value`` override, as `parse_overrides` reads it (before the first '=')."""
+    return item.split("=", 1)[0].strip()
+
+
 def parse_overrides(overrides: Iterable[str]) -> dict[str, Any]:
     """Parse ``a.b=value`` strings into a nested dict; values are parsed as YAML scalars/lists."""
     out: dict[str, Any] = {}
     for item in overrides:
         if "=" not in item:
             raise ConfigError(f"override {item!r} is not of the form key=value (e.g. rig.overlap=0.3)")
-        key, raw = item.split("=", 1)
-        key = key.strip()
+        key, raw = override_key(item), item.split("=", 1)[1]
         if not key or any(not part for part in key.split(".")):
             raise ConfigError(f"override {item!r} has an empty key")
         try:

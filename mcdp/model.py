@@ -290,7 +290,16 @@ class DepthModel(nn.Module):
         emit("init", torch.softmax(logits, 1), scale)
         if not self.weight_nets:
             return out
+        self._refine(out, feats, bases, logits, scale, K, T_ego_cam, mask_f, nbr, emit, rgb.device.type)
+        return out
 
+    def _refine(self, out: dict, feats: list, bases: dict, logits: torch.Tensor, scale: torch.Tensor, K: torch.Tensor,
+                T_ego_cam: torch.Tensor, mask_f: torch.Tensor, nbr: torch.Tensor, emit, device_type: str) -> None:
+        """The refinement steps: each weight network reads the target's reduced features and its neighbours',
+        warped into it with the previous stage's depth, and moves the basis weights' logits; `emit` writes
+        each refined stage into `out`. mask_f: (B*N, 1, H, W); K, T_ego_cam: (B, N, ...)."""
+        B, N = K.shape[:2]
+        BN, (H, W), n = B * N, mask_f.shape[-2:], self.n_out
         # Feature pyramid at 1/2 resolution (paper: 1/2, 1/4, 1/8 resized to 1/2), reduced by each
         # step's PyramidReduce; ego body zeroed.
         h, w = feats[0].shape[-2:]
@@ -298,8 +307,6 @@ class DepthModel(nn.Module):
         K_h = scale_intrinsics(K.reshape(BN, 3, 3), w / W, h / H).reshape(B, N, 3, 3)
         T_ego_cam = T_ego_cam.float()
         T_cam_ego = torch.linalg.inv(T_ego_cam)
-        has = (nbr >= 0).float()  # (N, 2)
-        idx = nbr.clamp(min=0)  # (N, 2)
         refine_stages = stage_names(self.cfg.refine_steps)
         for k, wnet in enumerate(self.weight_nets, start=1):
             prev = refine_stages[k - 1]
@@ -312,27 +319,40 @@ class DepthModel(nn.Module):
                 sig_h = F.interpolate(out["sig", prev, 0], size=(h, w), mode="bilinear", align_corners=False)
             depth_h = (self.to_depth(sig_h)[1] * scale.view(BN, 1, 1, 1)).detach()
             red = wnet.reduce(feats[:3]) * mask_h  # (BN, c, h, w)
-            c = red.shape[1]
-            red_src = torch.cat([red, mask_h], 1).reshape(B, N, c + 1, h, w)
-            parts, valids = [red], []
-            for slot in self.slots:
-                j = idx[:, slot]  # (N,)
-                src = red_src[:, j].reshape(BN, c + 1, h, w)
-                T_src_tgt = (T_cam_ego[:, j] @ T_ego_cam).reshape(BN, 4, 4)
-                with torch.autocast(rgb.device.type, enabled=False):  # geometry in float32 under AMP
-                    warped, valid = warp_by_depth(
-                        src.float(), depth_h.float(), K_h.reshape(BN, 3, 3).float(),
-                        K_h[:, j].reshape(BN, 3, 3).float(), T_src_tgt.float(),
-                    )
-                warped = warped.to(red.dtype)
-                valid = valid.to(red.dtype)
-                valid = valid * (warped[:, c:] > 0.99).to(valid.dtype) * has[:, slot].repeat(B).view(BN, 1, 1, 1)
-                valid = valid * mask_h
-                parts.append(warped[:, :c] * valid)
-                valids.append(valid)
+            parts, valids = self._neighbour_features(red, mask_h, depth_h, K_h, T_ego_cam, T_cam_ego, nbr,
+                                                     device_type)
             logits = logits + wnet(torch.cat(parts + valids, 1))
             emit(refine_stages[k], torch.softmax(logits, 1), scale)
-        return out
+
+    def _neighbour_features(self, red: torch.Tensor, mask_h: torch.Tensor, depth_h: torch.Tensor, K_h: torch.Tensor,
+                            T_ego_cam: torch.Tensor, T_cam_ego: torch.Tensor, nbr: torch.Tensor,
+                            device_type: str) -> tuple[list, list]:
+        """([own features, each slot's warped neighbour features], [each slot's validity]) at the feature
+        resolution: a neighbour's reduced features (and ego mask) warped into the target camera with `depth_h`
+        through the rig extrinsics; valid where it lands on the neighbour's scene pixels and a neighbour exists
+        (`nbr` -1: none, e.g. cut)."""
+        B, N = K_h.shape[:2]
+        BN, (c, h, w) = B * N, red.shape[1:]
+        has = (nbr >= 0).float()  # (N, 2)
+        idx = nbr.clamp(min=0)  # (N, 2)
+        red_src = torch.cat([red, mask_h], 1).reshape(B, N, c + 1, h, w)
+        parts, valids = [red], []
+        for slot in self.slots:
+            j = idx[:, slot]  # (N,)
+            src = red_src[:, j].reshape(BN, c + 1, h, w)
+            T_src_tgt = (T_cam_ego[:, j] @ T_ego_cam).reshape(BN, 4, 4)
+            with torch.autocast(device_type, enabled=False):  # geometry in float32 under AMP
+                warped, valid = warp_by_depth(
+                    src.float(), depth_h.float(), K_h.reshape(BN, 3, 3).float(),
+                    K_h[:, j].reshape(BN, 3, 3).float(), T_src_tgt.float(),
+                )
+            warped = warped.to(red.dtype)
+            valid = valid.to(red.dtype)
+            valid = valid * (warped[:, c:] > 0.99).to(valid.dtype) * has[:, slot].repeat(B).view(BN, 1, 1, 1)
+            valid = valid * mask_h
+            parts.append(warped[:, :c] * valid)
+            valids.append(valid)
+        return parts, valids
 
 
 class MonoDepthModel(DepthModel):

@@ -324,16 +324,7 @@ class Trainer:
         end = tc.steps if until is None else min(int(until), tc.steps)
         if start >= end:
             return {"steps": self.step, "trained": 0, "best_val": self.best_val, "losses": []}
-        sampler = StepBatchSampler(len(self.train_set), tc.batch_size, tc.seed, start, end,
-                                   rank=self.dist.rank, world=self.dist.world)
-        loader = torch.utils.data.DataLoader(
-            self.train_set,
-            batch_sampler=sampler,
-            collate_fn=collate,
-            num_workers=tc.num_workers,
-            pin_memory=self.device.type == "cuda",
-            persistent_workers=False,
-        )
+        loader = self._loader(start, end)
         self.depth.train()
         if self.pose is not None:
             self.pose.train()
@@ -351,35 +342,8 @@ class Trainer:
             for g in self.optimizer.param_groups:
                 g["lr"] = lr * g.get("lr_mult", 1.0)
             t0 = time.perf_counter()
-            outputs, losses = (self.ddp or self.system)(batch, self.step, True)
+            outputs, losses = self._step(batch)
             loss = losses["loss"]
-            if self.dist.any_true(not bool(torch.isfinite(loss)), self.device):  # every rank stops together
-                bad = {k: float(v.detach()) for k, v in losses.items() if not k.startswith("_") and v.numel() == 1}
-                last = self.run_dir / "checkpoints" / "last.pt"
-                raise TrainingDiverged(
-                    f"loss is {float(loss.detach())} at step {self.step}; terms: "
-                    + ", ".join(f"{k}={v:.4g}" for k, v in bad.items())
-                    + (f"; the last good checkpoint is {last}" if last.exists() else "")
-                    + "; try a lower train.lr or train.grad_clip=1.0"
-                )
-            self.optimizer.zero_grad(set_to_none=True)
-            self.scaler.scale(loss).backward()
-            if not self.scaler.is_enabled():  # (fp16's GradScaler skips non-finite steps itself)
-                self._check_gradients()
-            if tc.grad_clip is not None:
-                self.scaler.unscale_(self.optimizer)
-                torch.nn.utils.clip_grad_norm_(
-                    [p for g in self.optimizer.param_groups for p in g["params"]], tc.grad_clip
-                )
-            scale = self.scaler.get_scale() if self.scaler.is_enabled() else None
-            self.scaler.step(self.optimizer)
-            self.scaler.update()
-            if scale is not None:  # fp16: the scaler skips a step with non-finite gradients and lowers the scale
-                self._skipped = self._skipped + 1 if self.scaler.get_scale() < scale else 0
-                if self._skipped >= FP16_SKIP_LIMIT:
-                    raise TrainingDiverged(f"fp16: the gradients were not finite for {self._skipped} steps in a row "
-                                           f"(up to step {self.step}); the weights did not change in them"
-                                           + self._last_good() + "; try train.precision=bf16 or fp32")
             self.step += 1
             lv = self.dist.sum_([float(loss.detach())], self.device)[0] / self.dist.world  # mean over ranks
             history.append(lv)
@@ -400,17 +364,7 @@ class Trainer:
                 bar.set_postfix(loss=f"{ema:.4f}", rig_s=f"{1.0 / max(dt_step, 1e-9):.2f}/s", lr=f"{lr:.1e}")
                 bar.update(1)
             if self.step % tc.val_every == 0 or self.step == tc.steps:
-                v = self.validate()
-                if v is not None and not math.isfinite(v):
-                    raise TrainingDiverged(
-                        f"validation loss is {v} at step {self.step}; nothing of this step was saved"
-                        + self._last_good() + "; try a lower train.lr or train.grad_clip=1.0")
-                if v is not None:
-                    self.val_history.append((self.step, v))
-                    self.log.scalars({"val/loss": v}, self.step)
-                    if v < self.best_val:
-                        self.best_val = v
-                        self.save_checkpoint("best.pt", weights_only=True)
+                self._validate_and_keep_best()
             if self.step % tc.ckpt_every == 0 or self.step == end:
                 self.save_checkpoint("last.pt")
         if bar is not None:
@@ -425,6 +379,63 @@ class Trainer:
             "best_val": self.best_val,
             "depth_spread": dict(self.spread),
         }
+
+    def _loader(self, start: int, end: int) -> torch.utils.data.DataLoader:
+        """The train split's batches of steps [start, end) (this rank's share; `StepBatchSampler`)."""
+        tc = self.cfg.train
+        sampler = StepBatchSampler(len(self.train_set), tc.batch_size, tc.seed, start, end,
+                                   rank=self.dist.rank, world=self.dist.world)
+        return torch.utils.data.DataLoader(self.train_set, batch_sampler=sampler, collate_fn=collate,
+                                           num_workers=tc.num_workers, pin_memory=self.device.type == "cuda",
+                                           persistent_workers=False)
+
+    def _step(self, batch: dict) -> tuple[dict, dict]:
+        """One optimiser step on `batch` at `self.step`: (outputs, losses). TrainingDiverged on a non-finite loss
+        (on any rank) or gradient, or fp16 steps skipped `FP16_SKIP_LIMIT` times in a row."""
+        tc = self.cfg.train
+        outputs, losses = (self.ddp or self.system)(batch, self.step, True)
+        loss = losses["loss"]
+        if self.dist.any_true(not bool(torch.isfinite(loss)), self.device):  # every rank stops together
+            bad = {k: float(v.detach()) for k, v in losses.items() if not k.startswith("_") and v.numel() == 1}
+            last = self.run_dir / "checkpoints" / "last.pt"
+            raise TrainingDiverged(
+                f"loss is {float(loss.detach())} at step {self.step}; terms: "
+                + ", ".join(f"{k}={v:.4g}" for k, v in bad.items())
+                + (f"; the last good checkpoint is {last}" if last.exists() else "")
+                + "; try a lower train.lr or train.grad_clip=1.0"
+            )
+        self.optimizer.zero_grad(set_to_none=True)
+        self.scaler.scale(loss).backward()
+        if not self.scaler.is_enabled():  # (fp16's GradScaler skips non-finite steps itself)
+            self._check_gradients()
+        if tc.grad_clip is not None:
+            self.scaler.unscale_(self.optimizer)
+            torch.nn.utils.clip_grad_norm_([p for g in self.optimizer.param_groups for p in g["params"]], tc.grad_clip)
+        scale = self.scaler.get_scale() if self.scaler.is_enabled() else None
+        self.scaler.step(self.optimizer)
+        self.scaler.update()
+        if scale is not None:  # fp16: the scaler skips a step with non-finite gradients and lowers the scale
+            self._skipped = self._skipped + 1 if self.scaler.get_scale() < scale else 0
+            if self._skipped >= FP16_SKIP_LIMIT:
+                raise TrainingDiverged(f"fp16: the gradients were not finite for {self._skipped} steps in a row "
+                                       f"(up to step {self.step}); the weights did not change in them"
+                                       + self._last_good() + "; try train.precision=bf16 or fp32")
+        return outputs, losses
+
+    def _validate_and_keep_best(self) -> None:
+        """Validate at `self.step`; a lower val loss than any before is saved as best.pt. TrainingDiverged on a
+        non-finite one (nothing of this step saved)."""
+        v = self.validate()
+        if v is not None and not math.isfinite(v):
+            raise TrainingDiverged(
+                f"validation loss is {v} at step {self.step}; nothing of this step was saved"
+                + self._last_good() + "; try a lower train.lr or train.grad_clip=1.0")
+        if v is not None:
+            self.val_history.append((self.step, v))
+            self.log.scalars({"val/loss": v}, self.step)
+            if v < self.best_val:
+                self.best_val = v
+                self.save_checkpoint("best.pt", weights_only=True)
 
     def close(self) -> None:
         self.log.close()

@@ -13,7 +13,7 @@ from typing import Literal
 
 from pydantic import Field, field_validator, model_validator
 
-from corelib.configlib import ConfigError, StrictModel, config_to_dict, load_config, resolve_path
+from corelib.configlib import ConfigError, StrictModel, config_to_dict, load_config, override_key, resolve_path
 from mcdp.methods import METHODS, PAPER_METHODS, check_model
 from study.pretrain import PretrainConfig
 
@@ -128,7 +128,7 @@ class SweepConfig(StrictModel):
     @field_validator("data_overrides")
     @classmethod
     def _no_overlap_override(cls, v: list[str]) -> list[str]:
-        for key in override_keys(v):
+        for key in map(override_key, v):
             if key in ("rig.overlap", "rig.overlap_mode"):
                 raise ValueError(f"{key} is set by the sweep (use overlaps / overlap_mode), not by data_overrides")
         return v
@@ -136,17 +136,12 @@ class SweepConfig(StrictModel):
     @field_validator("train_overrides")
     @classmethod
     def _no_seed_override(cls, v: list[str]) -> list[str]:
-        for key in override_keys(v):
+        for key in map(override_key, v):
             if key == "train.seed":
                 raise ValueError("train.seed is set by the sweep (use seeds), not by train_overrides")
             if key.startswith("eval."):
                 raise ValueError(f"{key}: set evaluation settings in the sweep's eval section")
         return v
-
-
-def override_keys(items: list[str]) -> list[str]:
-    """The dotted keys of key=value override strings."""
-    return [item.split("=", 1)[0].strip() for item in items]
 
 
 def overlap_key(o: float) -> str:

@@ -32,7 +32,8 @@ from mcdp.metrics import METRIC_NAMES
 from study.plots import make_plots
 from study.mechanisms import format_mechanisms
 from study.propagation import format_propagation
-from study.results import PRIOR_LABEL, REF_LABEL, SCALE_LABEL, YARDSTICKS, method_agg, yardstick_agg, yardstick_row
+from study.results import (BASELINE, PRIOR_LABEL, REF_LABEL, SCALE_LABEL, YARDSTICKS, method_agg, yardstick_agg,
+                           yardstick_row)
 from study.results import fmt_num as _num
 
 
@@ -199,12 +200,13 @@ def _summary_section(results: dict) -> list[str]:
         add("|---|---|" + "---|" * (len(methods) + 2))
         for d in results["data"]:
             o = d["overlap"]
-            ref = method_agg(results, o, "mono2", f"{sc}.mean.abs_rel")["mean"] if "mono2" in methods else float("nan")
+            ref = (method_agg(results, o, BASELINE, f"{sc}.mean.abs_rel")["mean"] if BASELINE in methods
+                   else float("nan"))
             cells = []
             for m in methods:
                 a = method_agg(results, o, m, f"{sc}.mean.abs_rel")
                 c = _fmt(a)
-                if m != "mono2" and "mono2" in methods:
+                if m != BASELINE and BASELINE in methods:
                     c += f" ({_pct(_rel(a['mean'], ref))})"
                 cells.append(c)
             add(f"| {o:.2f} | {d['measured']['measured_mean']:.3f} | " + " | ".join(cells)
@@ -244,11 +246,11 @@ def _overlap_section(results: dict, d: dict, cams: list[str] | None) -> list[str
     add("| Method | Scale | " + " | ".join(METRIC_NAMES) + " | Δ abs_rel |")
     add("|---|---|" + "---|" * (len(METRIC_NAMES) + 1))
     for sc in ("none", "median"):
-        ref = method_agg(results, o, "mono2", f"{sc}.mean.abs_rel")["mean"]
+        ref = method_agg(results, o, BASELINE, f"{sc}.mean.abs_rel")["mean"]
         for m in methods:
             cells = [_fmt(method_agg(results, o, m, f"{sc}.mean.{k}")) for k in METRIC_NAMES]
             abs_rel = method_agg(results, o, m, f"{sc}.mean.abs_rel")["mean"]
-            delta = "—" if m == "mono2" else _pct(_rel(abs_rel, ref))
+            delta = "—" if m == BASELINE else _pct(_rel(abs_rel, ref))
             add(f"| {label(m)} | {SCALE_LABEL[sc]} | " + " | ".join(cells) + f" | {delta} |")
         for which, ylabel, _ in YARDSTICKS:
             cells = [_fmt(yardstick_agg(results, o, f"{sc}.mean.{k}", which)) for k in METRIC_NAMES]
@@ -259,11 +261,11 @@ def _overlap_section(results: dict, d: dict, cams: list[str] | None) -> list[str
         add("**Table 2 layout: Dep Con per camera** (unscaled predictions, lower is better; Δ = mean vs Mono2)\n")
         add("| Method | " + " | ".join(cams) + " | mean | Δ mean |")
         add("|---|" + "---|" * (len(cams) + 2))
-        ref = method_agg(results, o, "mono2", "dep_con.mean")["mean"]
+        ref = method_agg(results, o, BASELINE, "dep_con.mean")["mean"]
         for m in methods:
             cells = [_fmt(method_agg(results, o, m, f"dep_con.camera.{c}")) for c in cams]
             a = method_agg(results, o, m, "dep_con.mean")
-            delta = "—" if m == "mono2" else _pct(_rel(a["mean"], ref))
+            delta = "—" if m == BASELINE else _pct(_rel(a["mean"], ref))
             add(f"| {label(m)} | " + " | ".join(cells) + f" | {_fmt(a)} | {delta} |")
         a = yardstick_agg(results, o, "dep_con.mean")
         add(f"| *{REF_LABEL}* | " + " | ".join(_fmt(yardstick_agg(results, o, f"dep_con.camera.{c}")) for c in cams)
@@ -273,13 +275,13 @@ def _overlap_section(results: dict, d: dict, cams: list[str] | None) -> list[str
     add("| Method | Scale | overlap | non-overlap | Δ overlap | Δ non-overlap |")
     add("|---|---|---|---|---|---|")
     for sc in ("none", "median"):
-        r_ov = method_agg(results, o, "mono2", f"{sc}.overlap.abs_rel")["mean"]
-        r_no = method_agg(results, o, "mono2", f"{sc}.non_overlap.abs_rel")["mean"]
+        r_ov = method_agg(results, o, BASELINE, f"{sc}.overlap.abs_rel")["mean"]
+        r_no = method_agg(results, o, BASELINE, f"{sc}.non_overlap.abs_rel")["mean"]
         for m in methods:
             a_ov = method_agg(results, o, m, f"{sc}.overlap.abs_rel")
             a_no = method_agg(results, o, m, f"{sc}.non_overlap.abs_rel")
-            d_ov = "—" if m == "mono2" else _pct(_rel(a_ov["mean"], r_ov))
-            d_no = "—" if m == "mono2" else _pct(_rel(a_no["mean"], r_no))
+            d_ov = "—" if m == BASELINE else _pct(_rel(a_ov["mean"], r_ov))
+            d_no = "—" if m == BASELINE else _pct(_rel(a_no["mean"], r_no))
             add(f"| {label(m)} | {SCALE_LABEL[sc]} | {_fmt(a_ov)} | {_fmt(a_no)} | {d_ov} | {d_no} |")
         for which, ylabel, _ in YARDSTICKS:
             a_ov = yardstick_agg(results, o, f"{sc}.overlap.abs_rel", which)
@@ -324,7 +326,7 @@ def _timing_section(results: dict) -> list[str]:
 
 def _verdicts(results: dict) -> str:
     methods = results["methods"]
-    if "mono2" not in methods:
+    if BASELINE not in methods:
         return "- Mono2 is not part of this sweep: no comparison.\n"
     if len(methods) == 1:
         return "- Only Mono2 is part of this sweep: no comparison.\n"
@@ -332,11 +334,11 @@ def _verdicts(results: dict) -> str:
     for d in results["data"]:
         o = d["overlap"]
         for sc in ("none", "median"):
-            ref = method_agg(results, o, "mono2", f"{sc}.mean.abs_rel")["mean"]
-            ref_no = method_agg(results, o, "mono2", f"{sc}.non_overlap.abs_rel")["mean"]
+            ref = method_agg(results, o, BASELINE, f"{sc}.mean.abs_rel")["mean"]
+            ref_no = method_agg(results, o, BASELINE, f"{sc}.non_overlap.abs_rel")["mean"]
             beat, lost = [], []
             for m in methods:
-                if m == "mono2":
+                if m == BASELINE:
                     continue
                 v = method_agg(results, o, m, f"{sc}.mean.abs_rel")["mean"]
                 v_no = method_agg(results, o, m, f"{sc}.non_overlap.abs_rel")["mean"]

@@ -16,9 +16,6 @@ from mcdp.metrics import METRIC_NAMES
 SCALE_LABEL = {"none": "metric", "median": "median", "rig_median": "rig median"}
 
 
-LOWER_BETTER = {"abs_rel", "sq_rel", "rmse", "rmse_log"}
-
-
 def _f(x) -> float:
     return float(x) if isinstance(x, (int, float)) and x is not None else float("nan")
 
@@ -56,6 +53,8 @@ def verdict_word(pd: dict, floor: float = 0.0) -> str:
     return VERDICT_WORD[pd["differs"]]
 
 
+#: the method every other one is compared with (paired differences, the "vs Mono2" columns of the report)
+BASELINE = "mono2"
 CUT = "@cut"  # method suffix of a run evaluated with its neighbours cut at inference
 ORACLE = "@oracle"  # method suffix of the ORACLE-weights yardstick of a run's bases
 INERT_M = 0.01  # a refinement whose refined depth differs from its init stage by < 1 cm on average is inert

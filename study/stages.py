@@ -7,6 +7,7 @@ from __future__ import annotations
 import json
 import math
 import time
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -210,96 +211,137 @@ def run_dir_for(sweep_dir: Path, overlap: float, method: str, seed: int) -> Path
 def run_stage(cfg: SweepConfig, overlap: float, data: dict, method: str, seed: int, sweep_dir: Path,
               counters: Counters, log, progress: bool, init_from: str | None = None) -> dict:
     """Train (or reuse / resume) and evaluate one (overlap, method, seed); returns its result row."""
-    from mcdp.predict import run_record
-    from mcdp.runs import RunError, rig_differences
-    from mcdp.trainer import Trainer, TrainingDiverged
     from synth.dataset import open_dataset
 
     rcfg, preset = run_config_for(cfg, method, seed, init_from)
     rhash = config_hash(rcfg)
     run_dir = run_dir_for(sweep_dir, overlap, method, seed)
-    status_path = run_dir / STATUS
-    status = _read_json(status_path) or {}
-    tag = f"[sweep] overlap {overlap:.2f} {method} seed {seed}"
+    run = _Run(cfg, overlap, data, method, seed, rcfg, rhash, run_dir, _read_json(run_dir / STATUS) or {},
+               f"[sweep] overlap {overlap:.2f} {method} seed {seed}", counters, log, progress)
     row: dict[str, Any] = {"overlap": overlap, "method": method, "seed": seed, "run_dir": str(run_dir),
                            "preset": str(preset), "run_config_hash": rhash, "status": "ok"}
-    ds = open_dataset(data["path"])
+    run.ds = open_dataset(data["path"])
+    if not _train(run, row):
+        return row  # diverged: the row says so
+    metrics, metrics_cut, key = _evaluate(run, row)
+    if not cfg.keep_last:
+        run.status = _remove_last(run_dir, run.status, run.status_path)
+    _fill_row(row, run.status, metrics, metrics_cut, key)
+    log(_row_line(run.tag, row))
+    return row
 
-    # ---- train
+
+@dataclass
+class _Run:
+    """One run of `run_stage`: what it is, its resolved config and hash, its folder and status record."""
+    cfg: SweepConfig
+    overlap: float
+    data: dict
+    method: str
+    seed: int
+    rcfg: Any
+    rhash: str
+    run_dir: Path
+    status: dict
+    tag: str
+    counters: Counters
+    log: Any
+    progress: bool
+    ds: Any = None
+
+    @property
+    def status_path(self) -> Path:
+        return self.run_dir / STATUS
+
+
+def _train(run: _Run, row: dict) -> bool:
+    """Train the run (or skip a trained one, or resume); False if it diverged (the row and status say so)."""
+    from mcdp.runs import RunError
+    from mcdp.trainer import Trainer, TrainingDiverged
+
+    status, data, rhash, run_dir, tag = run.status, run.data, run.rhash, run.run_dir, run.tag
     if status.get("trained") and status.get("run_config_hash") == rhash and status.get("data_hash") == data["config_hash"]:
-        counters.bump("train_skipped")
+        run.counters.bump("train_skipped")
         row.update(train_s=status.get("train_s", float("nan")), train_skipped=True, steps=status.get("steps"))
-        log(f"{tag}: trained already ({status.get('steps')} steps), skipped")
-    else:
-        if status.get("data_hash") not in (None, data["config_hash"]):
-            raise ConfigError(f"{run_dir} was trained on another dataset; delete it or use a new --out")
-        if status.get("last_removed") and not (run_dir / "checkpoints" / "last.pt").exists():
-            raise ConfigError(f"{run_dir}: the resolved config of {method} changed since this run was trained, and "
-                              "its checkpoints/last.pt was removed after evaluation (keep_last: false), so it "
-                              f"cannot resume; delete {run_dir} to retrain it, or use a new --out")
-        t0 = time.perf_counter()
-        try:
-            trainer = Trainer(rcfg, ds, run_dir, progress=progress)
-        except RunError as exc:
-            raise RunError(f"{exc}\n(sweep: the resolved config of {method} changed since this run was trained, "
-                           f"through the sweep preset, its overrides or new code defaults; delete {run_dir} "
-                           "to retrain it, or use a new --out)") from None
-        resumed_at = trainer.step
-        log(f"{tag}: training {rcfg.train.steps} steps"
+        run.log(f"{tag}: trained already ({status.get('steps')} steps), skipped")
+        return True
+    if status.get("data_hash") not in (None, data["config_hash"]):
+        raise ConfigError(f"{run_dir} was trained on another dataset; delete it or use a new --out")
+    if status.get("last_removed") and not (run_dir / "checkpoints" / "last.pt").exists():
+        raise ConfigError(f"{run_dir}: the resolved config of {run.method} changed since this run was trained, and "
+                          "its checkpoints/last.pt was removed after evaluation (keep_last: false), so it "
+                          f"cannot resume; delete {run_dir} to retrain it, or use a new --out")
+    t0 = time.perf_counter()
+    try:
+        trainer = Trainer(run.rcfg, run.ds, run_dir, progress=run.progress)
+    except RunError as exc:
+        raise RunError(f"{exc}\n(sweep: the resolved config of {run.method} changed since this run was trained, "
+                       f"through the sweep preset, its overrides or new code defaults; delete {run_dir} "
+                       "to retrain it, or use a new --out)") from None
+    resumed_at = trainer.step
+    run.log(f"{tag}: training {run.rcfg.train.steps} steps"
             + (f" (resuming at step {resumed_at})" if resumed_at else "") + f" -> {run_dir}")
-        try:
-            summary = trainer.train()
-        except TrainingDiverged as exc:
-            log(f"{tag}: TRAINING DIVERGED: {exc}")
-            counters.bump("diverged")
-            _write_json(status_path, {**status, "run_config_hash": rhash, "data_hash": data["config_hash"],
+    try:
+        summary = trainer.train()
+    except TrainingDiverged as exc:
+        run.log(f"{tag}: TRAINING DIVERGED: {exc}")
+        run.counters.bump("diverged")
+        _write_json(run.status_path, {**status, "run_config_hash": rhash, "data_hash": data["config_hash"],
                                       "trained": False, "diverged": str(exc)})
-            row.update(status="diverged", error=str(exc), train_s=time.perf_counter() - t0, train_skipped=False)
-            return row
-        finally:
-            trainer.close()
-        train_s = time.perf_counter() - t0  # this invocation only (an interrupted earlier part is not counted)
-        counters.bump("trained")
-        if resumed_at:
-            counters.bump("train_resumed")
-        status = {"run_config_hash": rhash, "data_hash": data["config_hash"], "trained": True,
+        row.update(status="diverged", error=str(exc), train_s=time.perf_counter() - t0, train_skipped=False)
+        return False
+    finally:
+        trainer.close()
+    train_s = time.perf_counter() - t0  # this invocation only (an interrupted earlier part is not counted)
+    run.counters.bump("trained")
+    if resumed_at:
+        run.counters.bump("train_resumed")
+    run.status = {"run_config_hash": rhash, "data_hash": data["config_hash"], "trained": True,
                   "steps": summary["steps"], "train_s": train_s, "best_val": summary["best_val"]}
-        _write_json(status_path, status)
-        row.update(train_s=train_s, train_skipped=False, steps=summary["steps"])
+    _write_json(run.status_path, run.status)
+    row.update(train_s=train_s, train_skipped=False, steps=summary["steps"])
+    return True
 
-    # ---- eval
+
+def _evaluate(run: _Run, row: dict) -> tuple[dict, dict | None, str]:
+    """Evaluate the run's checkpoint (or reuse the metrics of the same eval key); (metrics, metrics_cut, key)."""
+    from mcdp.predict import run_record
+    from mcdp.runs import find_checkpoint, rig_differences
+
+    cfg, run_dir, status = run.cfg, run.run_dir, run.status
     metrics_path = run_dir / f"metrics_{SPLIT}.json"
     cut_path = run_dir / f"metrics_{SPLIT}_cut.json"
     ecfg = eval_config_for(cfg)
-    from mcdp.runs import find_checkpoint
-
     ckpt_path = find_checkpoint(run_dir, cfg.checkpoint)
-    key = _eval_key(rhash, int(status.get("steps", -1)), config_to_dict(cfg.eval), data["config_hash"],
+    key = _eval_key(run.rhash, int(status.get("steps", -1)), config_to_dict(cfg.eval), run.data["config_hash"],
                     cfg.checkpoint, ckpt_path.name)
     metrics = _read_json(metrics_path)
     metrics_cut = _read_json(cut_path)
     if metrics is not None and metrics.get("sweep", {}).get("eval_key") == key and status.get("eval_key") == key:
-        counters.bump("eval_skipped")
+        run.counters.bump("eval_skipped")
         row.update(eval_s=status.get("eval_s", float("nan")), eval_skipped=True)
-        log(f"{tag}: evaluated already, skipped")
-    else:
-        t0 = time.perf_counter()
-        metrics, metrics_cut = evaluate_run(cfg, run_dir, ds, ecfg, progress, log, tag)
-        metrics["run"] = run_record(metrics["_predictor"], run_dir, data["path"], rig_differences(run_dir, ds))
-        metrics.pop("_predictor")
-        metrics["sweep"] = {"eval_key": key, "overlap": overlap, "method": method, "seed": seed}
-        if metrics_cut is not None:
-            metrics_cut["sweep"] = {**metrics["sweep"], "cut": True}
-            _write_json(cut_path, metrics_cut)
-        _write_json(metrics_path, metrics)  # last: it names the eval key that says both are complete
-        eval_s = time.perf_counter() - t0
-        status = {**status, "eval_key": key, "eval_s": eval_s, "checkpoint": metrics["run"]["checkpoint"],
+        run.log(f"{run.tag}: evaluated already, skipped")
+        return metrics, metrics_cut, key
+    t0 = time.perf_counter()
+    metrics, metrics_cut = evaluate_run(cfg, run_dir, run.ds, ecfg, run.progress, run.log, run.tag)
+    metrics["run"] = run_record(metrics["_predictor"], run_dir, run.data["path"], rig_differences(run_dir, run.ds))
+    metrics.pop("_predictor")
+    metrics["sweep"] = {"eval_key": key, "overlap": run.overlap, "method": run.method, "seed": run.seed}
+    if metrics_cut is not None:
+        metrics_cut["sweep"] = {**metrics["sweep"], "cut": True}
+        _write_json(cut_path, metrics_cut)
+    _write_json(metrics_path, metrics)  # last: it names the eval key that says both are complete
+    eval_s = time.perf_counter() - t0
+    run.status = {**status, "eval_key": key, "eval_s": eval_s, "checkpoint": metrics["run"]["checkpoint"],
                   "checkpoint_step": metrics["run"]["step"]}
-        _write_json(status_path, status)
-        counters.bump("evaluated")
-        row.update(eval_s=eval_s, eval_skipped=False)
-    if not cfg.keep_last:
-        status = _remove_last(run_dir, status, status_path)
+    _write_json(run.status_path, run.status)
+    run.counters.bump("evaluated")
+    row.update(eval_s=eval_s, eval_skipped=False)
+    return metrics, metrics_cut, key
+
+
+def _fill_row(row: dict, status: dict, metrics: dict, metrics_cut: dict | None, key: str) -> None:
+    """The row's checkpoint and the numbers the report reads: every stage's, the cut's (of this eval key)."""
     row["checkpoint"] = status.get("checkpoint")
     row["checkpoint_step"] = status.get("checkpoint_step")
     row["oracle"] = bool(metrics.get("run", {}).get("oracle", False))
@@ -312,17 +354,21 @@ def run_stage(cfg: SweepConfig, overlap: float, data: dict, method: str, seed: i
     if metrics_cut is not None and metrics_cut.get("sweep", {}).get("eval_key") == key:
         row["metrics_cut"] = summarize_metrics(metrics_cut)
         row["refinement_cut"] = metrics_cut.get("refinement")
+
+
+def _row_line(tag: str, row: dict) -> str:
+    """The run's log line: abs_rel, Dep Con, how much the refinement acted, the cut, the ORACLE weights."""
     m = row["metrics"]
     r = row["refinement"] or {}
-    log(f"{tag}: abs_rel metric {m['none']['mean']['abs_rel']:.4f}, median {m['median']['mean']['abs_rel']:.4f}, "
-        f"dep_con {m['dep_con']['mean']:.4f}"
-        + (f"; refinement |w - 1/n| {r['weight_move']:.4f}, |refined - init| {r['depth_change_m']:.3f} m"
-           if r.get("weight_move") == r.get("weight_move") and "weight_move" in r else "")
-        + (f"; cut median {row['metrics_cut']['median']['mean']['abs_rel']:.4f}, |trained - cut| "
-           f"{(row.get('refinement_cut') or {}).get('cut_change_m', float('nan')):.4f} m" if "metrics_cut" in row else "")
-        + (f"; ORACLE weights median {row['metrics_oracle']['median']['mean']['abs_rel']:.4f}"
-           if "metrics_oracle" in row else ""))
-    return row
+    return (f"{tag}: abs_rel metric {m['none']['mean']['abs_rel']:.4f}, median {m['median']['mean']['abs_rel']:.4f}, "
+            f"dep_con {m['dep_con']['mean']:.4f}"
+            + (f"; refinement |w - 1/n| {r['weight_move']:.4f}, |refined - init| {r['depth_change_m']:.3f} m"
+               if r.get("weight_move") == r.get("weight_move") and "weight_move" in r else "")
+            + (f"; cut median {row['metrics_cut']['median']['mean']['abs_rel']:.4f}, |trained - cut| "
+               f"{(row.get('refinement_cut') or {}).get('cut_change_m', float('nan')):.4f} m"
+               if "metrics_cut" in row else "")
+            + (f"; ORACLE weights median {row['metrics_oracle']['median']['mean']['abs_rel']:.4f}"
+               if "metrics_oracle" in row else ""))
 
 
 def evaluate_run(cfg: SweepConfig, run_dir: Path, ds, ecfg, progress: bool, log, tag: str) -> tuple[dict, dict | None]:

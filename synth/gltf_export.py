@@ -24,7 +24,6 @@ Example::
 """
 from __future__ import annotations
 
-import json
 import time
 from pathlib import Path
 
@@ -185,8 +184,3 @@ def export_gltf(dataset: str | Path, out: str | Path, progress: bool = False) ->
         return {"out": str(out), "sequences": len(ds.sequences), **total, "seconds": time.perf_counter() - t0}
     finally:
         lock.release()
-
-
-def load_poses(path: str | Path) -> dict:
-    """scene.json of an export (for readers of the export)."""
-    return json.loads(Path(path).read_text())

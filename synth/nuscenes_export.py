@@ -33,7 +33,6 @@ from __future__ import annotations
 import datetime as _dt
 import hashlib
 import json
-import math
 import os
 import shutil
 from pathlib import Path
@@ -46,6 +45,7 @@ from corelib.rundir import lock_folder
 from synth.dataset import is_plain_name, open_dataset
 from synth.files import DatasetError, read_json, read_png, write_json, write_png
 from synth.lidar import LidarConfig, luma, simulate_sweep
+from synth.nuscenes_tables import rotation_to_quaternion
 
 FORMAT = "mcdp-synth-nuscenes-export"
 FORMAT_VERSION = 1
@@ -71,29 +71,6 @@ class ExportError(RuntimeError):
 
 
 # ----------------------------------------------------------------------------- conventions
-
-def rotation_to_quaternion(R: np.ndarray) -> list[float]:
-    """Unit quaternion [w, x, y, z] (nuScenes / pyquaternion order) of a 3x3 rotation, w >= 0."""
-    R = np.asarray(R, np.float64)
-    tr = R[0, 0] + R[1, 1] + R[2, 2]
-    if tr > 0:
-        s = 2.0 * math.sqrt(tr + 1.0)
-        q = [0.25 * s, (R[2, 1] - R[1, 2]) / s, (R[0, 2] - R[2, 0]) / s, (R[1, 0] - R[0, 1]) / s]
-    elif R[0, 0] > R[1, 1] and R[0, 0] > R[2, 2]:
-        s = 2.0 * math.sqrt(1.0 + R[0, 0] - R[1, 1] - R[2, 2])
-        q = [(R[2, 1] - R[1, 2]) / s, 0.25 * s, (R[0, 1] + R[1, 0]) / s, (R[0, 2] + R[2, 0]) / s]
-    elif R[1, 1] > R[2, 2]:
-        s = 2.0 * math.sqrt(1.0 + R[1, 1] - R[0, 0] - R[2, 2])
-        q = [(R[0, 2] - R[2, 0]) / s, (R[0, 1] + R[1, 0]) / s, 0.25 * s, (R[1, 2] + R[2, 1]) / s]
-    else:
-        s = 2.0 * math.sqrt(1.0 + R[2, 2] - R[0, 0] - R[1, 1])
-        q = [(R[1, 0] - R[0, 1]) / s, (R[0, 2] + R[2, 0]) / s, (R[1, 2] + R[2, 1]) / s, 0.25 * s]
-    q = np.asarray(q)
-    q = q / np.linalg.norm(q)
-    if q[0] < 0:
-        q = -q
-    return [float(x) for x in q]
-
 
 def _check_rigid(T: np.ndarray, where: str) -> np.ndarray:
     T = np.asarray(T, np.float64)
@@ -203,68 +180,123 @@ def export_nuscenes(dataset: str | Path, out: str | Path, version: str = DEFAULT
                     progress: bool = False) -> dict:
     """Write the nuScenes dataroot `out` from the synth dataset `dataset`; returns a summary dict.
     `lidar=None` exports cameras only (no LIDAR_TOP)."""
-    src, out = Path(dataset), Path(out)
-    if not is_plain_name(version) or version in _OWNED or version.endswith(".partial"):
-        raise ExportError(f"--version {version!r} is not a plain folder name (letters, digits, . _ -)")
-    if not 1 <= int(jpeg_quality) <= 100:
-        raise ExportError(f"jpeg quality {jpeg_quality} is not in 1..100")
+    ex = _Export(Path(dataset), Path(out), version, lidar, jpeg_quality)  # the source checked; nothing written
+    _prepare_output(ex.out, ex.cfg_hash, version, clean=False)  # refuse a foreign folder before writing a byte
+    ex.out.mkdir(parents=True, exist_ok=True)
+    lock = lock_folder(ex.out, LOCK)  # a second export into `out` is refused, naming this pid
     try:
-        ds = open_dataset(src)
-    except DatasetError as exc:
-        raise ExportError(str(exc)) from None
-    if src.resolve() == out.resolve() or out.resolve().is_relative_to(src.resolve()):
-        raise ExportError(f"{out}: inside the source dataset {src}; choose a folder outside it")
-    if not ds.has_depth and lidar is not None:
-        raise ExportError(f"{src / 'manifest.json'}: dataset has no depth; export with --no-lidar")
-    chmap = channel_map(ds.cameras)
-    cfg_hash = str(ds.manifest.get("config_hash") or "")
-    if not cfg_hash:
-        raise ExportError(f"{src / 'manifest.json'}: no config_hash")
-    fps = ds.fps
-    seqs = ds.sequences
-    splits = {s: ds.split(s) for s in ("train", "val", "test") if s in ds.manifest.get("splits", {})}
-    split_of = {q: s for s, qs in splits.items() for q in qs}
+        _prepare_output(ex.out, ex.cfg_hash, version)  # under the lock: remove what a previous export wrote
+        return ex.run(progress)
+    finally:
+        lock.release()
 
-    _prepare_output(out, cfg_hash, version, clean=False)  # refuse a foreign folder before writing a byte
-    out.mkdir(parents=True, exist_ok=True)
-    lock = lock_folder(out, LOCK)  # a second export into `out` is refused, naming this pid
-    try:
-        _prepare_output(out, cfg_hash, version)  # under the lock: remove what a previous export wrote
+
+class _Export:
+    """One export: the source's checks (constructor), then `run`: the marker, the static rig (sensors,
+    calibration, masks, map), every sequence's frames (JPEG, depth copy, LiDAR sweep, table rows), and the
+    tables last."""
+
+    def __init__(self, src: Path, out: Path, version: str, lidar: LidarConfig | None, jpeg_quality: int) -> None:
+        if not is_plain_name(version) or version in _OWNED or version.endswith(".partial"):
+            raise ExportError(f"--version {version!r} is not a plain folder name (letters, digits, . _ -)")
+        if not 1 <= int(jpeg_quality) <= 100:
+            raise ExportError(f"jpeg quality {jpeg_quality} is not in 1..100")
+        try:
+            ds = open_dataset(src)
+        except DatasetError as exc:
+            raise ExportError(str(exc)) from None
+        if src.resolve() == out.resolve() or out.resolve().is_relative_to(src.resolve()):
+            raise ExportError(f"{out}: inside the source dataset {src}; choose a folder outside it")
+        if not ds.has_depth and lidar is not None:
+            raise ExportError(f"{src / 'manifest.json'}: dataset has no depth; export with --no-lidar")
+        self.chmap = channel_map(ds.cameras)
+        self.cfg_hash = str(ds.manifest.get("config_hash") or "")
+        if not self.cfg_hash:
+            raise ExportError(f"{src / 'manifest.json'}: no config_hash")
+        self.src, self.out, self.ds, self.version, self.lidar, self.jpeg_quality = \
+            src, out, ds, version, lidar, jpeg_quality
+        self.fps = ds.fps
+        self.seqs = ds.sequences
+        self.splits = {s: ds.split(s) for s in ("train", "val", "test") if s in ds.manifest.get("splits", {})}
+        self.split_of = {q: s for s, qs in self.splits.items() for q in qs}
+        self.tok = _Tokens(self.cfg_hash)
+        self.logs, self.scenes, self.samples, self.sample_data, self.ego_poses = [], [], [], [], []
+        self.sd_index: dict[str, dict] = {}
+        self.n_points: list[int] = []
+
+    def run(self, progress: bool) -> dict:
+        ds, out, tok = self.ds, self.out, self.tok
         (out / EXPORT_DIR).mkdir(exist_ok=True)
-        tok = _Tokens(cfg_hash)
-        marker = {"format": FORMAT, "format_version": FORMAT_VERSION, "complete": False, "version": version,
-                  "source": {"path": str(src.resolve()), "config_hash": cfg_hash,
+        marker = {"format": FORMAT, "format_version": FORMAT_VERSION, "complete": False, "version": self.version,
+                  "source": {"path": str(self.src.resolve()), "config_hash": self.cfg_hash,
                              "generator_version": ds.manifest.get("generator_version"), "seed": ds.manifest.get("seed")}}
         write_json(out / MARKER, marker)
+        sensors, calibrated = self._calibration()
+        mask_files = self._masks()
+        # placeholder map
+        map_token = tok("map", "semantic_prior")
+        (out / "maps").mkdir(exist_ok=True)
+        write_png(out / "maps" / f"{map_token}.png", np.zeros((8, 8), np.uint8))
+        for ch in self.channels:
+            (out / "samples" / ch).mkdir(parents=True, exist_ok=True)
+            if ch != LIDAR_CHANNEL:
+                (out / EXPORT_DIR / "depth" / ch).mkdir(parents=True, exist_ok=True)
+        frames_total, bar = sum(ds.n_frames(q) for q in self.seqs), None
+        if progress:
+            from tqdm import tqdm
+            bar = tqdm(total=frames_total, desc="export", unit="frame")
+        for si, seq in enumerate(self.seqs):
+            self._sequence(si, seq, bar)
+        if bar is not None:
+            bar.close()
+        tables = {
+            "category": [], "attribute": [], "visibility": [], "instance": [], "sample_annotation": [],
+            "sensor": sensors, "calibrated_sensor": calibrated, "ego_pose": self.ego_poses, "log": self.logs,
+            "scene": self.scenes, "sample": self.samples, "sample_data": self.sample_data,
+            "map": [{"token": map_token, "log_tokens": [lg["token"] for lg in self.logs], "category": "semantic_prior",
+                     "filename": f"maps/{map_token}.png"}],
+        }
+        self._finish(marker, mask_files, tables)
+        n_points = self.n_points
+        return {"out": str(out), "version": self.version, "scenes": len(self.scenes), "samples": len(self.samples),
+                "sample_data": len(self.sample_data), "channels": self.channels,
+                "lidar_points_per_sweep": None if self.lidar is None else float(np.mean(n_points))}
 
-        # sensors and calibration (static rig)
+    def _calibration(self) -> tuple[list[dict], list[dict]]:
+        """The sensor and calibrated_sensor records of the static rig (+ LIDAR_TOP); sets `cs_token` and
+        `channels` (the cameras' in rig order, then LIDAR_TOP)."""
         sensors, calibrated = [], []
-        cs_token: dict[str, str] = {}
-        for cam in ds.cameras:
-            ch = chmap[cam.name]
-            T = _check_rigid(cam.T_ego_cam, f"{src / 'rig.json'} camera {cam.name} T_ego_cam")
+        self.cs_token: dict[str, str] = {}
+        tok, lidar = self.tok, self.lidar
+        for cam in self.ds.cameras:
+            ch = self.chmap[cam.name]
+            T = _check_rigid(cam.T_ego_cam, f"{self.src / 'rig.json'} camera {cam.name} T_ego_cam")
             st, ct = tok("sensor", ch), tok("calibrated_sensor", ch)
             sensors.append({"token": st, "channel": ch, "modality": "camera"})
             calibrated.append({"token": ct, "sensor_token": st, "translation": [float(x) for x in T[:3, 3]],
                                "rotation": rotation_to_quaternion(T[:3, :3]),
                                "camera_intrinsic": [[float(x) for x in row] for row in cam.K]})
-            cs_token[ch] = ct
-        channels = [chmap[c.name] for c in ds.cameras]
+            self.cs_token[ch] = ct
+        self.channels = [self.chmap[c.name] for c in self.ds.cameras]
         if lidar is not None:
             T = lidar.T_ego_lidar()
             st, ct = tok("sensor", LIDAR_CHANNEL), tok("calibrated_sensor", LIDAR_CHANNEL)
             sensors.append({"token": st, "channel": LIDAR_CHANNEL, "modality": "lidar"})
             calibrated.append({"token": ct, "sensor_token": st, "translation": [float(x) for x in T[:3, 3]],
                                "rotation": rotation_to_quaternion(T[:3, :3]), "camera_intrinsic": []})
-            cs_token[LIDAR_CHANNEL] = ct
-            channels.append(LIDAR_CHANNEL)
+            self.cs_token[LIDAR_CHANNEL] = ct
+            self.channels.append(LIDAR_CHANNEL)
+        return sensors, calibrated
 
-        # masks
+    def _masks(self) -> dict[str, str]:
+        """Copy the self-occlusion masks (checked against the rig); sets `masks` (scene = True, for the LiDAR);
+        returns the channel -> file map of the marker."""
+        ds, out = self.ds, self.out
         (out / EXPORT_DIR / "masks").mkdir(parents=True, exist_ok=True)
-        masks: dict[str, np.ndarray] = {}
+        self.masks: dict[str, np.ndarray] = {}
         mask_files = {}
         for cam in ds.cameras:
-            ch = chmap[cam.name]
+            ch = self.chmap[cam.name]
             try:
                 m = read_png(ds.inside(ds.root / "masks" / f"{cam.name}.png"), gray=True)
             except DatasetError as exc:
@@ -272,137 +304,127 @@ def export_nuscenes(dataset: str | Path, out: str | Path, version: str = DEFAULT
             if m.shape != (cam.height, cam.width):
                 raise ExportError(f"{ds.root / 'masks' / (cam.name + '.png')}: {m.shape[1]}x{m.shape[0]}, "
                                   f"rig.json says {cam.width}x{cam.height}")
-            masks[cam.name] = m > 127
+            self.masks[cam.name] = m > 127
             write_png(out / EXPORT_DIR / "masks" / f"{ch}.png", m)
             mask_files[ch] = f"{EXPORT_DIR}/masks/{ch}.png"
+        return mask_files
 
-        # placeholder map
-        map_token = tok("map", "semantic_prior")
-        (out / "maps").mkdir(exist_ok=True)
-        write_png(out / "maps" / f"{map_token}.png", np.zeros((8, 8), np.uint8))
+    def _sequence(self, si: int, seq: str, bar) -> None:
+        """The `si`-th sequence: its log, samples, every frame's files and records, its scene."""
+        ds, tok, fps = self.ds, self.tok, self.fps
+        info = ds.manifest["sequences"][seq]
+        family = str((info.get("scene") or {}).get("family", "synth"))
+        n = ds.n_frames(seq)
+        ego_path = ds.root / seq / "ego.json"
+        try:
+            ego = ds.ego(seq)
+        except DatasetError as exc:
+            raise ExportError(str(exc)) from None
+        if len(ego) != n:
+            raise ExportError(f"{ego_path}: {len(ego)} frames, the manifest says {n}")
+        log_token, scene_token = tok("log", seq), tok("scene", seq)
+        t0 = timestamp_us(si, 0, fps)
+        date = _dt.datetime.fromtimestamp(t0 / 1e6, _dt.timezone.utc).strftime("%Y-%m-%d")
+        self.logs.append({"token": log_token, "logfile": seq, "vehicle": VEHICLE, "date_captured": date,
+                          "location": f"synth-{family}"})
+        sample_tokens = [tok("sample", seq, f) for f in range(n)]
+        sd_tokens = {ch: [tok("sample_data", seq, ch, f) for f in range(n)] for ch in self.channels}
+        for f in range(n):
+            fr = ego[f]
+            ts = timestamp_us(si, f, fps)
+            if abs(float(fr.get("timestamp_s", f / fps)) - f / fps) > 1e-6:
+                raise ExportError(f"{ego_path}: frame {f} timestamp_s {fr.get('timestamp_s')} is not frame / fps "
+                                  f"= {f / fps}")
+            T_we = _check_rigid(fr.get("T_world_ego"), f"{ego_path} frame {f} T_world_ego")
+            self.samples.append({"token": sample_tokens[f], "timestamp": ts, "scene_token": scene_token,
+                                 "prev": sample_tokens[f - 1] if f > 0 else "",
+                                 "next": sample_tokens[f + 1] if f + 1 < n else ""})
+            pose = {"translation": [float(x) for x in T_we[:3, 3]], "rotation": rotation_to_quaternion(T_we[:3, :3]),
+                    "timestamp": ts}
+            self._frame(seq, f, n, ts, sample_tokens[f], sd_tokens, pose)
+            if bar is not None:
+                bar.update(1)
+        desc = f"mcdp-synth {family}, {info.get('time_of_day', '?')}, split {self.split_of.get(seq, '-')}"
+        self.scenes.append({"token": scene_token, "name": seq, "description": desc, "log_token": log_token,
+                            "nbr_samples": n, "first_sample_token": sample_tokens[0],
+                            "last_sample_token": sample_tokens[-1]})
 
-        for ch in channels:
-            (out / "samples" / ch).mkdir(parents=True, exist_ok=True)
-            if ch != LIDAR_CHANNEL:
-                (out / EXPORT_DIR / "depth" / ch).mkdir(parents=True, exist_ok=True)
-
-        logs, scenes, samples, sample_data, ego_poses = [], [], [], [], []
-        sd_index: dict[str, dict] = {}
-        n_points = []
-        frames_total = sum(ds.n_frames(q) for q in seqs)
-        bar = None
-        if progress:
-            from tqdm import tqdm
-            bar = tqdm(total=frames_total, desc="export", unit="frame")
-        for si, seq in enumerate(seqs):
-            info = ds.manifest["sequences"][seq]
-            family = str((info.get("scene") or {}).get("family", "synth"))
-            n = ds.n_frames(seq)
-            ego_path = ds.root / seq / "ego.json"
+    def _frame(self, seq: str, f: int, n: int, ts: int, sample_token: str, sd_tokens: dict, pose: dict) -> None:
+        """Frame `f` of `seq`: every camera's JPEG (+ depth copy), then the LiDAR sweep simulated from them."""
+        ds, out, lidar = self.ds, self.out, self.lidar
+        depths, grays = {}, {}
+        for cam in ds.cameras:
+            ch = self.chmap[cam.name]
+            token = sd_tokens[ch][f]
+            stem = f"{seq}__{ch}__{ts}"
             try:
-                ego = ds.ego(seq)
+                rgb = ds.read_rgb(seq, cam.name, f)
             except DatasetError as exc:
                 raise ExportError(str(exc)) from None
-            if len(ego) != n:
-                raise ExportError(f"{ego_path}: {len(ego)} frames, the manifest says {n}")
-            log_token, scene_token = tok("log", seq), tok("scene", seq)
-            t0 = timestamp_us(si, 0, fps)
-            date = _dt.datetime.fromtimestamp(t0 / 1e6, _dt.timezone.utc).strftime("%Y-%m-%d")
-            logs.append({"token": log_token, "logfile": seq, "vehicle": VEHICLE, "date_captured": date,
-                         "location": f"synth-{family}"})
-            sample_tokens = [tok("sample", seq, f) for f in range(n)]
-            sd_tokens = {ch: [tok("sample_data", seq, ch, f) for f in range(n)] for ch in channels}
-            for f in range(n):
-                fr = ego[f]
-                ts = timestamp_us(si, f, fps)
-                if abs(float(fr.get("timestamp_s", f / fps)) - f / fps) > 1e-6:
-                    raise ExportError(f"{ego_path}: frame {f} timestamp_s {fr.get('timestamp_s')} is not frame / fps "
-                                      f"= {f / fps}")
-                T_we = _check_rigid(fr.get("T_world_ego"), f"{ego_path} frame {f} T_world_ego")
-                samples.append({"token": sample_tokens[f], "timestamp": ts, "scene_token": scene_token,
-                                "prev": sample_tokens[f - 1] if f > 0 else "",
-                                "next": sample_tokens[f + 1] if f + 1 < n else ""})
-                pose = {"translation": [float(x) for x in T_we[:3, 3]], "rotation": rotation_to_quaternion(T_we[:3, :3]),
-                        "timestamp": ts}
-                depths, grays = {}, {}
-                for cam in ds.cameras:
-                    ch = chmap[cam.name]
-                    token = sd_tokens[ch][f]
-                    stem = f"{seq}__{ch}__{ts}"
-                    try:
-                        rgb = ds.read_rgb(seq, cam.name, f)
-                    except DatasetError as exc:
-                        raise ExportError(str(exc)) from None
-                    if rgb.shape[:2] != (cam.height, cam.width):
-                        raise ExportError(f"{ds.rgb_path(seq, cam.name, f)}: {rgb.shape[1]}x{rgb.shape[0]}, rig.json "
-                                          f"says {cam.width}x{cam.height}")
-                    rel = f"samples/{ch}/{stem}.jpg"
-                    _write_jpeg(out / rel, rgb, jpeg_quality)
-                    entry = {"sequence": seq, "frame": f, "camera": cam.name, "channel": ch}
-                    if ds.has_depth:
-                        dsrc = ds.depth_path(seq, cam.name, f)
-                        drel = f"{EXPORT_DIR}/depth/{ch}/{stem}.depth.exr"
-                        try:  # the bytes of a file inside the dataset only, written whole
-                            atomic_write_bytes(out / drel, ds.read_bytes(dsrc), fsync=False)
-                        except DatasetError as exc:
-                            raise ExportError(str(exc)) from None
-                        entry["depth"] = drel
-                        if lidar is not None:
-                            try:
-                                depths[cam.name] = ds.read_depth(seq, cam.name, f)
-                            except DatasetError as exc:
-                                raise ExportError(str(exc)) from None
-                            if depths[cam.name].shape != (cam.height, cam.width):
-                                raise ExportError(f"{dsrc}: depth is {depths[cam.name].shape[::-1]}, rig.json says "
-                                                  f"{cam.width}x{cam.height}")
-                            grays[cam.name] = luma(rgb)
-                    sd_index[token] = entry
-                    sample_data.append(_sd_record(token, sample_tokens[f], cs_token[ch], rel, "jpg", cam.width,
-                                                  cam.height, ts, sd_tokens[ch], f, n))
-                    ego_poses.append({"token": token, **pose})
+            if rgb.shape[:2] != (cam.height, cam.width):
+                raise ExportError(f"{ds.rgb_path(seq, cam.name, f)}: {rgb.shape[1]}x{rgb.shape[0]}, rig.json "
+                                  f"says {cam.width}x{cam.height}")
+            rel = f"samples/{ch}/{stem}.jpg"
+            _write_jpeg(out / rel, rgb, self.jpeg_quality)
+            entry = {"sequence": seq, "frame": f, "camera": cam.name, "channel": ch}
+            if ds.has_depth:
+                entry["depth"] = self._depth(seq, cam, f, stem, ch, depths)
                 if lidar is not None:
-                    token = sd_tokens[LIDAR_CHANNEL][f]
-                    rel = f"samples/{LIDAR_CHANNEL}/{seq}__{LIDAR_CHANNEL}__{ts}.pcd.bin"
-                    pts = simulate_sweep(lidar, list(ds.cameras), depths, masks, grays)
-                    atomic_write_bytes(out / rel, pts.astype("<f4").tobytes(), fsync=False)
-                    n_points.append(len(pts))
-                    sd_index[token] = {"sequence": seq, "frame": f, "channel": LIDAR_CHANNEL, "points": int(len(pts))}
-                    sample_data.append(_sd_record(token, sample_tokens[f], cs_token[LIDAR_CHANNEL], rel, "pcd", 0, 0,
-                                                  ts, sd_tokens[LIDAR_CHANNEL], f, n))
-                    ego_poses.append({"token": token, **pose})
-                if bar is not None:
-                    bar.update(1)
-            desc = f"mcdp-synth {family}, {info.get('time_of_day', '?')}, split {split_of.get(seq, '-')}"
-            scenes.append({"token": scene_token, "name": seq, "description": desc, "log_token": log_token,
-                           "nbr_samples": n, "first_sample_token": sample_tokens[0],
-                           "last_sample_token": sample_tokens[-1]})
-        if bar is not None:
-            bar.close()
+                    grays[cam.name] = luma(rgb)
+            self.sd_index[token] = entry
+            self.sample_data.append(_sd_record(token, sample_token, self.cs_token[ch], rel, "jpg", cam.width,
+                                               cam.height, ts, sd_tokens[ch], f, n))
+            self.ego_poses.append({"token": token, **pose})
+        if lidar is not None:
+            token = sd_tokens[LIDAR_CHANNEL][f]
+            rel = f"samples/{LIDAR_CHANNEL}/{seq}__{LIDAR_CHANNEL}__{ts}.pcd.bin"
+            pts = simulate_sweep(lidar, list(ds.cameras), depths, self.masks, grays)
+            atomic_write_bytes(out / rel, pts.astype("<f4").tobytes(), fsync=False)
+            self.n_points.append(len(pts))
+            self.sd_index[token] = {"sequence": seq, "frame": f, "channel": LIDAR_CHANNEL, "points": int(len(pts))}
+            self.sample_data.append(_sd_record(token, sample_token, self.cs_token[LIDAR_CHANNEL], rel, "pcd", 0, 0,
+                                               ts, sd_tokens[LIDAR_CHANNEL], f, n))
+            self.ego_poses.append({"token": token, **pose})
 
-        tables = {
-            "category": [], "attribute": [], "visibility": [], "instance": [], "sample_annotation": [],
-            "sensor": sensors, "calibrated_sensor": calibrated, "ego_pose": ego_poses, "log": logs, "scene": scenes,
-            "sample": samples, "sample_data": sample_data,
-            "map": [{"token": map_token, "log_tokens": [lg["token"] for lg in logs], "category": "semantic_prior",
-                     "filename": f"maps/{map_token}.png"}],
-        }
-        write_json(out / SPLITS_FILE, splits)
+    def _depth(self, seq: str, cam, f: int, stem: str, ch: str, depths: dict) -> str:
+        """Copy one depth map's bytes (a file inside the dataset only, written whole); with a LiDAR, read it
+        into `depths` (checked against the rig). Returns its path in the export."""
+        ds = self.ds
+        dsrc = ds.depth_path(seq, cam.name, f)
+        drel = f"{EXPORT_DIR}/depth/{ch}/{stem}.depth.exr"
+        try:
+            atomic_write_bytes(self.out / drel, ds.read_bytes(dsrc), fsync=False)
+        except DatasetError as exc:
+            raise ExportError(str(exc)) from None
+        if self.lidar is not None:
+            try:
+                depths[cam.name] = ds.read_depth(seq, cam.name, f)
+            except DatasetError as exc:
+                raise ExportError(str(exc)) from None
+            if depths[cam.name].shape != (cam.height, cam.width):
+                raise ExportError(f"{dsrc}: depth is {depths[cam.name].shape[::-1]}, rig.json says "
+                                  f"{cam.width}x{cam.height}")
+        return drel
+
+    def _finish(self, marker: dict, mask_files: dict, tables: dict) -> None:
+        """splits.json, the completed marker, then the tables: into <version>.partial/, then one rename."""
+        out, lidar, n_points, chmap = self.out, self.lidar, self.n_points, self.chmap
+        write_json(out / SPLITS_FILE, self.splits)
         marker.update({
             "complete": True,
-            "channels": {c.name: chmap[c.name] for c in ds.cameras},
+            "channels": {c.name: chmap[c.name] for c in self.ds.cameras},
             "lidar": None if lidar is None else {"channel": LIDAR_CHANNEL, "config": lidar.model_dump(mode="json"),
                                                  "points_per_sweep": {"min": int(min(n_points)), "max": int(max(n_points)),
                                                                       "mean": float(np.mean(n_points))}},
-            "fps": fps, "timestamp_base_us": BASE_TIMESTAMP_US, "sequence_spacing_us": SEQUENCE_SPACING_US,
-            "jpeg_quality": int(jpeg_quality),
+            "fps": self.fps, "timestamp_base_us": BASE_TIMESTAMP_US, "sequence_spacing_us": SEQUENCE_SPACING_US,
+            "jpeg_quality": int(self.jpeg_quality),
             "pixel_centre": "camera_intrinsic is rig.json K: pixel (c, r) has its centre at (c + 0.5, r + 0.5); "
                             "a projected (u, v) lies in pixel (floor(u), floor(v)). For the integer-centre "
                             "convention subtract 0.5 from K[0][2] and K[1][2].",
-            "splits": SPLITS_FILE, "masks": mask_files, "sample_data": sd_index,
+            "splits": SPLITS_FILE, "masks": mask_files, "sample_data": self.sd_index,
         })
         write_json(out / MARKER, marker)
-        # the tables last: into <version>.partial/, then one rename
-        tmp_dir, final_dir = out / f"{version}.partial", out / version
+        tmp_dir, final_dir = out / f"{self.version}.partial", out / self.version
         if tmp_dir.exists():
             shutil.rmtree(tmp_dir)
         tmp_dir.mkdir()
@@ -411,12 +433,6 @@ def export_nuscenes(dataset: str | Path, out: str | Path, version: str = DEFAULT
         if final_dir.exists():
             shutil.rmtree(final_dir)
         os.replace(tmp_dir, final_dir)
-        summary = {"out": str(out), "version": version, "scenes": len(scenes), "samples": len(samples),
-                   "sample_data": len(sample_data), "channels": channels,
-                   "lidar_points_per_sweep": None if lidar is None else float(np.mean(n_points))}
-        return summary
-    finally:
-        lock.release()
 
 
 def _sd_record(token, sample_token, cs_token, filename, fileformat, width, height, ts, chain, f, n) -> dict:

@@ -36,8 +36,8 @@ import cv2
 import numpy as np
 
 from synth.files import DatasetError, read_png
-from synth.nuscenes_tables import (EXPORT_DIR, get_record, lidar_xyz, load_tables, read_splits, resolve_version,
-                                   rotation_matrix, view_points)
+from synth.nuscenes_tables import (EXPORT_DIR, get_record, lidar_xyz, load_tables, pose_matrix, read_splits,
+                                   resolve_version, view_points)
 from synth.rig import CameraSpec
 
 RIG_ORDER = ("CAM_FRONT", "CAM_FRONT_RIGHT", "CAM_BACK_RIGHT", "CAM_BACK", "CAM_BACK_LEFT", "CAM_FRONT_LEFT")
@@ -49,22 +49,6 @@ LIDAR_MIN_DEPTH = 0.1
 LIDAR_MAX_DEPTH = 80.0
 RIG_TOL = 1e-9  # calibrated_sensor values that differ by more are two rigs
 NO_MASKS = "no self-occlusion masks: every pixel counts as scene"
-
-
-def _T(rotation, translation, where: str) -> np.ndarray:
-    try:
-        q = np.asarray(rotation, np.float64)
-        t = np.asarray(translation, np.float64)
-        if q.shape != (4,) or t.shape != (3,) or not (np.isfinite(q).all() and np.isfinite(t).all()) or \
-                not abs(np.linalg.norm(q) - 1.0) < 1e-3:
-            raise ValueError
-    except (TypeError, ValueError):
-        raise DatasetError(f"{where}: rotation must be a unit quaternion [w, x, y, z] and translation 3 finite "
-                           "numbers") from None
-    T = np.eye(4)
-    T[:3, :3] = rotation_matrix(q)
-    T[:3, 3] = t
-    return T
 
 
 def _angles(K: np.ndarray, T: np.ndarray, width: int) -> tuple[float, float, float]:
@@ -289,6 +273,18 @@ def open_nuscenes(root: str | Path, version: str | None = None, masks: str | Pat
     if not root.is_dir():
         raise DatasetError(f"{root}: dataset folder does not exist")
     version = resolve_version(root, version)
+    export, pixel_centre = _export_record(root, pixel_centre)
+    scan = _Scan(root, version, load_tables(root, version))
+    frames = scan.frames()
+    cameras = scan.cameras(pixel_centre)
+    m, mask_source = _masks(root, cameras, masks)
+    splits, split_source = read_splits(root, list(frames), version)
+    return NuScenesDataset(root, version, cameras, frames, splits, split_source, _fps(export, frames), m, mask_source,
+                           scan.n_lidar > 0, pixel_centre)
+
+
+def _export_record(root: Path, pixel_centre: str | None) -> tuple[dict | None, str]:
+    """Our export's ``mcdp_synth/export.json`` (None: not our export) and the pixel-centre convention."""
     marker = root / EXPORT_DIR / "export.json"
     export = None
     if marker.is_file():
@@ -300,116 +296,142 @@ def open_nuscenes(root: str | Path, version: str | None = None, masks: str | Pat
         pixel_centre = "half" if export is not None else "integer"
     if pixel_centre not in ("half", "integer"):
         raise DatasetError(f"pixel_centre must be 'half' or 'integer', got {pixel_centre!r}")
-    nusc = load_tables(root, version)
-    tab = root / version
+    return export, pixel_centre
 
-    channels = {s["channel"] for s in nusc.sensor}
-    for ch in RIG_ORDER:
-        if ch not in channels:
-            raise DatasetError(f"{tab / 'sensor.json'}: no camera channel {ch} (has {sorted(channels)}); the rig "
-                               f"needs {', '.join(RIG_ORDER)}")
-    calib: dict[str, tuple] = {}  # channel -> (values, token) of the first sample's calibrated_sensor
-    frames: dict[str, list[dict]] = {}
-    first_file: dict[str, Path] = {}
-    sizes: dict[str, tuple] = {}
-    n_lidar = n_samples = 0
-    for scene in sorted(nusc.scene, key=lambda s: s["name"]):
-        name = scene["name"]
-        if name in frames:
-            raise DatasetError(f"{tab / 'scene.json'}: two scenes named {name!r}")
+
+def _fps(export: dict | None, frames: dict[str, list[dict]]) -> float:
+    """Our export's fps, else 1 / the median time between key frames (NaN without two frames)."""
+    if export is not None and isinstance(export.get("fps"), (int, float)):
+        return float(export["fps"])
+    dts = [b["timestamp_s"] - a["timestamp_s"] for fs in frames.values() for a, b in zip(fs, fs[1:])]
+    return float(1.0 / np.median(dts)) if dts and np.median(dts) > 0 else float("nan")
+
+
+class _Scan:
+    """The tables read into the reader's records: the scenes' key frames (`frames`), then the rig (`cameras`)."""
+
+    def __init__(self, root: Path, version: str, nusc) -> None:
+        self.root, self.nusc, self.tab = root, nusc, root / version
+        channels = {s["channel"] for s in nusc.sensor}
+        for ch in RIG_ORDER:
+            if ch not in channels:
+                raise DatasetError(f"{self.tab / 'sensor.json'}: no camera channel {ch} (has {sorted(channels)}); "
+                                   f"the rig needs {', '.join(RIG_ORDER)}")
+        self.calib: dict[str, tuple] = {}  # channel -> (values, token) of the first sample's calibrated_sensor
+        self.first_file: dict[str, Path] = {}  # channel -> its first image, and the sizes its sample_data give
+        self.sizes: dict[str, set] = {}
+        self.n_lidar = self.n_samples = 0
+
+    def frames(self) -> dict[str, list[dict]]:
+        """Scene name -> its key frames in prev/next order (``timestamp_s`` from the scene's first)."""
+        tab, frames = self.tab, {}
+        for scene in sorted(self.nusc.scene, key=lambda s: s["name"]):
+            name = scene["name"]
+            if name in frames:
+                raise DatasetError(f"{tab / 'scene.json'}: two scenes named {name!r}")
+            out = [self._frame(s, scene) for s in self._samples(scene)]
+            t0 = out[0]["timestamp_s"]
+            for fr in out:
+                fr["timestamp_s"] -= t0
+            frames[name] = out
+        if not frames:
+            raise DatasetError(f"{tab / 'scene.json'}: no scene")
+        if 0 < self.n_lidar < self.n_samples:
+            missing = next(f["sample_token"] for fs in frames.values() for f in fs if "lidar" not in f)
+            raise DatasetError(f"{tab / 'sample_data.json'}: sample {missing} has no key-frame {LIDAR} (others have)")
+        return frames
+
+    def _samples(self, scene: dict) -> list[dict]:
+        """The scene's samples along the next chain."""
+        name, tab = scene["name"], self.tab
         recs, tok, seen = [], scene.get("first_sample_token"), set()
         while tok:
             if tok in seen:
                 raise DatasetError(f"{tab / 'sample.json'}: scene {name}: the next chain loops at sample {tok}")
             seen.add(tok)
-            s = get_record(nusc, "sample", tok, f"scene {name} ({scene['token']})")
+            s = get_record(self.nusc, "sample", tok, f"scene {name} ({scene['token']})")
             recs.append(s)
             tok = s.get("next")
         if not recs:
             raise DatasetError(f"{tab / 'scene.json'}: scene {name} has no sample")
-        out = []
-        for s in recs:
-            n_samples += 1
-            fr = {"sample_token": s["token"], "scene_token": scene["token"], "cams": {}}
-            for ch in RIG_ORDER:
-                if ch not in s["data"]:
-                    raise DatasetError(f"{tab / 'sample_data.json'}: sample {s['token']} (scene {name}) has no "
-                                       f"key-frame {ch} sample_data")
-                sd = s["data"][ch]
-                sd = get_record(nusc, "sample_data", sd, f"sample {s['token']}")
-                who = f"sample_data {sd['token']} ({ch})"
-                cs = get_record(nusc, "calibrated_sensor", sd["calibrated_sensor_token"], who)
-                pose = get_record(nusc, "ego_pose", sd["ego_pose_token"], who)
-                vals = (np.asarray(cs.get("camera_intrinsic"), np.float64), np.asarray(cs["rotation"], np.float64),
-                        np.asarray(cs["translation"], np.float64))
-                if ch not in calib:
-                    if vals[0].shape != (3, 3):
-                        raise DatasetError(f"{tab / 'calibrated_sensor.json'}: {cs['token']} ({ch}): "
-                                           "camera_intrinsic must be 3x3")
-                    calib[ch] = (vals, cs["token"])
-                elif cs["token"] != calib[ch][1] and not all(
-                        a.shape == b.shape and np.allclose(a, b, rtol=0, atol=RIG_TOL) for a, b in zip(vals, calib[ch][0])):
-                    raise DatasetError(f"{tab / 'calibrated_sensor.json'}: {ch} calibration {cs['token']} (sample "
-                                       f"{s['token']}, scene {name}) differs from {calib[ch][1]}; one rig is "
-                                       "modelled: open a dataroot of one vehicle / calibration")
-                path = root / sd["filename"]
-                if not path.is_file():
-                    raise DatasetError(f"{path}: image file is missing ({who})")
-                first_file.setdefault(ch, path)
-                if sd.get("width") and sd.get("height"):
-                    sizes.setdefault(ch, set()).add((int(sd["width"]), int(sd["height"])))
-                fr["cams"][ch] = {"token": sd["token"], "filename": sd["filename"], "timestamp": sd["timestamp"],
-                                  "T_world_ego": _T(pose["rotation"], pose["translation"], f"ego_pose {pose['token']}")}
-            front = fr["cams"]["CAM_FRONT"]
-            fr["T_world_ego"] = front["T_world_ego"]
-            fr["timestamp_s"] = front["timestamp"] / 1e6
-            if LIDAR in s["data"]:
-                sd = get_record(nusc, "sample_data", s["data"][LIDAR], f"sample {s['token']}")
-                who = f"sample_data {sd['token']} ({LIDAR})"
-                cs = get_record(nusc, "calibrated_sensor", sd["calibrated_sensor_token"], who)
-                pose = get_record(nusc, "ego_pose", sd["ego_pose_token"], who)
-                path = root / sd["filename"]
-                if not path.is_file():
-                    raise DatasetError(f"{path}: LiDAR file is missing ({who})")
-                fr["lidar"] = {"token": sd["token"], "filename": sd["filename"],
-                               "T_ego_lidar": _T(cs["rotation"], cs["translation"], f"calibrated_sensor {cs['token']}"),
-                               "T_world_ego": _T(pose["rotation"], pose["translation"], f"ego_pose {pose['token']}")}
-                n_lidar += 1
-            out.append(fr)
-        t0 = out[0]["timestamp_s"]
-        for fr in out:
-            fr["timestamp_s"] -= t0
-        frames[name] = out
-    if not frames:
-        raise DatasetError(f"{tab / 'scene.json'}: no scene")
-    if 0 < n_lidar < n_samples:
-        missing = next(f["sample_token"] for fs in frames.values() for f in fs if "lidar" not in f)
-        raise DatasetError(f"{tab / 'sample_data.json'}: sample {missing} has no key-frame {LIDAR} (others have)")
+        return recs
 
-    cameras = []
-    for ch in RIG_ORDER:
-        img = cv2.imread(str(first_file[ch]), cv2.IMREAD_UNCHANGED)
-        if img is None:
-            raise DatasetError(f"{first_file[ch]}: not a readable image")
-        h, w = img.shape[:2]
-        other = sorted(sizes.get(ch, set()) - {(w, h)})
-        if other:
-            raise DatasetError(f"{tab / 'sample_data.json'}: {ch} sample_data give size {other[0][0]}x{other[0][1]}, "
-                               f"the first image {first_file[ch]} is {w}x{h}")
-        (K, rot, trans), cs_token = calib[ch]
-        K = K.copy()
-        if pixel_centre == "integer":
-            K[0, 2] += 0.5
-            K[1, 2] += 0.5
-        T = _T(rot, trans, f"calibrated_sensor {cs_token}")
-        cameras.append(CameraSpec(ch, int(w), int(h), K, T, *_angles(K, T, w)))
-    m, mask_source = _masks(root, cameras, masks)
+    def _frame(self, s: dict, scene: dict) -> dict:
+        """One sample: its six cameras, the ego pose of CAM_FRONT, its LiDAR sweep if any."""
+        self.n_samples += 1
+        fr = {"sample_token": s["token"], "scene_token": scene["token"], "cams": {}}
+        for ch in RIG_ORDER:
+            if ch not in s["data"]:
+                raise DatasetError(f"{self.tab / 'sample_data.json'}: sample {s['token']} (scene {scene['name']}) "
+                                   f"has no key-frame {ch} sample_data")
+            fr["cams"][ch] = self._camera(ch, s, scene["name"])
+        front = fr["cams"]["CAM_FRONT"]
+        fr["T_world_ego"] = front["T_world_ego"]
+        fr["timestamp_s"] = front["timestamp"] / 1e6
+        if LIDAR in s["data"]:
+            fr["lidar"] = self._lidar(s)
+            self.n_lidar += 1
+        return fr
 
-    splits, split_source = read_splits(root, list(frames), version)
-    if export is not None and isinstance(export.get("fps"), (int, float)):
-        fps = float(export["fps"])
-    else:
-        dts = [b["timestamp_s"] - a["timestamp_s"] for fs in frames.values() for a, b in zip(fs, fs[1:])]
-        fps = float(1.0 / np.median(dts)) if dts and np.median(dts) > 0 else float("nan")
-    return NuScenesDataset(root, version, cameras, frames, splits, split_source, fps, m, mask_source,
-                           n_lidar > 0, pixel_centre)
+    def _camera(self, ch: str, s: dict, name: str) -> dict:
+        """Camera `ch` of sample `s`: its file, time and ego pose; its calibration is the rig's (checked)."""
+        nusc, tab, calib = self.nusc, self.tab, self.calib
+        sd = get_record(nusc, "sample_data", s["data"][ch], f"sample {s['token']}")
+        who = f"sample_data {sd['token']} ({ch})"
+        cs = get_record(nusc, "calibrated_sensor", sd["calibrated_sensor_token"], who)
+        pose = get_record(nusc, "ego_pose", sd["ego_pose_token"], who)
+        vals = (np.asarray(cs.get("camera_intrinsic"), np.float64), np.asarray(cs["rotation"], np.float64),
+                np.asarray(cs["translation"], np.float64))
+        if ch not in calib:
+            if vals[0].shape != (3, 3):
+                raise DatasetError(f"{tab / 'calibrated_sensor.json'}: {cs['token']} ({ch}): "
+                                   "camera_intrinsic must be 3x3")
+            calib[ch] = (vals, cs["token"])
+        elif cs["token"] != calib[ch][1] and not all(
+                a.shape == b.shape and np.allclose(a, b, rtol=0, atol=RIG_TOL) for a, b in zip(vals, calib[ch][0])):
+            raise DatasetError(f"{tab / 'calibrated_sensor.json'}: {ch} calibration {cs['token']} (sample "
+                               f"{s['token']}, scene {name}) differs from {calib[ch][1]}; one rig is "
+                               "modelled: open a dataroot of one vehicle / calibration")
+        path = self.root / sd["filename"]
+        if not path.is_file():
+            raise DatasetError(f"{path}: image file is missing ({who})")
+        self.first_file.setdefault(ch, path)
+        if sd.get("width") and sd.get("height"):
+            self.sizes.setdefault(ch, set()).add((int(sd["width"]), int(sd["height"])))
+        return {"token": sd["token"], "filename": sd["filename"], "timestamp": sd["timestamp"],
+                "T_world_ego": pose_matrix(pose["rotation"], pose["translation"], f"ego_pose {pose['token']}")}
+
+    def _lidar(self, s: dict) -> dict:
+        """Sample `s`'s LIDAR_TOP sweep: its file, the LiDAR's calibration and the ego pose at its time."""
+        sd = get_record(self.nusc, "sample_data", s["data"][LIDAR], f"sample {s['token']}")
+        who = f"sample_data {sd['token']} ({LIDAR})"
+        cs = get_record(self.nusc, "calibrated_sensor", sd["calibrated_sensor_token"], who)
+        pose = get_record(self.nusc, "ego_pose", sd["ego_pose_token"], who)
+        path = self.root / sd["filename"]
+        if not path.is_file():
+            raise DatasetError(f"{path}: LiDAR file is missing ({who})")
+        return {"token": sd["token"], "filename": sd["filename"],
+                "T_ego_lidar": pose_matrix(cs["rotation"], cs["translation"], f"calibrated_sensor {cs['token']}"),
+                "T_world_ego": pose_matrix(pose["rotation"], pose["translation"], f"ego_pose {pose['token']}")}
+
+    def cameras(self, pixel_centre: str) -> list[CameraSpec]:
+        """The rig in `RIG_ORDER`: the first image's size (every sample_data must agree), the calibration."""
+        cameras = []
+        for ch in RIG_ORDER:
+            first = self.first_file[ch]
+            img = cv2.imread(str(first), cv2.IMREAD_UNCHANGED)
+            if img is None:
+                raise DatasetError(f"{first}: not a readable image")
+            h, w = img.shape[:2]
+            other = sorted(self.sizes.get(ch, set()) - {(w, h)})
+            if other:
+                raise DatasetError(f"{self.tab / 'sample_data.json'}: {ch} sample_data give size "
+                                   f"{other[0][0]}x{other[0][1]}, the first image {first} is {w}x{h}")
+            (K, rot, trans), cs_token = self.calib[ch]
+            K = K.copy()
+            if pixel_centre == "integer":
+                K[0, 2] += 0.5
+                K[1, 2] += 0.5
+            T = pose_matrix(rot, trans, f"calibrated_sensor {cs_token}")
+            cameras.append(CameraSpec(ch, int(w), int(h), K, T, *_angles(K, T, w)))
+        return cameras

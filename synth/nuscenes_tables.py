@@ -4,7 +4,9 @@ it with errors that name the broken record and token, and the train / val / test
 Without the devkit (an environment with the ``viz`` extra: rerun-sdk needs numpy >= 2, nuscenes-devkit
 1.2.0 numpy < 2) `load_tables` reads the tables the reader uses as plain JSON (`PlainTables`: the same
 records, with the devkit's ``sample["data"]`` / ``sample_data["channel"]`` reverse index), so
-`synth view` can record a dataroot; the official splits still need the devkit.
+`synth view` can record a dataroot; the official splits still need the devkit. Beside them, nuScenes'
+rotation convention both ways: `rotation_matrix` and `pose_matrix` (the reader), `rotation_to_quaternion` (the
+export).
 
 Example::
 
@@ -14,6 +16,7 @@ Example::
 from __future__ import annotations
 
 import json
+import math
 from pathlib import Path
 
 import numpy as np
@@ -189,6 +192,47 @@ def rotation_matrix(q: np.ndarray) -> np.ndarray:
         qb = np.array([[w, -x, -y, -z], [x, w, z, -y], [y, -z, w, x], [z, y, -x, w]])
         return np.dot(qm, qb.conj().transpose())[1:][:, 1:]
     return Quaternion(q).rotation_matrix
+
+
+def rotation_to_quaternion(R: np.ndarray) -> list[float]:
+    """Unit quaternion [w, x, y, z] (nuScenes / pyquaternion order) of a 3x3 rotation, w >= 0: the inverse of
+    `rotation_matrix` (`synth.nuscenes_export` writes calibrated_sensor and ego_pose with it)."""
+    R = np.asarray(R, np.float64)
+    tr = R[0, 0] + R[1, 1] + R[2, 2]
+    if tr > 0:
+        s = 2.0 * math.sqrt(tr + 1.0)
+        q = [0.25 * s, (R[2, 1] - R[1, 2]) / s, (R[0, 2] - R[2, 0]) / s, (R[1, 0] - R[0, 1]) / s]
+    elif R[0, 0] > R[1, 1] and R[0, 0] > R[2, 2]:
+        s = 2.0 * math.sqrt(1.0 + R[0, 0] - R[1, 1] - R[2, 2])
+        q = [(R[2, 1] - R[1, 2]) / s, 0.25 * s, (R[0, 1] + R[1, 0]) / s, (R[0, 2] + R[2, 0]) / s]
+    elif R[1, 1] > R[2, 2]:
+        s = 2.0 * math.sqrt(1.0 + R[1, 1] - R[0, 0] - R[2, 2])
+        q = [(R[0, 2] - R[2, 0]) / s, (R[0, 1] + R[1, 0]) / s, 0.25 * s, (R[1, 2] + R[2, 1]) / s]
+    else:
+        s = 2.0 * math.sqrt(1.0 + R[2, 2] - R[0, 0] - R[1, 1])
+        q = [(R[1, 0] - R[0, 1]) / s, (R[0, 2] + R[2, 0]) / s, (R[1, 2] + R[2, 1]) / s, 0.25 * s]
+    q = np.asarray(q)
+    q = q / np.linalg.norm(q)
+    if q[0] < 0:
+        q = -q
+    return [float(x) for x in q]
+
+
+def pose_matrix(rotation, translation, where: str) -> np.ndarray:
+    """4x4 of a nuScenes pose record (rotation [w, x, y, z], translation); DatasetError naming `where`."""
+    try:
+        q = np.asarray(rotation, np.float64)
+        t = np.asarray(translation, np.float64)
+        if q.shape != (4,) or t.shape != (3,) or not (np.isfinite(q).all() and np.isfinite(t).all()) or \
+                not abs(np.linalg.norm(q) - 1.0) < 1e-3:
+            raise ValueError
+    except (TypeError, ValueError):
+        raise DatasetError(f"{where}: rotation must be a unit quaternion [w, x, y, z] and translation 3 finite "
+                           "numbers") from None
+    T = np.eye(4)
+    T[:3, :3] = rotation_matrix(q)
+    T[:3, 3] = t
+    return T
 
 
 def lidar_xyz(path: Path) -> np.ndarray:

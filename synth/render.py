@@ -80,12 +80,8 @@ _RENDERER_KEY = None
 
 def renderer_for(cfg: DataConfig):
     """This process's renderer for `cfg`'s image size and render settings (made once, remade when they change).
-
-    It also limits numpy's BLAS (OpenBLAS) to one thread in this process: the renderer inverts a 4x4 pose
-    and a 3x3 K per camera, and with a second BLAS thread each such call waits for a core that llvmpipe
-    and the writer threads keep busy (2.7 ms per 4x4 inverse measured while rendering on 2 cores, 3 us
-    alone). Same results: LAPACK does not split a 4x4 inverse between threads (docs/results/render_throughput.md).
-    """
+    It limits numpy's BLAS to one thread in this process: with two, each 4x4 pose inverse waited for a core
+    that llvmpipe and the writer threads held (2.7 ms against 3 us; docs/results/render_throughput.md)."""
     global _RENDERER, _RENDERER_KEY
     from threadpoolctl import threadpool_limits
 

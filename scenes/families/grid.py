@@ -14,6 +14,8 @@ Example::
 """
 from __future__ import annotations
 
+from typing import NamedTuple
+
 import numpy as np
 
 from scenes.config import SceneConfig
@@ -69,7 +71,32 @@ def build_grid(kind: str, cfg: SceneConfig, n_frames: int, fps: float, rng: np.r
     """Build one urban or residential sequence (see module docstring). kind: "urban" | "residential"."""
     urban = kind == "urban"
     R_view = cfg.view_radius_m
-    # ---------------------------------------------------------------- cross-section
+    xs, bmin, bmax = _cross_section(urban, cfg, rng)
+    route = _ego_route(xs, cfg, n_frames, fps, rng)
+    world = World(route.ego_line, R_view)
+
+    # ---------------------------------------------------------------- grid
+    lo, hi = route.ego_line.min(0) - R_view - 10.0, route.ego_line.max(0) + R_view + 10.0
+    xk = _blocks(rng, route.x_turn, lo[0], hi[0], bmin, bmax)
+    yj = _blocks(rng, 0.0, lo[1], hi[1], bmin, bmax)
+    xmin, xmax, ymin, ymax = xk[0], xk[-1], yj[0], yj[-1]
+    ground = "plaza" if urban else "grass"
+    world.add(ground_tiles(xmin - 20, xmax + 20, ymin - 20, ymax + 20, -0.02, ground), check=False)
+    for p0, yaw, crossings, total, depths in _streets(xk, yj, xs.outer_hw):
+        _street(world, p0, yaw, crossings, total, depths, xs, urban, cfg, rng)
+
+    movers = _traffic(xs, route, xmin, xmax, R_view, cfg, rng)
+    static = world.static_mesh()
+    textures, materials = make_textures(rng, cfg.texture_size)
+    info = {"family": kind, "speed_mps": route.speed, "n_movers": len(movers), "n_triangles": int(static.n_triangles),
+            "turn": route.turn, "lanes_per_dir": int(xs.lanes_per_dir), "lane_w_m": float(xs.lane_w),
+            "parking": bool(xs.parking_w > 0), "turn_radius_m": float(route.R_turn) if route.turn else None,
+            "n_dropped_objects": int(world.n_dropped)}
+    return Scene(static, movers, textures, materials, route.T_world_ego, kind, info)
+
+
+def _cross_section(urban: bool, cfg: SceneConfig, rng: np.random.Generator) -> tuple[CrossSection, float, float]:
+    """The streets' cross-section and the range of block lengths (centre to centre)."""
     if urban:
         n = int(rng.choice([1, 2], p=[0.3, 0.7]))
         lane_w = rng.uniform(3.2, 3.6)
@@ -85,10 +112,26 @@ def build_grid(kind: str, cfg: SceneConfig, n_frames: int, fps: float, rng: np.r
     # block lengths are centre-to-centre: keep >= 40 m (urban) / 50 m (residential) between pads
     bmin = max(bmin, 2 * xs.outer_hw + (40.0 if urban else 50.0))
     bmax = max(bmax, bmin + 45.0)
+    return xs, bmin, bmax
+
+
+class _Route(NamedTuple):
+    turn: bool
+    R_turn: float
+    speed: float
+    x_turn: float              # the crossing street where a turn happens (or a reference)
+    path: Path
+    t: np.ndarray              # (F,) s
+    ego_xy: np.ndarray         # (F, 2)
+    T_world_ego: np.ndarray    # (F, 4, 4)
+    ego_line: np.ndarray       # the polyline the world is built around
+
+
+def _ego_route(xs: CrossSection, cfg: SceneConfig, n_frames: int, fps: float, rng: np.random.Generator) -> _Route:
+    """The ego's drive along y = 0 in its outermost right lane, turning right at x = 0 in some sequences."""
+    R_view = cfg.view_radius_m
     P = xs.outer_hw                      # pad half-size
     c = -xs.ego_offset                   # ego lane centre is at y = -c on a horizontal street
-
-    # ---------------------------------------------------------------- ego route
     turn = bool(rng.random() < cfg.turn_probability)
     R_turn = max(4.5, P - c - 0.5)
     v_hi = 12.0 if not turn else max(6.5, min(12.0, np.sqrt(7.0 * R_turn)))
@@ -96,7 +139,7 @@ def build_grid(kind: str, cfg: SceneConfig, n_frames: int, fps: float, rng: np.r
     duration = (n_frames - 1) / fps
     D = speed * duration
     arc_len = 0.5 * np.pi * R_turn
-    x_turn = 0.0                          # the crossing street where a turn happens (or a reference)
+    x_turn = 0.0
     s_a = float(rng.uniform(0.0, max(D - 0.5 * arc_len, 1.0))) if turn else float(rng.uniform(-40.0, 40.0))
     x_start = x_turn - c - R_turn - s_a
     if turn:
@@ -105,24 +148,20 @@ def build_grid(kind: str, cfg: SceneConfig, n_frames: int, fps: float, rng: np.r
         path = Path((x_start, -c), 0.0, [("line", D + R_view + 50.0)])
     t = np.arange(n_frames) / fps
     ego_xy, ego_yaw = path.pose(speed * t)
-    T_world_ego = poses_4x4(ego_xy, ego_yaw)
-    ego_line = path.polyline(-2.0, D + 6.0, step_m=0.5)
-    world = World(ego_line, R_view)
+    return _Route(turn, R_turn, speed, x_turn, path, t, ego_xy, poses_4x4(ego_xy, ego_yaw),
+                  path.polyline(-2.0, D + 6.0, step_m=0.5))
 
-    # ---------------------------------------------------------------- grid
-    lo, hi = ego_line.min(0) - R_view - 10.0, ego_line.max(0) + R_view + 10.0
-    xk = _blocks(rng, x_turn, lo[0], hi[0], bmin, bmax)
-    yj = _blocks(rng, 0.0, lo[1], hi[1], bmin, bmax)
+
+def _streets(xk: list[float], yj: list[float], P: float) -> list[tuple]:
+    """Every street as (p0, yaw, crossings along it, total length, (block depth left, right)): the horizontal
+    ones at y = y_j heading +x, then the vertical ones at x = x_k heading -y. P: pad half-size."""
     xmin, xmax, ymin, ymax = xk[0], xk[-1], yj[0], yj[-1]
-    ground = "plaza" if urban else "grass"
-    world.add(ground_tiles(xmin - 20, xmax + 20, ymin - 20, ymax + 20, -0.02, ground), check=False)
 
-    streets = []  # (p0, yaw, crossings along, total length)
-    # block interiors: the depth available to buildings on the left/right of each street
-    def _depths(pos, j):
+    def _depths(pos, j):  # block interiors: the depth available to buildings on the left/right of each street
         left = pos[j + 1] - pos[j] - 2 * P if j + 1 < len(pos) else 60.0
         right = pos[j] - pos[j - 1] - 2 * P if j > 0 else 60.0
         return left, right
+    streets = []
     for j, y in enumerate(yj):
         streets.append((np.array([xmin - 20.0, y]), 0.0, [x - (xmin - 20.0) for x in xk], xmax - xmin + 40.0,
                         _depths(yj, j)))
@@ -130,53 +169,57 @@ def build_grid(kind: str, cfg: SceneConfig, n_frames: int, fps: float, rng: np.r
         # heading -y: the left side is +x
         streets.append((np.array([x, ymax + 20.0]), -np.pi / 2, [ymax + 20.0 - y for y in yj[::-1]], ymax - ymin + 40.0,
                         _depths(xk, k)))
+    return streets
 
-    for p0, yaw, crossings, total, (depth_l, depth_r) in streets:
-        at = _frame(p0, yaw)
-        bounds = [0.0] + [v for cr in crossings for v in (cr - P, cr + P)] + [total]
-        for a, b in zip(bounds[0::2], bounds[1::2]):
-            if b - a < 2.0:
-                continue
-            mid = at(0.5 * (a + b), 0.0)
-            if not world.near(mid, 0.5 * (b - a) + 30.0):
-                continue
-            poly = np.stack([at(s, 0.0) for s in np.arange(a, b, 30.0).tolist() + [b]])
-            if len(poly) > 2 and np.linalg.norm(poly[-1] - poly[-2]) < 1.0:
-                poly = np.delete(poly, -2, axis=0)
-            world.add(ground_strip(poly, xs.asphalt_hw, 0.0, LAYER["asphalt"], uv_scale=uv_scale_for("asphalt")),
-                      check=False)
-            for m in lane_markings(poly, xs, phase_m=float(rng.uniform(0, 9)), centre="double"):
+
+def _street(world: World, p0: np.ndarray, yaw: float, crossings: list[float], total: float,
+            depths: tuple[float, float], xs: CrossSection, urban: bool, cfg: SceneConfig,
+            rng: np.random.Generator) -> None:
+    """One street near the route: asphalt, markings, sidewalks and what stands beside each piece between
+    crossings, then the pads of its crossings (horizontal streets only, so each is laid once)."""
+    P = xs.outer_hw
+    depth_l, depth_r = depths
+    at = _frame(p0, yaw)
+    bounds = [0.0] + [v for cr in crossings for v in (cr - P, cr + P)] + [total]
+    for a, b in zip(bounds[0::2], bounds[1::2]):
+        if b - a < 2.0:
+            continue
+        mid = at(0.5 * (a + b), 0.0)
+        if not world.near(mid, 0.5 * (b - a) + 30.0):
+            continue
+        poly = np.stack([at(s, 0.0) for s in np.arange(a, b, 30.0).tolist() + [b]])
+        if len(poly) > 2 and np.linalg.norm(poly[-1] - poly[-2]) < 1.0:
+            poly = np.delete(poly, -2, axis=0)
+        world.add(ground_strip(poly, xs.asphalt_hw, 0.0, LAYER["asphalt"], uv_scale=uv_scale_for("asphalt")),
+                  check=False)
+        for m in lane_markings(poly, xs, phase_m=float(rng.uniform(0, 9)), centre="double"):
+            world.add(m, check=False)
+        for side in (1.0, -1.0):
+            for m in _sidewalk(poly, xs, side):
                 world.add(m, check=False)
-            for side in (1.0, -1.0):
-                for m in _sidewalk(poly, xs, side):
-                    world.add(m, check=False)
-                room = 0.5 * (depth_l if side > 0 else depth_r) - 0.5
-                _furnish_side(world, at, yaw, a, b, side, xs, urban, cfg, rng, room)
-        for cr in crossings:
-            ctr = at(cr, 0.0)
-            if world.near(ctr, P + 10.0) and yaw == 0.0:
-                _pad(world, ctr, P, xs, urban)
+            room = 0.5 * (depth_l if side > 0 else depth_r) - 0.5
+            _furnish_side(world, at, yaw, a, b, side, xs, urban, cfg, rng, room)
+    for cr in crossings:
+        ctr = at(cr, 0.0)
+        if world.near(ctr, P + 10.0) and yaw == 0.0:
+            _pad(world, ctr, P, xs, urban)
 
-    # ---------------------------------------------------------------- traffic
+
+def _traffic(xs: CrossSection, route: _Route, xmin: float, xmax: float, R_view: float, cfg: SceneConfig,
+             rng: np.random.Generator) -> list:
+    """The movers: both directions of the ego's street along a reference line, and the ego's own lane."""
     ref = Path((xmin - 20.0, 0.0), 0.0, [("line", xmax - xmin + 40.0)])
-    s_ego0 = float(ego_xy[0, 0] - (xmin - 20.0))
+    s_ego0 = float(route.ego_xy[0, 0] - (xmin - 20.0))
     ref_range = (s_ego0 - 0.8 * R_view, s_ego0 + 0.8 * R_view)
     lanes = []
     for i in range(xs.lanes_per_dir):
         if i != xs.lanes_per_dir - 1:
-            lanes.append(LaneTraffic(ref, xs.lane_offset(i), +1, speed * rng.uniform(0.8, 1.2), ref_range))
+            lanes.append(LaneTraffic(ref, xs.lane_offset(i), +1, route.speed * rng.uniform(0.8, 1.2), ref_range))
         lanes.append(LaneTraffic(ref, -xs.lane_offset(i), -1, rng.uniform(6.0, 12.0), ref_range))
     # ego lane: along the ego's own path at the ego's speed, so gaps stay constant (also in the turn)
-    lanes.append(LaneTraffic(path, 0.0, +1, speed, (-0.6 * R_view, 0.6 * R_view)))
-    movers = populate_lanes(lanes, t, T_world_ego, cfg.traffic_density, int(round(10 * cfg.traffic_density)), rng)
-
-    static = world.static_mesh()
-    textures, materials = make_textures(rng, cfg.texture_size)
-    info = {"family": kind, "speed_mps": speed, "n_movers": len(movers), "n_triangles": int(static.n_triangles),
-            "turn": turn, "lanes_per_dir": int(xs.lanes_per_dir), "lane_w_m": float(xs.lane_w),
-            "parking": bool(xs.parking_w > 0), "turn_radius_m": float(R_turn) if turn else None,
-            "n_dropped_objects": int(world.n_dropped)}
-    return Scene(static, movers, textures, materials, T_world_ego, kind, info)
+    lanes.append(LaneTraffic(route.path, 0.0, +1, route.speed, (-0.6 * R_view, 0.6 * R_view)))
+    return populate_lanes(lanes, route.t, route.T_world_ego, cfg.traffic_density,
+                          int(round(10 * cfg.traffic_density)), rng)
 
 
 def _pad(world: World, ctr: np.ndarray, P: float, xs: CrossSection, urban: bool) -> None:
