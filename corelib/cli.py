@@ -57,20 +57,26 @@ def _classes(errors: Sequence) -> tuple[type[BaseException], ...]:
     return tuple(out)
 
 
+def parse_command_line(parser: argparse.ArgumentParser, argv: list[str] | None) -> argparse.Namespace:
+    """Parse ``argv`` with a `build_parser` parser. ``key=value`` overrides may come before or after the
+    options (``PRESET a=1 --out DIR b=2``): argparse takes positionals in one run only, so the words it
+    leaves are collected here into ``overrides``; anything else unknown is a usage error (exit 2)."""
+    args, extra = parser.parse_known_args(argv)
+    stray = [e for e in extra if e.startswith("-") or "=" not in e]
+    if stray or (extra and not hasattr(args, "overrides")):
+        parser.error(f"unrecognized arguments: {' '.join(stray or extra)}")
+    if extra:
+        args.overrides = list(args.overrides) + extra
+    return args
+
+
 def main(prog: str, description: str, commands: Iterable[Command], argv: list[str] | None,
          rules: Sequence[ErrorRule]) -> int:
     """Parse ``argv``, run its command, and turn the errors of ``rules`` (first match wins), a full disk
     (exit 4), a file the operating system refuses (exit 2) and Ctrl-C (130) into one line each."""
     parser = build_parser(prog, description, commands)
     try:
-        # key=value overrides may come before or after the options (argparse would only take
-        # positionals in one run), so unknown key=value words are collected here.
-        args, extra = parser.parse_known_args(argv)
-        stray = [e for e in extra if e.startswith("-") or "=" not in e]
-        if stray or (extra and not hasattr(args, "overrides")):
-            parser.error(f"unrecognized arguments: {' '.join(stray or extra)}")
-        if extra:
-            args.overrides = list(args.overrides) + extra
+        args = parse_command_line(parser, argv)
     except SystemExit as exc:  # argparse already printed usage + error
         return int(exc.code or 0)
     where = f"{prog} {args.command}"

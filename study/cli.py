@@ -47,32 +47,6 @@ def _sweep_args(p: argparse.ArgumentParser) -> None:
     p.add_argument("overrides", nargs="*",
                    help="sweep config overrides key=value, e.g. 'overlaps=[0.2,0.5]' seeds=[0,1] "
                         "'train_overrides=[train.steps=100]'")
-    _allow_intermixed(p)
-
-
-def _allow_intermixed(p: argparse.ArgumentParser) -> None:
-    """Let ``key=value`` overrides come after ``--out`` (``PRESET --out DIR a=b``).
-
-    Plain argparse binds the optional ``overrides`` positional (nargs='*') to an empty
-    list together with PRESET and then rejects later positionals as unrecognised;
-    ``parse_known_intermixed_args`` does not, but refuses parsers with subcommands, so it
-    is switched on for this (leaf) subparser only, which its parent calls through
-    ``parse_known_args``. The guard sends the intermixed parser's own inner calls to the
-    original method.
-    """
-    orig = p.parse_known_args
-    state = {"inner": False}
-
-    def parse_known_args(args=None, namespace=None):
-        if state["inner"]:
-            return orig(args, namespace)
-        state["inner"] = True
-        try:
-            return p.parse_known_intermixed_args(args, namespace)
-        finally:
-            state["inner"] = False
-
-    p.parse_known_args = parse_known_args
 
 
 def run_sweep_command(args: argparse.Namespace) -> int:

@@ -81,10 +81,10 @@ def test_cli_usage_error_returns_2(tmp_path, capsys):
 
 
 def test_overrides_may_follow_options():
-    from corelib.cli import build_parser
+    from corelib.cli import build_parser, parse_command_line
 
     parser = build_parser("mcdp", "", study_cli.COMMANDS)
-    args = parser.parse_args(["sweep", "p.yaml", "a=1", "--out", "d", "--no-progress", "b=2", "c=[0.2,0.3]"])
+    args = parse_command_line(parser, ["sweep", "p.yaml", "a=1", "--out", "d", "--no-progress", "b=2", "c=[0.2,0.3]"])
     assert (args.preset, args.out, args.no_progress, args.overrides) == ("p.yaml", "d", True, ["a=1", "b=2", "c=[0.2,0.3]"])
     assert args._run is study_cli.run_sweep_command
 
