@@ -1,4 +1,4 @@
-"""The `mcdp` command: the method's commands (`mcdp.cli`: train, eval, predict) and the study's
+"""The `mcdp` command: the method's commands (`study.method_commands`: train, eval, predict) and the study's
 `pretrain` and `sweep` (they render worlds), assembled here at the top of the house so that `mcdp`
 never imports `study`. ``python -m mcdp`` runs this too (`mcdp.__main__`).
 
@@ -14,7 +14,7 @@ import sys
 
 from corelib import exitcodes
 from corelib.cli import Command
-from mcdp import cli as mcdp_cli
+from study import method_commands as mcdp_cli
 from corelib.configlib import resolve_path
 
 # the study's modules (and torch, which they import) are imported by the command that runs, once its
@@ -69,7 +69,7 @@ def run_sweep_command(args: argparse.Namespace) -> int:
     return exitcodes.DIVERGED if results["counters"].get("diverged") else exitcodes.OK
 
 
-#: the study's commands, added to the method's (`mcdp.cli.COMMANDS`) in the one CLI style (`corelib.cli`)
+#: the study's commands, added to the method's (`study.method_commands.COMMANDS`) in the one CLI style (`corelib.cli`)
 COMMANDS = [
     Command("pretrain", "shared self-supervised pretraining: render its world, train both heads (cached by its "
             "config hash)", _pretrain_args, run_pretrain_command),
@@ -79,7 +79,7 @@ COMMANDS = [
 
 
 def main(argv: list[str] | None = None) -> int:
-    """The `mcdp` console script: `mcdp.cli.main` with the `pretrain` and `sweep` subcommands added."""
+    """The `mcdp` console script: `study.method_commands.main` with the `pretrain` and `sweep` subcommands added."""
     return mcdp_cli.main(argv, extra_commands=COMMANDS)
 
 

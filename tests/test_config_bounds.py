@@ -33,7 +33,7 @@ CI_SWEEP = ROOT / "configs" / "sweep" / "ci.yaml"
     ("eval.max_depth=.inf", "eval.max_depth", "finite"),
 ])
 def test_train_refuses_a_nonsense_or_unbounded_number_before_writing(tmp_path, capsys, override, key, said):
-    from mcdp.cli import main
+    from study.method_commands import main
 
     run = tmp_path / "run"
     assert main(["train", str(MONO2), "--data", str(tmp_path / "nodata"), "--out", str(run), override]) == 2

@@ -176,7 +176,7 @@ def test_a_full_disk_during_render_leaves_nothing_half_written_and_the_rerun_res
 def test_a_full_disk_while_checkpointing_keeps_the_last_checkpoint_and_training_resumes(tiny_dataset, tmp_path,
                                                                                        capsys, monkeypatch, full_disk_after):
     import corelib.atomic
-    from mcdp.cli import main
+    from study.method_commands import main
     from mcdp.runs import load_checkpoint
 
     run = tmp_path / "run"
@@ -199,7 +199,7 @@ def test_a_full_disk_while_checkpointing_keeps_the_last_checkpoint_and_training_
 
 # --------------------------------------------------------------------------- eval --out
 def test_eval_refuses_to_overwrite_a_file_that_is_not_its_metrics(tiny_dataset, tmp_path, capsys):
-    from mcdp.cli import main
+    from study.method_commands import main
 
     run = tmp_path / "run"
     assert main(["train", str(TINY_TRAIN / "mono2.yaml"), "--data", str(tiny_dataset), "--out", str(run),

@@ -141,3 +141,17 @@ def test_no_module_imports_a_private_name_of_another():
     found = set().union(*(private_uses(name, path, mods) for name, path in mods.items()))
     assert not found, "private names used across modules:\n" + "\n".join(
         f"{a} uses {b}.{n}" for a, b, n in sorted(found))
+
+
+def test_the_method_library_has_no_command_line():
+    """mcdp/ is a library: argument parsing and the command table live in the top layer (study.cli,
+    study.method_commands), so no mcdp module imports argparse or corelib.cli."""
+    bad = []
+    for m, path in modules().items():
+        if m.split(".")[0] != "mcdp":
+            continue
+        for node in ast.walk(ast.parse(path.read_text())):
+            names = ([a.name for a in node.names] if isinstance(node, ast.Import) else
+                     [node.module or ""] if isinstance(node, ast.ImportFrom) else [])
+            bad += [f"{m} imports {n}" for n in names if n in ("argparse", "corelib.cli")]
+    assert not bad, "\n".join(sorted(bad))

@@ -170,7 +170,7 @@ def test_a_render_states_its_size_and_refuses_a_huge_one_without_yes(tmp_path, c
 
 # --------------------------------------------------------------------------- 9: outputs inside a dataset
 def test_outputs_inside_a_dataset_are_refused(data, tmp_path, capsys, tree_hash):
-    from mcdp.cli import main as mcdp_main
+    from study.method_commands import main as mcdp_main
 
     before = tree_hash(data)
     inner = data / "seq_00000"
@@ -191,7 +191,7 @@ def test_outputs_inside_a_dataset_are_refused(data, tmp_path, capsys, tree_hash)
 def test_predict_refuses_a_folder_of_another_dataset_or_run(tiny_dataset, data, tmp_path, capsys):
     import json
 
-    from mcdp.cli import main as mcdp_main
+    from study.method_commands import main as mcdp_main
 
     run = tmp_path / "run"
     assert mcdp_main(["train", str(ROOT / "configs" / "train" / "tiny" / "mono2.yaml"), "--data", str(tiny_dataset),
@@ -214,7 +214,7 @@ def test_predict_refuses_a_folder_of_another_dataset_or_run(tiny_dataset, data, 
 def test_eval_on_another_rig_warns_and_records_the_difference(tiny_dataset, tmp_path, capsys):
     import json
 
-    from mcdp.cli import main as mcdp_main
+    from study.method_commands import main as mcdp_main
 
     run = tmp_path / "run"
     assert mcdp_main(["train", str(ROOT / "configs" / "train" / "tiny" / "mono2.yaml"), "--data", str(tiny_dataset),

@@ -63,7 +63,7 @@ def test_a_manifest_name_that_is_not_plain_is_refused_naming_the_field(tree_hash
 
 
 def test_mcdp_predict_refuses_a_manifest_whose_sequence_leaves_the_root(tiny_dataset, tmp_path, capsys):
-    from mcdp.cli import main
+    from study.method_commands import main
 
     d = _copy(tiny_dataset, tmp_path)
     _edit_manifest(d, lambda m: _rename_seq(m, "../outside/x"))
@@ -91,7 +91,7 @@ def test_a_sequence_folder_symlinked_outside_the_root_is_refused(tiny_dataset, t
 
 # --------------------------------------------------------------------------- configs
 def test_a_yaml_alias_bomb_is_refused_in_a_few_lines(tmp_path, capsys):
-    from mcdp.cli import main
+    from study.method_commands import main
 
     bomb = ["a: &a [x, x, x, x, x, x, x, x, x, x]"]
     for i in range(1, 9):
@@ -106,7 +106,7 @@ def test_a_yaml_alias_bomb_is_refused_in_a_few_lines(tmp_path, capsys):
 
 
 def test_an_oversized_config_is_refused_before_it_is_parsed(tmp_path, capsys):
-    from mcdp.cli import main
+    from study.method_commands import main
 
     big = tmp_path / "big.yaml"
     big.write_text("model: {method: mono2}\n" + "# " + "x" * (2 << 20) + "\n")
@@ -116,7 +116,7 @@ def test_an_oversized_config_is_refused_before_it_is_parsed(tmp_path, capsys):
 
 
 def test_a_long_bad_override_gives_a_bounded_message(capsys):
-    from mcdp.cli import main
+    from study.method_commands import main
 
     assert main(["train", str(TINY_TRAIN / "mono2.yaml"), "--data", "x", "--out", "y", "train.lr=[" + "1," * 5000]) == 2
     assert len(capsys.readouterr().err) < 800
@@ -124,7 +124,7 @@ def test_a_long_bad_override_gives_a_bounded_message(capsys):
 
 # --------------------------------------------------------------------------- divergence
 def test_lr_1_stops_naming_the_step_and_keeps_only_finite_checkpoints(tiny_dataset, tmp_path, capsys):
-    from mcdp.cli import main
+    from study.method_commands import main
     from mcdp.runs import load_checkpoint
 
     run = tmp_path / "run"
@@ -177,7 +177,7 @@ def test_a_nan_validation_loss_stops_training(tiny_dataset, tmp_path, monkeypatc
 
 # --------------------------------------------------------------------------- output folders
 def test_train_refuses_a_folder_of_the_users_own_files(tree_hash, tiny_dataset, tmp_path, capsys):
-    from mcdp.cli import main
+    from study.method_commands import main
 
     mine = tmp_path / "mine"
     mine.mkdir()

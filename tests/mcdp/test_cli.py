@@ -11,7 +11,7 @@ import pytest
 import mcdp.trainer  # noqa: F401  torch/torchvision (and triton's LLVM) must load before the in-process
 #                              GL renderer of the tiny_dataset fixture, whose llvmpipe LLVM otherwise clashes
 #                              with triton's (segfault in `import torch.fx` inside torchvision.ops)
-from mcdp.cli import main
+from study.method_commands import main
 
 ROOT = Path(__file__).resolve().parents[2]
 TINY = ROOT / "configs" / "train" / "tiny"

@@ -11,7 +11,7 @@ from pathlib import Path
 import pytest
 import torch
 
-from mcdp.cli import main
+from study.method_commands import main
 from mcdp.runs import load_checkpoint
 
 ROOT = Path(__file__).resolve().parents[2]

@@ -173,7 +173,7 @@ def test_the_system_adds_fsm_terms_for_the_fsm_preset(ds, rigs, source):
 
 
 def test_the_tiny_fsm_preset_trains_two_steps_and_its_cut_evaluation_equals_its_evaluation(tiny_dataset, ds, tmp_path):
-    from mcdp.cli import main
+    from study.method_commands import main
     from mcdp.evaluate import EvalConfig, evaluate
     from mcdp.predict import Predictor
 

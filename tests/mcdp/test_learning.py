@@ -251,7 +251,7 @@ def test_warm_start_refuses_files_that_are_not_a_pretraining(tmp_path):
 
 
 def test_pretrain_is_cached_by_its_config_hash_and_refuses_foreign_folders(tmp_path, capsys):
-    from study.cli import main  # the mcdp console script: mcdp.cli's commands + pretrain and sweep
+    from study.cli import main  # the mcdp console script: train / eval / predict + pretrain and sweep
 
     args = ["pretrain", str(ROOT / "configs/pretrain/tiny.yaml"), "--no-progress",
             "data_overrides=[seed=1000,dataset.sequences=3,dataset.frames=4]",

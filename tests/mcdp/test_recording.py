@@ -12,7 +12,7 @@ import pytest
 rr = pytest.importorskip("rerun", reason="the viz extra is not installed: pip install -e '.[viz]'")
 
 import mcdp.trainer  # noqa: F401,E402  torch before the in-process GL renderer (tests/mcdp/test_cli.py)
-from mcdp.cli import main  # noqa: E402
+from study.method_commands import main  # noqa: E402
 
 TINY = Path(__file__).resolve().parents[2] / "configs" / "train" / "tiny"
 

@@ -111,7 +111,7 @@ def test_the_cut_mask_is_block_diagonal():
 
 
 def test_the_tiny_surround_preset_trains_two_steps_and_evaluates_as_trained_and_cut(tiny_dataset, ds, tmp_path):
-    from mcdp.cli import main
+    from study.method_commands import main
     from mcdp.evaluate import EvalConfig, evaluate
     from mcdp.predict import Predictor
 

@@ -16,7 +16,7 @@ import pytest
 pytest.importorskip("nuscenes", reason="nuscenes-devkit not installed (pip install -e '.[nuscenes]')")
 
 import mcdp.trainer  # noqa: F401,E402  torch before the in-process GL renderer (tests/conftest.py)
-from mcdp.cli import main  # noqa: E402
+from study.method_commands import main  # noqa: E402
 from mcdp.evaluate import EvalConfig, evaluate  # noqa: E402
 from mcdp.predict import Predictor  # noqa: E402
 from synth.dataset import open_dataset  # noqa: E402

@@ -1,5 +1,8 @@
 """The ``mcdp`` command line: train, evaluate and run MCDP / Monodepth2 models on synth datasets.
 
+These commands use the method library (`mcdp`) and live here, in the top layer, so that `mcdp` is a pure
+library with no command line of its own.
+
 ::
 
     mcdp train configs/train/<preset>.yaml --data DATA --out RUN [key=value ...]   # resumes if RUN has a checkpoint
@@ -293,7 +296,7 @@ RULES = [(USER_ERRORS, EXIT_USAGE, "error"), (DIVERGED, EXIT_DIVERGED, "training
 
 def main(argv: list[str] | None = None, extra_commands: Iterable[Command] = ()) -> int:
     """The method's commands; `extra_commands` add more (the study's ``pretrain`` and ``sweep``, assembled
-    by `study.cli` so that this package never imports the layer above)."""
+    by `study.cli`)."""
     return cli.main("mcdp", __doc__.split("\n")[0], [*COMMANDS, *extra_commands], argv, RULES)
 
 
