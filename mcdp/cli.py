@@ -8,10 +8,11 @@
     mcdp pretrain configs/pretrain/tiny.yaml --out DIR [key=value ...]           # added by study.cli
     mcdp sweep configs/sweep/cpu.yaml --out SWEEP [key=value ...]          # added by study.cli
 
-Exit codes (`corelib.exitcodes`, the same in every command): 0 success, 2 bad input (config,
-dataset, run folder, or a file the operating system refuses: permission denied, read-only file
-system, a name too long; one line on stderr naming it, no traceback), 3 training diverged (NaN/inf
-loss), 4 disk full, 130 interrupted.
+Exit codes (`corelib.exitcodes`, the same in every command; the README's table): 0 success, 2 bad
+input (config, dataset, run folder, or a file the operating system refuses: permission denied,
+read-only file system, a name too long; one line on stderr naming it, no traceback), 3 training
+diverged (NaN/inf loss), 4 disk full, 5 a sweep's run failed twice (engine ray), 6 no OpenGL back end
+(pretrain, sweep: they render), 130 interrupted.
 
 A config is checked before torch is imported (seconds): a wrong key fails at once.
 
@@ -291,10 +292,11 @@ COMMANDS: list[Command] = [
 RULES = [(USER_ERRORS, EXIT_USAGE, "error"), (DIVERGED, EXIT_DIVERGED, "training diverged")]
 
 
-def main(argv: list[str] | None = None, extra_commands: Iterable[Command] = ()) -> int:
+def main(argv: list[str] | None = None, extra_commands: Iterable[Command] = (),
+         extra_rules: Iterable[cli.ErrorRule] = ()) -> int:
     """The method's commands; `extra_commands` add more (the study's ``pretrain`` and ``sweep``, assembled
-    by `study.cli` so that this package never imports the layer above)."""
-    return cli.main("mcdp", __doc__.split("\n")[0], [*COMMANDS, *extra_commands], argv, RULES)
+    by `study.cli` so that this package never imports the layer above), `extra_rules` their errors."""
+    return cli.main("mcdp", __doc__.split("\n")[0], [*COMMANDS, *extra_commands], argv, [*extra_rules, *RULES])
 
 
 if __name__ == "__main__":

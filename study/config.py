@@ -179,19 +179,23 @@ def run_config_for(cfg: SweepConfig, method: str, seed: int, init_from: str | No
     return load_config(RunConfig, preset, cfg.train_overrides, values, base=base), preset
 
 
-def check_nested_configs(cfg: SweepConfig) -> None:
+def check_nested_configs(cfg: SweepConfig, yes: bool = False) -> dict:
     """Resolve every config the sweep will build (the pretraining's data and run configs, each overlap's
     data config, each (method, seed)'s run config), so that a wrong key or value in ``data_overrides`` /
-    ``train_overrides`` (or the pretraining's) is a ConfigError naming it before anything is rendered."""
+    ``train_overrides`` (or the pretraining's) is a ConfigError naming it before anything is rendered;
+    and the size of every render it will do (`synth.config.render_size`), all together refused above
+    `synth.config.MAX_RENDER_BYTES` unless `yes`. Returns that total size."""
+    from synth.config import check_render_size, render_size, total_render_size
+
     where = "pretrain"
     try:  # every config first, then what the networks need of them (that imports torch)
+        worlds = []
         if cfg.pretrain is not None:
             from study.pretrain import resolved_configs
 
-            resolved_configs(cfg.pretrain, check_network=False)
+            worlds.append(resolved_configs(cfg.pretrain, check_network=False)[0])
         where = "data_overrides"
-        for o in cfg.overlaps:
-            data_config_for(cfg, o)
+        worlds += [data_config_for(cfg, o) for o in cfg.overlaps]
         where = "train_overrides"
         init_from = "pretrained.pt" if cfg.pretrain is not None else None
         runs = [run_config_for(cfg, method, seed, init_from)[0] for method in cfg.methods for seed in cfg.seeds]
@@ -203,6 +207,11 @@ def check_nested_configs(cfg: SweepConfig) -> None:
             check_model(rcfg.model)
     except ConfigError as exc:
         raise ConfigError(f"sweep {where}: {exc}") from None
+    size = total_render_size(render_size(w) for w in worlds)
+    check_render_size(size, yes, f"sweep: its {len(worlds)} world(s) ({len(cfg.overlaps)} overlap(s) of {cfg.data}"
+                      + (" and the pretraining's" if cfg.pretrain is not None else "") + ")",
+                      "dataset.sequences / dataset.frames / camera.* in data_overrides (and pretrain.data_overrides)")
+    return size
 
 
 def eval_config_for(cfg: SweepConfig):

@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import errno
 import os
+import re
 import shutil
 import signal
 import subprocess
@@ -34,8 +35,8 @@ SYNTH = [sys.executable, "-m", "synth.cli"]
 MCDP = [sys.executable, "-m", "mcdp"]
 
 
-def _run(argv: list[str], timeout: float = 600) -> subprocess.CompletedProcess:
-    env = {**os.environ, "OMP_NUM_THREADS": "1"}
+def _run(argv: list[str], timeout: float = 600, **env_vars: str) -> subprocess.CompletedProcess:
+    env = {**os.environ, "OMP_NUM_THREADS": "1", **env_vars}
     return subprocess.run(argv, cwd=ROOT, env=env, capture_output=True, text=True, timeout=timeout)
 
 
@@ -168,6 +169,66 @@ def test_an_os_error_on_the_temporary_file_names_the_users_file(tmp_path):
         with atomic_path(target) as tmp:
             raise PermissionError(errno.EACCES, "Permission denied", str(tmp))
     assert err.value.filename == str(target) and os.listdir(tmp_path) == []
+
+
+# --------------------------------------------------------------------------- the README's exit-code table
+def _readme_exit_codes() -> dict[int, list[str]]:
+    """code -> the commands the README's table says return it (``every command`` as ["*"])."""
+    rows = re.findall(r"^\| (\d+) \| .+ \| (.+) \|$", (ROOT / "README.md").read_text(), re.M)
+    return {int(c): ["*"] if who.startswith("every command") else re.findall(r"`((?:synth|mcdp) \w+)", who)
+            for c, who in rows}
+
+
+def test_the_readme_table_lists_every_exit_code_once():
+    import corelib.exitcodes as ec
+
+    table = _readme_exit_codes()
+    assert sorted(table) == sorted(v for k, v in vars(ec).items() if k.isupper() and isinstance(v, int))
+    assert table[5] == ["mcdp sweep"] and table[2] == ["*"] and table[130] == ["*"]
+
+
+def test_no_opengl_back_end_is_exit_6_in_exactly_the_commands_the_readme_names(work, tmp_path):
+    """PYOPENGL_PLATFORM=glx: a platform we do not support, as on a machine without EGL and OSMesa."""
+    argv = {"synth render": SYNTH + ["render", "configs/data/tiny.yaml", "--out", str(tmp_path / "r")],
+            "mcdp pretrain": MCDP + ["pretrain", "configs/pretrain/tiny.yaml", "--out", str(tmp_path / "p")],
+            "mcdp sweep": MCDP + ["sweep", "configs/sweep/ci.yaml", "--out", str(tmp_path / "s"), "methods=[mono2]"]}
+    assert sorted(_readme_exit_codes()[6]) == sorted(argv)
+    for name, cmd in argv.items():
+        res = _run(cmd + ["--no-progress"], PYOPENGL_PLATFORM="glx")
+        err = res.stderr.strip().splitlines()
+        assert res.returncode == 6 and "Traceback" not in res.stderr, (name, res.returncode, res.stderr[-3000:])
+        assert err[-1] == f"{name}: error: PYOPENGL_PLATFORM='glx' is not supported here; use egl or osmesa", err
+    res = _run(SYNTH + ["preview", str(work["data"]), "--out", str(tmp_path / "sheet.png")], PYOPENGL_PLATFORM="glx")
+    assert res.returncode == 0, res.stderr[-2000:]  # no OpenGL in a preview: not in the table's row, rightly
+
+
+@pytest.mark.parametrize("argv, started", [
+    (SYNTH + ["render", "configs/data/tiny.yaml", "--out", "{tmp}/big", "dataset.frames=400", "--no-progress"],
+     "synth render: "),
+    (MCDP + ["train", TINY_TRAIN, "--data", "{data}", "--out", "{tmp}/long", "train.steps=100000", "--no-progress"],
+     "  6 cameras"),
+], ids=["synth-render", "mcdp-train"])
+def test_sigint_to_the_command_alone_is_exit_130_in_one_line(work, tmp_path, argv, started):
+    fill = {"tmp": str(tmp_path), "data": str(work["data"])}
+    argv = [a.format(**fill) for a in argv]
+    proc = subprocess.Popen(argv, cwd=ROOT, env={**os.environ, "OMP_NUM_THREADS": "1"}, stdout=subprocess.DEVNULL,
+                            stderr=subprocess.PIPE, text=True)
+    try:
+        lines = []
+        while not (lines and lines[-1].startswith(started)):
+            line = proc.stderr.readline()
+            assert line, lines
+            lines.append(line)
+        time.sleep(2.0)  # inside the work
+        proc.send_signal(signal.SIGINT)
+        rest = proc.communicate(timeout=120)[1]
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
+    name = ("synth " if argv[2] == "synth.cli" else "mcdp ") + argv[3]
+    assert proc.returncode == 130 and rest.strip().splitlines()[-1] == f"{name}: interrupted", rest[-3000:]
+    assert "Traceback" not in rest
 
 
 # --------------------------------------------------------------------------- item 12: config before torch
