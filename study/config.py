@@ -25,9 +25,9 @@ SPLIT = "test"
 class SweepEvalConfig(StrictModel):
     """Evaluation settings applied to every run (see `mcdp.evaluate.EvalConfig`; depths in metres)."""
 
-    min_depth: float = Field(0.5, gt=0.0)
-    max_depth: float = Field(80.0, gt=0.0)
-    frame_stride: int = Field(1, ge=1)
+    min_depth: float = Field(0.5, gt=0.0, le=1000.0, allow_inf_nan=False)
+    max_depth: float = Field(80.0, gt=0.0, le=1000.0, allow_inf_nan=False)
+    frame_stride: int = Field(1, ge=1, le=10_000)
     skip_ends: bool = True
 
     @model_validator(mode="after")
@@ -121,8 +121,8 @@ class SweepConfig(StrictModel):
     def _seeds(cls, v: list[int]) -> list[int]:
         if not v:
             raise ValueError("must list at least one seed")
-        if len(set(v)) != len(v) or any(s < 0 for s in v):
-            raise ValueError(f"seeds must be distinct and >= 0, got {v}")
+        if len(set(v)) != len(v) or any(not 0 <= s <= 2**32 - 1 for s in v):
+            raise ValueError(f"seeds must be distinct and in [0, 2^32 - 1] (train.seed), got {str(v)[:200]}")
         return v
 
     @field_validator("data_overrides")
