@@ -69,6 +69,8 @@ def work(tiny_dataset, tmp_path_factory) -> dict[str, Path]:
 CASES = [
     ("synth-bad-key", SYNTH + ["render", "configs/data/tiny.yaml", "--out", "{tmp}/r1", "bad.key=1"], 2, ["bad"],
      ["{tmp}/r1"]),
+    ("synth-render-workers-unbounded", SYNTH + ["render", "configs/data/tiny.yaml", "--out", "{tmp}/r3", "--workers",
+                                                "100000"], 2, ["--workers must be in [1, 256]"], ["{tmp}/r3"]),
     ("synth-missing-config", SYNTH + ["render", "{tmp}/nope.yaml", "--out", "{tmp}/r2"], 2, ["nope.yaml"],
      ["{tmp}/r2"]),
     ("synth-missing-dataset", SYNTH + ["preview", "{tmp}/nodata", "--out", "{tmp}/p.png"], 2, ["nodata"],
@@ -257,6 +259,7 @@ with atomic_path(sys.argv[1]) as tmp:
 
 def _killed_writer(target: Path) -> Path:
     """A writer of ``target`` killed with SIGKILL mid-write; the temporary file it left."""
+    target.parent.mkdir(parents=True, exist_ok=True)
     proc = subprocess.Popen([sys.executable, "-c", _WRITER, str(target)], cwd=ROOT, stdout=subprocess.PIPE, text=True)
     tmp = Path(proc.stdout.readline().strip())
     os.kill(proc.pid, signal.SIGKILL)
@@ -281,3 +284,50 @@ def test_a_write_killed_with_sigkill_leaves_no_temporary_file_after_the_next_run
     assert res.returncode == 0, res.stderr[-2000:]
     assert not left.exists()
     assert not [p for p in data.rglob("*") if ".tmp" in p.name]
+
+
+def test_every_writer_removes_a_killed_writers_temporary_file_on_its_next_run(work, tmp_path):
+    """export, train (a checkpoint), predict: a writer killed with SIGKILL in the output folder (its
+    ``.NAME.tmpPID``, exactly as `corelib.atomic` leaves it) is gone after the command's next run there."""
+    d, run, ns, pred = str(work["data"]), tmp_path / "run", tmp_path / "ns", tmp_path / "pred"
+    cases = [(SYNTH + ["export", d, "--format", "nuscenes", "--no-lidar", "--out", str(ns), "--no-progress"],
+              ns / "samples" / "CAM_FRONT" / "x.jpg"),
+             (MCDP + ["train", TINY_TRAIN, "--data", d, "--out", str(run), "--no-progress", "train.steps=1"],
+              run / "checkpoints" / "last.pt"),
+             (MCDP + ["predict", str(run), "--data", d, "--out", str(pred), "--max-samples", "1"],
+              pred / "seq_00000" / "x.exr")]
+    for argv, target in cases:
+        res = _run(argv)
+        assert res.returncode == 0, res.stderr[-2000:]
+        target.parent.mkdir(parents=True, exist_ok=True)
+        left = _killed_writer(target)
+        res = _run(argv)
+        assert res.returncode == 0, res.stderr[-2000:]
+        assert not left.exists(), argv[3]
+        assert [p for p in target.parents[1].rglob("*") if ".tmp" in p.name] == [], argv[3]
+
+
+@pytest.mark.parametrize("command", ["sweep", "pretrain"])
+def test_a_sweep_or_pretraining_removes_killed_writers_temporary_files_when_it_claims_its_folder(tmp_path,
+                                                                                                 monkeypatch, command):
+    """What a killed run, render or checkpoint left anywhere under the sweep's (pretraining's) folder is
+    removed when the next run of the command locks it, before it does anything else (here: nothing else)."""
+    import study.pretrain
+    import study.sweep
+    from corelib.rundir import claim
+
+    out = tmp_path / command
+    claim(out, command).release()
+    left = [_killed_writer(out / "runs" / "overlap_0.20" / "mono2_s0" / "checkpoints" / "last.pt"),
+            _killed_writer(out / "data" / "seq_00000" / "CAM_FRONT" / "000000.png")]
+    if command == "sweep":
+        monkeypatch.setattr(study.sweep, "_run_sweep", lambda *a: {"counters": {}})
+        from study.config import load_sweep_config
+
+        cfg = load_sweep_config(ROOT / "configs" / "sweep" / "ci.yaml", ["pretrain=null"])
+        study.sweep.run_sweep(cfg, out, progress=False, log=lambda s: None)
+    else:
+        monkeypatch.setattr(study.pretrain, "_pretrain", lambda *a: {})
+        study.pretrain.run_pretrain(study.pretrain.load_pretrain_config(ROOT / "configs" / "pretrain" / "tiny.yaml"),
+                                    out, progress=False, log=lambda s: None)
+    assert [p for p in left if p.exists()] == [] and not [p for p in out.rglob("*") if ".tmp" in p.name]
