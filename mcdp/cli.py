@@ -55,14 +55,14 @@ def _check_metrics_target(out: Path) -> None:
     check_output_file(out, _is_metrics, "metrics file written by mcdp eval")
 
 
-def _outside_datasets(out: str | Path) -> None:
+def _outside_datasets(out: str | Path, flag: str = "--out") -> None:
     """An output inside a dataset would change it behind its manifest (and `synth verify` would not see it)."""
     from corelib.rundir import FolderError
     from synth.dataset import dataset_containing
 
     inside = dataset_containing(out)
     if inside is not None:
-        raise FolderError(f"--out {out} is inside the dataset {inside}; nothing was written: write outside it")
+        raise FolderError(f"{flag} {out} is inside the dataset {inside}; nothing was written: write outside it")
 
 
 def _open_dataset(path: str):
@@ -227,6 +227,7 @@ def _predict(args: argparse.Namespace) -> int:
     if args.rrd is not None:
         from synth.view import check_rrd_target, import_rerun
 
+        _outside_datasets(args.rrd, "--rrd")
         check_rrd_target(args.rrd, "--rrd")
         import_rerun()  # the viz extra missing: one line naming the install command, before any work
     if args.out is not None:

@@ -59,8 +59,19 @@ def _merge_args(m: argparse.ArgumentParser) -> None:
     m.add_argument("--out", required=True)
 
 
+def _outside_datasets(out: str) -> None:
+    from corelib.configlib import ConfigError
+    from synth.dataset import dataset_containing
+
+    inside = dataset_containing(out)
+    if inside is not None:
+        raise ConfigError(f"--out {out} is inside the dataset {inside}; nothing was written: write outside it")
+
+
 def _merge(args) -> int:
     from synth.render import merge_datasets
+
+    _outside_datasets(args.out)
 
     res = merge_datasets([Path(s) for s in args.shards], Path(args.out))
     print(json.dumps(res))
@@ -92,6 +103,8 @@ def _view_args(w: argparse.ArgumentParser) -> None:
 
 def _view(args) -> int:
     from synth.view import record_rig
+
+    _outside_datasets(args.out)
 
     s = record_rig(args.data, args.out, args.seq, args.frames, args.point_stride)
     print(f"wrote {s['out']}: {s['sequence']} frames {s['frames'][0]}:{s['frames'][1]}, {s['bytes'] / 1e6:.2f} MB "

@@ -224,6 +224,9 @@ def test_outputs_inside_a_dataset_are_refused(data, tmp_path, capsys, tree_hash)
         (mcdp_main, ["train", mono2, "--data", str(data), "--out", str(inner / "run"), "--no-progress"]),
         (mcdp_main, ["predict", str(tmp_path / "run"), "--data", str(data), "--out", str(inner / "pred")]),
         (mcdp_main, ["eval", str(tmp_path / "run"), "--data", str(data), "--out", str(inner / "m.json")]),
+        (mcdp_main, ["predict", str(tmp_path / "run"), "--data", str(data), "--rrd", str(inner / "p.rrd")]),
+        (synth_main, ["merge", "--out", str(inner / "merged"), str(data)]),
+        (synth_main, ["view", str(data), "--out", str(inner / "rig.rrd")]),
     ]:
         assert code(argv) == 2, argv
         line = _err_line(capsys)
