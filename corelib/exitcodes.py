@@ -1,6 +1,7 @@
 """Exit codes of every command (`synth`, `mcdp`): one meaning each, whichever command returns it.
 
-The README lists them for users ("Exit codes").
+The README's table lists them for users, with the commands that return each (tests/test_cli_errors.py
+checks it).
 """
 OK = 0
 FAILED = 1  # the command ran and found a problem (synth verify), or an unexpected run-time failure
@@ -10,5 +11,5 @@ USAGE = 2  # a user error: config, dataset, run folder, output folder (the messa
 DIVERGED = 3  # training diverged (NaN/inf loss or gradient), also a sweep with a diverged run
 DISK_FULL = 4  # no space left (ENOSPC, EDQUOT): free space and run the same command again
 RUN_FAILED = 5  # mcdp sweep: some run failed (engine ray: twice); the others finished
-NO_BACKEND = 6  # synth: no usable OpenGL back end on this machine
+NO_BACKEND = 6  # no usable OpenGL back end on this machine: synth render, mcdp pretrain / sweep (they render)
 INTERRUPTED = 130

@@ -52,7 +52,7 @@ class SceneConfig(StrictModel):
     @field_validator("family_weights")
     @classmethod
     def _weights_ok(cls, w: tuple[float, ...]) -> tuple[float, ...]:
-        if len(w) != len(FAMILIES) or any(x < 0 for x in w) or sum(w) <= 0:
-            raise ValueError(f"family_weights must be {len(FAMILIES)} numbers >= 0 with a positive sum "
+        if len(w) != len(FAMILIES) or not all(0 <= x <= 1000 for x in w) or sum(w) <= 0:  # NaN fails 0 <= x
+            raise ValueError(f"family_weights must be {len(FAMILIES)} numbers in [0, 1000] with a positive sum "
                              f"({', '.join(FAMILIES)})")
         return w

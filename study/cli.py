@@ -25,14 +25,21 @@ def _pretrain_args(p: argparse.ArgumentParser) -> None:
     p.add_argument("config", help="pretraining config YAML, e.g. configs/pretrain/tiny.yaml")
     p.add_argument("--out", required=True, help="pretraining folder (reused when its config hash matches)")
     p.add_argument("--no-progress", action="store_true")
+    p.add_argument("--yes", action="store_true", help="start a pretraining whose render is larger than "
+                   "synth.config.MAX_RENDER_BYTES (500 GB uncompressed) without refusing")
     p.add_argument("overrides", nargs="*", help="overrides of the pretraining config, e.g. 'train_overrides=[train.steps=50]'")
 
 
 def run_pretrain_command(args: argparse.Namespace) -> int:
     """Run the ``pretrain`` subcommand (a cached pretraining returns at once); 0 on success."""
-    from study.pretrain import load_pretrain_config, run_pretrain
+    from study.pretrain import load_pretrain_config, resolved_configs, run_pretrain
+    from synth.config import check_render_size, render_size, size_statement
 
-    run_pretrain(load_pretrain_config(args.config, args.overrides), args.out, progress=not args.no_progress)
+    cfg = load_pretrain_config(args.config, args.overrides)
+    size = render_size(resolved_configs(cfg, check_network=False)[0])
+    print(f"mcdp pretrain: its world: {size_statement(size)}", file=sys.stderr)
+    check_render_size(size, args.yes, f"{args.config} data_overrides")
+    run_pretrain(cfg, args.out, progress=not args.no_progress)
     return 0
 
 
@@ -44,6 +51,8 @@ def _sweep_args(p: argparse.ArgumentParser) -> None:
                    help="where renders and runs execute (overrides the config's engine): local processes, or Ray "
                         "tasks on a local Ray / the cluster at RAY_ADDRESS (pip install -e '.[cluster]'; "
                         "docs/SCALING.md)")
+    p.add_argument("--yes", action="store_true", help="start a sweep whose renders together are larger than "
+                   "synth.config.MAX_RENDER_BYTES (500 GB uncompressed) without refusing")
     p.add_argument("overrides", nargs="*",
                    help="sweep config overrides key=value, e.g. 'overlaps=[0.2,0.5]' seeds=[0,1] "
                         "'train_overrides=[train.steps=100]'")
@@ -53,17 +62,25 @@ def run_sweep_command(args: argparse.Namespace) -> int:
     """Run the ``sweep`` subcommand; 0 on success, 5 if some run failed (engine ray: retried once, then a
     ``failed`` row), else 3 if some run diverged (the report says which); 2 for a usage / config error."""
     from study.config import check_nested_configs, load_sweep_config
+    from synth.config import check_render_size, size_statement
 
     preset = resolve_path(args.preset, "sweep preset")
     engine = getattr(args, "engine", None)
     cfg = load_sweep_config(preset, args.overrides, {"engine": engine} if engine else None)
-    check_nested_configs(cfg)  # its overrides' configs too, before the sweep's modules (and torch) are imported
+    size = check_nested_configs(cfg, yes=True)  # its overrides' configs too, before the sweep's modules are imported
+    if cfg.engine == "ray":  # refused before anything is said or written
+        from corelib.cluster import import_ray
+
+        import_ray()
+    print(f"mcdp sweep: its renders: {size_statement(size)}", file=sys.stderr)
+    check_render_size(size, args.yes, f"sweep {args.preset}: its renders together",
+                      "dataset.sequences / dataset.frames / camera.* in data_overrides (and pretrain.data_overrides)")
     from study.engines import EXIT_RUN_FAILED
     from study.sweep import run_sweep
 
     source = str(preset) + (" + " + " ".join(args.overrides) if args.overrides else "")
     results = run_sweep(cfg, args.out, progress=not args.no_progress,
-                        config_source=source + (f" + --engine {engine}" if engine else ""))
+                        config_source=source + (f" + --engine {engine}" if engine else ""), yes=args.yes)
     if results["counters"].get("failed"):
         return EXIT_RUN_FAILED
     return exitcodes.DIVERGED if results["counters"].get("diverged") else exitcodes.OK
@@ -78,9 +95,13 @@ COMMANDS = [
 ]
 
 
+#: the study's commands render: no OpenGL back end is exit 6, as in `synth render` (`corelib.exitcodes`)
+RULES = [([("synth.gl_context", "RenderBackendError")], exitcodes.NO_BACKEND, "error")]
+
+
 def main(argv: list[str] | None = None) -> int:
     """The `mcdp` console script: `study.method_commands.main` with the `pretrain` and `sweep` subcommands added."""
-    return mcdp_cli.main(argv, extra_commands=COMMANDS)
+    return mcdp_cli.main(argv, extra_commands=COMMANDS, extra_rules=RULES)
 
 
 if __name__ == "__main__":

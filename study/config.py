@@ -25,9 +25,9 @@ SPLIT = "test"
 class SweepEvalConfig(StrictModel):
     """Evaluation settings applied to every run (see `mcdp.evaluate.EvalConfig`; depths in metres)."""
 
-    min_depth: float = Field(0.5, gt=0.0)
-    max_depth: float = Field(80.0, gt=0.0)
-    frame_stride: int = Field(1, ge=1)
+    min_depth: float = Field(0.5, gt=0.0, le=1000.0, allow_inf_nan=False)
+    max_depth: float = Field(80.0, gt=0.0, le=1000.0, allow_inf_nan=False)
+    frame_stride: int = Field(1, ge=1, le=10_000)
     skip_ends: bool = True
 
     @model_validator(mode="after")
@@ -121,8 +121,8 @@ class SweepConfig(StrictModel):
     def _seeds(cls, v: list[int]) -> list[int]:
         if not v:
             raise ValueError("must list at least one seed")
-        if len(set(v)) != len(v) or any(s < 0 for s in v):
-            raise ValueError(f"seeds must be distinct and >= 0, got {v}")
+        if len(set(v)) != len(v) or any(not 0 <= s <= 2**32 - 1 for s in v):
+            raise ValueError(f"seeds must be distinct and in [0, 2^32 - 1] (train.seed), got {str(v)[:200]}")
         return v
 
     @field_validator("data_overrides")
@@ -174,19 +174,23 @@ def run_config_for(cfg: SweepConfig, method: str, seed: int, init_from: str | No
     return load_config(RunConfig, preset, cfg.train_overrides, values, base=base), preset
 
 
-def check_nested_configs(cfg: SweepConfig) -> None:
+def check_nested_configs(cfg: SweepConfig, yes: bool = False) -> dict:
     """Resolve every config the sweep will build (the pretraining's data and run configs, each overlap's
     data config, each (method, seed)'s run config), so that a wrong key or value in ``data_overrides`` /
-    ``train_overrides`` (or the pretraining's) is a ConfigError naming it before anything is rendered."""
+    ``train_overrides`` (or the pretraining's) is a ConfigError naming it before anything is rendered;
+    and the size of every render it will do (`synth.config.render_size`), all together refused above
+    `synth.config.MAX_RENDER_BYTES` unless `yes`. Returns that total size."""
+    from synth.config import check_render_size, render_size, total_render_size
+
     where = "pretrain"
     try:  # every config first, then what the networks need of them (that imports torch)
+        worlds = []
         if cfg.pretrain is not None:
             from study.pretrain import resolved_configs
 
-            resolved_configs(cfg.pretrain, check_network=False)
+            worlds.append(resolved_configs(cfg.pretrain, check_network=False)[0])
         where = "data_overrides"
-        for o in cfg.overlaps:
-            data_config_for(cfg, o)
+        worlds += [data_config_for(cfg, o) for o in cfg.overlaps]
         where = "train_overrides"
         init_from = "pretrained.pt" if cfg.pretrain is not None else None
         runs = [run_config_for(cfg, method, seed, init_from)[0] for method in cfg.methods for seed in cfg.seeds]
@@ -198,6 +202,11 @@ def check_nested_configs(cfg: SweepConfig) -> None:
             check_model(rcfg.model)
     except ConfigError as exc:
         raise ConfigError(f"sweep {where}: {exc}") from None
+    size = total_render_size(render_size(w) for w in worlds)
+    check_render_size(size, yes, f"sweep: its {len(worlds)} world(s) ({len(cfg.overlaps)} overlap(s) of {cfg.data}"
+                      + (" and the pretraining's" if cfg.pretrain is not None else "") + ")",
+                      "dataset.sequences / dataset.frames / camera.* in data_overrides (and pretrain.data_overrides)")
+    return size
 
 
 def eval_config_for(cfg: SweepConfig):

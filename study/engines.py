@@ -89,9 +89,12 @@ def _run_parallel(cfg: SweepConfig, todo: list, out: Path, counters: Counters, l
                 rows[index[fut]] = row
                 _merge(counters, c)
                 on_done(row)
-        except BaseException:
+        except BaseException as exc:
             for f in futures:
                 f.cancel()
+            if isinstance(exc, KeyboardInterrupt):  # SIGINT to this process alone: its workers did not get it,
+                for proc in mp.active_children():  # and leaving the with-block would wait for their runs to end
+                    proc.terminate()
             raise
     return rows  # type: ignore[return-value]
 

@@ -11,10 +11,11 @@ library with no command line of its own.
     mcdp pretrain configs/pretrain/tiny.yaml --out DIR [key=value ...]           # added by study.cli
     mcdp sweep configs/sweep/cpu.yaml --out SWEEP [key=value ...]          # added by study.cli
 
-Exit codes (`corelib.exitcodes`, the same in every command): 0 success, 2 bad input (config,
-dataset, run folder, or a file the operating system refuses: permission denied, read-only file
-system, a name too long; one line on stderr naming it, no traceback), 3 training diverged (NaN/inf
-loss), 4 disk full, 130 interrupted.
+Exit codes (`corelib.exitcodes`, the same in every command; the README's table): 0 success, 2 bad
+input (config, dataset, run folder, or a file the operating system refuses: permission denied,
+read-only file system, a name too long; one line on stderr naming it, no traceback), 3 training
+diverged (NaN/inf loss), 4 disk full, 5 a sweep's run failed twice (engine ray), 6 no OpenGL back end
+(pretrain, sweep: they render), 130 interrupted.
 
 A config is checked before torch is imported (seconds): a wrong key fails at once.
 
@@ -57,14 +58,14 @@ def _check_metrics_target(out: Path) -> None:
     check_output_file(out, _is_metrics, "metrics file written by mcdp eval")
 
 
-def _outside_datasets(out: str | Path) -> None:
+def _outside_datasets(out: str | Path, flag: str = "--out") -> None:
     """An output inside a dataset would change it behind its manifest (and `synth verify` would not see it)."""
     from corelib.rundir import FolderError
     from synth.dataset import dataset_containing
 
     inside = dataset_containing(out)
     if inside is not None:
-        raise FolderError(f"--out {out} is inside the dataset {inside}; nothing was written: write outside it")
+        raise FolderError(f"{flag} {out} is inside the dataset {inside}; nothing was written: write outside it")
 
 
 def _open_dataset(path: str):
@@ -229,6 +230,7 @@ def _predict(args: argparse.Namespace) -> int:
     if args.rrd is not None:
         from synth.view import check_rrd_target, import_rerun
 
+        _outside_datasets(args.rrd, "--rrd")
         check_rrd_target(args.rrd, "--rrd")
         import_rerun()  # the viz extra missing: one line naming the install command, before any work
     if args.out is not None:
@@ -294,10 +296,11 @@ COMMANDS: list[Command] = [
 RULES = [(USER_ERRORS, EXIT_USAGE, "error"), (DIVERGED, EXIT_DIVERGED, "training diverged")]
 
 
-def main(argv: list[str] | None = None, extra_commands: Iterable[Command] = ()) -> int:
+def main(argv: list[str] | None = None, extra_commands: Iterable[Command] = (),
+         extra_rules: Iterable[cli.ErrorRule] = ()) -> int:
     """The method's commands; `extra_commands` add more (the study's ``pretrain`` and ``sweep``, assembled
-    by `study.cli`)."""
-    return cli.main("mcdp", __doc__.split("\n")[0], [*COMMANDS, *extra_commands], argv, RULES)
+    by `study.cli`), `extra_rules` their errors."""
+    return cli.main("mcdp", __doc__.split("\n")[0], [*COMMANDS, *extra_commands], argv, [*extra_rules, *RULES])
 
 
 if __name__ == "__main__":

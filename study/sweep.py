@@ -57,19 +57,20 @@ from study.stages import Counters, pretrain_stage, reference_stage, render_stage
 
 
 def run_sweep(cfg: SweepConfig, out: str | Path, progress: bool = True, log: Callable[[str], None] | None = None,
-              config_source: str | None = None) -> dict:
+              config_source: str | None = None, yes: bool = False) -> dict:
     """Run (or resume) a whole sweep into `out`; writes the report; returns the results dict.
 
     The returned dict (also ``out/results.json``) holds ``counters`` (rendered,
     render_skipped, trained, train_skipped, train_resumed, evaluated, eval_skipped,
     diverged, failed), ``data`` (per overlap), ``rows`` (per overlap x method x seed),
-    ``aggregate`` (mean/std over seeds) and ``timing``.
+    ``aggregate`` (mean/std over seeds) and ``timing``. Its renders together above
+    `synth.config.MAX_RENDER_BYTES` are refused (ConfigError) unless `yes`.
     """
     from corelib.rundir import claim
 
     log = log or (lambda s: print(s, file=sys.stderr, flush=True))
     out = Path(out)
-    check_nested_configs(cfg)  # a typo in an override: refused before anything is rendered or written
+    check_nested_configs(cfg, yes)  # a typo in an override, a huge render: refused before anything is written
     if cfg.engine == "ray":
         from corelib.cluster import import_ray
         import_ray()  # Ray missing: one line, before anything is written

@@ -59,8 +59,19 @@ def _merge_args(m: argparse.ArgumentParser) -> None:
     m.add_argument("--out", required=True)
 
 
+def _outside_datasets(out: str) -> None:
+    from corelib.configlib import ConfigError
+    from synth.dataset import dataset_containing
+
+    inside = dataset_containing(out)
+    if inside is not None:
+        raise ConfigError(f"--out {out} is inside the dataset {inside}; nothing was written: write outside it")
+
+
 def _merge(args) -> int:
     from synth.render import merge_datasets
+
+    _outside_datasets(args.out)
 
     res = merge_datasets([Path(s) for s in args.shards], Path(args.out))
     print(json.dumps(res))
@@ -93,6 +104,8 @@ def _view_args(w: argparse.ArgumentParser) -> None:
 def _view(args) -> int:
     from synth.view import record_rig
 
+    _outside_datasets(args.out)
+
     s = record_rig(args.data, args.out, args.seq, args.frames, args.point_stride)
     print(f"wrote {s['out']}: {s['sequence']} frames {s['frames'][0]}:{s['frames'][1]}, {s['bytes'] / 1e6:.2f} MB "
           f"({s['bytes_per_rig_frame'] / 1e6:.3f} MB per rig-frame) in {s['seconds']:.1f} s; open it with "
@@ -115,7 +128,7 @@ def main(argv: list[str] | None = None) -> int:
 
 def _render(args) -> int:
     from corelib.configlib import ConfigError
-    from synth.config import MAX_RENDER_BYTES, load_data_config, render_size
+    from synth.config import check_render_size, load_data_config, render_size, size_statement
     from synth.dataset import dataset_containing
     from synth.render import parse_shard, render_dataset
 
@@ -129,14 +142,8 @@ def _render(args) -> int:
 
         import_ray()
     size = render_size(cfg, shard[1])
-    print(f"synth render: {size['rig_frames']} rig-frames, {size['images']} images of {cfg.camera.width}x"
-          f"{cfg.camera.height} (RGB + depth): {size['max_bytes'] / 1e9:.3g} GB before compression, about a third "
-          "of that on disk",
-          file=sys.stderr)
-    if size["max_bytes"] > MAX_RENDER_BYTES and not args.yes:
-        raise ConfigError(f"{args.config}: this render is up to {size['max_bytes'] / 1e9:.3g} GB, more than "
-                          f"{MAX_RENDER_BYTES / 1e9:.0f} GB; lower dataset.sequences / dataset.frames / camera.* "
-                          "or pass --yes")
+    print(f"synth render: {size_statement(size, f' of {cfg.camera.width}x{cfg.camera.height}')}", file=sys.stderr)
+    check_render_size(size, args.yes, args.config)
     s = render_dataset(cfg, args.out, workers=args.workers, shard=shard, engine=args.engine,
                        progress=not args.no_progress)
     print(f"rendered {s['rendered_sequences']} sequence(s) ({s['rig_frames']} rig-frames) in {s['seconds']:.1f} s "

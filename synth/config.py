@@ -16,7 +16,7 @@ from typing import Iterable, Literal
 from pydantic import Field, model_validator
 
 from scenes.config import SceneConfig
-from corelib.configlib import StrictModel, load_config
+from corelib.configlib import ConfigError, StrictModel, load_config
 from synth.rig import CameraConfig, RigConfig
 
 
@@ -75,7 +75,8 @@ def load_data_config(path=None, overrides: Iterable[str] = ()) -> DataConfig:
     return load_config(DataConfig, path, overrides)
 
 
-#: the largest render `synth render` starts without ``--yes`` (bytes, the upper bound of `render_size`)
+#: the largest render `synth render` (and `mcdp sweep` / `mcdp pretrain`, all their renders together) starts
+#: without ``--yes`` (bytes, the upper bound of `render_size`)
 MAX_RENDER_BYTES = 500 * 10**9
 _BYTES_PER_PIXEL = 3 + 4  # RGB uint8 + float32 z-depth, before PNG / EXR compression (about 2 measured)
 
@@ -90,3 +91,23 @@ def render_size(cfg: DataConfig, shard_of: int = 1) -> dict:
     return {"rig_frames": rig_frames, "images": images,
             "max_bytes": images * cfg.camera.width * cfg.camera.height * _BYTES_PER_PIXEL}
 
+
+def total_render_size(sizes) -> dict:
+    """The sum of several `render_size` results (a sweep's worlds)."""
+    sizes = list(sizes)
+    return {k: sum(s[k] for s in sizes) for k in ("rig_frames", "images", "max_bytes")}
+
+
+def size_statement(size: dict, what: str = "") -> str:
+    """One line: the rig-frames, images and bytes of a render (`render_size`), said before it starts."""
+    return (f"{size['rig_frames']} rig-frames, {size['images']} images{what} (RGB + depth): "
+            f"{size['max_bytes'] / 1e9:.3g} GB before compression, about a third of that on disk")
+
+
+def check_render_size(size: dict, yes: bool, source: str, keys: str = "dataset.sequences / dataset.frames / "
+                      "camera.*") -> None:
+    """ConfigError naming `source` when a render (or all of a command's renders) is above `MAX_RENDER_BYTES`
+    and the user did not say ``--yes``."""
+    if size["max_bytes"] > MAX_RENDER_BYTES and not yes:
+        raise ConfigError(f"{source}: this render is up to {size['max_bytes'] / 1e9:.3g} GB, more than "
+                          f"{MAX_RENDER_BYTES / 1e9:.0f} GB; lower {keys} or pass --yes")

@@ -80,6 +80,30 @@ def read_png(path: str | Path, gray: bool = False) -> np.ndarray:
     return img if gray else np.ascontiguousarray(img[:, :, ::-1])
 
 
+JPEG_SIGNATURE = b"\xff\xd8\xff"
+#: what an image file's name promises, by its suffix: the signature its first bytes must carry
+IMAGE_SIGNATURES = {".png": (PNG_SIGNATURE, "PNG"), ".jpg": (JPEG_SIGNATURE, "JPEG"), ".jpeg": (JPEG_SIGNATURE, "JPEG")}
+
+
+def read_image(path: str | Path) -> np.ndarray:
+    """(H, W, 3) uint8 RGB of a .png or .jpg file (a nuScenes dataroot's camera images) whose first bytes
+    are those its name promises: a file of another format under that name is refused, naming the file."""
+    path = Path(path)
+    sig, kind = IMAGE_SIGNATURES.get(path.suffix.lower(), (None, path.suffix))
+    if sig is None:
+        raise DatasetError(f"{path}: not a .png or .jpg image")
+    try:
+        data = path.read_bytes()
+    except OSError as exc:
+        raise DatasetError(f"{path}: missing or not readable ({exc.strerror or exc})") from None
+    if not data.startswith(sig):
+        raise DatasetError(f"{path}: not a readable {kind} (its first bytes are not the {kind} signature)")
+    img = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_COLOR)
+    if img is None:
+        raise DatasetError(f"{path}: not a readable {kind} (truncated or corrupt)")
+    return np.ascontiguousarray(img[:, :, ::-1])
+
+
 def write_depth_exr(path: str | Path, depth: np.ndarray, fsync: bool = True) -> None:
     """Write (H, W) float32 z-depth in metres as a single-channel ("Z") ZIP-compressed OpenEXR, whole or
     not at all."""

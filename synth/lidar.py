@@ -64,6 +64,9 @@ class LidarConfig(StrictModel):
             raise ValueError("lidar.elevation_max_deg must be >= lidar.elevation_min_deg")
         if self.max_range_m <= self.min_range_m:
             raise ValueError("lidar.max_range_m must be > lidar.min_range_m")
+        if not all(-10.0 <= v <= 10.0 for v in self.mount_xyz_m):  # NaN fails the comparison too
+            raise ValueError(f"lidar.mount_xyz_m must be 3 finite numbers within 10 m of the ego origin, got "
+                             f"{self.mount_xyz_m}")
         return self
 
     def elevations_rad(self) -> np.ndarray:

@@ -32,10 +32,9 @@ import json
 import warnings
 from pathlib import Path
 
-import cv2
 import numpy as np
 
-from synth.files import DatasetError, read_png
+from synth.files import DatasetError, read_image, read_png
 from synth.nuscenes_tables import (EXPORT_DIR, get_record, lidar_xyz, load_tables, pose_matrix, read_splits,
                                    resolve_version, view_points)
 from synth.rig import CameraSpec
@@ -49,6 +48,16 @@ LIDAR_MIN_DEPTH = 0.1
 LIDAR_MAX_DEPTH = 80.0
 RIG_TOL = 1e-9  # calibrated_sensor values that differ by more are two rigs
 NO_MASKS = "no self-occlusion masks: every pixel counts as scene"
+
+
+def within(root: Path, path: Path, who: str) -> Path:
+    """`path` when it resolves inside the dataroot `root`; a file that a table names outside it (``../``,
+    an absolute name) or that is a symlink out of it is never read (DatasetError naming it)."""
+    real, real_root = path.resolve(), root.resolve()
+    if not real.is_relative_to(real_root):
+        raise DatasetError(f"{path}: resolves to {real}, outside the dataroot {real_root} ({who}); a dataroot's "
+                           "files must lie inside it")
+    return path
 
 
 def _angles(K: np.ndarray, T: np.ndarray, width: int) -> tuple[float, float, float]:
@@ -174,17 +183,15 @@ class NuScenesDataset:
         return self.cameras[self.camera_names.index(cam)]
 
     def read_rgb(self, seq: str, cam: str, frame: int) -> np.ndarray:
-        """(H, W, 3) uint8 RGB; DatasetError naming the file if it is missing or of another size."""
+        """(H, W, 3) uint8 RGB; DatasetError naming the file if it is missing, outside the dataroot, not
+        of the format its name says (`synth.files.read_image`) or of another size."""
         p = self.rgb_path(seq, cam, frame)
-        img = cv2.imread(str(p), cv2.IMREAD_COLOR)
-        if img is None:
-            raise DatasetError(f"{p}: missing or not a readable image (sample_data "
-                               f"{self._cam(seq, cam, frame)['token']})")
+        img = read_image(within(self.root, p, f"sample_data {self._cam(seq, cam, frame)['token']}"))
         c = self._spec(cam)
         if img.shape[:2] != (c.height, c.width):
             raise DatasetError(f"{p}: the image is {img.shape[1]}x{img.shape[0]}, the first {cam} image is "
                                f"{c.width}x{c.height}")
-        return np.ascontiguousarray(img[:, :, ::-1])
+        return img
 
     def _global_points(self, seq: str, frame: int) -> np.ndarray:
         """(3, N) float64 LiDAR points of a sample in the global frame (cached for the last sample)."""
@@ -193,6 +200,7 @@ class NuScenesDataset:
             return self._points_cache[1]
         p = self.depth_path(seq, frame=frame, cam=self.camera_names[0])
         lid = self._rec(seq, frame)["lidar"]
+        within(self.root, p, f"sample_data {lid['token']}")
         try:
             pts = lidar_xyz(p).astype(np.float64)
         except Exception as exc:  # noqa: BLE001 - the devkit raises bare errors for unreadable files
@@ -419,10 +427,7 @@ class _Scan:
         cameras = []
         for ch in RIG_ORDER:
             first = self.first_file[ch]
-            img = cv2.imread(str(first), cv2.IMREAD_UNCHANGED)
-            if img is None:
-                raise DatasetError(f"{first}: not a readable image")
-            h, w = img.shape[:2]
+            h, w = read_image(within(self.root, first, ch)).shape[:2]
             other = sorted(self.sizes.get(ch, set()) - {(w, h)})
             if other:
                 raise DatasetError(f"{self.tab / 'sample_data.json'}: {ch} sample_data give size "

@@ -40,6 +40,7 @@ from synth.pipeline import FrameSink, ScenePrefetch, build_sequence_scene
 from synth.rig import Rig, build_rig, ego_body_mesh
 
 MARKER_DIR = ".synth"
+MAX_WORKERS = 256  # render processes on one machine (the sweep's `workers` has the same bound)
 RECORD = "record.json"
 
 
@@ -282,8 +283,8 @@ def render_dataset(cfg: DataConfig, out: str | Path, workers: int = 1, shard: tu
     """
     out = Path(out)
     k, N = shard
-    if workers < 1:
-        raise ValueError(f"--workers must be >= 1, got {workers}")
+    if not 1 <= workers <= MAX_WORKERS:
+        raise ValueError(f"--workers must be in [1, {MAX_WORKERS}], got {workers}")
     if engine not in ("local", "ray"):
         raise ValueError(f"--engine must be local or ray, got {engine!r}")
     if engine == "ray":

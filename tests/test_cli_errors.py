@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import errno
 import os
+import re
 import shutil
 import signal
 import subprocess
@@ -34,8 +35,8 @@ SYNTH = [sys.executable, "-m", "synth.cli"]
 MCDP = [sys.executable, "-m", "mcdp"]
 
 
-def _run(argv: list[str], timeout: float = 600) -> subprocess.CompletedProcess:
-    env = {**os.environ, "OMP_NUM_THREADS": "1"}
+def _run(argv: list[str], timeout: float = 600, **env_vars: str) -> subprocess.CompletedProcess:
+    env = {**os.environ, "OMP_NUM_THREADS": "1", **env_vars}
     return subprocess.run(argv, cwd=ROOT, env=env, capture_output=True, text=True, timeout=timeout)
 
 
@@ -68,6 +69,8 @@ def work(tiny_dataset, tmp_path_factory) -> dict[str, Path]:
 CASES = [
     ("synth-bad-key", SYNTH + ["render", "configs/data/tiny.yaml", "--out", "{tmp}/r1", "bad.key=1"], 2, ["bad"],
      ["{tmp}/r1"]),
+    ("synth-render-workers-unbounded", SYNTH + ["render", "configs/data/tiny.yaml", "--out", "{tmp}/r3", "--workers",
+                                                "100000"], 2, ["--workers must be in [1, 256]"], ["{tmp}/r3"]),
     ("synth-missing-config", SYNTH + ["render", "{tmp}/nope.yaml", "--out", "{tmp}/r2"], 2, ["nope.yaml"],
      ["{tmp}/r2"]),
     ("synth-missing-dataset", SYNTH + ["preview", "{tmp}/nodata", "--out", "{tmp}/p.png"], 2, ["nodata"],
@@ -170,6 +173,66 @@ def test_an_os_error_on_the_temporary_file_names_the_users_file(tmp_path):
     assert err.value.filename == str(target) and os.listdir(tmp_path) == []
 
 
+# --------------------------------------------------------------------------- the README's exit-code table
+def _readme_exit_codes() -> dict[int, list[str]]:
+    """code -> the commands the README's table says return it (``every command`` as ["*"])."""
+    rows = re.findall(r"^\| (\d+) \| .+ \| (.+) \|$", (ROOT / "README.md").read_text(), re.M)
+    return {int(c): ["*"] if who.startswith("every command") else re.findall(r"`((?:synth|mcdp) \w+)", who)
+            for c, who in rows}
+
+
+def test_the_readme_table_lists_every_exit_code_once():
+    import corelib.exitcodes as ec
+
+    table = _readme_exit_codes()
+    assert sorted(table) == sorted(v for k, v in vars(ec).items() if k.isupper() and isinstance(v, int))
+    assert table[5] == ["mcdp sweep"] and table[2] == ["*"] and table[130] == ["*"]
+
+
+def test_no_opengl_back_end_is_exit_6_in_exactly_the_commands_the_readme_names(work, tmp_path):
+    """PYOPENGL_PLATFORM=glx: a platform we do not support, as on a machine without EGL and OSMesa."""
+    argv = {"synth render": SYNTH + ["render", "configs/data/tiny.yaml", "--out", str(tmp_path / "r")],
+            "mcdp pretrain": MCDP + ["pretrain", "configs/pretrain/tiny.yaml", "--out", str(tmp_path / "p")],
+            "mcdp sweep": MCDP + ["sweep", "configs/sweep/ci.yaml", "--out", str(tmp_path / "s"), "methods=[mono2]"]}
+    assert sorted(_readme_exit_codes()[6]) == sorted(argv)
+    for name, cmd in argv.items():
+        res = _run(cmd + ["--no-progress"], PYOPENGL_PLATFORM="glx")
+        err = res.stderr.strip().splitlines()
+        assert res.returncode == 6 and "Traceback" not in res.stderr, (name, res.returncode, res.stderr[-3000:])
+        assert err[-1] == f"{name}: error: PYOPENGL_PLATFORM='glx' is not supported here; use egl or osmesa", err
+    res = _run(SYNTH + ["preview", str(work["data"]), "--out", str(tmp_path / "sheet.png")], PYOPENGL_PLATFORM="glx")
+    assert res.returncode == 0, res.stderr[-2000:]  # no OpenGL in a preview: not in the table's row, rightly
+
+
+@pytest.mark.parametrize("argv, started", [
+    (SYNTH + ["render", "configs/data/tiny.yaml", "--out", "{tmp}/big", "dataset.frames=400", "--no-progress"],
+     "synth render: "),
+    (MCDP + ["train", TINY_TRAIN, "--data", "{data}", "--out", "{tmp}/long", "train.steps=100000", "--no-progress"],
+     "  6 cameras"),
+], ids=["synth-render", "mcdp-train"])
+def test_sigint_to_the_command_alone_is_exit_130_in_one_line(work, tmp_path, argv, started):
+    fill = {"tmp": str(tmp_path), "data": str(work["data"])}
+    argv = [a.format(**fill) for a in argv]
+    proc = subprocess.Popen(argv, cwd=ROOT, env={**os.environ, "OMP_NUM_THREADS": "1"}, stdout=subprocess.DEVNULL,
+                            stderr=subprocess.PIPE, text=True)
+    try:
+        lines = []
+        while not (lines and lines[-1].startswith(started)):
+            line = proc.stderr.readline()
+            assert line, lines
+            lines.append(line)
+        time.sleep(2.0)  # inside the work
+        proc.send_signal(signal.SIGINT)
+        rest = proc.communicate(timeout=120)[1]
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
+    name = ("synth " if argv[2] == "synth.cli" else "mcdp ") + argv[3]
+    assert proc.returncode == 130 and rest.strip().splitlines()[-1] == f"{name}: interrupted", rest[-3000:]
+    assert "Traceback" not in rest
+
+
 # --------------------------------------------------------------------------- item 12: config before torch
 def test_a_bad_key_fails_before_torch_is_imported(work):
     for argv in (["train", TINY_TRAIN, "--data", str(work["data"]), "--out", str(work["tmp"] / "t9"), "bad.key=1"],
@@ -196,6 +259,7 @@ with atomic_path(sys.argv[1]) as tmp:
 
 def _killed_writer(target: Path) -> Path:
     """A writer of ``target`` killed with SIGKILL mid-write; the temporary file it left."""
+    target.parent.mkdir(parents=True, exist_ok=True)
     proc = subprocess.Popen([sys.executable, "-c", _WRITER, str(target)], cwd=ROOT, stdout=subprocess.PIPE, text=True)
     tmp = Path(proc.stdout.readline().strip())
     os.kill(proc.pid, signal.SIGKILL)
@@ -220,3 +284,50 @@ def test_a_write_killed_with_sigkill_leaves_no_temporary_file_after_the_next_run
     assert res.returncode == 0, res.stderr[-2000:]
     assert not left.exists()
     assert not [p for p in data.rglob("*") if ".tmp" in p.name]
+
+
+def test_every_writer_removes_a_killed_writers_temporary_file_on_its_next_run(work, tmp_path):
+    """export, train (a checkpoint), predict: a writer killed with SIGKILL in the output folder (its
+    ``.NAME.tmpPID``, exactly as `corelib.atomic` leaves it) is gone after the command's next run there."""
+    d, run, ns, pred = str(work["data"]), tmp_path / "run", tmp_path / "ns", tmp_path / "pred"
+    cases = [(SYNTH + ["export", d, "--format", "nuscenes", "--no-lidar", "--out", str(ns), "--no-progress"],
+              ns / "samples" / "CAM_FRONT" / "x.jpg"),
+             (MCDP + ["train", TINY_TRAIN, "--data", d, "--out", str(run), "--no-progress", "train.steps=1"],
+              run / "checkpoints" / "last.pt"),
+             (MCDP + ["predict", str(run), "--data", d, "--out", str(pred), "--max-samples", "1"],
+              pred / "seq_00000" / "x.exr")]
+    for argv, target in cases:
+        res = _run(argv)
+        assert res.returncode == 0, res.stderr[-2000:]
+        target.parent.mkdir(parents=True, exist_ok=True)
+        left = _killed_writer(target)
+        res = _run(argv)
+        assert res.returncode == 0, res.stderr[-2000:]
+        assert not left.exists(), argv[3]
+        assert [p for p in target.parents[1].rglob("*") if ".tmp" in p.name] == [], argv[3]
+
+
+@pytest.mark.parametrize("command", ["sweep", "pretrain"])
+def test_a_sweep_or_pretraining_removes_killed_writers_temporary_files_when_it_claims_its_folder(tmp_path,
+                                                                                                 monkeypatch, command):
+    """What a killed run, render or checkpoint left anywhere under the sweep's (pretraining's) folder is
+    removed when the next run of the command locks it, before it does anything else (here: nothing else)."""
+    import study.pretrain
+    import study.sweep
+    from corelib.rundir import claim
+
+    out = tmp_path / command
+    claim(out, command).release()
+    left = [_killed_writer(out / "runs" / "overlap_0.20" / "mono2_s0" / "checkpoints" / "last.pt"),
+            _killed_writer(out / "data" / "seq_00000" / "CAM_FRONT" / "000000.png")]
+    if command == "sweep":
+        monkeypatch.setattr(study.sweep, "_run_sweep", lambda *a: {"counters": {}})
+        from study.config import load_sweep_config
+
+        cfg = load_sweep_config(ROOT / "configs" / "sweep" / "ci.yaml", ["pretrain=null"])
+        study.sweep.run_sweep(cfg, out, progress=False, log=lambda s: None)
+    else:
+        monkeypatch.setattr(study.pretrain, "_pretrain", lambda *a: {})
+        study.pretrain.run_pretrain(study.pretrain.load_pretrain_config(ROOT / "configs" / "pretrain" / "tiny.yaml"),
+                                    out, progress=False, log=lambda s: None)
+    assert [p for p in left if p.exists()] == [] and not [p for p in out.rglob("*") if ".tmp" in p.name]

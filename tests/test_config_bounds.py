@@ -74,3 +74,70 @@ def test_a_sweep_refuses_a_bad_nested_override_before_it_renders(tmp_path, capsy
     err = capsys.readouterr().err
     assert f"sweep {where}: invalid config" in err and key in err, err
     assert not out.exists()
+
+
+# --------------------------------------------------------------------------- every numeric key, every config
+def _numeric_fields():
+    """(model class, field name, its annotation) of every int / float / tuple-of-float key of every config
+    section (every `StrictModel` subclass of the five packages)."""
+    import typing
+
+    import mcdp.config  # noqa: F401  (each module defines its sections)
+    import scenes.config  # noqa: F401
+    import study.config  # noqa: F401
+    import study.pretrain  # noqa: F401
+    import synth.config  # noqa: F401
+    import synth.lidar  # noqa: F401
+    from corelib.configlib import StrictModel
+
+    def numeric(ann) -> bool:
+        return ann in (int, float) or any(numeric(a) for a in typing.get_args(ann))
+
+    seen, stack, out = set(), list(StrictModel.__subclasses__()), []
+    while stack:
+        cls = stack.pop()
+        if cls in seen:
+            continue
+        seen.add(cls)
+        stack += cls.__subclasses__()
+        if cls.__module__.split(".")[0] not in ("corelib", "scenes", "synth", "mcdp", "study"):
+            continue  # a test's own model
+        out += [(cls, name, f.annotation) for name, f in cls.model_fields.items()
+                if numeric(f.annotation) and f.annotation is not bool]
+    return sorted(out, key=lambda t: (t[0].__module__, t[0].__name__, t[1]))
+
+
+NUMERIC = _numeric_fields()
+
+
+def test_the_walk_finds_the_numeric_keys():
+    names = {f"{c.__name__}.{n}" for c, n, _ in NUMERIC}
+    assert len(NUMERIC) >= 70 and {"TrainConfig.lr", "DatasetConfig.sequences", "SweepEvalConfig.max_depth",
+                                    "SceneConfig.family_weights", "LidarConfig.mount_xyz_m",
+                                    "SweepConfig.seeds"} <= names
+
+
+def _is_int(ann) -> bool:
+    import typing
+
+    return any(a is int for a in (ann, *typing.get_args(ann)))
+
+
+#: (class, key, annotation, a value out of any real range): ints get +-10^18 (a float is refused by strict typing)
+OUT_OF_RANGE = [(c, n, a, bad) for c, n, a in NUMERIC
+                for bad in ([10**18, -10**18] if _is_int(a) else [1e18, -1e18, float("inf"), float("-inf"), float("nan")])]
+
+
+@pytest.mark.parametrize("cls, name, ann, bad", OUT_OF_RANGE, ids=[f"{c.__name__}.{n}={b}" for c, n, _, b in OUT_OF_RANGE])
+def test_every_numeric_key_has_a_finite_range(cls, name, ann, bad):
+    """Every number a config takes has a lower and an upper bound a real run could use, and is finite: a
+    value out of them is refused naming the key (whatever the section, a list or tuple element too)."""
+    from pydantic import ValidationError
+
+    default = cls.model_fields[name].get_default(call_default_factory=True)
+    value = bad
+    if isinstance(default, (list, tuple)):  # one element out of range (the length kept)
+        value = type(default)([bad, *list(default)[1:]]) if default else [bad]
+    with pytest.raises(ValidationError) as err:
+        cls.model_validate({name: value}, strict=False)
+    assert name in str(err.value), str(err.value)[:500]

@@ -1,5 +1,6 @@
 """Hardening, round two (issue 20, item 6): the worker processes of `synth render --workers` and of a
-sweep's parallel runs die with their parent on SIGTERM, SIGHUP and kill -9 (`corelib.procs`).
+sweep's parallel runs die with their parent on SIGTERM, SIGHUP, SIGINT and kill -9 (`corelib.procs`; SIGINT
+to the parent alone: it ends its workers itself, since they did not get it).
 
 Each test starts the real command in a subprocess, waits until its spawned workers run, signals the
 parent only (not its process group: what `kill PID` or an OOM killer does) and checks the process
@@ -48,20 +49,26 @@ def _alive(pids: list[int]) -> list[int]:
     return [p for p in pids if (st := _stat(p)) is not None and st[1] != "Z"]
 
 
-def _kill_parent_and_check(argv: list[str], n_workers: int, sig: int, tmp_path: Path, wait_s: float = 240) -> None:
+def _kill_parent_and_check(argv: list[str], n_workers: int, sig: int, tmp_path: Path, wait_s: float = 240,
+                           ready: str | None = None) -> None:
+    """Start ``argv``; once ``n_workers`` spawned children run (and stderr says ``ready`` that many times:
+    the workers of the stage under test, not an earlier stage's), signal the parent only; it exits (130
+    after SIGINT) and every one of those workers is gone."""
     env = {**os.environ, "OMP_NUM_THREADS": "1"}
-    proc = subprocess.Popen(argv, cwd=ROOT, env=env, stdout=subprocess.DEVNULL, stderr=open(tmp_path / "err", "w"))
+    err = tmp_path / "err"
+    proc = subprocess.Popen(argv, cwd=ROOT, env=env, stdout=subprocess.DEVNULL, stderr=open(err, "w"))
     kids: list[int] = []
     try:
         t0 = time.monotonic()
-        while len(kids) < n_workers:
-            assert proc.poll() is None, (tmp_path / "err").read_text()[-2000:]
+        while len(kids) < n_workers or (ready is not None and err.read_text().count(ready) < n_workers):
+            assert proc.poll() is None, err.read_text()[-2000:]
             assert time.monotonic() - t0 < wait_s, f"workers never started: {kids}"
             time.sleep(0.5)
             kids = _spawned_children(proc.pid)
         time.sleep(1.0)  # the workers are past their initializer
         os.kill(proc.pid, sig)
         proc.wait(timeout=120)  # a loaded machine (fsync of its first files) can take tens of seconds
+        assert sig != signal.SIGINT or proc.returncode == 130, (proc.returncode, err.read_text()[-2000:])
         t1 = time.monotonic()
         while _alive(kids) and time.monotonic() - t1 < 20:
             time.sleep(0.2)
@@ -74,17 +81,17 @@ def _kill_parent_and_check(argv: list[str], n_workers: int, sig: int, tmp_path: 
             os.kill(pid, signal.SIGKILL)
 
 
-@pytest.mark.parametrize("sig", [signal.SIGKILL, signal.SIGTERM, signal.SIGHUP])
+@pytest.mark.parametrize("sig", [signal.SIGKILL, signal.SIGTERM, signal.SIGHUP, signal.SIGINT])
 def test_render_workers_die_with_the_render(tmp_path, sig):
     argv = [sys.executable, "-m", "synth.cli", "render", "configs/data/tiny.yaml", "--out", str(tmp_path / "d"),
             "--workers", "2", "--no-progress", "dataset.sequences=6", "dataset.frames=200"]
     _kill_parent_and_check(argv, 3, sig, tmp_path)  # the progress queue's manager + 2 workers
 
 
-@pytest.mark.parametrize("sig", [signal.SIGKILL, signal.SIGTERM])
+@pytest.mark.parametrize("sig", [signal.SIGKILL, signal.SIGTERM, signal.SIGHUP, signal.SIGINT])
 def test_sweep_run_workers_die_with_the_sweep(tmp_path, sig):
     steps = "train_overrides=[train.steps=100000,train.val_every=100000,train.ckpt_every=100000,model.min_depth=2.0]"
     argv = [sys.executable, "-m", "study.cli", "sweep", "configs/sweep/ci.yaml", "--out", str(tmp_path / "s"),
             "--no-progress", "pretrain=null", "methods=[mono2]", "overlaps=[0.2]", "seeds=[0,1]", "jobs=2",
             "preview=false", steps]
-    _kill_parent_and_check(argv, 2, sig, tmp_path)
+    _kill_parent_and_check(argv, 2, sig, tmp_path, wait_s=600, ready="training 100000 steps")  # the runs' workers

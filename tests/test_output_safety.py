@@ -168,6 +168,49 @@ def test_a_render_states_its_size_and_refuses_a_huge_one_without_yes(tmp_path, c
     assert not out.exists()
 
 
+HUGE_WORLD = "camera.width=4096,camera.height=4096,dataset.sequences=100,dataset.frames=4"  # 282 GB a world
+
+
+@pytest.mark.parametrize("argv, said", [
+    # two overlaps of 282 GB each: every render under the cap, the sweep's renders together above it
+    (["sweep", "configs/sweep/ci.yaml", f"data_overrides=[{HUGE_WORLD}]", "pretrain=null"],
+     "mcdp sweep: its renders: 800 rig-frames, 4800 images"),
+    (["sweep", "configs/sweep/ci.yaml", f"pretrain.data_overrides=[{HUGE_WORLD},seed=1000]",
+      "data_overrides=[camera.width=4096,camera.height=4096,dataset.sequences=100,dataset.frames=3]"],
+     "mcdp sweep: its renders: 1000 rig-frames"),  # 282 GB of pretraining world + 2 x 211 GB
+    (["pretrain", "configs/pretrain/tiny.yaml", "data_overrides=[camera.width=4096,camera.height=4096,"
+                                                 "dataset.sequences=100,dataset.frames=10]"],
+     "mcdp pretrain: its world: 1000 rig-frames"),
+], ids=["sweep-overlaps", "sweep-with-pretraining", "pretrain"])
+def test_a_sweep_or_pretraining_refuses_renders_above_the_cap_before_its_folder(tmp_path, capsys, argv, said):
+    """The cap of `synth render` holds for the renders a sweep or a pretraining does: all of them stated
+    and checked before the folder is claimed, refused above the cap without --yes."""
+    from synth.config import MAX_RENDER_BYTES
+    from study.cli import main as study_main
+
+    out = tmp_path / "out"
+    assert study_main([argv[0], argv[1], "--out", str(out), "--no-progress", *argv[2:]]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 2 and err[0].startswith(said), err
+    assert "--yes" in err[1] and f"more than {MAX_RENDER_BYTES // 10**9} GB" in err[1], err
+    assert not out.exists()
+
+
+def test_run_sweep_checks_every_render_and_yes_lets_it_through(tmp_path):
+    from corelib.configlib import ConfigError
+    from study.config import check_nested_configs, load_sweep_config
+    from study.sweep import run_sweep
+
+    cfg = load_sweep_config(ROOT / "configs" / "sweep" / "ci.yaml", [f"data_overrides=[{HUGE_WORLD}]"])
+    with pytest.raises(ConfigError, match=r"sweep: its 3 world\(s\) \(2 overlap\(s\) of configs/data/tiny.yaml "
+                                          r"and the pretraining's\): this render is up to 564 GB"):
+        run_sweep(cfg, tmp_path / "s", progress=False, log=lambda s: None)
+    assert not (tmp_path / "s").exists()
+    size = check_nested_configs(cfg, yes=True)  # told to: the size is returned, nothing refused
+    assert size == {"rig_frames": 2 * 400 + 3 * 4, "images": 6 * (800 + 12),
+                    "max_bytes": 6 * 800 * 4096 * 4096 * 7 + 6 * 12 * 96 * 64 * 7}
+
+
 # --------------------------------------------------------------------------- 9: outputs inside a dataset
 def test_outputs_inside_a_dataset_are_refused(data, tmp_path, capsys, tree_hash):
     from study.method_commands import main as mcdp_main
@@ -181,6 +224,9 @@ def test_outputs_inside_a_dataset_are_refused(data, tmp_path, capsys, tree_hash)
         (mcdp_main, ["train", mono2, "--data", str(data), "--out", str(inner / "run"), "--no-progress"]),
         (mcdp_main, ["predict", str(tmp_path / "run"), "--data", str(data), "--out", str(inner / "pred")]),
         (mcdp_main, ["eval", str(tmp_path / "run"), "--data", str(data), "--out", str(inner / "m.json")]),
+        (mcdp_main, ["predict", str(tmp_path / "run"), "--data", str(data), "--rrd", str(inner / "p.rrd")]),
+        (synth_main, ["merge", "--out", str(inner / "merged"), str(data)]),
+        (synth_main, ["view", str(data), "--out", str(inner / "rig.rrd")]),
     ]:
         assert code(argv) == 2, argv
         line = _err_line(capsys)

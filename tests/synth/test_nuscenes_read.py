@@ -281,3 +281,28 @@ def test_without_the_devkit_the_plain_json_reader_gives_the_same_dataset(ns_root
     np.testing.assert_allclose(plain.lidar_points_world(q, 2), ns.lidar_points_world(q, 2), rtol=0, atol=1e-9)
     for cam in ns.camera_names:
         np.testing.assert_array_equal(plain.read_depth(q, cam, 2), ns.read_depth(q, cam, 2))
+
+
+def test_an_image_out_of_the_dataroot_or_of_another_format_is_refused(ns_root, tmp_path, run, capsys):
+    """Issue 20 (items 2 and 8) for a nuScenes dataroot: a camera file that is a symlink out of the root, or
+    that a table names outside it, is never read; a PNG under a .jpg name is refused by its first bytes."""
+    import cv2
+
+    root = _copy(ns_root, tmp_path)
+    ds = open_nuscenes(root)
+    seq = ds.sequences[0]
+    linked, renamed = ds.rgb_path(seq, "CAM_FRONT", 1), ds.rgb_path(seq, "CAM_FRONT", 2)
+    outside = tmp_path / "secret.jpg"
+    shutil.move(linked, outside)
+    linked.symlink_to(outside)
+    with pytest.raises(DatasetError, match=f"{linked}: resolves to {outside}, outside the dataroot"):
+        ds.read_rgb(seq, "CAM_FRONT", 1)
+    ok, png = cv2.imencode(".png", cv2.imread(str(renamed)))
+    renamed.write_bytes(png.tobytes())
+    with pytest.raises(DatasetError, match=f"{renamed}: not a readable JPEG"):
+        ds.read_rgb(seq, "CAM_FRONT", 2)
+    sd = _cam_sd(root, "CAM_FRONT", 0)  # a table naming a file outside the root: refused when it is opened
+    shutil.copyfile(outside, tmp_path / "up.jpg")
+    _edit(root, "sample_data", lambda t: [{**r, "filename": "../up.jpg"} if r["token"] == sd["token"] else r
+                                          for r in t])
+    _cli_fails(root, run, capsys, tmp_path, "../up.jpg: resolves to", "outside the dataroot")
