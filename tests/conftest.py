@@ -113,3 +113,13 @@ class FullDiskAfter:
 def full_disk_after():
     """`FullDiskAfter(n, part)`: an `open` to patch into corelib.atomic that fills the disk after n files."""
     return FullDiskAfter
+
+
+def default_signals() -> None:
+    """A child's SIGINT and SIGHUP at their defaults (``preexec_fn``), as under a terminal: a test run
+    started in the background (``cmd &``, nohup, some CI runners) passes them on ignored, and a child
+    that inherits SIGINT ignored never sees a KeyboardInterrupt (Python keeps an inherited SIG_IGN)."""
+    import signal
+
+    signal.signal(signal.SIGINT, signal.SIG_DFL)
+    signal.signal(signal.SIGHUP, signal.SIG_DFL)

@@ -17,6 +17,8 @@ from pathlib import Path
 
 import pytest
 
+from tests.conftest import default_signals
+
 ROOT = Path(__file__).resolve().parents[1]
 pytestmark = pytest.mark.skipif(not sys.platform.startswith("linux"), reason="PR_SET_PDEATHSIG is Linux-only")
 
@@ -56,7 +58,8 @@ def _kill_parent_and_check(argv: list[str], n_workers: int, sig: int, tmp_path: 
     after SIGINT) and every one of those workers is gone."""
     env = {**os.environ, "OMP_NUM_THREADS": "1"}
     err = tmp_path / "err"
-    proc = subprocess.Popen(argv, cwd=ROOT, env=env, stdout=subprocess.DEVNULL, stderr=open(err, "w"))
+    proc = subprocess.Popen(argv, preexec_fn=default_signals, cwd=ROOT, env=env, stdout=subprocess.DEVNULL,
+                            stderr=open(err, "w"))
     kids: list[int] = []
     try:
         t0 = time.monotonic()
