@@ -4,13 +4,19 @@
 
 Prints a table: resolution, end-to-end rig-frames/s of one process (scene generation,
 six renders, PNG + EXR writes, checksums, overlap counts), the render-only rate, their ratio,
+the end-to-end rate with the files and overlap counts switched off (what the renders, scene
+generation and start-up alone allow: the ceiling of any faster writing on this machine),
 peak RSS, and the RSS growth over N single-camera renders after warm-up (a leak check).
-With --rounds R the end-to-end and render-only runs alternate R times in the same process and
-each column is the median (the ratio is the median of the R per-round ratios).
+
+Render only = the very render calls of the end-to-end run (the same sequences' scenes with the ego
+body, lights, per-camera gains and shadows), read back, with the scenes built and uploaded
+beforehand and untimed. With --rounds R the three runs alternate R times in the same process and
+each column is the median (the ratios are medians of the R per-round ratios).
 """
 from __future__ import annotations
 
 import argparse
+import contextlib
 import resource
 import sys
 import tempfile
@@ -27,6 +33,47 @@ def rss_mb() -> float:
     return float("nan")
 
 
+def render_only_rate(cfg, rig) -> float:
+    """Rig-frames/s of the end-to-end run's own render calls (module docstring), scenes prepared untimed."""
+    import numpy as np
+
+    from synth.lighting import draw_sequence_lighting, frame_gains
+    from synth.pipeline import build_sequence_scene
+    from synth.render import make_ego_mesh, renderer_for
+
+    r = renderer_for(cfg)
+    seconds, n_rig = 0.0, 0
+    for index in range(cfg.dataset.sequences):
+        _, light_ss, flicker_ss = np.random.SeedSequence([cfg.seed, index]).spawn(3)  # as render_sequence
+        scene = build_sequence_scene(cfg, index)
+        seq_light = draw_sequence_lighting(cfg.lighting, rig.names, np.random.default_rng(light_ss))
+        flicker = np.random.default_rng(flicker_ss)
+        r.load_scene(scene, make_ego_mesh(cfg))
+        t0 = time.perf_counter()
+        for f in range(cfg.dataset.frames):
+            gains = frame_gains(seq_light, flicker)
+            for cam in rig.cameras:
+                r.render(cam.K, scene.T_world_ego[f] @ cam.T_ego_cam, f, seq_light.light, gains[cam.name])
+            n_rig += 1
+        seconds += time.perf_counter() - t0
+    return n_rig / seconds
+
+
+@contextlib.contextmanager
+def files_off():
+    """End to end with the frame sink's PNG, EXR and overlap tasks switched off (the ablation column)."""
+    from synth import pipeline
+
+    saved = {k: getattr(pipeline.FrameSink, k) for k in ("png", "exr", "overlap")}
+    for k in saved:
+        setattr(pipeline.FrameSink, k, lambda *a, **kw: None)
+    try:
+        yield
+    finally:
+        for k, v in saved.items():
+            setattr(pipeline.FrameSink, k, v)
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser()
     ap.add_argument("--sequences", type=int, default=2)
@@ -38,7 +85,12 @@ def main(argv=None) -> int:
     import numpy as np
 
     from synth.config import load_data_config
-    from synth.render import renderer_for, make_rig, render_dataset
+    from synth.render import make_ego_mesh, make_rig, render_dataset, renderer_for
+
+    def e2e_rate(cfg) -> tuple[float, str]:
+        with tempfile.TemporaryDirectory() as tmp:
+            s = render_dataset(cfg, Path(tmp) / "d", workers=1, progress=False, log=lambda *a: None)
+        return s["rig_frames_per_s"], s["backend"]
 
     rows = []
     for size in args.sizes.split(","):
@@ -46,49 +98,49 @@ def main(argv=None) -> int:
         cfg = load_data_config("configs/data/default.yaml", [f"camera.width={w}", f"camera.height={h}",
                                                              f"dataset.sequences={args.sequences}",
                                                              f"dataset.frames={args.frames}"])
-        # end to end and render-only (one scene, no files) in turn, `rounds` times
-        from scenes import build_scene
-        from synth.lighting import draw_sequence_lighting
         rig = make_rig(cfg)
-        e2es, ros = [], []
-        for _ in range(args.rounds):
-            with tempfile.TemporaryDirectory() as tmp:
-                s = render_dataset(cfg, Path(tmp) / "d", workers=1, progress=False, log=lambda *a: None)
-            e2es.append(s["rig_frames_per_s"])
-            r = renderer_for(cfg)
-            scene = build_scene(cfg.scene, args.frames, cfg.dataset.fps, np.random.default_rng(1))
-            r.load_scene(scene, None)
-            light = draw_sequence_lighting(cfg.lighting, rig.names, np.random.default_rng(2)).light
-            t0 = time.perf_counter()
-            n_rig = 0
-            for f in range(args.frames):
-                for cam in rig.cameras:
-                    r.render(cam.K, scene.T_world_ego[f] @ cam.T_ego_cam, f, light)
-                n_rig += 1
-            ros.append(n_rig / (time.perf_counter() - t0))
-        e2e, render_only = float(np.median(e2es)), float(np.median(ros))
-        ratio = float(np.median(np.asarray(e2es) / np.asarray(ros)))
+        e2es, ros, offs = [], [], []
+        for _ in range(args.rounds):  # end to end, render only and files off in turn
+            e2e, backend = e2e_rate(cfg)
+            e2es.append(e2e)
+            ros.append(render_only_rate(cfg, rig))
+            with files_off():
+                offs.append(e2e_rate(cfg)[0])
+        e2es, ros, offs = np.asarray(e2es), np.asarray(ros), np.asarray(offs)
         # leak check on one scene
-        for i in range(50):
+        from synth.pipeline import build_sequence_scene
+        from synth.lighting import draw_sequence_lighting
+
+        r = renderer_for(cfg)
+        scene = build_sequence_scene(cfg, 0)
+        r.load_scene(scene, make_ego_mesh(cfg))
+        light = draw_sequence_lighting(cfg.lighting, rig.names, np.random.default_rng(2)).light
+
+        def one(i):
             cam = rig.cameras[i % 6]
             r.render(cam.K, scene.T_world_ego[i % args.frames] @ cam.T_ego_cam, i % args.frames, light)
+
+        for i in range(50):
+            one(i)
         rss0 = rss_mb()
         for i in range(args.renders):
-            cam = rig.cameras[i % 6]
-            r.render(cam.K, scene.T_world_ego[i % args.frames] @ cam.T_ego_cam, i % args.frames, light)
+            one(i)
         growth = rss_mb() - rss0
         peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
-        rows.append((size, e2e, render_only, ratio, peak, growth, s["backend"]))
-        print(f"{size}: end to end per round {', '.join(f'{x:.2f}' for x in e2es)} rig-frames/s (the first "
-              f"includes the process's GL start-up), render only {', '.join(f'{x:.2f}' for x in ros)}", flush=True)
-    print(f"{'size':>9} | {'rig-frames/s (end to end)':>25} | {'rig-frames/s (render only)':>26} | "
-          f"{'end to end / render only':>24} | {'peak RSS MB':>11} | "
-          f"{'RSS growth over ' + str(args.renders) + ' renders MB':>32} | backend")
-    print("-" * 157)
-    for size, e2e, ro, ratio, peak, growth, be in rows:
-        print(f"{size:>9} | {e2e:25.2f} | {ro:26.2f} | {ratio:23.2f}x | {peak:11.0f} | {growth:32.1f} | {be}")
-    print(f"({args.rounds} round(s) of {args.sequences} sequences x {args.frames} frames end to end, then "
-          f"{args.frames} rig frames render-only; medians)")
+        rows.append((size, np.median(e2es), np.median(ros), np.median(e2es / ros), np.median(offs),
+                     np.median(offs / ros), peak, growth, backend))
+        print(f"{size}: per round end to end {', '.join(f'{x:.2f}' for x in e2es)} rig-frames/s (the first "
+              f"includes the process's GL start-up), render only {', '.join(f'{x:.2f}' for x in ros)}, "
+              f"files off {', '.join(f'{x:.2f}' for x in offs)}", flush=True)
+    head = (f"{'size':>9} | {'end to end':>10} | {'render only':>11} | {'ratio':>6} | {'files off':>9} | "
+            f"{'ratio':>6} | {'peak RSS MB':>11} | {'RSS growth, ' + str(args.renders) + ' renders, MB':>30} | backend")
+    print("rig-frames/s; ratio = the column before / render only (medians of per-round ratios)")
+    print(head)
+    print("-" * len(head))
+    for size, e2e, ro, ratio, off, ratio_off, peak, growth, be in rows:
+        print(f"{size:>9} | {e2e:10.2f} | {ro:11.2f} | {ratio:5.2f}x | {off:9.2f} | {ratio_off:5.2f}x | "
+              f"{peak:11.0f} | {growth:30.1f} | {be}")
+    print(f"({args.rounds} round(s) of {args.sequences} sequences x {args.frames} frames each; medians)")
     return 0
 
 
