@@ -131,3 +131,33 @@ def test_rig_counts_equal_the_pairwise_masks_and_the_first_definition(seed):
             assert np.array_equal(ov, ref)
             assert counts[f"{ci.name}->{cj.name}"] == [int(((gi > 0) & mi).sum()), int(ref.sum())]
     assert sum(n for _, n in counts.values()) > 0
+
+
+@pytest.mark.parametrize("overlap", [0.10, 0.30, 0.60])
+def test_pixels_left_out_as_never_candidates_are_never_inside_the_other_camera(overlap):
+    """`overlap_fraction_counts` only projects the pixels `_candidates` keeps: every other pixel's ray,
+    at any depth from 1 cm to 10 km, must land behind camera j or outside its image (so leaving it out
+    changes no count), while the candidates are a strict subset on the rig (the saving is real)."""
+    from synth.config import load_data_config
+    from synth.overlap import EPS_Z, _candidates, _rays
+    from synth.render import make_rig
+
+    rig = make_rig(load_data_config("configs/data/tiny.yaml", [f"rig.overlap={overlap}"]))
+    t = np.logspace(-2, 4, 200)
+    kept = []
+    for a, b in rig.neighbours:
+        for i, j in ((a, b), (b, a)):
+            ci, cj = rig.cameras[i], rig.cameras[j]
+            cand = _candidates(ci, cj)
+            out = np.setdiff1d(np.arange(ci.width * ci.height), cand)
+            T = np.linalg.inv(cj.T_ego_cam) @ ci.T_ego_cam
+            p = T[:3, :3] @ _rays(ci)[:, out]                                  # (3, P) direction, at depth 1
+            pts = p[:, :, None] * t + T[:3, 3][:, None, None]                  # (3, P, D)
+            z = pts[2]
+            uvw = np.einsum("rc,cpd->rpd", cj.K, pts)
+            with np.errstate(divide="ignore", invalid="ignore"):
+                u, v = uvw[0] / z, uvw[1] / z
+            inside = (z > EPS_Z) & (u >= 0) & (u < cj.width) & (v >= 0) & (v < cj.height)
+            assert not inside.any(), f"{ci.name}->{cj.name}: a left-out pixel lands inside"
+            kept.append(cand.size / (ci.width * ci.height))
+    assert max(kept) < 0.9 and min(kept) >= 0.0
