@@ -33,8 +33,9 @@ def rss_mb() -> float:
     return float("nan")
 
 
-def render_only_rate(cfg, rig) -> float:
-    """Rig-frames/s of the end-to-end run's own render calls (module docstring), scenes prepared untimed."""
+def render_only_rate(cfg, rig) -> tuple[float, float]:
+    """Rig-frames/s of the end-to-end run's own render calls (module docstring), scenes prepared untimed,
+    and the process's CPU milliseconds per rig frame (all threads: llvmpipe rasterises on every core)."""
     import numpy as np
 
     from synth.lighting import draw_sequence_lighting, frame_gains
@@ -42,21 +43,22 @@ def render_only_rate(cfg, rig) -> float:
     from synth.render import make_ego_mesh, renderer_for
 
     r = renderer_for(cfg)
-    seconds, n_rig = 0.0, 0
+    seconds, cpu, n_rig = 0.0, 0.0, 0
     for index in range(cfg.dataset.sequences):
         _, light_ss, flicker_ss = np.random.SeedSequence([cfg.seed, index]).spawn(3)  # as render_sequence
         scene = build_sequence_scene(cfg, index)
         seq_light = draw_sequence_lighting(cfg.lighting, rig.names, np.random.default_rng(light_ss))
         flicker = np.random.default_rng(flicker_ss)
         r.load_scene(scene, make_ego_mesh(cfg))
-        t0 = time.perf_counter()
+        t0, c0 = time.perf_counter(), time.process_time()
         for f in range(cfg.dataset.frames):
             gains = frame_gains(seq_light, flicker)
             for cam in rig.cameras:
                 r.render(cam.K, scene.T_world_ego[f] @ cam.T_ego_cam, f, seq_light.light, gains[cam.name])
             n_rig += 1
         seconds += time.perf_counter() - t0
-    return n_rig / seconds
+        cpu += time.process_time() - c0
+    return n_rig / seconds, 1000 * cpu / n_rig
 
 
 @contextlib.contextmanager
@@ -87,10 +89,13 @@ def main(argv=None) -> int:
     from synth.config import load_data_config
     from synth.render import make_ego_mesh, make_rig, render_dataset, renderer_for
 
-    def e2e_rate(cfg) -> tuple[float, str]:
+    def e2e_rate(cfg) -> tuple[float, float, str]:
+        """rig-frames/s, process CPU ms per rig frame, backend of one end-to-end render."""
         with tempfile.TemporaryDirectory() as tmp:
+            c0 = time.process_time()
             s = render_dataset(cfg, Path(tmp) / "d", workers=1, progress=False, log=lambda *a: None)
-        return s["rig_frames_per_s"], s["backend"]
+            cpu = 1000 * (time.process_time() - c0) / s["rig_frames"]
+        return s["rig_frames_per_s"], cpu, s["backend"]
 
     rows = []
     for size in args.sizes.split(","):
@@ -99,14 +104,18 @@ def main(argv=None) -> int:
                                                              f"dataset.sequences={args.sequences}",
                                                              f"dataset.frames={args.frames}"])
         rig = make_rig(cfg)
-        e2es, ros, offs = [], [], []
+        e2es, ros, offs, cpus = [], [], [], []
         for _ in range(args.rounds):  # end to end, render only and files off in turn
-            e2e, backend = e2e_rate(cfg)
-            e2es.append(e2e)
-            ros.append(render_only_rate(cfg, rig))
+            e2e, cpu_e2e, backend = e2e_rate(cfg)
+            ro, cpu_ro = render_only_rate(cfg, rig)
             with files_off():
-                offs.append(e2e_rate(cfg)[0])
+                off, cpu_off, _ = e2e_rate(cfg)
+            e2es.append(e2e)
+            ros.append(ro)
+            offs.append(off)
+            cpus.append((cpu_e2e, cpu_ro, cpu_off))
         e2es, ros, offs = np.asarray(e2es), np.asarray(ros), np.asarray(offs)
+        cpu_e2e, cpu_ro, cpu_off = np.median(np.asarray(cpus), axis=0)
         # leak check on one scene
         from synth.pipeline import build_sequence_scene
         from synth.lighting import draw_sequence_lighting
@@ -128,18 +137,20 @@ def main(argv=None) -> int:
         growth = rss_mb() - rss0
         peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
         rows.append((size, np.median(e2es), np.median(ros), np.median(e2es / ros), np.median(offs),
-                     np.median(offs / ros), peak, growth, backend))
+                     np.median(offs / ros), cpu_e2e, cpu_ro, cpu_off, peak, growth, backend))
         print(f"{size}: per round end to end {', '.join(f'{x:.2f}' for x in e2es)} rig-frames/s (the first "
               f"includes the process's GL start-up), render only {', '.join(f'{x:.2f}' for x in ros)}, "
               f"files off {', '.join(f'{x:.2f}' for x in offs)}", flush=True)
     head = (f"{'size':>9} | {'end to end':>10} | {'render only':>11} | {'ratio':>6} | {'files off':>9} | "
-            f"{'ratio':>6} | {'peak RSS MB':>11} | {'RSS growth, ' + str(args.renders) + ' renders, MB':>30} | backend")
-    print("rig-frames/s; ratio = the column before / render only (medians of per-round ratios)")
+            f"{'ratio':>6} | {'CPU ms: e2e':>11} | {'render only':>11} | {'files off':>9} | {'peak RSS MB':>11} | "
+            f"{'RSS growth, ' + str(args.renders) + ' renders, MB':>30} | backend")
+    print("rig-frames/s; ratio = the column before / render only (medians of per-round ratios); CPU ms = the "
+          "process's CPU time (all threads) per rig frame")
     print(head)
     print("-" * len(head))
-    for size, e2e, ro, ratio, off, ratio_off, peak, growth, be in rows:
+    for size, e2e, ro, ratio, off, ratio_off, c_e2e, c_ro, c_off, peak, growth, be in rows:
         print(f"{size:>9} | {e2e:10.2f} | {ro:11.2f} | {ratio:5.2f}x | {off:9.2f} | {ratio_off:5.2f}x | "
-              f"{peak:11.0f} | {growth:30.1f} | {be}")
+              f"{c_e2e:11.0f} | {c_ro:11.0f} | {c_off:9.0f} | {peak:11.0f} | {growth:30.1f} | {be}")
     print(f"({args.rounds} round(s) of {args.sequences} sequences x {args.frames} frames each; medians)")
     return 0
 
