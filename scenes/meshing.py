@@ -17,6 +17,8 @@ import numpy as np
 from scenes.model import Mesh
 
 UV = float | Sequence[float]
+_EYE3 = np.eye(3)
+_ROW3 = np.array([0.0, 0.0, 0.0, 1.0])
 
 
 def cross3(a: np.ndarray, b: np.ndarray) -> np.ndarray:
@@ -48,7 +50,8 @@ def check_T(T) -> np.ndarray | None:
     if T.shape != (4, 4) or not np.all(np.isfinite(T)):
         raise ValueError(f"T must be a finite (4, 4) rigid transform, got shape {T.shape}")
     R = T[:3, :3]
-    if not np.allclose(R @ R.T, np.eye(3), atol=1e-6) or not np.allclose(T[3], [0, 0, 0, 1]):
+    # np.allclose(x, y, atol=1e-6)'s test (rtol 1e-5) without its overhead: x is finite here
+    if np.any(np.abs(R @ R.T - _EYE3) > 1e-6 + 1e-5 * _EYE3) or np.any(np.abs(T[3] - _ROW3) > 1e-6 + 1e-5 * _ROW3):
         raise ValueError("T must be rigid: orthonormal rotation and last row (0, 0, 0, 1)")
     return T
 

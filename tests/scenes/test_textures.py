@@ -62,3 +62,23 @@ def test_uv_scale_and_errors():
         make_textures(np.random.default_rng(0), size=100)
     with pytest.raises(ValueError, match="rng"):
         make_textures(0, size=128)
+
+
+@pytest.mark.parametrize("dt", [np.float32, np.float64])
+def test_shade_and_mix_are_their_broadcast_definitions_bit_for_bit(dt):
+    """`_shade` and `_mix` compute channel by channel for speed; every texture byte depends on them
+    giving exactly the values (and dtype) of the broadcast expressions they replace."""
+    from scenes.textures import _mix, _shade
+
+    rng = np.random.default_rng(3)
+    amount = (1 + 0.2 * rng.standard_normal((32, 48))).astype(dt)
+    base = (0.45, 0.42, 0.22)
+    ref = np.asarray(base, np.float32)[None, None, :] * amount[..., None]
+    got = _shade(base, amount)
+    assert got.dtype == ref.dtype and np.array_equal(got, ref)
+    a = _shade(base, amount.astype(np.float32))
+    b = _shade((0.2, 0.3, 0.1), amount)
+    t = np.clip(amount - 1, 0, 1)
+    ref = a * (1.0 - t[..., None]) + b * t[..., None]
+    got = _mix(a, b, t)
+    assert got.dtype == ref.dtype and np.array_equal(got, ref)
