@@ -27,7 +27,7 @@ from pathlib import Path
 
 from corelib.atomic import atomic_write_json, atomic_write_text
 from mcdp.diagnostics import COLLAPSE_RATIO
-from mcdp.methods import label
+from mcdp.methods import METHODS, label
 from mcdp.metrics import METRIC_NAMES
 from study.plots import make_plots
 from study.mechanisms import format_mechanisms
@@ -118,6 +118,31 @@ def format_report(results: dict, plots: list[str]) -> str:
     return "\n".join(L) + "\n"
 
 
+def _join(names: list[str]) -> str:
+    return names[0] if len(names) == 1 else ", ".join(names[:-1]) + " and " + names[-1]
+
+
+def warm_start_line(methods: list[str]) -> str:
+    """Which part of the shared pretraining each of the sweep's methods starts from (`mcdp.warmstart`: a
+    network with bases takes the n basis channels, one without them the mono head; layers the pretraining
+    does not have keep their initialisation), naming only the methods in the sweep."""
+    mono, bases, other = [], [], []
+    for m in methods:
+        meth = METHODS.get(m)
+        if meth is None:
+            other.append(f"`{m}`")
+        else:
+            (bases if getattr(meth.builder, "has_bases", False) else mono).append(label(m))
+    parts = []
+    if mono:
+        parts.append(f"{_join(mono)} start{'s' if len(mono) == 1 else ''} from its mono head")
+    if bases:
+        parts.append(f"{_join(bases)} from its basis channels")
+    if other:
+        parts.append(f"{_join(other)} as {'its' if len(other) == 1 else 'their'} preset's `model.init_from` says")
+    return "; ".join(parts) + "; layers the pretraining does not have (weight networks, cross-view blocks) start fresh"
+
+
 def _setup_section(results: dict) -> list[str]:
     """Title, how the numbers were made (data, methods, seeds, pretraining, evaluation, yardsticks), collapsed,
     ORACLE and failed runs."""
@@ -145,8 +170,7 @@ def _setup_section(results: dict) -> list[str]:
         add(f"- every run starts from one shared self-supervised pretraining (no ground truth; its own world: "
             f"`{' '.join(cfg['pretrain']['data_overrides'])}`): `{pre['weights']}`, config hash `{pre['config_hash'][:12]}`, "
             f"{pre['step']} steps, render {_sec(pre.get('render_s'))} s + train {_sec(pre.get('train_s'))} s; "
-            "Mono2, FSM and SurroundDepth start from its mono head, every MCDP variant from its bases; MCDP's weight "
-            "networks and SurroundDepth's cross-view blocks start fresh")
+            + warm_start_line(methods))
     else:
         add("- every (overlap, method, seed) is trained from scratch on its own dataset; no pretraining is shared "
             "between overlaps or methods")

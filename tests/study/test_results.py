@@ -43,3 +43,15 @@ def test_a_difference_that_rounds_to_zero_is_still_written_and_a_negligible_one_
     assert verdict_word(tiny, 0.0005).startswith("beyond the interval but negligible")
     assert "worse" in verdict_word(tiny)  # without a floor it is a difference
     assert "better" in verdict_word({"mean": -0.01, "ci95": 0.004, "differs": -1}, 0.0005)
+
+
+def test_the_setup_names_only_the_sweeps_methods_and_the_head_each_starts_from():
+    from study.report import warm_start_line
+
+    line = warm_start_line(["mono2", "mcdp_m1_nocon", "mcdp_m2"])
+    assert line.startswith("Mono2 starts from its mono head; MCDP (w/o L_con, m = 1) and MCDP (m = 2) from its "
+                           "basis channels;")
+    assert "FSM" not in line and "SurroundDepth" not in line
+    line = warm_start_line(["mono2", "fsm", "surround", "mcdp_m2", "my_preset"])
+    assert "Mono2, FSM and SurroundDepth start from its mono head" in line
+    assert "MCDP (m = 2) from its basis channels" in line and "`my_preset` as its preset's" in line
