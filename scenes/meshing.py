@@ -50,8 +50,9 @@ def check_T(T) -> np.ndarray | None:
     if T.shape != (4, 4) or not np.all(np.isfinite(T)):
         raise ValueError(f"T must be a finite (4, 4) rigid transform, got shape {T.shape}")
     R = T[:3, :3]
-    # np.allclose(x, y, atol=1e-6)'s test (rtol 1e-5) without its overhead: x is finite here
-    if np.any(np.abs(R @ R.T - _EYE3) > 1e-6 + 1e-5 * _EYE3) or np.any(np.abs(T[3] - _ROW3) > 1e-6 + 1e-5 * _ROW3):
+    # np.allclose's tests without its overhead (x is finite here): |x - y| <= atol + 1e-5 |y|, with
+    # atol 1e-6 for the rotation and allclose's default 1e-8 for the last row, as before
+    if np.any(np.abs(R @ R.T - _EYE3) > 1e-6 + 1e-5 * _EYE3) or np.any(np.abs(T[3] - _ROW3) > 1e-8 + 1e-5 * _ROW3):
         raise ValueError("T must be rigid: orthonormal rotation and last row (0, 0, 0, 1)")
     return T
 

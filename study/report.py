@@ -124,23 +124,26 @@ def _join(names: list[str]) -> str:
 
 def warm_start_line(methods: list[str]) -> str:
     """Which part of the shared pretraining each of the sweep's methods starts from (`mcdp.warmstart`: a
-    network with bases takes the n basis channels, one without them the mono head; layers the pretraining
-    does not have keep their initialisation), naming only the methods in the sweep."""
-    mono, bases, other = [], [], []
+    network with bases takes the n basis channels, one without them the mono head) and which of their
+    layers start fresh (the pretraining has neither MCDP's weight networks nor SurroundDepth's cross-view
+    blocks), naming only the sweep's own methods (all registered: `study.stages` builds runs from them)."""
+    mono, bases, fresh = [], [], []
     for m in methods:
-        meth = METHODS.get(m)
-        if meth is None:
-            other.append(f"`{m}`")
-        else:
-            (bases if getattr(meth.builder, "has_bases", False) else mono).append(label(m))
+        meth = METHODS[m]
+        (bases if getattr(meth.builder, "has_bases", False) else mono).append(label(m))
+        if meth.model == "mcdp" and int(meth.defaults.get("model.refine_steps", 0)) > 0:
+            fresh.append(f"{label(m)}'s weight networks")
+        elif meth.model == "surround":
+            fresh.append(f"{label(m)}'s cross-view blocks")
     parts = []
     if mono:
         parts.append(f"{_join(mono)} start{'s' if len(mono) == 1 else ''} from its mono head")
     if bases:
-        parts.append(f"{_join(bases)} from its basis channels")
-    if other:
-        parts.append(f"{_join(other)} as {'its' if len(other) == 1 else 'their'} preset's `model.init_from` says")
-    return "; ".join(parts) + "; layers the pretraining does not have (weight networks, cross-view blocks) start fresh"
+        parts.append(f"{_join(bases)} {'start' + ('s' if len(bases) == 1 else '') + ' ' if not mono else ''}"
+                     "from its basis channels")
+    if fresh:
+        parts.append(f"{_join(fresh)} start fresh")
+    return "; ".join(parts)
 
 
 def _setup_section(results: dict) -> list[str]:

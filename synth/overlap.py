@@ -68,10 +68,21 @@ def overlap_mask(depth_i, K_i, T_ego_cam_i, depth_j, K_j, T_ego_cam_j, mask_i=No
 
 def _points(depth: np.ndarray, K: np.ndarray, valid: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Pixel rows, columns and camera-frame 3-D points (3, N) of the `valid` pixels of a float64 depth map."""
+    H, W = depth.shape
     v, u = np.nonzero(valid)
-    z = depth[v, u]
-    pts = (np.linalg.inv(K) @ np.stack([u + 0.5, v + 0.5, np.ones_like(z)])) * z
-    return v, u, pts
+    flat = v * W + u
+    return v, u, _rays(K, H, W)[:, flat] * depth.ravel()[flat]
+
+
+def _apply3(M: np.ndarray, p: np.ndarray, t: np.ndarray | None = None) -> np.ndarray:
+    """M @ p (+ t) for (3, N) points, element by element: ((M0 x + M1 y) + M2 z) + t. Each point's result
+    is then the same whichever other points share the batch (a BLAS product can round a column differently
+    with the number of columns), so counting on a subset gives the counts of the whole."""
+    out = M[:, 0:1] * p[0] + M[:, 1:2] * p[1]
+    out += M[:, 2:3] * p[2]
+    if t is not None:
+        out += t[:, None]
+    return out
 
 
 def _near(depth: np.ndarray) -> np.ndarray:
@@ -90,10 +101,10 @@ def _near(depth: np.ndarray) -> np.ndarray:
 def _seen_by_j(pts: np.ndarray, T_j_i: np.ndarray, K_j: np.ndarray, near_j: np.ndarray, mask_j, z_tol: float):
     """Indices into `pts` (camera i's points) that camera j sees: in front, inside, on scene, z-test."""
     Hj, Wj = near_j.shape
-    pj = T_j_i[:3, :3] @ pts + T_j_i[:3, 3:4]
+    pj = _apply3(T_j_i[:3, :3], pts, T_j_i[:3, 3])
     zj = pj[2]
     front = zj > EPS_Z
-    uvw = K_j @ pj
+    uvw = _apply3(K_j, pj)
     zs = np.where(front, zj, 1.0)
     uj, vj = uvw[0] / zs, uvw[1] / zs
     idx = np.flatnonzero(front & (uj >= 0) & (uj < Wj) & (vj >= 0) & (vj < Hj))
@@ -128,13 +139,15 @@ def _cam_key(cam) -> tuple:
             _arr(cam.T_ego_cam, "T_ego_cam", (4, 4)).tobytes())
 
 
-def _rays(cam) -> np.ndarray:
-    """(3, H*W) camera-frame rays through the pixel centres at z = 1: `_points`' K^-1 [u+.5, v+.5, 1]
-    for every pixel, row-major."""
+def _rays(K, H: int, W: int) -> np.ndarray:
+    """(3, H*W) camera-frame rays through the pixel centres at z = 1, K^-1 [u+.5, v+.5, 1] for every pixel
+    (row-major), cached per (K, H, W)."""
+    K = _arr(K, "K", (3, 3))
+
     def make():
-        v, u = np.nonzero(np.ones((int(cam.height), int(cam.width)), bool))
-        return np.linalg.inv(_arr(cam.K, "K", (3, 3))) @ np.stack([u + 0.5, v + 0.5, np.ones(u.size)])
-    return _cached(("rays", _cam_key(cam)), make)
+        v, u = np.divmod(np.arange(H * W), W)
+        return _apply3(np.linalg.inv(K), np.stack([u + 0.5, v + 0.5, np.ones(u.size)]))
+    return _cached(("rays", int(H), int(W), K.tobytes()), make)
 
 
 def _candidates(cam_i, cam_j) -> np.ndarray:
@@ -143,16 +156,17 @@ def _candidates(cam_i, cam_j) -> np.ndarray:
     inside-the-image test at every depth, so leaving those pixels out changes no count.
 
     The ray p(t) = a + t b (t = depth in camera i, in camera j's frame) meets each of the cone's five
-    half-spaces n . p >= 0 (z_j >= 0; -m <= u_j <= W_j + m; -m <= v_j <= H_j + m, as u_j z_j = (K_j p)_0)
+    half-spaces n . p >= 0 (z_j = p_2 >= 0; -m <= u_j <= W_j + m; -m <= v_j <= H_j + m, as u_j z_j = (K_j p)_0)
     on an interval of t; the pixel is a candidate when the intervals meet for some t > 0."""
     def make():
         Ti, Tj = _arr(cam_i.T_ego_cam, "T", (4, 4)), _arr(cam_j.T_ego_cam, "T", (4, 4))
         T_j_i = np.linalg.inv(Tj) @ Ti
         a = T_j_i[:3, 3]
-        b = T_j_i[:3, :3] @ _rays(cam_i)                               # (3, P)
-        K, m = _arr(cam_j.K, "K", (3, 3)), CANDIDATE_MARGIN_PX
+        b = T_j_i[:3, :3] @ _rays(cam_i.K, int(cam_i.height), int(cam_i.width))  # (3, P)
+        K, m, e3 = _arr(cam_j.K, "K", (3, 3)), CANDIDATE_MARGIN_PX, np.array([0.0, 0.0, 1.0])
         Wj, Hj = float(cam_j.width), float(cam_j.height)
-        normals = np.stack([K[2], K[0] + m * K[2], (Wj + m) * K[2] - K[0], K[1] + m * K[2], (Hj + m) * K[2] - K[1]])
+        # z_j = p_2 and u_j z_j = (K_j p)_0 (as in `_seen_by_j`): the faces z_j >= 0, u_j >= -m, u_j <= W_j + m, ...
+        normals = np.stack([e3, K[0] + m * e3, (Wj + m) * e3 - K[0], K[1] + m * e3, (Hj + m) * e3 - K[1]])
         na, nb = normals @ a, normals @ b                               # (5,), (5, P)
         lo = np.zeros(nb.shape[1])
         hi = np.full(nb.shape[1], np.inf)
@@ -165,7 +179,7 @@ def _candidates(cam_i, cam_j) -> np.ndarray:
             hi = np.where(neg, np.minimum(hi, t[k]), hi)
             ok &= (nb[k] != 0) | (na[k] >= 0)
         return np.flatnonzero(ok & (lo <= hi * (1 + 1e-9) + 1e-9))
-    return _cached(("cand", _cam_key(cam_i), _cam_key(cam_j)), make)
+    return _cached(("cand", CANDIDATE_MARGIN_PX, _cam_key(cam_i), _cam_key(cam_j)), make)
 
 
 def overlap_fraction_counts(depths: dict, masks: dict, cameras: list, neighbours,
@@ -194,7 +208,7 @@ def overlap_fraction_counts(depths: dict, masks: dict, cameras: list, neighbours
             (valid, z, _, _, Ti), (_, _, near_j, mj, Tj) = prep[i], prep[j]
             cand = _candidates(cameras[i], cameras[j])
             idx = cand[valid[cand]]
-            pts = _rays(cameras[i])[:, idx] * z[idx]  # `_points` of these pixels
+            pts = _rays(cameras[i].K, int(cameras[i].height), int(cameras[i].width))[:, idx] * z[idx]  # `_points`
             seen = _seen_by_j(pts, np.linalg.inv(Tj) @ Ti, _arr(cameras[j].K, "K", (3, 3)), near_j, mj, z_tol)
             out[f"{cameras[i].name}->{cameras[j].name}"] = [int(np.count_nonzero(valid)), int(seen.size)]
     return out

@@ -48,10 +48,12 @@ def test_a_difference_that_rounds_to_zero_is_still_written_and_a_negligible_one_
 def test_the_setup_names_only_the_sweeps_methods_and_the_head_each_starts_from():
     from study.report import warm_start_line
 
-    line = warm_start_line(["mono2", "mcdp_m1_nocon", "mcdp_m2"])
-    assert line.startswith("Mono2 starts from its mono head; MCDP (w/o L_con, m = 1) and MCDP (m = 2) from its "
-                           "basis channels;")
-    assert "FSM" not in line and "SurroundDepth" not in line
-    line = warm_start_line(["mono2", "fsm", "surround", "mcdp_m2", "my_preset"])
-    assert "Mono2, FSM and SurroundDepth start from its mono head" in line
-    assert "MCDP (m = 2) from its basis channels" in line and "`my_preset` as its preset's" in line
+    assert warm_start_line(["mono2", "mcdp_m1_nocon", "mcdp_m2"]) == (
+        "Mono2 starts from its mono head; MCDP (w/o L_con, m = 1) and MCDP (m = 2) from its basis channels; "
+        "MCDP (w/o L_con, m = 1)'s weight networks and MCDP (m = 2)'s weight networks start fresh")
+    assert warm_start_line(["mono2", "fsm", "surround", "mcdp_m2"]) == (
+        "Mono2, FSM and SurroundDepth start from its mono head; MCDP (m = 2) from its basis channels; "
+        "SurroundDepth's cross-view blocks and MCDP (m = 2)'s weight networks start fresh")
+    assert warm_start_line(["mcdp_m0", "mcdp_m2"]) == (
+        "MCDP (m = 0) and MCDP (m = 2) start from its basis channels; MCDP (m = 2)'s weight networks start fresh")
+    assert warm_start_line(["mono2"]) == "Mono2 starts from its mono head"
