@@ -121,6 +121,7 @@ def _seen_by_j(pts: np.ndarray, T_j_i: np.ndarray, K_j: np.ndarray, near_j: np.n
 CANDIDATE_MARGIN_PX = 4.0
 _CACHE: dict[tuple, np.ndarray] = {}  # per-rig constants (rays, candidate indices), keyed by the cameras' bytes
 _CACHE_MAX = 256
+_CACHE_RAYS_MAX_PX = 2 ** 21  # 48 MB of rays a camera at most
 
 
 def _cached(key: tuple, make) -> np.ndarray:
@@ -147,6 +148,8 @@ def _rays(K, H: int, W: int) -> np.ndarray:
     def make():
         v, u = np.divmod(np.arange(H * W), W)
         return _apply3(np.linalg.inv(K), np.stack([u + 0.5, v + 0.5, np.ones(u.size)]))
+    if H * W > _CACHE_RAYS_MAX_PX:  # 24 bytes a pixel: kept for small images only, remade for large ones
+        return make()
     return _cached(("rays", int(H), int(W), K.tobytes()), make)
 
 
