@@ -139,8 +139,8 @@ def warm_start_line(methods: list[str]) -> str:
     if mono:
         parts.append(f"{_join(mono)} start{'s' if len(mono) == 1 else ''} from its mono head")
     if bases:
-        parts.append(f"{_join(bases)} {'start' + ('s' if len(bases) == 1 else '') + ' ' if not mono else ''}"
-                     "from its basis channels")
+        verb = "" if mono else ("starts " if len(bases) == 1 else "start ")  # after the mono clause, implied
+        parts.append(f"{_join(bases)} {verb}from its basis channels")
     if fresh:
         parts.append(f"{_join(fresh)} start fresh")
     return "; ".join(parts)

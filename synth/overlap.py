@@ -70,8 +70,13 @@ def _points(depth: np.ndarray, K: np.ndarray, valid: np.ndarray) -> tuple[np.nda
     """Pixel rows, columns and camera-frame 3-D points (3, N) of the `valid` pixels of a float64 depth map."""
     H, W = depth.shape
     v, u = np.nonzero(valid)
-    flat = v * W + u
-    return v, u, _rays(K, H, W)[:, flat] * depth.ravel()[flat]
+    return v, u, _points_at(K, H, W, v * W + u, depth.ravel())
+
+
+def _points_at(K, H: int, W: int, flat: np.ndarray, z: np.ndarray) -> np.ndarray:
+    """(3, N) camera-frame points of the pixels at row-major indices `flat` of an (H, W) camera with
+    intrinsics K, at the depths z[flat] (z: the flattened depth map)."""
+    return _rays(K, H, W)[:, flat] * z[flat]
 
 
 def _apply3(M: np.ndarray, p: np.ndarray, t: np.ndarray | None = None) -> np.ndarray:
@@ -155,8 +160,8 @@ def _rays(K, H: int, W: int) -> np.ndarray:
 
 def _candidates(cam_i, cam_j) -> np.ndarray:
     """Sorted flat (row-major) indices of the pixels of camera i whose ray, at some depth > 0, enters
-    camera j's view cone widened by `CANDIDATE_MARGIN_PX`. A point of any other pixel fails `_seen_by_j`'s in-front or
-    inside-the-image test at every depth, so leaving those pixels out changes no count.
+    camera j's view cone widened by `CANDIDATE_MARGIN_PX`. A point of any other pixel fails `_seen_by_j`'s
+    in-front or inside-the-image test at every depth, so leaving those pixels out changes no count.
 
     The ray p(t) = a + t b (t = depth in camera i, in camera j's frame) meets each of the cone's five
     half-spaces n . p >= 0 (z_j = p_2 >= 0; -m <= u_j <= W_j + m; -m <= v_j <= H_j + m, as u_j z_j = (K_j p)_0)
@@ -204,14 +209,14 @@ def overlap_fraction_counts(depths: dict, masks: dict, cameras: list, neighbours
                              f"({cam.height}, {cam.width})")
         valid = ((g > 0) & m).ravel()
         near = _near(g32).astype(np.float64) if g32.dtype == np.float32 else _near(g)  # max commutes with the cast
-        prep[c] = (valid, g.ravel(), near, m, _arr(cam.T_ego_cam, "T_ego_cam", (4, 4)))
+        prep[c] = (valid, int(np.count_nonzero(valid)), g.ravel(), near, m, _arr(cam.T_ego_cam, "T_ego_cam", (4, 4)))
     out = {}
     for a, b in neighbours:
         for i, j in ((a, b), (b, a)):
-            (valid, z, _, _, Ti), (_, _, near_j, mj, Tj) = prep[i], prep[j]
-            cand = _candidates(cameras[i], cameras[j])
-            idx = cand[valid[cand]]
-            pts = _rays(cameras[i].K, int(cameras[i].height), int(cameras[i].width))[:, idx] * z[idx]  # `_points`
-            seen = _seen_by_j(pts, np.linalg.inv(Tj) @ Ti, _arr(cameras[j].K, "K", (3, 3)), near_j, mj, z_tol)
-            out[f"{cameras[i].name}->{cameras[j].name}"] = [int(np.count_nonzero(valid)), int(seen.size)]
+            (valid, n_valid, z, _, _, Ti), (_, _, _, near_j, mj, Tj) = prep[i], prep[j]
+            ci, cj = cameras[i], cameras[j]
+            cand = _candidates(ci, cj)
+            pts = _points_at(ci.K, int(ci.height), int(ci.width), cand[valid[cand]], z)
+            seen = _seen_by_j(pts, np.linalg.inv(Tj) @ Ti, _arr(cj.K, "K", (3, 3)), near_j, mj, z_tol)
+            out[f"{ci.name}->{cj.name}"] = [n_valid, int(seen.size)]
     return out
