@@ -97,15 +97,23 @@ def main(argv=None) -> int:
     for raw in rows:
         zlib.compress(raw, level)
     deflate = 1000 * (time.thread_time() - c0) / len(frames)
+    def png(fr):
+        for x in fr.values():
+            encode_png(x["rgb"], level)
+
+    def overlap(fr):
+        overlap_fraction_counts({k: x["depth"] for k, x in fr.items()}, masks, rig.cameras, rig.neighbours)
+
     with tempfile.TemporaryDirectory() as tmp:
-        costs = [
-            ("PNG encode (cv2, as written)", per_frame(lambda fr: [encode_png(x["rgb"], level) for x in fr.values()])),
-            (f"  of which the deflate alone (zlib level {level}; {same}/{len(streams)} IDAT streams identical)", deflate),
-            ("EXR write (OpenEXR, ZIP)", per_frame(lambda fr: [write_depth_exr(Path(tmp) / f"{k}.exr", x["depth"], fsync=False)
-                                                              for k, x in fr.items()])),
-            ("overlap counts", per_frame(lambda fr: overlap_fraction_counts({k: x["depth"] for k, x in fr.items()},
-                                                                             masks, rig.cameras, rig.neighbours))),
-        ]
+        def exr(fr):
+            for k, x in fr.items():
+                write_depth_exr(Path(tmp) / f"{k}.exr", x["depth"], fsync=False)
+
+        costs = [("PNG encode (cv2, as written)", per_frame(png)),
+                 (f"  of which the deflate alone (zlib level {level}; {same}/{len(streams)} IDAT streams identical)",
+                  deflate),
+                 ("EXR write (OpenEXR, ZIP)", per_frame(exr)),
+                 ("overlap counts", per_frame(overlap))]
     print(f"{args.size}, {len(frames)} rig frames of sequence 0, one thread")
     print(f"{'task':<74} | CPU ms / rig frame")
     for name, ms in costs:
