@@ -13,6 +13,13 @@ precision (pyrender reads a 24-bit depth buffer, quantised as z^2 / (znear 2^24)
 its EGL path resolves depth from an MSAA sample ~3/8 px off the centre); rows are
 flipped once here so row 0 is the top; K maps straight to the projection matrix.
 
+The depth test compares linear depth, ``gl_FragDepth = z / zfar`` in a float32 buffer: its
+resolution is relative (about 6e-8 z at every distance), so the near plane can sit 1 cm from
+the camera (inside the roof the side cameras look down on) without losing resolution far away.
+A hyperbolic depth buffer with znear = 1 cm would resolve only ~1.5 m at 400 m
+(dz = 2^-24 z^2 / znear), and reversed z needs glClipControl, which PyOpenGL does not find on
+OSMesa.
+
 Back end choice: ``PYOPENGL_PLATFORM`` is honoured when set; otherwise EGL is probed
 (in a subprocess, because PyOpenGL fixes its platform at import) and OSMesa is the
 fallback. Example::
@@ -108,7 +115,7 @@ class Renderer:
     Not thread-safe; use one per process (create it inside the worker process).
     """
 
-    def __init__(self, width: int, height: int, backend: str = "auto", znear: float = 0.5,
+    def __init__(self, width: int, height: int, backend: str = "auto", znear: float = 0.01,
                  zfar: float = 400.0, shadow_size: int = 2048, shadow_extent_m: float = 90.0) -> None:
         self.platform = select_backend(backend)
         self.width, self.height = int(width), int(height)
@@ -306,6 +313,7 @@ class Renderer:
                           ("u_gain", gain), ("u_fog_rgb", light.horizon_rgb)]:
             self._set_vec3(pm, name, val)
         GL.glUniform1f(self._loc(pm, "u_fog_dist"), float(light.fog_dist_m))
+        GL.glUniform1f(self._loc(pm, "u_zfar"), self.zfar)
         GL.glUniform1i(self._loc(pm, "u_use_shadow"), 1 if light.shadows else 0)
         GL.glActiveTexture(GL.GL_TEXTURE0)
         GL.glBindTexture(GL.GL_TEXTURE_2D_ARRAY, self._tex)

@@ -52,13 +52,22 @@ class CameraConfig(StrictModel):
 
 
 class RigConfig(StrictModel):
-    """Rig geometry. ``overlap`` is the target shared fraction of hfov of adjacent cameras."""
+    """Rig geometry. ``overlap`` is the target shared fraction of hfov of adjacent cameras.
+
+    ``znear_m`` / ``zfar_m``: the clipping planes of every camera, as camera-frame z in metres.
+    Nothing nearer than ``znear_m`` or farther than ``zfar_m`` is rendered (depth 0 there, as
+    for the sky). ``znear_m`` must stay below the nearest part of the ego body a camera sees
+    (the roof, about 5 cm in z from a rear-side camera in the widest ``fov`` rig), or the
+    road shows through the car and the self-occlusion mask misses it; the default 1 cm
+    costs no depth resolution (the renderer tests linear depth, `synth.gl_backend`).
+    ``zfar_m`` bounds the depth maps (scenes end well before 400 m; fog hides the horizon).
+    """
 
     overlap: float = Field(0.25, ge=0.10, le=0.60)
     overlap_mode: Literal["spacing", "fov"] = "spacing"
     camera_height_m: float = Field(1.6, ge=0.5, le=3.0)
     side_pitch_deg: float = Field(-12.0, ge=-30.0, le=10.0)
-    znear_m: float = Field(0.5, ge=0.05, le=2.0)
+    znear_m: float = Field(0.01, ge=0.001, le=2.0)
     zfar_m: float = Field(400.0, ge=50.0, le=5000.0)
 
 
@@ -184,6 +193,9 @@ def ego_body_mesh(layer_body: int, layer_glass: int, layer_tyre: int, camera_hei
     The hood is low enough that CAM_FRONT does not see it (vertical fov up to ~55 deg).
 
     The roof sits 0.12 m below the cameras so the roof-mounted rear-side cameras see it.
+    No two faces of the body are coplanar (each box reaches into its neighbour, none ends on
+    another's face), so the depth test never has to break a tie: the glass ends 4 cm inside the
+    roof panel and 2 cm inside the lower body, the hood starts 5 cm inside the lower body and 2 cm above its floor.
     """
     from scenes.primitives import box, cylinder
 
@@ -191,8 +203,9 @@ def ego_body_mesh(layer_body: int, layer_glass: int, layer_tyre: int, camera_hei
     tint_body = (0.55, 0.57, 0.6)
     parts = [
         box((3.3, 1.85, 0.62), layer_body, tint_body, T=_translate(0.65, 0.0, 0.33 + 0.31)),  # lower body
-        box((1.3, 1.8, 0.52), layer_body, tint_body, T=_translate(2.95, 0.0, 0.33 + 0.26)),  # hood, kept low
-        box((2.9, 1.6, roof - 0.95), layer_glass, (1, 1, 1), T=_translate(0.85, 0.0, 0.95 + (roof - 0.95) / 2)),
+        box((1.35, 1.8, 0.5), layer_body, tint_body, T=_translate(2.925, 0.0, 0.35 + 0.25)),  # hood, kept low
+        # glass: x -0.58..2.28 (the body's front face is at 2.3), z 0.93..roof - 0.04
+        box((2.86, 1.6, roof - 0.97), layer_glass, (1, 1, 1), T=_translate(0.85, 0.0, 0.93 + (roof - 0.97) / 2)),
         box((2.6, 1.62, 0.06), layer_body, tint_body, T=_translate(0.8, 0.0, roof - 0.03)),  # roof panel
     ]
     for x in (0.0, 2.8):

@@ -62,6 +62,7 @@ uniform vec3 u_gain;         // exposure * white balance
 uniform vec3 u_fog_rgb;
 uniform float u_fog_dist;
 uniform float u_is_ego;
+uniform float u_zfar;        // the depth test compares camera-frame z / zfar (see gl_backend)
 layout(location=0) out vec4 o_color;
 layout(location=1) out vec2 o_depth;
 %(to_srgb)svoid main() {
@@ -83,6 +84,7 @@ layout(location=1) out vec2 o_depth;
     c = mix(c, u_fog_rgb, f);
     o_color = vec4(to_srgb(c * u_gain), 1.0);
     o_depth = vec2(v_zcam, u_is_ego);
+    gl_FragDepth = v_zcam / u_zfar;
 }
 """
 
