@@ -21,6 +21,10 @@ Protocol (DESIGN.md, "Evaluation protocol"):
   truth (``synth.overlap.overlap_mask``, the one definition the manifest uses
   too). The split is a property of rig and scene, not of the model.
   non_overlap = valid & ~overlap.
+- Distance bands: the valid pixels of each image binned by their distance to the nearest overlap
+  pixel of the same image, in fractions of the image width (``synth.overlap.distance_bands``:
+  the overlap itself, then 0-0.10, 0.10-0.20, 0.20-0.35, > 0.35; an image without overlap pixel
+  falls in the last band). How far information from the overlap travels, per band.
 - Dep Con (paper): for every adjacent pair, both directions, the neighbour's
   prediction is splatted with the z-buffer (``geometry.splat_depth``, source
   pixels outside the neighbour's ego mask dropped) into the target camera, and
@@ -41,6 +45,7 @@ valid, e.g. a camera without neighbours has NaN overlap metrics)::
             "mean": {abs_rel, sq_rel, rmse, rmse_log, a1, a2, a3},
             "per_camera": {cam: {7 metrics}},
             "overlap": {7 metrics}, "non_overlap": {7 metrics},         # mean over cameras
+            "bands": {band name: {7 metrics}},     # by distance to the overlap (synth.overlap.BAND_NAMES)
             "overlap_per_camera": {cam: {7 metrics}},                   # extra detail
             "non_overlap_per_camera": {cam: {7 metrics}}},
         "dep_con": {"mean": float,
@@ -63,7 +68,7 @@ import numpy as np
 import torch
 
 from mcdp.config import EvalConfig
-from synth.overlap import overlap_mask
+from synth.overlap import BAND_NAMES, distance_bands, overlap_mask
 from synth.protocol import DatasetReader
 
 from . import geometry
@@ -81,7 +86,10 @@ from .metrics import (
 __all__ = ["EvalConfig", "SCALINGS", "constant_depth_predictor", "evaluate", "format_tables", "median_gt_depth"]
 
 SCALINGS = ("none", "median", "rig_median")
-REGIONS = ("all", "overlap", "non_overlap")
+#: band regions: pixels binned by their distance to the nearest overlap pixel of the same image
+#: (`synth.overlap.distance_bands`; "band0" is the overlap itself)
+BANDS = tuple(f"band{k}" for k in range(len(BAND_NAMES)))
+REGIONS = ("all", "overlap", "non_overlap") + BANDS
 
 
 # --------------------------------------------------------------------------- helpers
@@ -199,6 +207,10 @@ class _Truth:
         self.lg_v = [np.log(g) for g in self.g_v]
         ov_v = [o[v] for o, v in zip(overlaps, self.valids)]
         self.region_sel = {"all": [None] * len(rig.names), "overlap": ov_v, "non_overlap": [~o for o in ov_v]}
+        bands_v = [distance_bands(o)[v] for o, v in zip(overlaps, self.valids)]
+        for k, name in enumerate(BANDS):
+            self.region_sel[name] = [b == k for b in bands_v]
+        self.overlaps = overlaps  # (H, W) bool per camera: the ORACLE of the overlap reads it
 
 
 def _score(preds: list, truth: _Truth, rig: _Rig, cfg: EvalConfig, acc: dict, dc_acc: dict, spreads: list) -> None:
@@ -246,6 +258,7 @@ def _summary(rig: _Rig, acc: dict, dc_acc: dict, spreads: list) -> dict:
             "non_overlap": _mean_dicts(per["non_overlap"].values()),
             "overlap_per_camera": per["overlap"],
             "non_overlap_per_camera": per["non_overlap"],
+            "bands": {name: _mean_dicts(per[b].values()) for b, name in zip(BANDS, BAND_NAMES)},
         }
     per_pair = {rig.pair_key[p]: _nanmean(v) for p, v in dc_acc.items()}
     per_cam = {names[i]: _nanmean(per_pair[rig.pair_key[(j, i)]] for j in rig.nbrs[i]) for i in range(len(names))}

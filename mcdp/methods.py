@@ -105,6 +105,12 @@ for _m in (
                                        "loss.consistency_weight": PAPER_LAMBDA}),
     Method("mcdp_m2", "MCDP (m = 2)", {"model.method": "mcdp", "model.refine_steps": 2,
                                        "loss.consistency_weight": PAPER_LAMBDA}),
+    # the training-time propagation baseline of mcdp_m2: the same network trained without L_con
+    Method("mcdp_m2_nocon", "MCDP (w/o L_con, m = 2)", {"model.method": "mcdp", "model.refine_steps": 2,
+                                                         "loss.consistency_weight": 0.0}),
+    # per-pixel basis weights fed the neighbours' warped features and depth: built to propagate locally
+    Method("mcdp_local", "MCDP-local (m = 2)", {"model.method": "mcdp_local", "model.refine_steps": 2,
+                                                "loss.consistency_weight": PAPER_LAMBDA}, "mcdp.local:LocalDepthModel"),
 ):
     register(_m)
 

@@ -60,8 +60,16 @@ def disp_to_depth(sig: torch.Tensor, min_depth: float, max_depth: float) -> tupl
 
 
 def combine_bases(bases: torch.Tensor, weights: torch.Tensor) -> torch.Tensor:
-    """Linear combination of bases: (B, n, h, w), (B, n) -> (B, 1, h, w) (paper eq. 1)."""
+    """Linear combination of bases: (B, n, h, w), (B, n) -> (B, 1, h, w) (paper eq. 1).
+
+    Per-pixel weights (`mcdp.local`): ``weights`` (B, n, h', w'), each pixel's a convex combination,
+    upsampled bilinearly to (h, w) (a convex combination of convex weight vectors stays convex)."""
     B, n, h, w = bases.shape
+    if weights.dim() == 4:
+        wts = weights.to(bases.dtype)
+        if wts.shape[-2:] != (h, w):
+            wts = F.interpolate(wts, size=(h, w), mode="bilinear", align_corners=False)
+        return (wts * bases).sum(1, keepdim=True)
     return torch.bmm(weights.to(bases.dtype).unsqueeze(1), bases.reshape(B, n, h * w)).view(B, 1, h, w)
 
 
@@ -154,6 +162,8 @@ class DepthModel(nn.Module):
     model = "mcdp"
     #: n depth bases combined by weights (MCDP); False: Monodepth2's one sigmoid channel
     has_bases = True
+    #: the weight network of each refinement step: one weight vector per image (`mcdp.local`: per pixel)
+    weight_net_class = WeightNet
 
     @classmethod
     def check_config(cls, cfg: ModelConfig) -> None:
@@ -185,7 +195,7 @@ class DepthModel(nn.Module):
         c_levels = ResnetEncoder.num_ch_enc[:3]  # features at 1/2, 1/4, 1/8: 64, 64, 128 channels
         self.weight_nets = nn.ModuleList(
             [
-                WeightNet(
+                self.weight_net_class(
                     c_levels,
                     len(self.slots),
                     self.n_out,
@@ -321,7 +331,10 @@ class DepthModel(nn.Module):
             red = wnet.reduce(feats[:3]) * mask_h  # (BN, c, h, w)
             parts, valids = self._neighbour_features(red, mask_h, depth_h, K_h, T_ego_cam, T_cam_ego, nbr,
                                                      device_type)
-            logits = logits + wnet(torch.cat(parts + valids, 1))
+            delta = wnet(torch.cat(parts + valids, 1))  # (BN, n), or (BN, n, h', w') per pixel
+            if delta.dim() == 4 and logits.dim() == 2:
+                logits = logits[:, :, None, None]
+            logits = logits + delta
             emit(refine_stages[k], torch.softmax(logits, 1), scale)
 
     def _neighbour_features(self, red: torch.Tensor, mask_h: torch.Tensor, depth_h: torch.Tensor, K_h: torch.Tensor,

@@ -88,3 +88,26 @@ def fit_oracle_weights(
     has = valid.flatten(1).any(1)
     w = torch.softmax(logits.detach(), 1)
     return torch.where(has[:, None], w, torch.full_like(w, 1.0 / n))
+
+
+def overlap_at(ds, masks, seq: str, frame: int, size: tuple[int, int]) -> torch.Tensor:
+    """(N, 1, h, w) bool: each camera's overlap pixels (`synth.overlap.overlap_mask` with every neighbour,
+    from the ground truth at the dataset resolution, as the evaluation splits its regions) at ``size``
+    (nearest). ORACLE input: it reads ground truth."""
+    import numpy as np
+
+    from synth.overlap import overlap_mask
+
+    names, cams = list(ds.camera_names), list(ds.cameras)
+    gts = [np.asarray(ds.read_depth(seq, n, frame), np.float64) for n in names]
+    out = []
+    for i in range(len(names)):
+        ov = np.zeros(gts[i].shape, bool)
+        for a, b in ds.neighbours:
+            for s_, t_ in ((a, b), (b, a)):
+                if t_ == i:
+                    ov |= overlap_mask(gts[i], cams[i].K, cams[i].T_ego_cam, gts[s_], cams[s_].K, cams[s_].T_ego_cam,
+                                       mask_i=masks[i], mask_j=masks[s_])
+        t = torch.from_numpy(ov.astype("float32"))[None, None]
+        out.append(F.interpolate(t, size=size, mode="nearest") > 0.5)
+    return torch.cat(out)

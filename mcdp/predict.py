@@ -7,7 +7,8 @@ upsampled bilinearly to each camera's dataset size. Only frame t is used (no
 temporal neighbours, no pose network). No ground truth is read, except by a
 run trained with ``scale.source=oracle_gt_median``, which rescales by the GT
 median exactly as in training and is labelled ORACLE (`Predictor.oracle`), and the
-``oracle_weights`` yardstick (`mcdp.oracle`), an extra stage "oracle" after "final".
+``oracle_weights`` yardsticks (`mcdp.oracle`), extra stages "oracle" (weights fitted on every
+valid pixel) and "oracle_overlap" (fitted on the overlap pixels only) after "final".
 
 Two switches serve the overlap experiment (`study.stages`):
 
@@ -129,26 +130,30 @@ class Predictor:
         self._acc["images"] += int(out["depth", last, 0].shape[0])
         if w is None or last == "init" or "init" not in self.stages:
             return
-        n = w.shape[1]
-        self._acc["weight_move"] += float((w.float() - 1.0 / n).abs().mean(1).sum())
+        n = w.shape[1]  # (B*N, n) or per pixel (B*N, n, h, w) (`mcdp.local`): the mean over all of them
+        self._acc["weight_move"] += float((w.float() - 1.0 / n).abs().flatten(1).mean(1).sum())
         m = self.mask.reshape(-1, 1, *self.mask.shape[-2:]).float()
         diff = (out["depth", last, 0].float() - out["depth", "init", 0].float()).abs() * m
         self._acc["depth_change_m"] += float((diff.flatten(1).sum(1) / m.flatten(1).sum(1).clamp(min=1)).sum())
 
-    def _oracle_depth(self, seq: str, frame: int, out: dict) -> torch.Tensor:
-        """ORACLE: depth of this run's bases at weights fitted to the ground truth (`mcdp.oracle`)."""
-        from mcdp.oracle import fit_oracle_weights, ground_truth_at
+    def _oracle_depth(self, seq: str, frame: int, out: dict) -> tuple[torch.Tensor, torch.Tensor]:
+        """ORACLE: depth of this run's bases at weights fitted to the ground truth (`mcdp.oracle`): on every
+        valid pixel ("oracle"), and on the overlap pixels only ("oracle_overlap": what MCDP's one global
+        weight vector per image could carry from a perfectly known overlap to the rest of the image)."""
+        from mcdp.model import combine_bases
+        from mcdp.oracle import fit_oracle_weights, ground_truth_at, overlap_at
 
         bases = out["bases"][0]  # (N, n, h, w)
-        gt, valid = ground_truth_at(self.ds, self.reader.mask_full, seq, frame, tuple(bases.shape[-2:]),
-                                    self.oracle_range)
+        size = tuple(bases.shape[-2:])
+        gt, valid = ground_truth_at(self.ds, self.reader.mask_full, seq, frame, size, self.oracle_range)
         gt, valid = gt.to(self.device), valid.to(self.device)
         wts = fit_oracle_weights(bases, gt, valid, self.model.to_depth)
         n = wts.shape[1]
         self._acc["oracle_weight_move"] += float((wts - 1.0 / n).abs().mean(1).sum())
-        from mcdp.model import combine_bases
-
-        return self.model.to_depth(combine_bases(bases.float(), wts))[1]
+        ov = overlap_at(self.ds, self.reader.mask_full, seq, frame, size).to(self.device)
+        w_ov = fit_oracle_weights(bases, gt, valid & ov, self.model.to_depth)  # no overlap pixel: 1/n
+        return (self.model.to_depth(combine_bases(bases.float(), wts))[1],
+                self.model.to_depth(combine_bases(bases.float(), w_ov))[1])
 
     @torch.no_grad()
     def predict_train_size(self, seq: str, frame: int) -> tuple[dict, np.ndarray]:
@@ -165,7 +170,9 @@ class Predictor:
         res = {st: out["depth", st, 0].float() for st in self.stages}
         if self.oracle_weights:  # "final" is named explicitly so that the yardstick stays apart from it
             res["final"] = res[self.stages[-1]]
-            res["oracle"] = self._oracle_depth(seq, frame, out) * out["scale"].view(-1, 1, 1, 1)
+            d_all, d_ov = self._oracle_depth(seq, frame, out)
+            res["oracle"] = d_all * out["scale"].view(-1, 1, 1, 1)
+            res["oracle_overlap"] = d_ov * out["scale"].view(-1, 1, 1, 1)
         return res, rgb
 
     def predict(self, seq: str, frame: int) -> dict[str, np.ndarray]:

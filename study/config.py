@@ -48,6 +48,10 @@ class SweepConfig(StrictModel):
         ``<train_presets_dir>/<method>.yaml`` over the method's registry defaults.
     train_overrides: dotted overrides applied to every run (e.g. ``train.steps=200``).
     seeds: training seeds (``train.seed``); the dataset seed comes from the data preset.
+    worlds: ``shared``: every seed trains on the same world per overlap (the data preset's seed);
+        ``per_seed``: seed k trains on a world of its own, rendered at every overlap from data seed
+        (preset seed + k), so a (world, seed) pair is still one pair across overlaps and methods, and
+        the report's paired intervals cover the scene sample as well as the training seed.
     eval: evaluation settings for every run.
     checkpoint: which checkpoint is evaluated: ``auto`` (best val loss, else last), ``best``, ``last``.
     workers: rendering processes (engine ``local``).
@@ -79,6 +83,7 @@ class SweepConfig(StrictModel):
     train_presets_dir: str = "configs/train"
     train_overrides: list[str] = Field(default_factory=list)
     seeds: list[int] = Field(default_factory=lambda: [0])
+    worlds: Literal["shared", "per_seed"] = "shared"
     eval: SweepEvalConfig = Field(default_factory=SweepEvalConfig)
     checkpoint: Literal["auto", "best", "last"] = "auto"
     workers: int = Field(2, ge=1, le=256)
@@ -153,12 +158,27 @@ def load_sweep_config(path: str | Path | None, overrides=(), values: dict | None
     return load_config(SweepConfig, path, overrides, values)
 
 
-def data_config_for(cfg: SweepConfig, overlap: float):
-    """The resolved data config of one overlap."""
+def data_config_for(cfg: SweepConfig, overlap: float, world: int | None = None):
+    """The resolved data config of one overlap (and, with ``worlds: per_seed``, of the world of seed
+    ``world``: the data preset's seed + ``world``)."""
     from synth.config import DataConfig
 
-    return load_config(DataConfig, resolve_path(cfg.data, "data preset"), cfg.data_overrides,
-                       {"rig.overlap": round(overlap, 2), "rig.overlap_mode": cfg.overlap_mode})
+    path = resolve_path(cfg.data, "data preset")
+    values = {"rig.overlap": round(overlap, 2), "rig.overlap_mode": cfg.overlap_mode}
+    if world is not None:
+        base = load_config(DataConfig, path, cfg.data_overrides)
+        values["seed"] = int(base.seed) + int(world)
+    return load_config(DataConfig, path, cfg.data_overrides, values)
+
+
+def worlds_of(cfg: SweepConfig) -> list[int | None]:
+    """The worlds rendered per overlap: [None] (one shared world) or one per seed."""
+    return list(cfg.seeds) if cfg.worlds == "per_seed" else [None]
+
+
+def world_key(overlap: float, world: int | None) -> str:
+    """The folder name of one overlap's world: ``overlap_0.30`` (shared) or ``overlap_0.30_w2`` (seed 2's)."""
+    return overlap_key(overlap) + ("" if world is None else f"_w{world}")
 
 
 def run_config_for(cfg: SweepConfig, method: str, seed: int, init_from: str | None = None):
@@ -190,7 +210,7 @@ def check_nested_configs(cfg: SweepConfig, yes: bool = False) -> dict:
 
             worlds.append(resolved_configs(cfg.pretrain, check_network=False)[0])
         where = "data_overrides"
-        worlds += [data_config_for(cfg, o) for o in cfg.overlaps]
+        worlds += [data_config_for(cfg, o, w) for o in cfg.overlaps for w in worlds_of(cfg)]
         where = "train_overrides"
         init_from = "pretrained.pt" if cfg.pretrain is not None else None
         runs = [run_config_for(cfg, method, seed, init_from)[0] for method in cfg.methods for seed in cfg.seeds]

@@ -57,6 +57,7 @@ def verdict_word(pd: dict, floor: float = 0.0) -> str:
 BASELINE = "mono2"
 CUT = "@cut"  # method suffix of a run evaluated with its neighbours cut at inference
 ORACLE = "@oracle"  # method suffix of the ORACLE-weights yardstick of a run's bases
+ORACLE_OVL = "@oracle_overlap"  # the same weights fitted on the overlap pixels only (the global channel's bound)
 INERT_M = 0.01  # a refinement whose refined depth differs from its init stage by < 1 cm on average is inert
 
 
@@ -86,6 +87,8 @@ def flat_rows(row: dict) -> list[dict[str, Any]]:
         base["refine.headroom_closed"] = ((init - base.get("median.mean.abs_rel", float("nan"))) / gap
                                           if gap > 1e-9 else float("nan"))
         extra[ORACLE] = orc
+    if row.get("metrics_oracle_overlap"):
+        extra[ORACLE_OVL] = flat_row({"metrics": row["metrics_oracle_overlap"]})
     if row.get("metrics_cut"):
         cut = flat_row({"metrics": row["metrics_cut"]})
         rc = row.get("refinement_cut") or {}
@@ -93,7 +96,7 @@ def flat_rows(row: dict) -> list[dict[str, Any]]:
         cut["refine.depth_change_m"] = _f(rc.get("depth_change_m"))
         base["cut.depth_change_m"] = _f(rc.get("cut_change_m"))  # mean |as trained - cut| depth, metres
         extra[CUT] = cut
-    for suffix in (CUT, ORACLE):
+    for suffix in (CUT, ORACLE, ORACLE_OVL):
         if suffix in extra:
             e = extra[suffix]
             for k in ("overlap", "seed", "status", "steps", "checkpoint_step"):
@@ -118,6 +121,8 @@ def flat_row(row: dict) -> dict[str, Any]:
                 out[f"{sc}.{region}.{k}"] = _f(m[sc][region].get(k))
         for cam, v in m[sc]["per_camera_abs_rel"].items():
             out[f"{sc}.camera.{cam}.abs_rel"] = _f(v)
+        for band, v in m[sc].get("bands", {}).items():  # distance to the overlap (mcdp.evaluate)
+            out[f"{sc}.band.{band}.abs_rel"] = _f(v.get("abs_rel"))
     out["dep_con.mean"] = _f(m["dep_con"]["mean"])
     out["spread.ratio"] = _f(m.get("spread", {}).get("ratio"))
     for cam, v in m["dep_con"]["per_camera"].items():
@@ -174,7 +179,7 @@ def build_results(cfg, data: list[dict], rows: list[dict], counters: dict, total
     from corelib.configlib import config_hash, config_to_dict
 
     flats = [f for r in rows for f in flat_rows(r)]
-    names = [m for base in cfg.methods for m in (base, base + CUT, base + ORACLE)
+    names = [m for base in cfg.methods for m in (base, base + CUT, base + ORACLE, base + ORACLE_OVL)
              if any(f["method"] == m for f in flats) or m == base]
     aggregate = []
     for d in data:

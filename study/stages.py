@@ -13,7 +13,8 @@ from typing import Any
 
 from corelib.atomic import atomic_write_json
 from corelib.configlib import ConfigError, config_hash, config_to_dict
-from study.config import SPLIT, SweepConfig, data_config_for, eval_config_for, overlap_key, run_config_for
+from study.config import (SPLIT, SweepConfig, data_config_for, eval_config_for, overlap_key, run_config_for,
+                          world_key)
 
 
 STATUS = "sweep_status.json"
@@ -59,6 +60,31 @@ def measured_overlap(ov: dict) -> dict:
     }
 
 
+def _mean_tree(trees: list):
+    """Leaf by leaf mean of equally shaped JSON trees (numbers: mean of the finite ones; anything else: the first's)."""
+    first = trees[0]
+    if isinstance(first, dict):
+        return {k: _mean_tree([t[k] for t in trees if isinstance(t, dict) and k in t]) for k in first}
+    if isinstance(first, (int, float)) and not isinstance(first, bool):
+        v = [float(t) for t in trees if _finite(t)]
+        return sum(v) / len(v) if v else float("nan")
+    return first
+
+
+def combine_worlds(recs: list[dict]) -> dict:
+    """One overlap's record over its worlds (``worlds: per_seed``): the worlds' own records under ``worlds``;
+    measured overlap and the two yardsticks averaged over the worlds (each yardstick is a property of a world,
+    so its mean over the worlds is the yardstick of the pairs' mean); render time summed."""
+    out = {k: recs[0][k] for k in ("overlap", "path", "config_hash", "splits")}
+    out.update(world="per_seed", worlds=recs, data_seeds=[r["data_seed"] for r in recs],
+               render_s=sum(r["render_s"] for r in recs if _finite(r["render_s"])),
+               render_skipped=all(r["render_skipped"] for r in recs),
+               measured=_mean_tree([r["measured"] for r in recs]))
+    for which in ("reference", "prior"):
+        out[which] = _mean_tree([r[which] for r in recs])
+    return out
+
+
 def _finite(x) -> bool:
     return isinstance(x, (int, float)) and math.isfinite(x)
 
@@ -76,6 +102,8 @@ def summarize_metrics(metrics: dict, stage: str = "final") -> dict:
             "non_overlap": dict(st[sc]["non_overlap"]),
             "per_camera_abs_rel": {c: v["abs_rel"] for c, v in st[sc]["per_camera"].items()},
         }
+        if "bands" in st[sc]:  # metrics written before the distance bands have none
+            out[sc]["bands"] = {b: dict(v) for b, v in st[sc]["bands"].items()}
     dc = st["dep_con"]
     out["dep_con"] = {"mean": dc["mean"], "per_camera": dict(dc["per_camera"]), "per_pair": dict(dc["per_pair"])}
     out["spread"] = dict(st.get("spread", {}))
@@ -103,27 +131,29 @@ def _rendered(out: Path):
         return None
 
 
-def render_stage(cfg: SweepConfig, overlap: float, sweep_dir: Path, counters: Counters, log, progress: bool) -> dict:
-    """Render (or reuse / resume) the dataset of one overlap; returns its record."""
+def render_stage(cfg: SweepConfig, overlap: float, sweep_dir: Path, counters: Counters, log, progress: bool,
+                 world: int | None = None) -> dict:
+    """Render (or reuse / resume) the dataset of one overlap (and world: `study.config.worlds_of`); its record."""
     from synth.dataset import open_dataset
     from synth.protocol import SPLITS
     from synth.render import render_dataset
 
-    dcfg = data_config_for(cfg, overlap)
+    dcfg = data_config_for(cfg, overlap, world)
     h = config_hash(dcfg)
-    out = sweep_dir / "data" / overlap_key(overlap)
+    wkey = world_key(overlap, world)
+    out = sweep_dir / "data" / wkey
     ds = _rendered(out)
-    status = _read_json(out.parent / f"{overlap_key(overlap)}.status.json") or {}
+    status = _read_json(out.parent / f"{wkey}.status.json") or {}
     if ds is not None and ds.config_hash == h:
         counters.bump("render_skipped")
-        log(f"[sweep] overlap {overlap:.2f}: dataset {out} is complete (config hash {h[:12]}), reused")
+        log(f"[sweep] {wkey}: dataset {out} is complete (config hash {h[:12]}), reused")
         render_s, skipped = status.get("render_s", float("nan")), True
     else:
         if ds is not None:
             raise ConfigError(
                 f"{out} holds a dataset with another config (hash {str(ds.config_hash)[:12]}, "
                 f"requested {h[:12]}); the sweep's data settings changed: use a new --out or delete {out}")
-        log(f"[sweep] overlap {overlap:.2f}: rendering {dcfg.dataset.sequences} sequences x {dcfg.dataset.frames} "
+        log(f"[sweep] {wkey}: rendering {dcfg.dataset.sequences} sequences x {dcfg.dataset.frames} "
             f"frames at {dcfg.camera.width}x{dcfg.camera.height} into {out}")
         t0 = time.perf_counter()
         summary = render_dataset(dcfg, out, workers=cfg.workers, engine=cfg.engine, progress=progress,
@@ -136,12 +166,12 @@ def render_stage(cfg: SweepConfig, overlap: float, sweep_dir: Path, counters: Co
         if summary.get("skipped_sequences"):
             counters.bump("render_resumed")
         ds = open_dataset(out)
-        _write_json(out.parent / f"{overlap_key(overlap)}.status.json", {"config_hash": h, "render_s": render_s})
+        _write_json(out.parent / f"{wkey}.status.json", {"config_hash": h, "render_s": render_s})
     ov = measured_overlap(ds.overlap)
-    log(f"[sweep] overlap {overlap:.2f}: target {ov['target']:.2f}, measured pixel overlap {ov['measured_mean']:.3f} "
+    log(f"[sweep] {wkey}: target {ov['target']:.2f}, measured pixel overlap {ov['measured_mean']:.3f} "
         f"(mean of the {ov['pairs_at_target']}/{ov['pairs']} pairs at the target)")
-    return {"overlap": overlap, "path": str(out), "config_hash": h, "render_s": render_s, "render_skipped": skipped,
-            "measured": ov, "splits": {k: len(ds.split(k)) for k in SPLITS}}
+    return {"overlap": overlap, "world": world, "data_seed": int(dcfg.seed), "path": str(out), "config_hash": h,
+            "render_s": render_s, "render_skipped": skipped, "measured": ov, "splits": {k: len(ds.split(k)) for k in SPLITS}}
 
 
 def reference_stage(cfg: SweepConfig, d: dict, sweep_dir: Path, counters: Counters, log) -> dict:
@@ -158,7 +188,7 @@ def reference_stage(cfg: SweepConfig, d: dict, sweep_dir: Path, counters: Counte
     from mcdp.priors import flat_road_predictor
 
     o = d["overlap"]
-    path = sweep_dir / "data" / f"{overlap_key(o)}.reference.json"
+    path = sweep_dir / "data" / f"{world_key(o, d.get('world'))}.reference.json"
     key = config_hash({"data": d["config_hash"], "eval": config_to_dict(cfg.eval),
                        "reference": "constant_train_median+flat_road"})
     cached = _read_json(path)
@@ -200,7 +230,7 @@ def pretrain_stage(cfg: SweepConfig, sweep_dir: Path, progress: bool, log) -> di
 
 def _eval_key(run_hash: str, step: int, eval_cfg: dict, data_hash: str, checkpoint: str, ckpt_name: str) -> str:
     return config_hash({"run": run_hash, "step": step, "eval": eval_cfg, "data": data_hash, "checkpoint": checkpoint,
-                        "file": ckpt_name, "protocol": "as-trained+cut+cut-change+oracle-weights"})
+                        "file": ckpt_name, "protocol": "as-trained+cut+cut-change+oracle-weights+oracle-overlap+bands"})
 
 
 def run_dir_for(sweep_dir: Path, overlap: float, method: str, seed: int) -> Path:
@@ -351,6 +381,8 @@ def _fill_row(row: dict, status: dict, metrics: dict, metrics_cut: dict | None, 
         row["metrics_init"] = summarize_metrics(metrics, "init")
     if "oracle" in metrics["stages"]:
         row["metrics_oracle"] = summarize_metrics(metrics, "oracle")
+    if "oracle_overlap" in metrics["stages"]:
+        row["metrics_oracle_overlap"] = summarize_metrics(metrics, "oracle_overlap")
     if metrics_cut is not None and metrics_cut.get("sweep", {}).get("eval_key") == key:
         row["metrics_cut"] = summarize_metrics(metrics_cut)
         row["refinement_cut"] = metrics_cut.get("refinement")

@@ -48,12 +48,12 @@ import yaml
 
 from corelib.atomic import atomic_write_text
 from corelib.configlib import config_hash, config_to_dict
-from study.config import SPLIT, SweepConfig, check_nested_configs, overlap_key
+from study.config import SPLIT, SweepConfig, check_nested_configs, overlap_key, worlds_of
 from study.report import write_all
 from study.results import build_results
 from study.engines import run_all
 from study.progress import SweepProgress, fmt_duration
-from study.stages import Counters, pretrain_stage, reference_stage, render_stage
+from study.stages import combine_worlds, Counters, pretrain_stage, reference_stage, render_stage
 
 
 def run_sweep(cfg: SweepConfig, out: str | Path, progress: bool = True, log: Callable[[str], None] | None = None,
@@ -110,14 +110,22 @@ def _run_sweep(cfg: SweepConfig, out: Path, progress: bool, log, config_source: 
         prog.stage("pretraining")
         pre = pretrain_stage(cfg, out, progress, log)
         init_from = pre["weights"] if pre else None
-        data = []
+        per_overlap = {}  # overlap -> its worlds' records (one: shared; one per seed: per_seed)
         for o in cfg.overlaps:
-            prog.stage(f"render of overlap {o:.2f}")
-            data.append(render_stage(cfg, o, out, counters, log, progress))
+            per_overlap[o] = []
+            for w in worlds_of(cfg):
+                prog.stage(f"render of overlap {o:.2f}" + ("" if w is None else f", world {w}"))
+                per_overlap[o].append(render_stage(cfg, o, out, counters, log, progress, world=w))
         prog.stage("yardsticks")
-        for d in data:
-            d["reference"], d["prior"] = reference_stage(cfg, d, out, counters, log)
-        todo = [(d, method, seed) for d in data for method in cfg.methods for seed in cfg.seeds]
+        data, worlds = [], {}  # worlds[(overlap, seed)]: the dataset that seed trains on
+        for o, recs in per_overlap.items():
+            for r in recs:
+                r["reference"], r["prior"] = reference_stage(cfg, r, out, counters, log)
+            data.append(recs[0] if len(recs) == 1 else combine_worlds(recs))
+            for k, seed in enumerate(cfg.seeds):
+                worlds[o, seed] = recs[0] if len(recs) == 1 else recs[k]
+        todo = [(worlds[d["overlap"], seed], method, seed) for d in data for method in cfg.methods
+                for seed in cfg.seeds]
         prog.stage("runs")
         rows = run_all(cfg, todo, out, counters, log, progress, init_from, on_done=prog.run_done)
         prog.stage("report")

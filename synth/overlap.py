@@ -220,3 +220,33 @@ def overlap_fraction_counts(depths: dict, masks: dict, cameras: list, neighbours
             seen = _seen_by_j(pts, np.linalg.inv(Tj) @ Ti, _arr(cj.K, "K", (3, 3)), near_j, mj, z_tol)
             out[f"{ci.name}->{cj.name}"] = [n_valid, int(seen.size)]
     return out
+
+
+#: upper edges of the distance bands, as fractions of the image width (`distance_bands`)
+BAND_EDGES = (0.10, 0.20, 0.35)
+#: the bands' names: inside the overlap, then out to the far edge
+BAND_NAMES = ("overlap", "0-0.10", "0.10-0.20", "0.20-0.35", ">0.35")
+
+
+def distance_to_overlap(overlap: np.ndarray) -> np.ndarray:
+    """(H, W) float32 Euclidean distance in pixels from each pixel centre to the nearest overlap pixel
+    of the same image (0 inside the overlap; inf everywhere when the image has no overlap pixel)."""
+    import cv2
+
+    ov = _arr(overlap, "overlap", dtype=bool)
+    if not ov.any():
+        return np.full(ov.shape, np.inf, np.float32)
+    return cv2.distanceTransform((~ov).astype(np.uint8), cv2.DIST_L2, cv2.DIST_MASK_PRECISE)
+
+
+def distance_bands(overlap: np.ndarray) -> np.ndarray:
+    """(H, W) int8 band index of every pixel: 0 inside the overlap, then k for a distance to the nearest
+    overlap pixel in (edge_{k-1}, edge_k] x image width (`BAND_EDGES`, edge_0 = 0), the last band beyond
+    the last edge (and every pixel of an image without overlap). Fractions of the width make resolutions
+    compare. The bands partition the image."""
+    d = distance_to_overlap(overlap) / float(np.asarray(overlap).shape[1])
+    out = np.full(d.shape, len(BAND_EDGES) + 1, np.int8)
+    for k in range(len(BAND_EDGES), 0, -1):
+        out[d <= BAND_EDGES[k - 1]] = k
+    out[d == 0] = 0
+    return out

@@ -116,7 +116,7 @@ def test_oracle_stage_is_extra_and_labelled(ds, tmp_path, one_thread):
     run = trained(ds, tmp_path / "m1", "mcdp_m1")
     p = Predictor(run, ds, device="cpu", oracle_weights=True)
     out = p.predict(*_frame(ds))
-    assert list(out) == ["init", "refine1", "final", "oracle"]
+    assert list(out) == ["init", "refine1", "final", "oracle", "oracle_overlap"]
     assert np.array_equal(out["final"], out["refine1"])
     assert p.refinement["oracle_weight_move"] > 0
 
@@ -146,3 +146,27 @@ def test_weight_networks_learn_at_their_own_rate(ds, tmp_path, one_thread):
         assert not wn & {id(p) for p in groups[0]["params"]}
     finally:
         tr.close()
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_overlap_oracle_on_ground_truth_bases_is_exact_on_the_overlap(seed):
+    """The ORACLE of the overlap fits on overlap pixels only: a basis equal to the ground truth THERE (and
+    wrong elsewhere) is found, its error on the overlap is near zero, and the other pixels do not count."""
+    g = torch.Generator().manual_seed(seed)
+    B, n, h, w = 2, 6, 16, 24
+    to_depth = lambda s: disp_to_depth(s, 0.1, 100.0)  # noqa: E731
+    gt = 2.0 + 30.0 * torch.rand(B, 1, h, w, generator=g)
+    sig_gt = (1.0 / gt - 1 / 100.0) / (1 / 0.1 - 1 / 100.0)
+    ov = torch.zeros(B, 1, h, w, dtype=torch.bool)
+    ov[..., : w // 4] = True  # the overlap: a strip at the left edge
+    bases = torch.rand(B, n, h, w, generator=g) * 0.2
+    k = int(torch.randint(n, (1,), generator=g))
+    bases[:, k : k + 1] = torch.where(ov, sig_gt, torch.rand(B, 1, h, w, generator=g) * 0.2)
+    wts = fit_oracle_weights(bases, gt, ov, to_depth, steps=200)
+    fit = to_depth(combine_bases(bases, wts))[1]
+    uniform = to_depth(combine_bases(bases, torch.full((B, n), 1.0 / n)))[1]
+    e0, e1 = si_log_error(uniform, gt, ov), si_log_error(fit, gt, ov)
+    assert (e1 < 0.02 * e0).all(), (e0, e1)  # near-zero (scale-invariant) error on the overlap
+    assert (wts[:, k] > 0.9).all()
+    everywhere = fit_oracle_weights(bases, gt, torch.ones_like(ov), to_depth, steps=200)
+    assert not torch.allclose(everywhere, wts, atol=0.05)  # fitted on all pixels, the wrong rest counts

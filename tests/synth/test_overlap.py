@@ -211,3 +211,31 @@ def test_rig_counts_equal_the_pairwise_masks_for_random_cameras(seed):
             assert counts[f"{x.name}->{y.name}"][1] == int(ov.sum())
             hits += int(ov.sum()) > 0
     assert hits >= 3  # the cases are not all empty
+
+
+def test_distance_bands_partition_the_image_and_the_overlap_is_band_zero():
+    from synth.overlap import BAND_EDGES, BAND_NAMES, distance_bands, distance_to_overlap
+
+    rng = np.random.default_rng(3)
+    for W in (96, 320):
+        H = W * 2 // 3
+        ov = np.zeros((H, W), bool)
+        ov[:, : W // 8] = True  # a left overlap strip
+        ov[rng.integers(0, H), rng.integers(W // 2, W)] = True  # and one lone pixel
+        d = distance_to_overlap(ov)
+        b = distance_bands(ov)
+        assert (d[ov] == 0).all() and (d[~ov] > 0).all()
+        assert (b[ov] == 0).all() and (b[~ov] > 0).all()
+        assert set(np.unique(b)) <= set(range(len(BAND_NAMES)))  # every pixel in exactly one band
+        # a pixel on row 0 at column c of the strip's right: distance c - (W//8 - 1), its band by that / W
+        for c in (W // 8, W // 8 + int(0.15 * W), W - 1):
+            dist = c - (W // 8 - 1)
+            assert d[0, c] == pytest.approx(dist, abs=0.01) or d[0, c] < dist  # the lone pixel may be nearer
+        frac = d / W
+        for k, hi in enumerate(BAND_EDGES, start=1):
+            lo = 0.0 if k == 1 else BAND_EDGES[k - 2]
+            sel = b == k
+            assert ((frac[sel] > lo) & (frac[sel] <= hi)).all()
+        assert (frac[b == len(BAND_EDGES) + 1] > BAND_EDGES[-1]).all()
+    none = distance_bands(np.zeros((8, 12), bool))
+    assert (none == len(BAND_NAMES) - 1).all()  # an image without overlap: all in the last band
