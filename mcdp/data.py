@@ -11,6 +11,8 @@ order, frames in the order [-1, 0, +1], H x W = training size)::
     seq_index    (B,)               int64               index into `RigDataset.seqs`
     frame        (B,)               int64               frame t
     gt_median    (B, N)             float32             ONLY when oracle=True: median GT depth
+    overlap_truth (B, N, 1, H, W)   float32             ONLY for ORACLE-local (mcdp.oracle_local): GT depth
+                                                        of the overlap pixels (nearest), 0 elsewhere
                                                         (metres) over scene pixels at dataset
                                                         resolution; the oracle scale mode.
 
@@ -143,10 +145,11 @@ class RigDataset(torch.utils.data.Dataset):
         oracle: also return ``gt_median`` (the labelled oracle scale mode; reads ground truth).
     """
 
-    def __init__(self, ds, split: str, height: int, width: int, oracle: bool = False):
+    def __init__(self, ds, split: str, height: int, width: int, oracle: bool = False, overlap_truth: bool = False):
         self.reader = RigReader(ds, height, width)
         self.split = split
         self.oracle = oracle
+        self.overlap_truth = overlap_truth
         self.seqs = list(ds.split(split))
         self.T_world_ego = {s: np.asarray(ds.T_world_ego(s), dtype=np.float64) for s in self.seqs}
         self.samples = [(k, t) for k, s in enumerate(self.seqs) for t in range(1, ds.n_frames(s) - 1)]
@@ -171,6 +174,10 @@ class RigDataset(torch.utils.data.Dataset):
         }
         if self.oracle:
             item["gt_median"] = torch.from_numpy(r.gt_median(seq, t))
+        if self.overlap_truth:  # ORACLE-local's input (mcdp.oracle_local): reads ground truth
+            from mcdp.oracle import overlap_truth_at
+
+            item["overlap_truth"] = overlap_truth_at(r.ds, r.mask_full, seq, t, (r.height, r.width))
         return item
 
 

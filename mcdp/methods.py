@@ -111,6 +111,10 @@ for _m in (
     # per-pixel basis weights fed the neighbours' warped features and depth: built to propagate locally
     Method("mcdp_local", "MCDP-local (m = 2)", {"model.method": "mcdp_local", "model.refine_steps": 2,
                                                 "loss.consistency_weight": PAPER_LAMBDA}, "mcdp.local:LocalDepthModel"),
+    # a yardstick, not a method: Mono2 + the ground-truth depth of the overlap pixels as input (filled / emptied)
+    Method("oracle_local", "ORACLE-local (GT overlap input)", {"model.method": "oracle_local", "model.refine_steps": 0,
+                                                              "loss.consistency_weight": 0.0},
+           "mcdp.oracle_local:OracleLocalModel"),
 ):
     register(_m)
 

@@ -164,6 +164,9 @@ class DepthModel(nn.Module):
     has_bases = True
     #: the weight network of each refinement step: one weight vector per image (`mcdp.local`: per pixel)
     weight_net_class = WeightNet
+    #: its input also holds the ground-truth depth of the overlap pixels (`mcdp.oracle_local`, an ORACLE):
+    #: the batch then carries ``overlap_truth`` and `forward` takes it
+    reads_overlap_truth = False
 
     @classmethod
     def check_config(cls, cfg: ModelConfig) -> None:
@@ -238,6 +241,7 @@ class DepthModel(nn.Module):
         oracle_gt_median: torch.Tensor | None = None,
         scales: int | None = None,
         refine_scales: int | None = None,
+        overlap_truth: torch.Tensor | None = None,
     ) -> dict:
         """Predict every stage's depth for a batch of rigs.
 
@@ -251,6 +255,8 @@ class DepthModel(nn.Module):
                 median(GT) / median(init depth) per image (the public reference code's scaling).
             scales: decoder scales returned for "init" (default ``model.scales``; 1 = full resolution only).
             refine_scales: scales returned for refined stages (default = ``scales``).
+            overlap_truth: (B, N, 1, H, W) ORACLE only (``reads_overlap_truth``): ground-truth depth of the
+                overlap pixels, 0 elsewhere; None = empty.
 
         Returns:
             dict with, for every stage name st and scale s (images flattened to B*N):
@@ -262,7 +268,9 @@ class DepthModel(nn.Module):
         """
         B, N, _, H, W = rgb.shape
         BN = B * N
-        feats = self.encode(rgb.reshape(BN, 3, H, W), B, N, nbr)
+        x = rgb.reshape(BN, 3, H, W)
+        feats = (self.encode(x, B, N, nbr, overlap_truth=overlap_truth) if self.reads_overlap_truth
+                 else self.encode(x, B, N, nbr))
         bases = self.decoder(feats)  # {s: (BN, n, h, w)}
         n = self.n_out
         mono = None

@@ -95,10 +95,13 @@ class ResnetEncoder(nn.Module):
         del net.fc, net.avgpool  # unused; keeps state dicts small
         self.net = net
 
-    def forward(self, x: torch.Tensor) -> list[torch.Tensor]:
+    def forward(self, x: torch.Tensor, extra: torch.Tensor | None = None) -> list[torch.Tensor]:
+        """``extra`` (B, 64, H/2, W/2): added to the first convolution's output before its batch norm (an
+        extra input's own first layer, `mcdp.oracle_local`)."""
         x = (x - 0.45) / 0.225
         n = self.net
-        f0 = n.relu(n.bn1(n.conv1(x)))
+        y = n.conv1(x)
+        f0 = n.relu(n.bn1(y if extra is None else y + extra))
         f1 = n.layer1(n.maxpool(f0))
         f2 = n.layer2(f1)
         f3 = n.layer3(f2)

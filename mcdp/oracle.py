@@ -90,10 +90,10 @@ def fit_oracle_weights(
     return torch.where(has[:, None], w, torch.full_like(w, 1.0 / n))
 
 
-def overlap_at(ds, masks, seq: str, frame: int, size: tuple[int, int]) -> torch.Tensor:
-    """(N, 1, h, w) bool: each camera's overlap pixels (`synth.overlap.overlap_mask` with every neighbour,
-    from the ground truth at the dataset resolution, as the evaluation splits its regions) at ``size``
-    (nearest). ORACLE input: it reads ground truth."""
+def overlap_truth(ds, masks, seq: str, frame: int) -> list:
+    """Per camera, (H, W) float32 at the dataset resolution: the ground-truth depth of its overlap pixels
+    (`synth.overlap.overlap_mask` with every neighbour, as the evaluation splits its regions), 0 elsewhere
+    (a camera without neighbours: 0 everywhere). ORACLE input: it reads ground truth."""
     import numpy as np
 
     from synth.overlap import overlap_mask
@@ -108,6 +108,16 @@ def overlap_at(ds, masks, seq: str, frame: int, size: tuple[int, int]) -> torch.
                 if t_ == i:
                     ov |= overlap_mask(gts[i], cams[i].K, cams[i].T_ego_cam, gts[s_], cams[s_].K, cams[s_].T_ego_cam,
                                        mask_i=masks[i], mask_j=masks[s_])
-        t = torch.from_numpy(ov.astype("float32"))[None, None]
-        out.append(F.interpolate(t, size=size, mode="nearest") > 0.5)
-    return torch.cat(out)
+        out.append(np.where(ov, gts[i], 0.0).astype(np.float32))
+    return out
+
+
+def overlap_truth_at(ds, masks, seq: str, frame: int, size: tuple[int, int]) -> torch.Tensor:
+    """(N, 1, h, w) float32: `overlap_truth` at ``size`` (nearest: a depth, never a blend of two)."""
+    maps = overlap_truth(ds, masks, seq, frame)
+    return torch.cat([F.interpolate(torch.from_numpy(m)[None, None], size=size, mode="nearest") for m in maps])
+
+
+def overlap_at(ds, masks, seq: str, frame: int, size: tuple[int, int]) -> torch.Tensor:
+    """(N, 1, h, w) bool: each camera's overlap pixels at ``size`` (nearest). ORACLE input."""
+    return overlap_truth_at(ds, masks, seq, frame, size) > 0

@@ -163,7 +163,13 @@ class Predictor:
         gtm = None
         if self.oracle:  # ORACLE: the reference code's ground-truth median scaling
             gtm = torch.from_numpy(self.reader.gt_median(seq, frame)).to(self.device)[None]
-        out = self.model(x, self.K, self.T_ego_cam, self.mask, self.nbr, gtm, scales=1)
+        hint = None
+        if self.model.reads_overlap_truth and not self.cut:  # ORACLE-local, filled (cut: emptied)
+            from mcdp.oracle import overlap_truth_at
+
+            hint = overlap_truth_at(self.ds, self.reader.mask_full, seq, frame, tuple(self.mask.shape[-2:]))
+            hint = hint.to(self.device)[None]
+        out = self.model(x, self.K, self.T_ego_cam, self.mask, self.nbr, gtm, scales=1, overlap_truth=hint)
         self._record(out)
         if self.kept is not None or self.reference is not None:
             self._compare(seq, frame, out["depth", self.stages[-1], 0])

@@ -141,6 +141,7 @@ class SelfSupervisedSystem(torch.nn.Module):
             outputs = self.depth(
                 net_rgb[:, :, 1], batch["K"], batch["T_ego_cam"], batch["mask"], self.nbr, oracle,
                 scales=cfg.model.scales, refine_scales=cfg.loss.refine_scales,
+                overlap_truth=batch.get("overlap_truth"),
             )
         poses, pose_stats = self.predict_poses(batch, net_rgb)
         losses = self.compute_losses(batch, outputs, poses, need_con=need_con)

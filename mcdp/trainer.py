@@ -131,10 +131,11 @@ class Trainer:
         self.optimizer = torch.optim.Adam(groups, lr=tc.lr, betas=(0.9, 0.999), fused=fused)
 
         oracle = cfg.scale.oracle
-        self.train_set = RigDataset(ds, "train", tc.height, tc.width, oracle=oracle)
+        hint = bool(self.depth.reads_overlap_truth)  # ORACLE-local: the batch carries the overlap's ground truth
+        self.train_set = RigDataset(ds, "train", tc.height, tc.width, oracle=oracle, overlap_truth=hint)
         if len(self.train_set) == 0:
             raise RunError(f"dataset {ds.root}: the train split has no rig sample (sequences need >= 3 frames)")
-        self.val_set = RigDataset(ds, "val", tc.height, tc.width, oracle=oracle)
+        self.val_set = RigDataset(ds, "val", tc.height, tc.width, oracle=oracle, overlap_truth=hint)
 
         self.use_amp, self.amp_dtype = resolve_precision(tc.precision, self.device)
         self.scaler = torch.amp.GradScaler("cuda", enabled=self.use_amp and self.amp_dtype == torch.float16)

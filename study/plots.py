@@ -6,7 +6,7 @@ from __future__ import annotations
 from pathlib import Path
 
 from mcdp.methods import label
-from study.results import PRIOR_LABEL, REF_LABEL, SCALE_LABEL, method_agg, yardstick_agg
+from study.results import CUT, PRIOR_LABEL, REF_LABEL, SCALE_LABEL, method_agg, yardstick_agg
 
 
 def make_plots(results: dict, plot_dir: Path) -> list[Path]:
@@ -81,3 +81,49 @@ def make_plots(results: dict, plot_dir: Path) -> list[Path]:
     style(ax, "measured vs target overlap\n(pairs at the target)", "target overlap", "overlap")
     save(fig, "measured_overlap.png")
     return paths
+
+
+def distance_plot(results: dict, plot_dir: Path) -> Path | None:
+    """propagation_by_distance.png: per overlap (one panel each), the paired gain (positive = helps) by
+    distance band from the overlap: each mechanism vs Mono2, reading the neighbours (cut - as trained), and
+    the ORACLE-local yardstick (emptied - filled), with 95 % intervals over the (world, seed) pairs."""
+    from study.reach import LOCAL, band_names, paired
+
+    bands = band_names(results)
+    have = {f["method"] for f in results["flat"]}
+    lines = [(f"{label(m)} vs Mono2", ("mono2", m), "-") for m in ("fsm", "mcdp_m2", "mcdp_local")
+             if m in have and "mono2" in have]
+    lines += [(f"{label(m)}: cut - as trained", (m + CUT, m), "--") for m in ("mcdp_m2", "mcdp_local") if m + CUT in have]
+    if LOCAL + CUT in have:
+        lines.append(("ORACLE-local: emptied - filled", (LOCAL + CUT, LOCAL), ":"))
+    if not bands or not lines:
+        return None
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    overlaps = results["overlaps"]
+    fig, axes = plt.subplots(1, len(overlaps), figsize=(4.2 * len(overlaps) + 1.5, 4.2), sharey=True, squeeze=False)
+    x = list(range(len(bands)))
+    for ax, o in zip(axes[0], overlaps):
+        for k, (name, (a, b), ls) in enumerate(lines):
+            pds = [paired(results, o, (a, f"median.band.{bd}.abs_rel"), (b, f"median.band.{bd}.abs_rel")) for bd in bands]
+            y = [p["mean"] for p in pds]
+            e = [p["ci95"] if p["n"] > 1 else 0.0 for p in pds]
+            ax.errorbar([xi + 0.04 * (k - len(lines) / 2) for xi in x], y, yerr=e, marker="o", ls=ls, capsize=3,
+                        label=name)
+        ax.axhline(0.0, color="k", lw=0.8)
+        ax.set_xticks(x, bands, rotation=30, fontsize=8)
+        ax.set_title(f"overlap {o:.2f}", fontsize=10)
+        ax.set_xlabel("distance to the overlap (fraction of width)")
+        ax.grid(alpha=0.3)
+    axes[0][0].set_ylabel("abs_rel gain (median scaling; > 0 helps)")
+    handles, names = axes[0][0].get_legend_handles_labels()
+    fig.legend(handles, names, loc="center right", fontsize=8)
+    fig.tight_layout(rect=(0, 0, 0.78, 1))
+    plot_dir.mkdir(parents=True, exist_ok=True)
+    path = plot_dir / "propagation_by_distance.png"
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return path

@@ -29,9 +29,10 @@ from corelib.atomic import atomic_write_json, atomic_write_text
 from mcdp.diagnostics import COLLAPSE_RATIO
 from mcdp.methods import METHODS, label
 from mcdp.metrics import METRIC_NAMES
-from study.plots import make_plots
+from study.plots import distance_plot, make_plots
 from study.mechanisms import format_mechanisms
 from study.propagation import format_propagation
+from study.reach import format_reach
 from study.results import (BASELINE, PRIOR_LABEL, REF_LABEL, SCALE_LABEL, YARDSTICKS, method_agg, yardstick_agg,
                            yardstick_row)
 from study.results import fmt_num as _num
@@ -42,6 +43,8 @@ def write_all(results: dict, out: str | Path) -> None:
     atomic_write_json(out / "results.json", results, allow_nan=True)
     write_csv(results, out / "results.csv")
     plots = make_plots(results, out / "plots")
+    extra = distance_plot(results, out / "plots")
+    plots += [extra] if extra is not None else []
     atomic_write_text(out / "report.md", format_report(results, [p.relative_to(out).as_posix() for p in plots]))
 
 
@@ -130,11 +133,14 @@ def warm_start_line(methods: list[str]) -> str:
     mono, bases, fresh = [], [], []
     for m in methods:
         meth = METHODS[m]
-        (bases if getattr(meth.builder, "has_bases", False) else mono).append(label(m))
-        if meth.model == "mcdp" and int(meth.defaults.get("model.refine_steps", 0)) > 0:
+        net = meth.builder  # the network's class: what it is made of, not what it is called
+        (bases if net.has_bases else mono).append(label(m))
+        if net.has_bases and int(meth.defaults.get("model.refine_steps", 0)) > 0:
             fresh.append(f"{label(m)}'s weight networks")
         elif meth.model == "surround":
             fresh.append(f"{label(m)}'s cross-view blocks")
+        elif net.reads_overlap_truth:
+            fresh.append(f"{label(m)}'s overlap-input layer")
     parts = []
     if mono:
         parts.append(f"{_join(mono)} start{'s' if len(mono) == 1 else ''} from its mono head")
@@ -243,6 +249,8 @@ def _summary_section(results: dict) -> list[str]:
     add(format_mechanisms(results, label))
     add("")
     add(format_propagation(results, label))
+    add("")
+    add(format_reach(results, label))
     add("")
     add("### Verdicts (abs_rel, mean over seeds)\n")
     add(_verdicts(results))

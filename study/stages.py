@@ -1,6 +1,6 @@
-"""The stages of one sweep: render a dataset per overlap, evaluate the yardsticks on it, make the
-shared pretraining, and train + evaluate one (overlap, method, seed) run; each stage is skipped
-when its inputs' hashes are unchanged (module docstring of `study.sweep`).
+"""The stages of one sweep: make the shared pretraining, and train + evaluate one (overlap, method, seed)
+run; each stage is skipped when its inputs' hashes are unchanged (module docstring of `study.sweep`).
+The worlds (render, measured overlap, yardsticks) are `study.worlds`.
 """
 from __future__ import annotations
 
@@ -13,8 +13,7 @@ from typing import Any
 
 from corelib.atomic import atomic_write_json
 from corelib.configlib import ConfigError, config_hash, config_to_dict
-from study.config import (SPLIT, SweepConfig, data_config_for, eval_config_for, overlap_key, run_config_for,
-                          world_key)
+from study.config import SPLIT, SweepConfig, eval_config_for, overlap_key, run_config_for
 
 
 STATUS = "sweep_status.json"
@@ -30,59 +29,6 @@ def _read_json(path: Path) -> dict | None:
 def _write_json(path: Path, obj) -> None:
     path.parent.mkdir(parents=True, exist_ok=True)
     atomic_write_json(path, obj, allow_nan=True)
-
-
-def measured_overlap(ov: dict) -> dict:
-    """Target and measured pixel overlap of a dataset (from its overlap record, `synth.dataset.Dataset.overlap`).
-
-    ``measured_mean``: mean measured overlap over the adjacent pairs whose geometric
-    target equals the sweep's target. In ``spacing`` mode the ring does not close, so
-    the two pairs that take up the remaining angle (side cameras) have another target
-    (a gap or a small overlap); they are listed per pair but not averaged.
-    ``measured_all``: mean over every adjacent pair.
-    """
-    pp = ov.get("per_pair_measured", {})
-    target = ov.get("target")
-    same = [v["measured"] for v in pp.values()
-            if _finite(target) and _finite(v.get("target")) and abs(v["target"] - target) < 1e-3
-            and _finite(v.get("measured"))]
-    allm = [v["measured"] for v in pp.values() if _finite(v.get("measured"))]
-    return {
-        "target": target,
-        "mode": ov.get("mode"),
-        "hfov_deg": ov.get("hfov_deg"),
-        "yaw_spacing_deg": ov.get("yaw_spacing_deg"),
-        "measured_mean": sum(same) / len(same) if same else float("nan"),
-        "measured_all": sum(allm) / len(allm) if allm else float("nan"),
-        "pairs_at_target": len(same),
-        "pairs": len(pp),
-        "per_pair": {k: {"target": v.get("target"), "measured": v.get("measured")} for k, v in pp.items()},
-    }
-
-
-def _mean_tree(trees: list):
-    """Leaf by leaf mean of equally shaped JSON trees (numbers: mean of the finite ones; anything else: the first's)."""
-    first = trees[0]
-    if isinstance(first, dict):
-        return {k: _mean_tree([t[k] for t in trees if isinstance(t, dict) and k in t]) for k in first}
-    if isinstance(first, (int, float)) and not isinstance(first, bool):
-        v = [float(t) for t in trees if _finite(t)]
-        return sum(v) / len(v) if v else float("nan")
-    return first
-
-
-def combine_worlds(recs: list[dict]) -> dict:
-    """One overlap's record over its worlds (``worlds: per_seed``): the worlds' own records under ``worlds``;
-    measured overlap and the two yardsticks averaged over the worlds (each yardstick is a property of a world,
-    so its mean over the worlds is the yardstick of the pairs' mean); render time summed."""
-    out = {k: recs[0][k] for k in ("overlap", "path", "config_hash", "splits")}
-    out.update(world="per_seed", worlds=recs, data_seeds=[r["data_seed"] for r in recs],
-               render_s=sum(r["render_s"] for r in recs if _finite(r["render_s"])),
-               render_skipped=all(r["render_skipped"] for r in recs),
-               measured=_mean_tree([r["measured"] for r in recs]))
-    for which in ("reference", "prior"):
-        out[which] = _mean_tree([r[which] for r in recs])
-    return out
 
 
 def _finite(x) -> bool:
@@ -115,104 +61,6 @@ def summarize_metrics(metrics: dict, stage: str = "final") -> dict:
 class Counters(dict):
     def bump(self, key: str) -> None:
         self[key] = self.get(key, 0) + 1
-
-
-def _rendered(out: Path):
-    """The dataset rendered into `out` (a `synth.dataset.Dataset`), or None when there is none to reuse: no
-    manifest (never rendered, or interrupted) or one that does not open (rendering again repairs it)."""
-    from synth.dataset import MANIFEST, open_dataset
-    from synth.files import DatasetError
-
-    if not (out / MANIFEST).is_file():
-        return None
-    try:
-        return open_dataset(out)
-    except DatasetError:
-        return None
-
-
-def render_stage(cfg: SweepConfig, overlap: float, sweep_dir: Path, counters: Counters, log, progress: bool,
-                 world: int | None = None) -> dict:
-    """Render (or reuse / resume) the dataset of one overlap (and world: `study.config.worlds_of`); its record."""
-    from synth.dataset import open_dataset
-    from synth.protocol import SPLITS
-    from synth.render import render_dataset
-
-    dcfg = data_config_for(cfg, overlap, world)
-    h = config_hash(dcfg)
-    wkey = world_key(overlap, world)
-    out = sweep_dir / "data" / wkey
-    ds = _rendered(out)
-    status = _read_json(out.parent / f"{wkey}.status.json") or {}
-    if ds is not None and ds.config_hash == h:
-        counters.bump("render_skipped")
-        log(f"[sweep] {wkey}: dataset {out} is complete (config hash {h[:12]}), reused")
-        render_s, skipped = status.get("render_s", float("nan")), True
-    else:
-        if ds is not None:
-            raise ConfigError(
-                f"{out} holds a dataset with another config (hash {str(ds.config_hash)[:12]}, "
-                f"requested {h[:12]}); the sweep's data settings changed: use a new --out or delete {out}")
-        log(f"[sweep] {wkey}: rendering {dcfg.dataset.sequences} sequences x {dcfg.dataset.frames} "
-            f"frames at {dcfg.camera.width}x{dcfg.camera.height} into {out}")
-        t0 = time.perf_counter()
-        summary = render_dataset(dcfg, out, workers=cfg.workers, engine=cfg.engine, progress=progress,
-                                 log=lambda *a: log("[sweep]   " + " ".join(str(x) for x in a)))
-        if not summary["complete"]:
-            raise RuntimeError(f"render of {out} did not complete: {summary}")
-        render_s = time.perf_counter() - t0  # this invocation only (an interrupted earlier part is not counted)
-        skipped = False
-        counters.bump("rendered")
-        if summary.get("skipped_sequences"):
-            counters.bump("render_resumed")
-        ds = open_dataset(out)
-        _write_json(out.parent / f"{wkey}.status.json", {"config_hash": h, "render_s": render_s})
-    ov = measured_overlap(ds.overlap)
-    log(f"[sweep] {wkey}: target {ov['target']:.2f}, measured pixel overlap {ov['measured_mean']:.3f} "
-        f"(mean of the {ov['pairs_at_target']}/{ov['pairs']} pairs at the target)")
-    return {"overlap": overlap, "world": world, "data_seed": int(dcfg.seed), "path": str(out), "config_hash": h,
-            "render_s": render_s, "render_skipped": skipped, "measured": ov, "splits": {k: len(ds.split(k)) for k in SPLITS}}
-
-
-def reference_stage(cfg: SweepConfig, d: dict, sweep_dir: Path, counters: Counters, log) -> dict:
-    """Evaluate the constant-depth reference on one overlap's test split (cached beside the dataset).
-
-    The constant is the median ground-truth depth of the train split
-    (`mcdp.evaluate.median_gt_depth`): a depth map with no structure at all. With median
-    scaling its value does not matter (every image is scaled to its ground-truth median).
-    A method worse than this reference has learnt no usable depth structure.
-    """
-    from mcdp.evaluate import constant_depth_predictor, evaluate, median_gt_depth
-    from synth.dataset import open_dataset
-
-    from mcdp.priors import flat_road_predictor
-
-    o = d["overlap"]
-    path = sweep_dir / "data" / f"{world_key(o, d.get('world'))}.reference.json"
-    key = config_hash({"data": d["config_hash"], "eval": config_to_dict(cfg.eval),
-                       "reference": "constant_train_median+flat_road"})
-    cached = _read_json(path)
-    if cached is not None and cached.get("key") == key:
-        counters.bump("reference_skipped")
-        return cached["reference"], cached["prior"]
-    ds = open_dataset(d["path"])
-    ecfg = eval_config_for(cfg)
-    t0 = time.perf_counter()
-    depth = median_gt_depth(ds, "train", ecfg)
-    metrics = evaluate(ds, constant_depth_predictor(ds, depth), SPLIT, ecfg, progress=False)
-    ref = {"kind": "constant depth = median ground-truth depth of the train split", "depth_m": depth,
-           "metrics": summarize_metrics(metrics), "eval_s": time.perf_counter() - t0}
-    t0 = time.perf_counter()
-    metrics = evaluate(ds, flat_road_predictor(ds, depth), SPLIT, ecfg, progress=False)
-    prior = {"kind": "flat-road prior: road-plane depth from the rig geometry, capped at the constant", "far_m": depth,
-             "metrics": summarize_metrics(metrics), "eval_s": time.perf_counter() - t0}
-    _write_json(path, {"key": key, "reference": ref, "prior": prior})
-    counters.bump("reference_evaluated")
-    for name, r in (("constant-depth reference", ref), ("flat-road prior", prior)):
-        log(f"[sweep] overlap {o:.2f}: {name} ({depth:.2f} m): abs_rel metric "
-            f"{r['metrics']['none']['mean']['abs_rel']:.4f}, median {r['metrics']['median']['mean']['abs_rel']:.4f}, "
-            f"dep_con {r['metrics']['dep_con']['mean']:.4f}")
-    return ref, prior
 
 
 def pretrain_stage(cfg: SweepConfig, sweep_dir: Path, progress: bool, log) -> dict | None:

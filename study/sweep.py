@@ -53,7 +53,8 @@ from study.report import write_all
 from study.results import build_results
 from study.engines import run_all
 from study.progress import SweepProgress, fmt_duration
-from study.stages import combine_worlds, Counters, pretrain_stage, reference_stage, render_stage
+from study.stages import Counters, pretrain_stage
+from study.worlds import combine_worlds, reference_stage, render_stage
 
 
 def run_sweep(cfg: SweepConfig, out: str | Path, progress: bool = True, log: Callable[[str], None] | None = None,

@@ -1,4 +1,4 @@
-"""`study.stages.render_stage` reads a rendered dataset through the opened dataset (`synth.dataset.Dataset`:
+"""`study.worlds.render_stage` reads a rendered dataset through the opened dataset (`synth.dataset.Dataset`:
 config_hash, overlap, split), not raw manifest.json keys: a complete dataset of the same config is reused
 with its splits and measured overlap, one of another config is refused. Nothing is rendered."""
 from __future__ import annotations
@@ -10,7 +10,8 @@ import pytest
 
 from corelib.configlib import ConfigError, config_hash
 from study.config import data_config_for, load_sweep_config, overlap_key
-from study.stages import Counters, render_stage
+from study.stages import Counters
+from study.worlds import render_stage
 
 ROOT = Path(__file__).resolve().parents[2]
 CAMS = ["CAM_A", "CAM_B"]

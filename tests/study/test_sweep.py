@@ -26,7 +26,7 @@ CI = ROOT / "configs" / "sweep" / "ci.yaml"
 
 # --------------------------------------------------------------------------- config (fast)
 def test_presets_load():
-    for name in ("ci", "cpu", "gpu"):
+    for name in ("ci", "cpu", "gpu", "cpu_propagation"):
         cfg = sweep.load_sweep_config(ROOT / "configs" / "sweep" / f"{name}.yaml")
         assert cfg.overlap_mode == "spacing"
         assert all(0.10 <= o <= 0.60 for o in cfg.overlaps)

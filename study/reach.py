@@ -1,0 +1,176 @@
+"""The report's section on how far the overlap reaches: two yardsticks of what a perfectly known overlap
+could give the rest of the image, the inference-time and training-time propagation of every mechanism
+against them, and all of it by distance from the overlap (docs/results/propagation.md).
+
+Read from `study.results` (nothing is computed from raw files). Median-scaled abs_rel throughout;
+differences are paired over (world, seed) pairs (`study.results.paired_difference`), negative = better.
+
+- **Yardstick, global** (``<m>@oracle_overlap``): a run's own bases at per-image weights fitted to the
+  ground truth of the OVERLAP pixels only, scored on the non-overlap pixels: what MCDP's one weight
+  vector per image could carry from a perfect overlap. Its headroom = init - ORACLE-overlap.
+- **Yardstick, local** (``oracle_local``): Mono2's network given the overlap's ground-truth depth as an
+  input, evaluated filled and emptied (its cut); headroom = emptied - filled on non-overlap pixels: what
+  a network free to carry it anywhere makes of a perfect overlap at this budget.
+- **Inference-time propagation** of a network that reads other cameras: cut - as trained (> 0: reading
+  them helps where they are not seen).
+- **Training-time propagation**: what a training term on the overlap changes in a network evaluated
+  without reading any other camera: MCDP (m = 2) cut - MCDP (w/o L_con, m = 2) cut (L_con), FSM - Mono2.
+- **Recovered**: a gain / the local yardstick's headroom (the global one for the ORACLE-overlap weights).
+"""
+from __future__ import annotations
+
+import math
+
+from study.results import CUT, ORACLE, ORACLE_OVL, fmt_diff, mean_std
+
+NON = "median.non_overlap.abs_rel"
+#: mechanisms whose inference-time propagation is reported (as trained vs cut), in this order
+READERS = ("mcdp_m2", "mcdp_m2_nocon", "mcdp_local", "surround")
+LOCAL = "oracle_local"
+GLOBAL_OF = "mcdp_m2"  # the run whose bases give the global yardstick
+
+
+def band_names(results: dict) -> list[str]:
+    """The distance bands present in the results (`synth.overlap.BAND_NAMES` order)."""
+    for f in results["flat"]:
+        names = [k[len("median.band."):-len(".abs_rel")] for k in f if k.startswith("median.band.")]
+        if names:
+            return names
+    return []
+
+
+def paired(results: dict, o: float, a: tuple[str, str], b: tuple[str, str]) -> dict:
+    """Mean and 95 % t-interval over (world, seed) pairs of column a[1] of method a[0] minus column b[1] of
+    method b[0]; ``differs`` -1 / +1 / 0 as `study.results.paired_difference`."""
+    va = {f["seed"]: f.get(a[1]) for f in results["flat"] if f["overlap"] == o and f["method"] == a[0]}
+    vb = {f["seed"]: f.get(b[1]) for f in results["flat"] if f["overlap"] == o and f["method"] == b[0]}
+    d = [va[s] - vb[s] for s in va if s in vb and all(isinstance(x, (int, float)) and math.isfinite(x)
+                                                      for x in (va[s], vb[s]))]
+    ms = mean_std(d)
+    mu, hw = ms["mean"], ms["ci95"]
+    differs = 0
+    if math.isfinite(mu) and math.isfinite(hw):
+        differs = -1 if mu + hw < 0 else (1 if mu - hw > 0 else 0)
+    return {"mean": mu, "ci95": hw, "n": ms["n"], "differs": differs, "sd": ms["std"]}
+
+
+def _has(results: dict, method: str) -> bool:
+    return any(f["method"] == method for f in results["flat"])
+
+
+def quantities(results: dict, o: float, key: str = NON) -> dict[str, dict]:
+    """Every paired quantity of the section at one overlap on one column (`key`), by name; a gain is positive
+    when it helps (headrooms and gains are 'worse - better')."""
+    q: dict[str, dict] = {}
+    if _has(results, GLOBAL_OF + ORACLE_OVL):
+        init_key = "init." + key if key == NON else None
+        if init_key:
+            q["global headroom (init - ORACLE-overlap weights)"] = paired(results, o, (GLOBAL_OF, init_key),
+                                                                         (GLOBAL_OF + ORACLE_OVL, key))
+            q["all-pixel headroom (init - ORACLE weights)"] = paired(results, o, (GLOBAL_OF, init_key),
+                                                                    (GLOBAL_OF + ORACLE, key))
+            q["MCDP (m = 2) refinement gain (init - final)"] = paired(results, o, (GLOBAL_OF, init_key),
+                                                                     (GLOBAL_OF, key))
+    if _has(results, LOCAL + CUT):
+        q["local headroom (ORACLE-local emptied - filled)"] = paired(results, o, (LOCAL + CUT, key), (LOCAL, key))
+    for m in READERS:
+        if _has(results, m + CUT):
+            q[f"{m}: inference-time (cut - as trained)"] = paired(results, o, (m + CUT, key), (m, key))
+    if _has(results, "mcdp_m2" + CUT) and _has(results, "mcdp_m2_nocon" + CUT):
+        q["L_con: training-time (w/o L_con cut - with L_con cut)"] = paired(
+            results, o, ("mcdp_m2_nocon" + CUT, key), ("mcdp_m2" + CUT, key))
+    for m in ("fsm", "mcdp_m2", "mcdp_local"):
+        if _has(results, m) and _has(results, "mono2"):
+            q[f"{m}: vs Mono2 (Mono2 - {m})"] = paired(results, o, ("mono2", key), (m, key))
+    return q
+
+
+def _cell(pd: dict, digits: int = 4) -> str:
+    return fmt_diff(pd, digits) if pd["n"] else "—"
+
+
+def _frac(gain: dict, head: dict) -> str:
+    g, h = gain.get("mean", math.nan), head.get("mean", math.nan)
+    if not (math.isfinite(g) and math.isfinite(h)) or h <= 1e-6:
+        return "—"
+    return f"{100 * g / h:.0f} %"
+
+
+def format_reach(results: dict, label) -> str:
+    """Markdown: yardsticks, both kinds of propagation, fraction recovered, the distance table; '' when the
+    sweep has no run with the instruments (no ORACLE-overlap stage and no ORACLE-local run)."""
+    if not (_has(results, GLOBAL_OF + ORACLE_OVL) or _has(results, LOCAL)):
+        return ""
+    L: list[str] = []
+    add = L.append
+    add("## How far does the overlap reach? Yardsticks, two kinds of propagation, distance\n")
+    add("Non-overlap pixels, median-scaled abs_rel; every number is a paired difference over (world, seed) pairs, "
+        "mean ± 95 % t half-width, **positive = helps** (worse minus better). The two yardsticks read ground truth "
+        "(ORACLE): *global* = MCDP (m = 2)'s own bases at per-image weights fitted on the overlap pixels only; "
+        "*local* = Mono2's network given the overlap's ground-truth depth as input, filled vs emptied. "
+        "*Recovered* = the gain as a fraction of the local headroom.\n")
+    seeds = results.get("seeds", [])
+    worlds = results.get("sweep_config", {}).get("worlds", "shared")
+    add(f"Pairs: {len(seeds)} ({'world k trained with seed k: the intervals cover the scene sample and the seed together' if worlds == 'per_seed' else 'seeds on one shared world: the intervals cover the training seed only'}).\n")
+    for d in results["data"]:
+        o = d["overlap"]
+        q = quantities(results, o)
+        head = q.get("local headroom (ORACLE-local emptied - filled)", {})
+        add(f"**Overlap {o:.2f}** (measured {d['measured']['measured_mean']:.3f})\n")
+        add("| quantity | non-overlap px | recovered (of local headroom) |")
+        add("|---|---|---|")
+        for name, pd in q.items():
+            rec = "" if "headroom" in name else _frac(pd, head)
+            add(f"| {name} | {_cell(pd)} | {rec} |")
+        add("")
+    bands = band_names(results)
+    if bands:
+        add("### By distance from the overlap (bands in fractions of the image width)\n")
+        cols = [(n, q) for n, q in (("MCDP (m = 2) cut - trained", ("mcdp_m2", "cut")),
+                                     ("MCDP-local cut - trained", ("mcdp_local", "cut")),
+                                     ("ORACLE-local emptied - filled", (LOCAL, "cut")),
+                                     ("Mono2 - FSM", ("fsm", "mono2")), ("Mono2 - MCDP (m = 2)", ("mcdp_m2", "mono2")),
+                                     ("Mono2 - MCDP-local", ("mcdp_local", "mono2")))
+                if _has(results, q[0] + (CUT if q[1] == "cut" else ""))]
+        add("| overlap | band | Mono2 abs_rel | " + " | ".join(n for n, _ in cols) + " |")
+        add("|---|---|---|" + "---|" * len(cols))
+        for d in results["data"]:
+            o = d["overlap"]
+            for b in bands:
+                key = f"median.band.{b}.abs_rel"
+                mono = mean_std([f.get(key, math.nan) for f in results["flat"]
+                                 if f["overlap"] == o and f["method"] == "mono2"])
+                cells = []
+                for _, (m, kind) in cols:
+                    pd = (paired(results, o, (m + CUT, key), (m, key)) if kind == "cut"
+                          else paired(results, o, ("mono2", key), (m, key)))
+                    cells.append(_cell(pd))
+                add(f"| {o:.2f} | {b} | {mono['mean']:.4f} | " + " | ".join(cells) + " |")
+        add("")
+    add(format_verdicts(results))
+    return "\n".join(L)
+
+
+def _word(pd: dict) -> str:
+    if not pd.get("n"):
+        return "not measured"
+    return {1: "helps", -1: "hurts", 0: "no difference beyond the interval"}[pd["differs"]]
+
+
+def format_verdicts(results: dict) -> str:
+    """One verdict line per overlap: each mechanism's propagation next to the yardsticks' headroom."""
+    L = ["### Verdict per overlap (non-overlap pixels)\n"]
+    for d in results["data"]:
+        o = d["overlap"]
+        q = quantities(results, o)
+        head = q.get("local headroom (ORACLE-local emptied - filled)", {"n": 0})
+        glob = q.get("global headroom (init - ORACLE-overlap weights)", {"n": 0})
+        parts = [f"local headroom {_cell(head)} ({_word(head)})", f"global headroom {_cell(glob)}"]
+        for name, pd in q.items():
+            if "headroom" in name:
+                continue
+            parts.append(f"{name} {_cell(pd)}: {_word(pd)}" + (f", {_frac(pd, head)} of the local headroom"
+                                                                 if head.get("n") else ""))
+        L.append(f"- overlap {o:.2f}: " + "; ".join(parts))
+    L.append("")
+    return "\n".join(L)
