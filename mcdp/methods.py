@@ -7,13 +7,17 @@ the preset and the user's overrides; the presets must agree with them, tested), 
 its depth network (which also checks what it needs of ``ModelConfig``: ``check_config``) and,
 optionally, loss terms of its own. Table order = report order.
 
-The depth network's contract (what `mcdp.system.SelfSupervisedSystem`, `mcdp.predict` and the
-warm start use) is the one of `mcdp.model.DepthModel`: ``__init__(ModelConfig)``, ``.stages``
-(stage names, the last is evaluated), ``.cfg`` and ``forward(rgb, K, T_ego_cam, mask, nbr,
-oracle_gt_median=None, scales=None, refine_scales=None) -> {("disp" | "depth", stage, scale):
-(B*N, 1, h, w), "stages": [...], "scale": (B*N,)}``. Optional: ``fresh_parameters()`` (the layers no
-pretraining initialises: they learn at ``train.weight_lr_mult`` x the rate) and ``uses_neighbours``
-(True: the depth uses the neighbours' images at inference, so the sweep also evaluates it with them cut).
+The depth network's contract is one class, `mcdp.model.DepthNetwork`: every method's network subclasses
+it (most through `mcdp.model.DepthModel`; `network_class` refuses anything else) and overrides what differs. Its declared members, read as
+attributes and never probed: ``__init__(ModelConfig)``, ``check_config(cfg)`` (classmethod: ConfigError
+naming the key), ``.cfg``, ``.stages`` (stage names, the last is evaluated), ``n_out`` (decoder depth
+channels), ``has_bases`` (n bases combined by weights), ``uses_neighbours`` (the depth reads other cameras
+at inference: the sweep also evaluates it cut), ``joint_pose`` (the pose network moves the rig as one),
+``reads_overlap_truth`` (an ORACLE whose input holds the overlap's ground truth), ``fresh_parameters()``
+(the layers no pretraining initialises: they learn at ``train.weight_lr_mult`` x the rate) and
+``forward(rgb, K, T_ego_cam, mask, nbr, oracle_gt_median=None, scales=None, refine_scales=None,
+overlap_truth=None) -> {("disp" | "depth", stage, scale): (B*N, 1, h, w), "stages": [...], "scale":
+(B*N,)}``. tests/mcdp/test_methods.py checks every registered method against it.
 
 A method's own loss terms (``loss_terms``): ``(outputs, batch, cfg) -> {name: scalar}``, each
 scalar already weighted; `mcdp.system.SelfSupervisedSystem` adds them to the step's loss and
@@ -140,13 +144,24 @@ def method_of(cfg: ModelConfig) -> Method:
                       f"{', '.join(models)}; see mcdp/methods.py)")
 
 
+def network_class(method: Method) -> type:
+    """The method's network class: a subclass of `mcdp.model.DepthNetwork`, the one contract (its declared
+    members: ``stages``, ``n_out``, ``has_bases``, ``uses_neighbours``, ``joint_pose``,
+    ``reads_overlap_truth``, ``fresh_parameters()``, ``check_config(cfg)``, ``forward``); TypeError otherwise."""
+    from mcdp.model import DepthNetwork
+
+    net = method.builder
+    if not (isinstance(net, type) and issubclass(net, DepthNetwork)):
+        raise TypeError(f"method {method.name!r}: its network {net!r} must be a subclass of mcdp.model.DepthNetwork "
+                        "(the contract every trainer, predictor and report reads)")
+    return net
+
+
 def check_model(cfg: ModelConfig) -> None:
     """ConfigError, naming the key, when ``cfg.method``'s network cannot be built from ``cfg`` (without building it)."""
-    check = getattr(method_of(cfg).builder, "check_config", None)
-    if check is not None:
-        check(cfg)
+    network_class(method_of(cfg)).check_config(cfg)
 
 
 def build_depth_model(cfg: ModelConfig) -> nn.Module:
     """The depth network for ``cfg.method`` (the builder of the first method that trains it)."""
-    return method_of(cfg).builder(cfg)
+    return network_class(method_of(cfg))(cfg)

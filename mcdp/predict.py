@@ -89,7 +89,7 @@ class Predictor:
         self.mask = torch.from_numpy(self.reader.mask).to(self.device)[None]
         self.oracle = self.cfg.scale.oracle
         self.stages = list(self.model.stages)
-        self.n_out = getattr(self.model, "n_out", 1)  # depth bases of the network (1: nothing to weight)
+        self.n_out = self.model.n_out  # depth bases of the network (1: nothing to weight)
         self.oracle_weights = bool(oracle_weights) and self.n_out > 1
         self.oracle_range = (float(oracle_range[0]), float(oracle_range[1]))
         self._acc = {"images": 0, "weight_move": 0.0, "depth_change_m": 0.0, "oracle_weight_move": 0.0,

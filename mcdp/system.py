@@ -42,7 +42,8 @@ from mcdp.data import directed_pairs, neighbour_table
 from mcdp.geometry import splat_depth, warp_by_depth
 from mcdp.losses import consistency_loss, photometric_error, reprojection_loss, smoothness_loss
 from mcdp.methods import method_of
-from mcdp.model import PoseModel, is_refined, odometry_camera_motion, resize_mask_to
+from mcdp.model import is_refined, resize_mask_to
+from mcdp.pose import PoseModel, odometry_camera_motion
 
 
 # --------------------------------------------------------------------------- augmentation
@@ -119,7 +120,7 @@ class SelfSupervisedSystem(torch.nn.Module):
         else:
             with torch.autocast(self.device.type, dtype=self.amp_dtype, enabled=self.use_amp):
                 # a network that moves the rig as one (`joint_pose`: mcdp.surround) gets the extrinsics
-                joint = batch["T_ego_cam"] if getattr(self.depth, "joint_pose", False) else None
+                joint = batch["T_ego_cam"] if self.depth.joint_pose else None
                 poses = self.pose(net_rgb, joint)
             t_pred = torch.stack([poses[o][..., :3, 3].norm(dim=-1) for o in (-1, 1)])  # (2, B, N)
             t_odom = torch.stack([odom[o][..., :3, 3].norm(dim=-1) for o in (-1, 1)])

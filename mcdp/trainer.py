@@ -118,8 +118,7 @@ class Trainer:
         torch.manual_seed(tc.seed)
         self.system = SelfSupervisedSystem(cfg, ds.neighbours, len(ds.camera_names)).to(self.device)
         self.depth, self.pose = self.system.depth, self.system.pose
-        fresh = getattr(self.depth, "fresh_parameters", None)  # optional member of a depth network (mcdp.methods)
-        wnet = list(fresh()) if fresh is not None else []  # MCDP's weight networks, SurroundDepth's attention
+        wnet = list(self.depth.fresh_parameters())  # MCDP's weight networks, SurroundDepth's attention, ...
         wids = {id(p) for p in wnet}
         rest = [p for p in self.system.parameters() if id(p) not in wids]
         groups = [{"params": rest, "lr_mult": 1.0}]

@@ -99,7 +99,7 @@ def _train(args: argparse.Namespace) -> int:
     say = print if trainer.dist.is_main else (lambda *a, **k: None)  # torchrun: rank 0 speaks
     ranks = f", {trainer.dist.world} ranks (torchrun; global batch)" if trainer.dist.enabled else ""
     say(
-        f"mcdp train: method={m.method} bases={getattr(trainer.depth, 'n_out', 1)} refine_steps={m.refine_steps} "
+        f"mcdp train: method={m.method} bases={trainer.depth.n_out} refine_steps={m.refine_steps} "
         f"neighbours={m.neighbours} "
         f"lambda={cfg.loss.consistency_weight} scale={cfg.scale.source}"
         + (" [ORACLE: uses ground-truth median scale]" if cfg.scale.oracle else ""),

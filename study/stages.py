@@ -19,19 +19,19 @@ from study.config import SPLIT, SweepConfig, eval_config_for, overlap_key, run_c
 STATUS = "sweep_status.json"
 
 
-def _read_json(path: Path) -> dict | None:
+def read_json(path: Path) -> dict | None:
     try:
         return json.loads(path.read_text())
     except (OSError, ValueError):
         return None
 
 
-def _write_json(path: Path, obj) -> None:
+def write_json(path: Path, obj) -> None:
     path.parent.mkdir(parents=True, exist_ok=True)
     atomic_write_json(path, obj, allow_nan=True)
 
 
-def _finite(x) -> bool:
+def finite(x) -> bool:
     return isinstance(x, (int, float)) and math.isfinite(x)
 
 
@@ -94,7 +94,7 @@ def run_stage(cfg: SweepConfig, overlap: float, data: dict, method: str, seed: i
     rcfg, preset = run_config_for(cfg, method, seed, init_from)
     rhash = config_hash(rcfg)
     run_dir = run_dir_for(sweep_dir, overlap, method, seed)
-    run = _Run(cfg, overlap, data, method, seed, rcfg, rhash, run_dir, _read_json(run_dir / STATUS) or {},
+    run = _Run(cfg, overlap, data, method, seed, rcfg, rhash, run_dir, read_json(run_dir / STATUS) or {},
                f"[sweep] overlap {overlap:.2f} {method} seed {seed}", counters, log, progress)
     row: dict[str, Any] = {"overlap": overlap, "method": method, "seed": seed, "run_dir": str(run_dir),
                            "preset": str(preset), "run_config_hash": rhash, "status": "ok"}
@@ -164,7 +164,7 @@ def _train(run: _Run, row: dict) -> bool:
     except TrainingDiverged as exc:
         run.log(f"{tag}: TRAINING DIVERGED: {exc}")
         run.counters.bump("diverged")
-        _write_json(run.status_path, {**status, "run_config_hash": rhash, "data_hash": data["config_hash"],
+        write_json(run.status_path, {**status, "run_config_hash": rhash, "data_hash": data["config_hash"],
                                       "trained": False, "diverged": str(exc)})
         row.update(status="diverged", error=str(exc), train_s=time.perf_counter() - t0, train_skipped=False)
         return False
@@ -176,7 +176,7 @@ def _train(run: _Run, row: dict) -> bool:
         run.counters.bump("train_resumed")
     run.status = {"run_config_hash": rhash, "data_hash": data["config_hash"], "trained": True,
                   "steps": summary["steps"], "train_s": train_s, "best_val": summary["best_val"]}
-    _write_json(run.status_path, run.status)
+    write_json(run.status_path, run.status)
     row.update(train_s=train_s, train_skipped=False, steps=summary["steps"])
     return True
 
@@ -193,8 +193,8 @@ def _evaluate(run: _Run, row: dict) -> tuple[dict, dict | None, str]:
     ckpt_path = find_checkpoint(run_dir, cfg.checkpoint)
     key = _eval_key(run.rhash, int(status.get("steps", -1)), config_to_dict(cfg.eval), run.data["config_hash"],
                     cfg.checkpoint, ckpt_path.name)
-    metrics = _read_json(metrics_path)
-    metrics_cut = _read_json(cut_path)
+    metrics = read_json(metrics_path)
+    metrics_cut = read_json(cut_path)
     if metrics is not None and metrics.get("sweep", {}).get("eval_key") == key and status.get("eval_key") == key:
         run.counters.bump("eval_skipped")
         row.update(eval_s=status.get("eval_s", float("nan")), eval_skipped=True)
@@ -207,12 +207,12 @@ def _evaluate(run: _Run, row: dict) -> tuple[dict, dict | None, str]:
     metrics["sweep"] = {"eval_key": key, "overlap": run.overlap, "method": run.method, "seed": run.seed}
     if metrics_cut is not None:
         metrics_cut["sweep"] = {**metrics["sweep"], "cut": True}
-        _write_json(cut_path, metrics_cut)
-    _write_json(metrics_path, metrics)  # last: it names the eval key that says both are complete
+        write_json(cut_path, metrics_cut)
+    write_json(metrics_path, metrics)  # last: it names the eval key that says both are complete
     eval_s = time.perf_counter() - t0
     run.status = {**status, "eval_key": key, "eval_s": eval_s, "checkpoint": metrics["run"]["checkpoint"],
                   "checkpoint_step": metrics["run"]["step"]}
-    _write_json(run.status_path, run.status)
+    write_json(run.status_path, run.status)
     run.counters.bump("evaluated")
     row.update(eval_s=eval_s, eval_skipped=False)
     return metrics, metrics_cut, key
@@ -284,7 +284,7 @@ def _evaluate_both(cfg: SweepConfig, run_dir: Path, ds, ecfg, progress: bool, lo
     from mcdp.evaluate import evaluate
     from mcdp.predict import Predictor
 
-    cuts = bool(getattr(pred.model, "uses_neighbours", False))  # MCDP's refinement, SurroundDepth's attention
+    cuts = pred.model.uses_neighbours  # MCDP's refinement, SurroundDepth's attention, ORACLE-local's input
     log(f"{tag}: evaluating {pred.ckpt_path.name} (step {pred.step}) on the {SPLIT} split"
         + (" (+ ORACLE weights of its bases)" if pred.oracle_weights else ""))
     metrics = evaluate(ds, pred.predict, SPLIT, ecfg, progress=progress)
@@ -305,6 +305,6 @@ def _remove_last(run_dir: Path, status: dict, status_path: Path) -> dict:
     evaluated = Path(status.get("checkpoint") or "")
     if status.get("trained") and last.is_file() and best.is_file() and evaluated.resolve() == best.resolve():
         status = {**status, "last_removed": True}
-        _write_json(status_path, status)  # first: an interruption between the two leaves a last.pt, not a lie
+        write_json(status_path, status)  # first: an interruption between the two leaves a last.pt, not a lie
         last.unlink()
     return status

@@ -13,7 +13,7 @@ from pathlib import Path
 
 from corelib.configlib import ConfigError, config_hash, config_to_dict
 from study.config import SPLIT, SweepConfig, data_config_for, eval_config_for, world_key
-from study.stages import Counters, _finite, _read_json, _write_json, summarize_metrics
+from study.stages import Counters, finite, read_json, write_json, summarize_metrics
 
 def measured_overlap(ov: dict) -> dict:
     """Target and measured pixel overlap of a dataset (from its overlap record, `synth.dataset.Dataset.overlap`).
@@ -27,9 +27,9 @@ def measured_overlap(ov: dict) -> dict:
     pp = ov.get("per_pair_measured", {})
     target = ov.get("target")
     same = [v["measured"] for v in pp.values()
-            if _finite(target) and _finite(v.get("target")) and abs(v["target"] - target) < 1e-3
-            and _finite(v.get("measured"))]
-    allm = [v["measured"] for v in pp.values() if _finite(v.get("measured"))]
+            if finite(target) and finite(v.get("target")) and abs(v["target"] - target) < 1e-3
+            and finite(v.get("measured"))]
+    allm = [v["measured"] for v in pp.values() if finite(v.get("measured"))]
     return {
         "target": target,
         "mode": ov.get("mode"),
@@ -49,7 +49,7 @@ def _mean_tree(trees: list):
     if isinstance(first, dict):
         return {k: _mean_tree([t[k] for t in trees if isinstance(t, dict) and k in t]) for k in first}
     if isinstance(first, (int, float)) and not isinstance(first, bool):
-        v = [float(t) for t in trees if _finite(t)]
+        v = [float(t) for t in trees if finite(t)]
         return sum(v) / len(v) if v else float("nan")
     return first
 
@@ -60,7 +60,7 @@ def combine_worlds(recs: list[dict]) -> dict:
     so its mean over the worlds is the yardstick of the pairs' mean); render time summed."""
     out = {k: recs[0][k] for k in ("overlap", "path", "config_hash", "splits")}
     out.update(world="per_seed", worlds=recs, data_seeds=[r["data_seed"] for r in recs],
-               render_s=sum(r["render_s"] for r in recs if _finite(r["render_s"])),
+               render_s=sum(r["render_s"] for r in recs if finite(r["render_s"])),
                render_skipped=all(r["render_skipped"] for r in recs),
                measured=_mean_tree([r["measured"] for r in recs]))
     for which in ("reference", "prior"):
@@ -95,7 +95,7 @@ def render_stage(cfg: SweepConfig, overlap: float, sweep_dir: Path, counters: Co
     wkey = world_key(overlap, world)
     out = sweep_dir / "data" / wkey
     ds = _rendered(out)
-    status = _read_json(out.parent / f"{wkey}.status.json") or {}
+    status = read_json(out.parent / f"{wkey}.status.json") or {}
     if ds is not None and ds.config_hash == h:
         counters.bump("render_skipped")
         log(f"[sweep] {wkey}: dataset {out} is complete (config hash {h[:12]}), reused")
@@ -118,7 +118,7 @@ def render_stage(cfg: SweepConfig, overlap: float, sweep_dir: Path, counters: Co
         if summary.get("skipped_sequences"):
             counters.bump("render_resumed")
         ds = open_dataset(out)
-        _write_json(out.parent / f"{wkey}.status.json", {"config_hash": h, "render_s": render_s})
+        write_json(out.parent / f"{wkey}.status.json", {"config_hash": h, "render_s": render_s})
     ov = measured_overlap(ds.overlap)
     log(f"[sweep] {wkey}: target {ov['target']:.2f}, measured pixel overlap {ov['measured_mean']:.3f} "
         f"(mean of the {ov['pairs_at_target']}/{ov['pairs']} pairs at the target)")
@@ -143,7 +143,7 @@ def reference_stage(cfg: SweepConfig, d: dict, sweep_dir: Path, counters: Counte
     path = sweep_dir / "data" / f"{world_key(o, d.get('world'))}.reference.json"
     key = config_hash({"data": d["config_hash"], "eval": config_to_dict(cfg.eval),
                        "reference": "constant_train_median+flat_road"})
-    cached = _read_json(path)
+    cached = read_json(path)
     if cached is not None and cached.get("key") == key:
         counters.bump("reference_skipped")
         return cached["reference"], cached["prior"]
@@ -158,7 +158,7 @@ def reference_stage(cfg: SweepConfig, d: dict, sweep_dir: Path, counters: Counte
     metrics = evaluate(ds, flat_road_predictor(ds, depth), SPLIT, ecfg, progress=False)
     prior = {"kind": "flat-road prior: road-plane depth from the rig geometry, capped at the constant", "far_m": depth,
              "metrics": summarize_metrics(metrics), "eval_s": time.perf_counter() - t0}
-    _write_json(path, {"key": key, "reference": ref, "prior": prior})
+    write_json(path, {"key": key, "reference": ref, "prior": prior})
     counters.bump("reference_evaluated")
     for name, r in (("constant-depth reference", ref), ("flat-road prior", prior)):
         log(f"[sweep] overlap {o:.2f}: {name} ({depth:.2f} m): abs_rel metric "

@@ -13,20 +13,23 @@ from corelib.configlib import ConfigError, config_to_dict, load_config, read_yam
 from mcdp import methods
 from mcdp.config import ModelConfig, RunConfig
 from mcdp.data import collate
-from mcdp.model import disp_to_depth
+from mcdp.model import DepthNetwork, disp_to_depth
 
 ROOT = Path(__file__).resolve().parents[2]
 
 
-class ToyDepth(nn.Module):
-    """The smallest depth network with DepthModel's contract: one conv, one stage, every scale."""
+class ToyDepth(DepthNetwork):
+    """The smallest depth network with the contract (`mcdp.model.DepthNetwork`): one conv, one stage, every scale."""
+
+    model = "toy"
 
     def __init__(self, cfg: ModelConfig):
         super().__init__()
         self.cfg, self.stages = cfg, ["init"]
         self.conv = nn.Conv2d(3, 1, 3, padding=1)
 
-    def forward(self, rgb, K, T_ego_cam, mask, nbr, oracle_gt_median=None, scales=None, refine_scales=None):
+    def forward(self, rgb, K, T_ego_cam, mask, nbr, oracle_gt_median=None, scales=None, refine_scales=None,
+                overlap_truth=None):
         B, N, _, H, W = rgb.shape
         sig = torch.sigmoid(self.conv(rgb.reshape(B * N, 3, H, W)))
         out = {"stages": self.stages, "scale": torch.ones(B * N)}
@@ -114,3 +117,49 @@ def test_each_preset_agrees_with_its_registry_entry(folder, name):
     assert "consistency_weight" not in read_yaml(path).get("loss", {}) or \
         methods.METHODS[name].defaults["loss.consistency_weight"] != methods.PAPER_LAMBDA, \
         f"{folder}/{name}.yaml writes lambda again: it is LossConfig's default"
+
+
+@pytest.mark.parametrize("name", list(methods.METHODS))
+def test_every_registered_network_keeps_the_contract(name):
+    """Conformance: each method's network (tiny preset) is a DepthNetwork whose declared members have the
+    documented types, and whose forward returns every stage's depth at full resolution."""
+    from mcdp.model import DepthNetwork
+
+    cfg = load_config(RunConfig, ROOT / "configs" / "train" / "tiny" / f"{name}.yaml")
+    net = methods.build_depth_model(cfg.model).eval()
+    assert isinstance(net, DepthNetwork) and type(net).model == methods.METHODS[name].model
+    assert isinstance(net.n_out, int) and net.n_out >= 1 and (net.n_out > 1) == net.has_bases
+    for member in ("uses_neighbours", "joint_pose", "reads_overlap_truth", "has_bases"):
+        assert isinstance(getattr(net, member), bool), member
+    fresh = net.fresh_parameters()
+    assert all(isinstance(p, nn.Parameter) for p in fresh)
+    N, H, W = 2, 64, 96
+    K = torch.tensor([[80.0, 0, 48], [0, 80, 32], [0, 0, 1]]).expand(1, N, 3, 3)
+    T = torch.eye(4).expand(1, N, 4, 4).clone()
+    T[0, 1, :3, 3] = torch.tensor([0.0, 0.5, 0.0])
+    with torch.no_grad():
+        out = net(torch.rand(1, N, 3, H, W), K, T, torch.ones(1, N, 1, H, W), torch.tensor([[1, -1], [-1, 0]]),
+                  scales=1)
+    assert list(out["stages"]) == list(net.stages)
+    for st in net.stages:
+        d = out["depth", st, 0]
+        assert d.shape == (N, 1, H, W) and torch.isfinite(d).all() and (d > 0).all()
+
+
+def test_nothing_probes_a_network_with_getattr():
+    """The contract's members are declared (DepthNetwork): no module reads them with getattr / hasattr."""
+    import re
+
+    members = ("n_out", "has_bases", "uses_neighbours", "joint_pose", "reads_overlap_truth", "fresh_parameters",
+               "check_config", "stages")
+    pat = re.compile(r"(getattr|hasattr)\([^)]*[\"'](" + "|".join(members) + r")[\"']")
+    hits = [f"{p.relative_to(ROOT)}:{i}" for pkg in ("mcdp", "study", "synth", "benchmarks")
+            for p in (ROOT / pkg).rglob("*.py") for i, line in enumerate(p.read_text().splitlines(), 1)
+            if pat.search(line)]
+    assert not hits, hits
+
+
+def test_a_network_outside_the_contract_is_refused():
+    m = methods.Method("plain", "Plain", {"model.method": "plain"}, nn.Identity)
+    with pytest.raises(TypeError, match="DepthNetwork"):
+        methods.network_class(m)
