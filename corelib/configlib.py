@@ -17,7 +17,7 @@ from pathlib import Path
 from typing import Any, Iterable, Type, TypeVar
 
 import yaml
-from pydantic import BaseModel, ConfigDict, ValidationError
+from pydantic import BaseModel, ConfigDict, Field, ValidationError
 
 from corelib.hashing import json_sha256
 
@@ -206,9 +206,44 @@ def config_to_dict(cfg: BaseModel) -> dict[str, Any]:
     return cfg.model_dump(mode="json")
 
 
+#: the mark of a key added after the artefacts it configures were first cached (`added_key`)
+_ADDED = "hashed_only_when_set"
+
+
+def added_key(default: Any = ..., **kw) -> Any:
+    """A pydantic Field for a key added to a config that caches hang on (datasets, runs): the key enters
+    `config_hash` only when its value differs from ``default``, so adding it with a default that leaves
+    the artefact as it was keeps every existing hash, and with it every cached render and run."""
+    extra = dict(kw.pop("json_schema_extra", None) or {})
+    extra[_ADDED] = True
+    if "default_factory" in kw:
+        return Field(json_schema_extra=extra, **kw)
+    return Field(default, json_schema_extra=extra, **kw)
+
+
+def _hashed(cfg: BaseModel, d: dict[str, Any]) -> dict[str, Any]:
+    """`d` (= config_to_dict(cfg)) without the `added_key` keys that hold their default, at every depth."""
+    out = dict(d)
+    for name, field in type(cfg).model_fields.items():
+        value = getattr(cfg, name)
+        extra = field.json_schema_extra if isinstance(field.json_schema_extra, dict) else {}
+        if extra.get(_ADDED) and value == field.get_default(call_default_factory=True):
+            out.pop(name, None)
+        elif isinstance(value, BaseModel) and isinstance(out.get(name), dict):
+            out[name] = _hashed(value, out[name])
+    return out
+
+
+def hashed_dict(cfg: BaseModel) -> dict[str, Any]:
+    """What `config_hash` hashes of a config: its plain dict without the `added_key` keys at their default
+    (use it to build a hash of several configs together)."""
+    return _hashed(cfg, config_to_dict(cfg))
+
+
 def config_hash(cfg: BaseModel | dict[str, Any]) -> str:
-    """sha256 of the canonical JSON of a config: same resolved config, same hash."""
-    d = config_to_dict(cfg) if isinstance(cfg, BaseModel) else cfg
+    """sha256 of the canonical JSON of a config: same resolved config, same hash. Keys declared with
+    `added_key` count only when set to something other than their default."""
+    d = _hashed(cfg, config_to_dict(cfg)) if isinstance(cfg, BaseModel) else cfg
     return json_sha256(d)
 
 

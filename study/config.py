@@ -13,7 +13,7 @@ from typing import Literal
 
 from pydantic import Field, field_validator, model_validator
 
-from corelib.configlib import ConfigError, StrictModel, config_to_dict, load_config, override_key, resolve_path
+from corelib.configlib import ConfigError, StrictModel, added_key, config_to_dict, load_config, override_key, resolve_path
 from mcdp.methods import METHODS, PAPER_METHODS, check_model
 from study.pretrain import PretrainConfig
 
@@ -83,7 +83,7 @@ class SweepConfig(StrictModel):
     train_presets_dir: str = "configs/train"
     train_overrides: list[str] = Field(default_factory=list)
     seeds: list[int] = Field(default_factory=lambda: [0])
-    worlds: Literal["shared", "per_seed"] = "shared"
+    worlds: Literal["shared", "per_seed"] = added_key("shared")
     eval: SweepEvalConfig = Field(default_factory=SweepEvalConfig)
     checkpoint: Literal["auto", "best", "last"] = "auto"
     workers: int = Field(2, ge=1, le=256)

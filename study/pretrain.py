@@ -38,7 +38,7 @@ from typing import Callable
 from pydantic import Field
 
 from corelib.atomic import atomic_write_json
-from corelib.configlib import ConfigError, StrictModel, config_hash, config_to_dict, load_config, resolve_path
+from corelib.configlib import ConfigError, StrictModel, config_hash, config_to_dict, hashed_dict, load_config, resolve_path
 
 MARKER = "pretrain.json"
 WEIGHTS = "pretrained.pt"
@@ -76,7 +76,7 @@ def resolved_configs(cfg: PretrainConfig, check_network: bool = True):
         raise ConfigError("model.init_from: a pretraining starts from scratch")
     if rcfg.scale.oracle:
         raise ConfigError("scale.source=oracle_gt_median reads ground truth; a pretraining must not")
-    h = config_hash({"data": config_to_dict(dcfg), "run": config_to_dict(rcfg)})
+    h = config_hash({"data": hashed_dict(dcfg), "run": hashed_dict(rcfg)})
     return dcfg, rcfg, h
 
 

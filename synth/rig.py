@@ -29,10 +29,10 @@ from dataclasses import dataclass
 from typing import Literal
 
 import numpy as np
-from pydantic import Field
+from pydantic import Field, field_validator
 
 from scenes.model import Mesh
-from corelib.configlib import StrictModel
+from corelib.configlib import StrictModel, added_key
 
 CAMERA_NAMES = ("CAM_FRONT", "CAM_FRONT_RIGHT", "CAM_BACK_RIGHT", "CAM_BACK", "CAM_BACK_LEFT", "CAM_FRONT_LEFT")
 # adjacent pairs in ring order: (0,1) (1,2) ... (5,0)
@@ -51,6 +51,32 @@ class CameraConfig(StrictModel):
     hfov_deg: float = Field(70.0, gt=20.0, le=150.0)
 
 
+class CameraOverride(StrictModel):
+    """One camera's own settings over the rig's (``rig.cameras.<CAM>.<key>``; null = the rig's).
+
+    hfov_deg: its horizontal field of view (its K: square pixels, centred principal point).
+    yaw_deg: its yaw in the ego frame (counter-clockwise from x, degrees), instead of the solved layout's.
+    pitch_deg: its pitch (positive looks up).
+    mount_m: its optical centre in the ego frame (x forward, y left, z up; metres above the road), instead
+        of the roof mount at ``camera_height_m``.
+    Every camera keeps the dataset's image size (``camera.width`` x ``camera.height``).
+    """
+
+    hfov_deg: float | None = Field(None, gt=20.0, le=150.0)
+    yaw_deg: float | None = Field(None, ge=-180.0, le=180.0)
+    pitch_deg: float | None = Field(None, ge=-45.0, le=45.0)
+    mount_m: list[float] | None = None  # [x, y, z]
+
+    @field_validator("mount_m")
+    @classmethod
+    def _mount(cls, v):
+        if v is not None and not (len(v) == 3 and all(math.isfinite(c) and abs(c) <= 10.0 for c in v)
+                                  and 0.2 <= v[2] <= 5.0):
+            raise ValueError(f"mount_m must be finite (x, y, z) metres within 10 m of the rear axle, z in [0.2, 5], "
+                             f"got {v}")
+        return v
+
+
 class RigConfig(StrictModel):
     """Rig geometry. ``overlap`` is the target shared fraction of hfov of adjacent cameras.
 
@@ -61,6 +87,8 @@ class RigConfig(StrictModel):
     road shows through the car and the self-occlusion mask misses it; the default 1 cm
     costs no depth resolution (the renderer tests linear depth, `synth.gl_backend`).
     ``zfar_m`` bounds the depth maps (scenes end well before 400 m; fog hides the horizon).
+    ``cameras``: per-camera overrides of hfov, yaw, pitch and mount (`CameraOverride`), applied over the
+    solved layout, e.g. ``rig.cameras.CAM_BACK.hfov_deg=110`` (real rigs: configs/data/nuscenes_like.yaml).
     """
 
     overlap: float = Field(0.25, ge=0.10, le=0.60)
@@ -69,6 +97,15 @@ class RigConfig(StrictModel):
     side_pitch_deg: float = Field(-12.0, ge=-30.0, le=10.0)
     znear_m: float = Field(0.01, ge=0.001, le=2.0)
     zfar_m: float = Field(400.0, ge=50.0, le=5000.0)
+    cameras: dict[str, CameraOverride] = added_key(default_factory=dict)
+
+    @field_validator("cameras")
+    @classmethod
+    def _camera_names(cls, v: dict) -> dict:
+        bad = [k for k in v if k not in CAMERA_NAMES]
+        if bad:
+            raise ValueError(f"unknown camera(s) {', '.join(map(str, bad))[:200]}; the rig's: {', '.join(CAMERA_NAMES)}")
+        return v
 
 
 @dataclass(frozen=True)
@@ -176,14 +213,18 @@ def build_rig(rig: RigConfig, camera: CameraConfig) -> Rig:
                 "CAM_BACK_LEFT": 120.0, "CAM_FRONT_LEFT": 60.0}
     pitches = {n: 0.0 for n in CAMERA_NAMES}
     pitches["CAM_BACK_RIGHT"] = pitches["CAM_BACK_LEFT"] = rig.side_pitch_deg
-    K = intrinsics_from_hfov(camera.width, camera.height, hfov)
     cams = []
     for name in CAMERA_NAMES:
+        o = rig.cameras.get(name) or CameraOverride()
+        yaw = yaws[name] if o.yaw_deg is None else o.yaw_deg
+        pitch = pitches[name] if o.pitch_deg is None else o.pitch_deg
+        h = hfov if o.hfov_deg is None else o.hfov_deg
         T = np.eye(4)
-        T[:3, :3] = rotation_ego_cam(math.radians(yaws[name]), math.radians(pitches[name]))
+        T[:3, :3] = rotation_ego_cam(math.radians(yaw), math.radians(pitch))
         mx, my, mz = _MOUNTS[name]
-        T[:3, 3] = (mx, my, rig.camera_height_m + mz)
-        cams.append(CameraSpec(name, camera.width, camera.height, K.copy(), T, hfov, yaws[name], pitches[name]))
+        T[:3, 3] = (mx, my, rig.camera_height_m + mz) if o.mount_m is None else o.mount_m
+        K = intrinsics_from_hfov(camera.width, camera.height, h)
+        cams.append(CameraSpec(name, camera.width, camera.height, K, T, h, yaw, pitch))
     return Rig(tuple(cams), RING_PAIRS, rig.overlap, rig.overlap_mode, s)
 
 

@@ -52,3 +52,40 @@ def test_overlap_of_a_far_wall_is_the_geometric_overlap():
     # far wall: translation is negligible, the boundary is where FR's left edge (yaw -60 + hfov/2) falls
     u_edge = a.K[0, 2] + a.K[0, 0] * math.tan(math.radians(60.0 - a.hfov_deg / 2))
     assert frac == pytest.approx((a.width - u_edge) / a.width, abs=0.02)
+
+
+def test_per_camera_overrides_reach_the_rig_and_widen_a_camera():
+    from corelib.configlib import ConfigError, load_config
+    from synth.config import DataConfig
+    from synth.rig import build_rig
+
+    base = load_config(DataConfig, None, [])
+    wide = load_config(DataConfig, None, ["rig.cameras.CAM_BACK.hfov_deg=110.0", "rig.cameras.CAM_FRONT.mount_m=[2.0,0.0,1.5]",
+                                          "rig.cameras.CAM_FRONT_LEFT.yaw_deg=50.0"])
+    r0, r1 = build_rig(base.rig, base.camera), build_rig(wide.rig, wide.camera)
+    back0, back1 = r0.cameras[3], r1.cameras[3]
+    assert back1.hfov_deg == 110.0 and back1.K[0, 0] < back0.K[0, 0]  # shorter focal length: sees more
+    assert back1.to_json()["hfov_deg"] == 110.0 and back1.to_json()["K"][0][0] == back1.K[0, 0]
+    ov0, ov1 = r0.pair_target_overlap(), r1.pair_target_overlap()
+    assert ov1["CAM_BACK_RIGHT-CAM_BACK"] > ov0["CAM_BACK_RIGHT-CAM_BACK"]  # the wider CAM_BACK overlaps more
+    assert tuple(r1.cameras[0].T_ego_cam[:3, 3]) == (2.0, 0.0, 1.5)
+    assert r1.cameras[5].yaw_deg == 50.0
+    for o in (["rig.cameras.CAM_TOP.hfov_deg=90.0"], ["rig.cameras.CAM_BACK.hfov_deg=200.0"],
+              ["rig.cameras.CAM_BACK.mount_m=[0.0,0.0,50.0]"], ["rig.cameras.CAM_BACK.focal=3.0"]):
+        with pytest.raises(ConfigError, match="rig.cameras"):
+            load_config(DataConfig, None, o)
+
+
+def test_an_added_key_at_its_default_keeps_every_hash():
+    """rig.cameras and the sweep's worlds were added after datasets and runs were cached: at their defaults
+    they leave the config hash as it was (the hash of the dict without them), set they change it."""
+    from corelib.configlib import config_hash, config_to_dict, load_config
+    from corelib.hashing import json_sha256
+    from synth.config import DataConfig
+
+    cfg = load_config(DataConfig, None, [])
+    d = config_to_dict(cfg)
+    assert d["rig"]["cameras"] == {}
+    del d["rig"]["cameras"]
+    assert config_hash(cfg) == json_sha256(d)
+    assert config_hash(load_config(DataConfig, None, ["rig.cameras.CAM_BACK.hfov_deg=110.0"])) != config_hash(cfg)
