@@ -51,7 +51,11 @@ def main(argv=None) -> int:
     ap.add_argument("--width", type=int, default=320)
     ap.add_argument("--height", type=int, default=192)
     ap.add_argument("--modes", default="spacing,fov")
+    ap.add_argument("--presets", default="", help="real-rig data presets instead of the sweep of the knob, e.g. "
+                    "nuscenes_like,ddad_like (configs/data/<name>.yaml)")
     args = ap.parse_args(argv)
+    if args.presets:
+        return preset_table(args)
     from synth.config import load_data_config
     from synth.render import render_dataset
 
@@ -79,6 +83,27 @@ def main(argv=None) -> int:
                 d = ov["per_pair_measured"][p]
                 cells.append(f"{d['target']:+.2f} / {d['measured']:.3f} ({fr[p]:.3f})")
             print(f"{o:7.2f} | {ov['hfov_deg']:5.1f} | " + " | ".join(f"{c:>21}" for c in cells))
+    return 0
+
+
+def preset_table(args) -> int:
+    """The measured pixel overlap per pair of each real-rig preset (docs/results/overlap.md, 'Real rigs')."""
+    from synth.config import load_data_config
+    from synth.render import render_dataset
+
+    for name in args.presets.split(","):
+        cfg = load_data_config(f"configs/data/{name}.yaml", [
+            f"dataset.sequences={args.sequences}", f"dataset.frames={args.frames}", f"camera.width={args.width}",
+            f"camera.height={args.height}"])
+        with tempfile.TemporaryDirectory() as tmp:
+            s = render_dataset(cfg, Path(tmp) / "d", progress=False, log=lambda *a: None)
+        pp = s["overlap"]["per_pair_measured"]
+        print(f"\n{name} ({args.sequences} seq x {args.frames} frames, {args.width}x{args.height}): "
+              "pair | geometric target | measured pixel overlap")
+        for p, d in pp.items():
+            print(f"  {p:<32} {d['target']:+.3f}   {d['measured']:.3f}")
+        m = [d["measured"] for d in pp.values()]
+        print(f"  {'mean over the pairs':<32} {'':>6}   {sum(m) / len(m):.3f}")
     return 0
 
 

@@ -21,7 +21,7 @@ from __future__ import annotations
 
 import math
 
-from study.results import CUT, ORACLE, ORACLE_OVL, fmt_diff, mean_std
+from study.results import CUT, ORACLE, ORACLE_OVL, fmt_diff, mean_std, paired_columns
 
 NON = "median.non_overlap.abs_rel"
 #: mechanisms whose inference-time propagation is reported (as trained vs cut), in this order
@@ -39,19 +39,8 @@ def band_names(results: dict) -> list[str]:
     return []
 
 
-def paired(results: dict, o: float, a: tuple[str, str], b: tuple[str, str]) -> dict:
-    """Mean and 95 % t-interval over (world, seed) pairs of column a[1] of method a[0] minus column b[1] of
-    method b[0]; ``differs`` -1 / +1 / 0 as `study.results.paired_difference`."""
-    va = {f["seed"]: f.get(a[1]) for f in results["flat"] if f["overlap"] == o and f["method"] == a[0]}
-    vb = {f["seed"]: f.get(b[1]) for f in results["flat"] if f["overlap"] == o and f["method"] == b[0]}
-    d = [va[s] - vb[s] for s in va if s in vb and all(isinstance(x, (int, float)) and math.isfinite(x)
-                                                      for x in (va[s], vb[s]))]
-    ms = mean_std(d)
-    mu, hw = ms["mean"], ms["ci95"]
-    differs = 0
-    if math.isfinite(mu) and math.isfinite(hw):
-        differs = -1 if mu + hw < 0 else (1 if mu - hw > 0 else 0)
-    return {"mean": mu, "ci95": hw, "n": ms["n"], "differs": differs, "sd": ms["std"]}
+#: paired over (world, seed) pairs: column a[1] of method a[0] minus column b[1] of method b[0]
+paired = paired_columns
 
 
 def _has(results: dict, method: str) -> bool:

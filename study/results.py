@@ -159,10 +159,16 @@ def mean_std(values: list[float]) -> dict:
 
 def paired_difference(results: dict, overlap: float, a: str, b: str, key: str) -> dict:
     """Mean and 95 % t-interval over seeds of (a - b) for the same seed (seeds pair the runs:
-    same data order and pretraining); {"mean", "ci95", "n", "differs"} where differs is
+    same data order and pretraining); {"mean", "ci95", "n", "differs", "sd"} where differs is
     -1 (a lower), +1 (a higher) or 0 (the interval contains 0)."""
-    va = {f["seed"]: f.get(key) for f in results["flat"] if f["overlap"] == overlap and f["method"] == a}
-    vb = {f["seed"]: f.get(key) for f in results["flat"] if f["overlap"] == overlap and f["method"] == b}
+    return paired_columns(results, overlap, (a, key), (b, key))
+
+
+def paired_columns(results: dict, overlap: float, a: tuple[str, str], b: tuple[str, str]) -> dict:
+    """`paired_difference` of column a[1] of method a[0] minus column b[1] of method b[0] (e.g. a run's init
+    stage against its ORACLE-overlap row)."""
+    va = {f["seed"]: f.get(a[1]) for f in results["flat"] if f["overlap"] == overlap and f["method"] == a[0]}
+    vb = {f["seed"]: f.get(b[1]) for f in results["flat"] if f["overlap"] == overlap and f["method"] == b[0]}
     d = [va[s] - vb[s] for s in va if s in vb and all(isinstance(x, (int, float)) and math.isfinite(x)
                                                       for x in (va[s], vb[s]))]
     ms = mean_std(d)
@@ -170,7 +176,7 @@ def paired_difference(results: dict, overlap: float, a: str, b: str, key: str) -
     differs = 0
     if math.isfinite(mu) and math.isfinite(hw):
         differs = -1 if mu + hw < 0 else (1 if mu - hw > 0 else 0)
-    return {"mean": mu, "ci95": hw, "n": ms["n"], "differs": differs}
+    return {"mean": mu, "ci95": hw, "n": ms["n"], "differs": differs, "sd": ms["std"]}
 
 
 def build_results(cfg, data: list[dict], rows: list[dict], counters: dict, total_s: float,
