@@ -53,9 +53,13 @@ def main(argv=None) -> int:
     ap.add_argument("--modes", default="spacing,fov")
     ap.add_argument("--presets", default="", help="real-rig data presets instead of the sweep of the knob, e.g. "
                     "nuscenes_like,ddad_like (configs/data/<name>.yaml)")
+    ap.add_argument("--knob", choices=["angle", "pixels"], default="angle",
+                    help="pixels: the calibrated knob (synth.calibrate): target / solved angle / measured, and its cost")
     args = ap.parse_args(argv)
     if args.presets:
         return preset_table(args)
+    if args.knob == "pixels":
+        return calibrated_table(args)
     from synth.config import load_data_config
     from synth.render import render_dataset
 
@@ -83,6 +87,40 @@ def main(argv=None) -> int:
                 d = ov["per_pair_measured"][p]
                 cells.append(f"{d['target']:+.2f} / {d['measured']:.3f} ({fr[p]:.3f})")
             print(f"{o:7.2f} | {ov['hfov_deg']:5.1f} | " + " | ".join(f"{c:>21}" for c in cells))
+    return 0
+
+
+def calibrated_table(args) -> int:
+    """rig.overlap_target=pixels for 0.10-0.60 in each mode: the solved geometric overlap, the calibration
+    sample's measured overlap, the rendered dataset's (mean of the pairs at the target) and the calibration's
+    wall time (docs/results/overlap.md, 'The calibrated knob')."""
+    import time
+
+    from synth import calibrate
+    from synth.config import load_data_config
+    from synth.render import render_dataset
+
+    for mode in args.modes.split(","):
+        print(f"\nmode={mode}, rig.overlap_target=pixels ({args.sequences} seq x {args.frames} frames, "
+              f"{args.width}x{args.height}; calibration sample: frame 0 of {calibrate.SAMPLES} sequences)")
+        print(f"{'target':>6} | {'solved angle overlap':>20} | {'calibration':>11} | {'dataset':>7} | {'calib. s':>8}")
+        for o in (0.1, 0.2, 0.3, 0.4, 0.5, 0.6):
+            cfg = load_data_config("configs/data/default.yaml", [
+                f"rig.overlap={o}", f"rig.overlap_mode={mode}", "rig.overlap_target=pixels",
+                f"dataset.sequences={args.sequences}", f"dataset.frames={args.frames}",
+                f"camera.width={args.width}", f"camera.height={args.height}"])
+            t0 = time.perf_counter()
+            try:
+                cal = calibrate.calibration(cfg)
+            except ValueError as exc:
+                print(f"{o:6.2f} | {str(exc)[:90]}")
+                continue
+            dt = time.perf_counter() - t0
+            with tempfile.TemporaryDirectory() as tmp:
+                s = render_dataset(cfg, Path(tmp) / "d", progress=False, log=lambda *a: None)
+            ov = s["overlap"]
+            at = [v["measured"] for v in ov["per_pair_measured"].values() if abs(v["target"] - ov["geometric"]) < 1e-3]
+            print(f"{o:6.2f} | {cal['geometric']:20.3f} | {cal['measured']:11.3f} | {sum(at) / len(at):7.3f} | {dt:8.1f}")
     return 0
 
 

@@ -26,13 +26,16 @@ def measured_overlap(ov: dict) -> dict:
     """
     pp = ov.get("per_pair_measured", {})
     target = ov.get("target")
+    geo = ov.get("geometric", target) if ov.get("knob") == "pixels" else target  # pairs' targets are angles
     same = [v["measured"] for v in pp.values()
-            if finite(target) and finite(v.get("target")) and abs(v["target"] - target) < 1e-3
+            if finite(geo) and finite(v.get("target")) and abs(v["target"] - geo) < 1e-3
             and finite(v.get("measured"))]
     allm = [v["measured"] for v in pp.values() if finite(v.get("measured"))]
     return {
         "target": target,
         "mode": ov.get("mode"),
+        "knob": ov.get("knob", "angle"),
+        "geometric": ov.get("geometric", target),
         "hfov_deg": ov.get("hfov_deg"),
         "yaw_spacing_deg": ov.get("yaw_spacing_deg"),
         "measured_mean": sum(same) / len(same) if same else float("nan"),

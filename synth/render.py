@@ -49,7 +49,9 @@ def sequence_id(index: int) -> str:
 
 
 def make_rig(cfg: DataConfig) -> Rig:
-    return build_rig(cfg.rig, cfg.camera)
+    from synth.calibrate import geometric_rig
+
+    return build_rig(geometric_rig(cfg), cfg.camera)  # overlap_target=pixels: the solved angle
 
 
 def make_ego_mesh(cfg: DataConfig) -> Mesh:
@@ -228,6 +230,8 @@ def complete_sequences(out: Path, n: int) -> list[int]:
 
 def finalize(cfg: DataConfig, out: Path, rig: Rig) -> dict | None:
     """Write manifest.json if every sequence is complete; returns the manifest (or None)."""
+    from synth.calibrate import overlap_record
+
     n = cfg.dataset.sequences
     if len(complete_sequences(out, n)) != n:
         return None
@@ -248,24 +252,13 @@ def finalize(cfg: DataConfig, out: Path, rig: Rig) -> dict | None:
             t = totals.setdefault(k, [0, 0])
             t[0] += a
             t[1] += b
-    targets = rig.pair_target_overlap()
-    per_pair = {}
-    for i, j in rig.neighbours:
-        a, b = rig.names[i], rig.names[j]
-        fwd, bwd = totals.get(f"{a}->{b}", [0, 0]), totals.get(f"{b}->{a}", [0, 0])
-        m_ab = fwd[1] / fwd[0] if fwd[0] else float("nan")
-        m_ba = bwd[1] / bwd[0] if bwd[0] else float("nan")
-        per_pair[f"{a}-{b}"] = {"target": targets[f"{a}-{b}"], "measured": (m_ab + m_ba) / 2,
-                                f"{a}->{b}": m_ab, f"{b}->{a}": m_ba}
     manifest = {
         "schema_version": SCHEMA_VERSION, "generator": GENERATOR, "generator_version": __version__,
         "config": config_to_dict(cfg), "config_hash": config_hash(cfg), "seed": cfg.seed,
         "cameras": rig.names, "image_size": {"width": cfg.camera.width, "height": cfg.camera.height},
         "fps": cfg.dataset.fps, "has_depth": True,
         "splits": assign_splits(cfg), "sequences": sequences, "families": families,
-        "overlap": {"target": cfg.rig.overlap, "mode": cfg.rig.overlap_mode,
-                    "yaw_spacing_deg": rig.yaw_spacing_deg, "hfov_deg": rig.cameras[0].hfov_deg,
-                    "per_pair_measured": per_pair},
+        "overlap": overlap_record(cfg, rig, totals),
         "files": files,
     }
     manifest[INTEGRITY] = integrity_record(manifest, read_json(out / "rig.json"))

@@ -87,12 +87,16 @@ class RigConfig(StrictModel):
     road shows through the car and the self-occlusion mask misses it; the default 1 cm
     costs no depth resolution (the renderer tests linear depth, `synth.gl_backend`).
     ``zfar_m`` bounds the depth maps (scenes end well before 400 m; fog hides the horizon).
+    ``overlap_target``: what ``overlap`` means: ``angle`` (the shared fraction of hfov, below) or
+    ``pixels`` (the mean measured pixel overlap of the pairs at the target: the layout's angle is
+    solved on a sample of the world's own scenes, `synth.calibrate`).
     ``cameras``: per-camera overrides of hfov, yaw, pitch and mount (`CameraOverride`), applied over the
     solved layout, e.g. ``rig.cameras.CAM_BACK.hfov_deg=110`` (real rigs: configs/data/nuscenes_like.yaml).
     """
 
     overlap: float = Field(0.25, ge=0.10, le=0.60)
     overlap_mode: Literal["spacing", "fov"] = "spacing"
+    overlap_target: Literal["angle", "pixels"] = added_key("angle")
     camera_height_m: float = Field(1.6, ge=0.5, le=3.0)
     side_pitch_deg: float = Field(-12.0, ge=-30.0, le=10.0)
     znear_m: float = Field(0.01, ge=0.001, le=2.0)
