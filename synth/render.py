@@ -25,7 +25,7 @@ import numpy as np
 
 
 from corelib import procs
-from corelib.atomic import DiskFullError, atomic_path
+from corelib.atomic import DiskFullError
 from corelib.rundir import lock_folder
 from scenes.model import Mesh, Scene
 from scenes.textures import LAYER
@@ -404,46 +404,3 @@ def _render_ray(cfg_dict: dict, out: Path, todo: list[int], bar) -> list[dict]:
             raise DiskFullError(out)
         raise RuntimeError(f"{len(failed)} sequence(s) of {out} failed twice on Ray: " + "; ".join(failed))
     return records
-
-
-def _copy_whole(src: Path, dst: Path) -> None:
-    """A file copied whole or not at all (a temporary name, then a rename)."""
-    with atomic_path(dst) as tmp:
-        shutil.copyfile(src, tmp)
-
-
-def merge_datasets(cfg_sources: list[Path], out: Path) -> dict:
-    """Merge shard folders (same config) into `out` and write the manifest when complete."""
-    if not cfg_sources:
-        raise ValueError("merge needs at least one shard folder")
-    first = read_json(cfg_sources[0] / MARKER_DIR / "config.json")
-    cfg = build_config(DataConfig, first["config"], str(cfg_sources[0]))
-    for src in cfg_sources[1:]:
-        other = read_json(src / MARKER_DIR / "config.json")
-        if other["config_hash"] != first["config_hash"]:
-            raise OutputFolderError(f"shard {src} was rendered with another config than {cfg_sources[0]}")
-    prepare_output(cfg, out)
-    lock = lock_folder(out, f"{MARKER_DIR}/lock")  # one writer per folder
-    try:
-        rig = make_rig(cfg)
-        for src in cfg_sources:
-            if not (out / "rig.json").is_file():
-                _copy_whole(src / "rig.json", out / "rig.json")
-            (out / "masks").mkdir(exist_ok=True)
-            for m in sorted((src / "masks").glob("*.png")):
-                if not (out / "masks" / m.name).is_file():
-                    _copy_whole(m, out / "masks" / m.name)
-            for i in complete_sequences(src, cfg.dataset.sequences):
-                dst = out / sequence_id(i)
-                if not dst.exists():
-                    tmp = out / f"{sequence_id(i)}.partial"
-                    if tmp.exists():
-                        shutil.rmtree(tmp)
-                    shutil.copytree(src / sequence_id(i), tmp)
-                    os.sync()  # the copy on disk before the rename seals it
-                    os.replace(tmp, dst)
-        manifest = finalize(cfg, out, rig)
-    finally:
-        lock.release()
-    return {"complete": manifest is not None,
-            "sequences": len(complete_sequences(out, cfg.dataset.sequences)), "expected": cfg.dataset.sequences}
