@@ -78,3 +78,146 @@ def test_merge_copies_no_link_and_no_special_file(tiny_dataset, tmp_path, capsys
     err = capsys.readouterr().err
     assert str(bad) in err and len(err.splitlines()) == 1, err
     assert not out.exists()  # checked before anything is written
+
+
+# --------------------------------------------------------------------------- findings 3 and 4: every reader
+def _plant(p: Path, kind: str, tmp_path: Path) -> None:
+    """Replace the file (or folder) `p` by a FIFO, a character device (/dev/zero's) or a link out of the root."""
+    outside = tmp_path / f"outside_{p.name}"
+    shutil.move(str(p), outside)
+    if kind == "fifo":
+        os.mkfifo(p)
+    elif kind == "chardev":
+        try:
+            os.mknod(p, 0o600 | 0o020000, os.makedev(1, 5))  # S_IFCHR, /dev/zero
+        except PermissionError:
+            pytest.skip("creating a device file needs CAP_MKNOD")
+    else:
+        p.symlink_to(outside, target_is_directory=outside.is_dir())
+
+
+@pytest.fixture
+def alarm():
+    """A reader that blocks on a FIFO fails the test instead of hanging it."""
+    import signal
+
+    def boom(*_):
+        raise TimeoutError("the reader blocked")
+
+    old = signal.signal(signal.SIGALRM, boom)
+    signal.alarm(60)
+    yield
+    signal.alarm(0)
+    signal.signal(signal.SIGALRM, old)
+
+
+def _read_all_synth(d: Path) -> None:
+    from synth.dataset import open_dataset
+
+    ds = open_dataset(d)
+    seq = ds.split("test")[0]
+    ds.ego(seq)
+    ds.mask("CAM_FRONT")
+    ds.read_rgb(seq, "CAM_FRONT", 0)
+    ds.read_depth(seq, "CAM_FRONT", 0)
+
+
+SYNTH_FILES = ["manifest.json", "rig.json", "masks/CAM_FRONT.png", "{seq}/ego.json", "{seq}/CAM_FRONT/000000.png",
+               "{seq}/CAM_FRONT/000000.depth.exr"]
+
+
+@pytest.mark.parametrize("kind", ["fifo", "chardev", "link"])
+@pytest.mark.parametrize("rel", SYNTH_FILES)
+def test_every_synth_reader_refuses_a_special_file_or_a_link_out_naming_it(tiny_dataset, tmp_path, alarm, rel, kind):
+    from synth.files import DatasetError
+
+    d = tmp_path / "data"
+    shutil.copytree(tiny_dataset, d)
+    seq = json.loads((d / "manifest.json").read_text())["splits"]["test"][0]
+    p = d / rel.format(seq=seq)
+    _plant(p, kind, tmp_path)
+    with pytest.raises(DatasetError) as e:
+        _read_all_synth(d)
+    assert str(p) in str(e.value) and len(str(e.value).splitlines()) == 1, e.value
+
+
+def test_eval_on_a_dataset_with_a_fifo_image_exits_2_naming_it(tiny_dataset, tmp_path, capsys, alarm):
+    from study.method_commands import main
+
+    run = tmp_path / "run"
+    assert main(["train", str(ROOT / "configs/train/tiny/mono2.yaml"), "--data", str(tiny_dataset), "--out",
+                 str(run), "--no-progress", "train.steps=1"]) == 0
+    d = tmp_path / "data"
+    shutil.copytree(tiny_dataset, d)
+    seq = json.loads((d / "manifest.json").read_text())["splits"]["test"][0]
+    p = d / seq / "CAM_BACK" / "000001.png"
+    _plant(p, "fifo", tmp_path)
+    capsys.readouterr()
+    assert main(["eval", str(run), "--data", str(d), "--out", str(tmp_path / "m.json"), "--no-progress"]) == 2
+    err = capsys.readouterr().err
+    assert str(p) in err and "FIFO" in err
+
+
+@pytest.fixture(scope="module")
+def ns_root(tiny_dataset, tmp_path_factory):
+    from synth.nuscenes_export import export_nuscenes
+
+    out = tmp_path_factory.mktemp("ns32") / "root"
+    export_nuscenes(tiny_dataset, out, version="v1.0-synth")
+    return out
+
+
+def _ns_copy(ns_root, tmp_path) -> Path:
+    root = tmp_path / "ns"
+    shutil.copytree(ns_root, root, symlinks=True)
+    return root
+
+
+def _read_all_ns(root: Path, seq: str) -> None:
+    from synth.nuscenes_read import open_nuscenes
+
+    ds = open_nuscenes(root)
+    ds.read_rgb(seq, "CAM_FRONT", 0)
+    ds.read_depth(seq, "CAM_FRONT", 0)
+
+
+NS_FILES = ["v1.0-synth/sample_data.json", "v1.0-synth/calibrated_sensor.json", "v1.0-synth/ego_pose.json",
+            "mcdp_synth/masks/CAM_FRONT.png", "mcdp_synth/splits.json", "mcdp_synth/export.json", "{rgb}", "{lidar}"]
+
+
+@pytest.mark.parametrize("kind", ["fifo", "link"])
+@pytest.mark.parametrize("rel", NS_FILES)
+def test_every_nuscenes_reader_refuses_a_special_file_or_a_link_out_naming_it(ns_root, tmp_path, alarm, rel, kind):
+    from synth.files import DatasetError
+    from synth.nuscenes_read import open_nuscenes
+
+    root = _ns_copy(ns_root, tmp_path)
+    ds = open_nuscenes(root)
+    seq = ds.sequences[0]
+    lid = ds._seq(seq)[0]["lidar"]["filename"]
+    p = root / rel.format(rgb=ds.rgb_path(seq, "CAM_FRONT", 0).relative_to(root), lidar=lid)
+    _plant(p, kind, tmp_path)
+    with pytest.raises(DatasetError) as e:
+        _read_all_ns(root, seq)
+    assert str(p) in str(e.value) and len(str(e.value).splitlines()) == 1, e.value
+
+
+def test_a_version_folder_linked_out_of_the_dataroot_is_refused(ns_root, tmp_path):
+    from synth.files import DatasetError
+    from synth.nuscenes_read import open_nuscenes
+
+    root = _ns_copy(ns_root, tmp_path)
+    _plant(root / "v1.0-synth", "link", tmp_path)
+    with pytest.raises(DatasetError, match="outside the dataroot"):
+        open_nuscenes(root)
+
+
+def test_a_manifest_that_is_not_utf8_is_refused_naming_it(tiny_dataset, tmp_path):
+    from synth.dataset import open_dataset
+    from synth.files import DatasetError
+
+    d = tmp_path / "data"
+    shutil.copytree(tiny_dataset, d)
+    (d / "manifest.json").write_bytes(b'{"a": "\xff\xfe"}')
+    with pytest.raises(DatasetError, match=f"{d / 'manifest.json'}: not UTF-8"):
+        open_dataset(d)
