@@ -34,7 +34,7 @@ from pathlib import Path
 import numpy as np
 
 from synth.files import DatasetError, read_image, read_json, read_png, regular_file, within  # noqa: F401 (within re-exported)
-from synth.nuscenes_tables import (EXPORT_DIR, get_record, lidar_xyz, load_tables, pose_matrix, read_splits,
+from synth.nuscenes_tables import (EXPORT_DIR, check_intrinsic, get_record, lidar_xyz, load_tables, pose_matrix, read_splits,
                                    resolve_version, view_points)
 from synth.rig import CameraSpec
 
@@ -377,9 +377,8 @@ class _Scan:
         vals = (np.asarray(cs.get("camera_intrinsic"), np.float64), np.asarray(cs["rotation"], np.float64),
                 np.asarray(cs["translation"], np.float64))
         if ch not in calib:
-            if vals[0].shape != (3, 3):
-                raise DatasetError(f"{tab / 'calibrated_sensor.json'}: {cs['token']} ({ch}): "
-                                   "camera_intrinsic must be 3x3")
+            check_intrinsic(vals[0], f"{tab / 'calibrated_sensor.json'}: calibrated_sensor {cs['token']} ({ch})")
+            pose_matrix(vals[1], vals[2], f"{tab / 'calibrated_sensor.json'}: calibrated_sensor {cs['token']} ({ch})")
             calib[ch] = (vals, cs["token"])
         elif cs["token"] != calib[ch][1] and not all(
                 a.shape == b.shape and np.allclose(a, b, rtol=0, atol=RIG_TOL) for a, b in zip(vals, calib[ch][0])):

@@ -219,6 +219,25 @@ def rotation_to_quaternion(R: np.ndarray) -> list[float]:
     return [float(x) for x in q]
 
 
+MAX_FOCAL_PX = 1e5  # a focal length above this (a 0.06 deg field of view at 100 px) is an error in the table
+
+
+def check_intrinsic(K: np.ndarray, where: str) -> np.ndarray:
+    """`K` when it is a pinhole camera_intrinsic: 3x3, finite, fx and fy in (0, `MAX_FOCAL_PX`], last row
+    [0, 0, 1]; else DatasetError naming `where` (the table and token) and the value."""
+    if K.shape != (3, 3):
+        raise DatasetError(f"{where}: camera_intrinsic must be 3x3, got shape {K.shape}")
+    if not np.isfinite(K).all():
+        raise DatasetError(f"{where}: camera_intrinsic holds a non-finite value (NaN or inf)")
+    for name, f in (("fx", K[0, 0]), ("fy", K[1, 1])):
+        if not 0 < f <= MAX_FOCAL_PX:
+            raise DatasetError(f"{where}: camera_intrinsic {name} = {float(f):.6g} px; a focal length must be in "
+                               f"(0, {MAX_FOCAL_PX:.0e}] px")
+    if not np.allclose(K[2], [0.0, 0.0, 1.0], rtol=0, atol=1e-9):
+        raise DatasetError(f"{where}: camera_intrinsic's last row must be [0, 0, 1]")
+    return K
+
+
 def pose_matrix(rotation, translation, where: str) -> np.ndarray:
     """4x4 of a nuScenes pose record (rotation [w, x, y, z], translation); DatasetError naming `where`."""
     try:

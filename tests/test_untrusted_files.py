@@ -221,3 +221,55 @@ def test_a_manifest_that_is_not_utf8_is_refused_naming_it(tiny_dataset, tmp_path
     (d / "manifest.json").write_bytes(b'{"a": "\xff\xfe"}')
     with pytest.raises(DatasetError, match=f"{d / 'manifest.json'}: not UTF-8"):
         open_dataset(d)
+
+
+# --------------------------------------------------------------------------- finding 5: numbers in the tables
+def _edit_calib(root: Path, channel: str, fn) -> str:
+    """Apply `fn` to the calibrated_sensor record of `channel`; returns its token."""
+    tab = root / "v1.0-synth"
+    sensor = {s["token"]: s["channel"] for s in json.loads((tab / "sensor.json").read_text())}
+    rows = json.loads((tab / "calibrated_sensor.json").read_text())
+    rec = next(r for r in rows if sensor[r["sensor_token"]] == channel)
+    fn(rec)
+    (tab / "calibrated_sensor.json").write_text(json.dumps(rows))
+    return rec["token"]
+
+
+def _set_k(i, j, v):
+    return lambda r: r["camera_intrinsic"][i].__setitem__(j, v)
+
+
+@pytest.mark.parametrize("edit, what", [
+    (_set_k(0, 0, float("nan")), "non-finite"),
+    (_set_k(0, 0, 1e308), "fx = 1e+308"),
+    (_set_k(1, 1, 0.0), "fy = 0"),
+    (_set_k(0, 0, -800.0), "fx = -800"),
+    (_set_k(2, 0, 1.0), "last row"),
+    (lambda r: r.update(rotation=[2.0, 0.0, 0.0, 0.0]), "unit quaternion"),
+    (lambda r: r.update(translation=[float("inf"), 0.0, 0.0]), "finite"),
+])
+def test_a_nuscenes_calibration_that_is_not_a_camera_is_refused_naming_table_and_token(ns_root, tmp_path, edit, what):
+    from synth.files import DatasetError
+    from synth.nuscenes_read import open_nuscenes
+
+    root = _ns_copy(ns_root, tmp_path)
+    token = _edit_calib(root, "CAM_FRONT_LEFT", edit)
+    with pytest.raises(DatasetError) as e:
+        open_nuscenes(root)
+    msg = str(e.value)
+    assert "calibrated_sensor.json" in msg and token in msg and what in msg and len(msg.splitlines()) == 1, msg
+
+
+def test_eval_on_a_dataroot_with_a_zero_focal_length_exits_2_in_one_line(ns_root, tiny_dataset, tmp_path, capsys):
+    from study.method_commands import main
+
+    run = tmp_path / "run"
+    assert main(["train", str(ROOT / "configs/train/tiny/mono2.yaml"), "--data", str(tiny_dataset), "--out",
+                 str(run), "--no-progress", "train.steps=1"]) == 0
+    root = _ns_copy(ns_root, tmp_path)
+    token = _edit_calib(root, "CAM_BACK", _set_k(0, 0, 0.0))
+    capsys.readouterr()
+    assert main(["eval", str(run), "--data", str(root), "--out", str(tmp_path / "m.json"), "--no-progress"]) == 2
+    err = capsys.readouterr().err
+    assert token in err and "fx = 0" in err and "Traceback" not in err and len(err.strip().splitlines()) <= 2, err
+    assert not (tmp_path / "m.json").exists()
