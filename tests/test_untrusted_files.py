@@ -273,3 +273,45 @@ def test_eval_on_a_dataroot_with_a_zero_focal_length_exits_2_in_one_line(ns_root
     err = capsys.readouterr().err
     assert token in err and "fx = 0" in err and "Traceback" not in err and len(err.strip().splitlines()) <= 2, err
     assert not (tmp_path / "m.json").exists()
+
+
+# --------------------------------------------------------------------------- finding 6: outputs
+def test_sweep_and_pretrain_refuse_an_out_inside_a_dataset_before_writing(tiny_dataset, tmp_path, capsys, tree_hash):
+    from study.cli import main
+
+    d = tmp_path / "data"
+    shutil.copytree(tiny_dataset, d)
+    before = tree_hash(d)
+    for argv in (["sweep", str(ROOT / "configs/sweep/ci.yaml"), "--out", str(d / "sw"), "--no-progress"],
+                 ["pretrain", str(ROOT / "configs/pretrain/tiny.yaml"), "--out", str(d / "pt"), "--no-progress"]):
+        capsys.readouterr()
+        assert main(argv) == 2, argv
+        err = capsys.readouterr().err
+        assert f"is inside the dataset {d.resolve()}" in err and len(err.strip().splitlines()) == 1, err
+    assert tree_hash(d) == before
+
+
+def test_every_writer_refuses_an_out_inside_a_nuscenes_dataroot(ns_root, tiny_dataset, tmp_path, capsys, tree_hash):
+    from study.cli import main
+    from synth.cli import main as synth_main
+
+    run = tmp_path / "run"
+    assert main(["train", str(ROOT / "configs/train/tiny/mono2.yaml"), "--data", str(tiny_dataset), "--out",
+                 str(run), "--no-progress", "train.steps=1"]) == 0
+    root = _ns_copy(ns_root, tmp_path)
+    before = tree_hash(root)
+    inner = root / "samples"
+    mono2 = str(ROOT / "configs/train/tiny/mono2.yaml")
+    for code, argv in [
+        (main, ["train", mono2, "--data", str(tiny_dataset), "--out", str(inner / "run"), "--no-progress"]),
+        (main, ["predict", str(run), "--data", str(tiny_dataset), "--out", str(inner / "pred")]),
+        (main, ["eval", str(run), "--data", str(tiny_dataset), "--out", str(inner / "m.json")]),
+        (main, ["sweep", str(ROOT / "configs/sweep/ci.yaml"), "--out", str(inner / "sw"), "--no-progress"]),
+        (main, ["pretrain", str(ROOT / "configs/pretrain/tiny.yaml"), "--out", str(inner / "pt"), "--no-progress"]),
+        (synth_main, ["render", str(ROOT / "configs/data/tiny.yaml"), "--out", str(inner / "d"), "--no-progress"]),
+    ]:
+        capsys.readouterr()
+        assert code(argv) == 2, argv
+        err = capsys.readouterr().err
+        assert f"is inside the dataset {root.resolve()}" in err, (argv, err)
+    assert tree_hash(root) == before
