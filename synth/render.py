@@ -338,18 +338,7 @@ def _render_into(cfg: DataConfig, out: Path, rig: Rig, backend: str, workers: in
         finally:
             prefetch.close()
     else:
-        ctx = mp.get_context("spawn")
-        with procs.manager(ctx) as manager:  # the manager and the workers die with this process
-            q = manager.Queue()
-            with procs.worker_pool(ctx, min(workers, len(todo)), _pool_init) as pool:
-                results = [pool.apply_async(render_sequence, (cfg_dict, str(out), i, q)) for i in todo]
-                pending = len(todo) * cfg.dataset.frames
-                while pending:
-                    q.get()
-                    pending -= 1
-                    if bar is not None:
-                        bar.update(1)
-                records = [r.get() for r in results]
+        records = _render_pool(cfg_dict, out, todo, workers, cfg.dataset.frames, bar)
     if bar is not None:
         bar.close()
     elapsed = time.perf_counter() - t0
@@ -363,6 +352,44 @@ def _render_into(cfg: DataConfig, out: Path, rig: Rig, backend: str, workers: in
         summary["splits"] = {k2: len(v) for k2, v in manifest["splits"].items()}
         summary["families"] = manifest["families"]
     return summary
+
+
+def _render_pool(cfg_dict: dict, out: Path, todo: list[int], workers: int, frames: int, bar) -> list[dict]:
+    """The sequences `todo` in `workers` spawned processes; returns their records. A worker that dies
+    (kill -9, the OOM killer) ends the render with `corelib.procs.WorkerLost` naming the sequences not
+    finished (their ``.partial`` folders are removed by the rerun, which renders them again)."""
+    import queue
+    from concurrent.futures.process import BrokenProcessPool
+
+    ctx = mp.get_context("spawn")
+    with procs.manager(ctx) as manager:  # the manager and the workers die with this process
+        q = manager.Queue()
+        with procs.executor(ctx, min(workers, len(todo)), _pool_init) as pool:
+            futures = {pool.submit(render_sequence, cfg_dict, str(out), i, q): i for i in todo}
+            pending = len(todo) * frames
+            while pending:
+                try:
+                    q.get(timeout=0.5)
+                except queue.Empty:  # a task that failed (or a dead worker) sends no more frames
+                    if any(f.done() and f.exception() is not None for f in futures):
+                        break
+                    continue
+                pending -= 1
+                if bar is not None:
+                    bar.update(1)
+            records, lost, error = [], [], None
+            for f, i in futures.items():
+                try:
+                    records.append(f.result())
+                except BrokenProcessPool:
+                    lost.append(sequence_id(i))
+                except Exception as exc:  # noqa: BLE001 - raised once the others are done
+                    error = error or exc
+    if lost:
+        raise procs.lost_workers("synth render", lost, "sequence(s)")
+    if error is not None:
+        raise error
+    return records
 
 
 class _BarQueue:

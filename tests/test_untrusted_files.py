@@ -315,3 +315,95 @@ def test_every_writer_refuses_an_out_inside_a_nuscenes_dataroot(ns_root, tiny_da
         err = capsys.readouterr().err
         assert f"is inside the dataset {root.resolve()}" in err, (argv, err)
     assert tree_hash(root) == before
+
+
+# --------------------------------------------------------------------------- finding 2: dead workers
+def _children(pid: int) -> list[int]:
+    out = []
+    for st in Path("/proc").glob("[0-9]*/stat"):
+        try:
+            fields = st.read_text().rsplit(")", 1)[1].split()
+        except OSError:
+            continue
+        if int(fields[1]) == pid:
+            out.append(int(st.parent.name))
+    return out
+
+
+def _renders(pid: int) -> bool:
+    """The process `pid` has an OpenGL library mapped (a render worker, not the manager or resource tracker)."""
+    try:
+        maps = Path(f"/proc/{pid}/maps").read_text()
+    except OSError:
+        return False
+    return any(k in maps for k in ("libEGL", "libOSMesa", "libGL", "llvmpipe", "gallium"))
+
+
+def test_a_render_worker_killed_ends_the_render_in_one_line_and_the_rerun_resumes(tmp_path):
+    import signal
+    import subprocess
+    import sys
+    import time
+
+    out = tmp_path / "d"
+    argv = [sys.executable, "-m", "synth.cli", "render", str(ROOT / "configs/data/tiny.yaml"), "--out", str(out),
+            "--workers", "2", "--no-progress", "dataset.frames=40"]
+    env = {**os.environ, "PYTHONPATH": str(ROOT), "OMP_NUM_THREADS": "1"}
+    p = subprocess.Popen(argv, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env)
+    try:
+        victim, t0 = None, time.time()
+        while victim is None and time.time() - t0 < 240 and p.poll() is None:
+            if list(out.glob("seq_*.partial")):
+                victim = next((c for c in _children(p.pid) if _renders(c)), None)
+            time.sleep(0.2)
+        assert victim is not None, "no render worker seen"
+        os.kill(victim, signal.SIGKILL)
+        _, err = p.communicate(timeout=240)  # the parent notices; no hang
+    finally:
+        if p.poll() is None:
+            p.kill()
+    assert p.returncode == 1, err
+    line = err.strip().splitlines()[-1]
+    assert "worker process died" in line and "seq_0000" in line and "run the same command again" in line, err
+    assert "Traceback" not in err and not (out / "manifest.json").exists()
+    again = subprocess.run(argv[:-4] + ["--workers", "1", "--no-progress", "dataset.frames=40"], capture_output=True,
+                           text=True, env=env, timeout=400)
+    assert again.returncode == 0, again.stderr
+    assert (out / "manifest.json").is_file() and not list(out.glob("*.partial"))
+
+
+def _die(*_args):
+    """A sweep run whose process is killed, as the out-of-memory killer does."""
+    import signal
+
+    os.kill(os.getpid(), signal.SIGKILL)
+
+
+def test_a_sweep_run_worker_killed_ends_in_one_line_naming_the_runs(tmp_path, monkeypatch):
+    from corelib.procs import WorkerLost
+    from study import engines
+    from study.config import load_sweep_config
+    from study.stages import Counters
+
+    cfg = load_sweep_config(ROOT / "configs/sweep/ci.yaml", ["jobs=2"])
+    monkeypatch.setattr(engines, "_stage_job", _die)  # pickled by name: the workers run this module's _die
+    todo = [({"overlap": 0.2}, "mono2", 0), ({"overlap": 0.5}, "mono2", 0)]
+    with pytest.raises(WorkerLost) as e:
+        engines._run_parallel(cfg, todo, tmp_path / "sw", Counters(), lambda s: None)
+    msg = str(e.value)
+    assert "mcdp sweep: a worker process died" in msg and "2 run(s) unfinished" in msg and "mono2" in msg, msg
+    assert len(msg.splitlines()) == 1 and "run the same command again" in msg
+
+
+def test_worker_lost_is_exit_1_in_one_line(capsys):
+    from corelib import cli, exitcodes
+    from corelib.procs import lost_workers
+    from study.cli import RULES
+
+    def boom(_args):
+        raise lost_workers("mcdp sweep", ["o0.20/mono2/s0"], "run(s)")
+
+    cmd = cli.Command("boom", "", lambda p: None, boom)
+    assert cli.main("mcdp", "", [cmd], ["boom"], RULES) == exitcodes.FAILED
+    err = capsys.readouterr().err
+    assert len(err.strip().splitlines()) == 1 and "o0.20/mono2/s0" in err and "Traceback" not in err
