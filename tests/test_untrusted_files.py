@@ -407,3 +407,24 @@ def test_worker_lost_is_exit_1_in_one_line(capsys):
     assert cli.main("mcdp", "", [cmd], ["boom"], RULES) == exitcodes.FAILED
     err = capsys.readouterr().err
     assert len(err.strip().splitlines()) == 1 and "o0.20/mono2/s0" in err and "Traceback" not in err
+
+
+# --------------------------------------------------------------------------- finding 9: choices first
+def test_eval_refuses_an_unknown_stage_before_evaluating(tiny_dataset, tmp_path, capsys, monkeypatch):
+    import mcdp.evaluate
+    from study.method_commands import main
+
+    run = tmp_path / "run"
+    assert main(["train", str(ROOT / "configs/train/tiny/mono2.yaml"), "--data", str(tiny_dataset), "--out",
+                 str(run), "--no-progress", "train.steps=1"]) == 0
+
+    def never(*a, **k):
+        raise AssertionError("evaluated before the stage was checked")
+
+    monkeypatch.setattr(mcdp.evaluate, "evaluate", never)
+    capsys.readouterr()
+    assert main(["eval", str(run), "--data", str(tiny_dataset), "--out", str(tmp_path / "m.json"), "--stage", "bogus",
+                 "--no-progress"]) == 2
+    err = capsys.readouterr().err
+    assert "--stage 'bogus' is not a stage" in err and "final" in err and len(err.strip().splitlines()) <= 2, err
+    assert not (tmp_path / "m.json").exists()
