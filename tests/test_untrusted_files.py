@@ -428,3 +428,38 @@ def test_eval_refuses_an_unknown_stage_before_evaluating(tiny_dataset, tmp_path,
     err = capsys.readouterr().err
     assert "--stage 'bogus' is not a stage" in err and "final" in err and len(err.strip().splitlines()) <= 2, err
     assert not (tmp_path / "m.json").exists()
+
+
+# --------------------------------------------------------------------------- finding 8: configs bounded
+@pytest.mark.parametrize("cli", ["mcdp", "synth"])
+def test_a_config_nested_1000_deep_is_one_bounded_error_naming_the_file(tmp_path, capsys, cli):
+    from study.method_commands import main
+    from synth.cli import main as synth_main
+
+    cfg = tmp_path / "deep.yaml"
+    cfg.write_text("model: {method: mono2}\nx: " + "[" * 1000 + "]" * 1000 + "\n")
+    argv = (["train", str(cfg), "--data", str(tmp_path), "--out", str(tmp_path / "run")] if cli == "mcdp"
+            else ["render", str(cfg), "--out", str(tmp_path / "d")])
+    assert (main if cli == "mcdp" else synth_main)(argv) == 2
+    err = capsys.readouterr().err
+    assert str(cfg) in err and "nested more than 32" in err and len(err.splitlines()) <= 3 and len(err) < 600, err
+
+
+def test_an_override_nested_1000_deep_is_one_bounded_error(tmp_path, capsys):
+    from study.method_commands import main
+
+    assert main(["train", str(ROOT / "configs/train/tiny/mono2.yaml"), "--data", str(tmp_path), "--out",
+                 str(tmp_path / "run"), "train.lr=" + "[" * 1000 + "]" * 1000]) == 2
+    err = capsys.readouterr().err
+    assert "train.lr" in err and "nested more than 32" in err and len(err) < 800, err
+
+
+def test_60000_unknown_keys_and_a_huge_value_give_a_few_lines(tmp_path, capsys):
+    from study.method_commands import main
+
+    cfg = tmp_path / "many.yaml"
+    cfg.write_text("model: {method: mono2}\ntrain: {lr: '" + "x" * 400_000 + "'}\n"
+                   + "".join(f"k{i}: 1\n" for i in range(60000)))
+    assert main(["train", str(cfg), "--data", str(tmp_path), "--out", str(tmp_path / "run")]) == 2
+    err = capsys.readouterr().err
+    assert len(err.splitlines()) <= 12 and len(err) < 2000 and "more)" in err, err[:3000]
