@@ -35,7 +35,8 @@ def write_json(path: str | Path, obj) -> None:
     atomic_write_json(path, obj)
 
 
-def within(root: str | Path, path: str | Path, who: str = "", kind: str = "dataroot", verb: str = "resolves to") -> Path:
+def within(root: str | Path, path: str | Path, who: str = "", kind: str = "dataroot",
+           verb: str = "resolves to") -> Path:
     """`path` when it resolves inside `root` (a dataset or a nuScenes dataroot); a file that a table or
     manifest names outside it (``../``, an absolute name) or that is a symbolic link out of it is never
     read (DatasetError naming it and `who` names it, e.g. ``sample_data <token>``)."""

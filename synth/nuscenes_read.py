@@ -33,9 +33,9 @@ from pathlib import Path
 
 import numpy as np
 
-from synth.files import DatasetError, read_image, read_json, read_png, regular_file, within  # noqa: F401 (within re-exported)
-from synth.nuscenes_tables import (EXPORT_DIR, check_intrinsic, get_record, lidar_xyz, load_tables, pose_matrix, read_splits,
-                                   resolve_version, view_points)
+from synth.files import DatasetError, read_image, read_json, read_png, regular_file, within
+from synth.nuscenes_tables import (EXPORT_DIR, check_intrinsic, get_record, lidar_xyz, load_tables, pose_matrix,
+                                   read_splits, resolve_version, view_points)
 from synth.rig import CameraSpec
 
 RIG_ORDER = ("CAM_FRONT", "CAM_FRONT_RIGHT", "CAM_BACK_RIGHT", "CAM_BACK", "CAM_BACK_LEFT", "CAM_FRONT_LEFT")
