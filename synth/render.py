@@ -3,7 +3,7 @@
 Each sequence is independent and fully determined by ``(seed, sequence_index)``
 (`numpy.random.SeedSequence([seed, index])`), so shard ``k/N`` (the sequences with
 ``index % N == k``) is identical whoever renders it, and shards rendered into one
-folder (or merged with `merge_datasets`) give exactly the full dataset. A sequence
+folder (or merged with `synth.merge.merge_datasets`) give exactly the full dataset. A sequence
 is written into ``<seq>.partial/`` and renamed when complete; a rerun skips complete
 sequences. ``manifest.json`` is written last, once every sequence is present.
 
