@@ -37,18 +37,30 @@ class StrictModel(BaseModel):
     model_config = ConfigDict(extra="forbid", frozen=True, strict=True, validate_default=True)
 
 
+#: at most this many problems of one config are listed (the rest counted), each value echoed to `_ECHO` chars
+MAX_ERROR_LINES = 8
+_ECHO = 80
+
+
 def _format_validation_error(err: ValidationError, source: str) -> str:
     lines = []
-    for e in err.errors():
+    errors = err.errors()
+    for e in errors[:MAX_ERROR_LINES]:
         key = ".".join(str(p) for p in e["loc"]) or "<root>"
         if e["type"] == "extra_forbidden":
             msg = "unknown key"
         else:
             msg = e["msg"]
         got = e.get("input")
-        got_s = "" if isinstance(got, dict) else f" (got {got!r})"
-        lines.append(f"  {key}: {msg}{got_s}")
-    return f"invalid config ({source}):\n" + "\n".join(lines)
+        got_s = "" if isinstance(got, dict) else f" (got {_cut(repr(got))})"
+        lines.append(f"  {_cut(key)}: {_cut(msg, 400)}{got_s}")
+    if len(errors) > MAX_ERROR_LINES:
+        lines.append(f"  (+{len(errors) - MAX_ERROR_LINES} more)")
+    return f"invalid config ({_cut(source, 300)}):\n" + "\n".join(lines)
+
+
+def _cut(text: str, limit: int = _ECHO) -> str:
+    return text if len(text) <= limit else text[:limit] + "..."
 
 
 class _Loader(yaml.SafeLoader):
@@ -71,12 +83,25 @@ _Loader.add_implicit_resolver(
 MAX_CONFIG_BYTES = 1 << 20
 
 
+#: the deepest nesting of mappings and lists a config may have (presets: 3); deeper would exhaust the
+#: composer's recursion with a traceback of thousands of lines
+MAX_CONFIG_DEPTH = 32
+
+
 def _no_alias(loader, parent, index):
     if loader.check_event(yaml.AliasEvent):
         ev = loader.peek_event()
         raise yaml.YAMLError(f"YAML aliases (*{str(ev.anchor)[:40]}) are not allowed in configs, line "
                              f"{ev.start_mark.line + 1}")
-    return yaml.SafeLoader.compose_node(loader, parent, index)
+    depth = getattr(loader, "_depth", 0)
+    if depth >= MAX_CONFIG_DEPTH:
+        raise yaml.YAMLError(f"nested more than {MAX_CONFIG_DEPTH} levels deep (line "
+                             f"{loader.peek_event().start_mark.line + 1}); a config is a few levels deep")
+    loader._depth = depth + 1
+    try:
+        return yaml.SafeLoader.compose_node(loader, parent, index)
+    finally:
+        loader._depth = depth
 
 
 _Loader.compose_node = _no_alias  # an alias bomb cannot expand: aliases are refused while composing

@@ -40,9 +40,26 @@ def _init(parent_pid: int, then=None) -> None:
         then()
 
 
-def worker_pool(ctx, processes: int, initializer=None):
-    """``ctx.Pool(processes)`` whose workers die with this process (then run ``initializer``)."""
-    return ctx.Pool(processes, initializer=_init, initargs=(os.getpid(), initializer))
+def executor(ctx, processes: int, initializer=None):
+    """``ProcessPoolExecutor(processes)`` whose workers die with this process (then run ``initializer``).
+    Unlike ``multiprocessing.Pool``, it notices a worker that dies (kill -9, the OOM killer): every task
+    not yet returned raises ``BrokenProcessPool`` instead of waiting for ever (see `WorkerLost`)."""
+    from concurrent.futures import ProcessPoolExecutor
+
+    return ProcessPoolExecutor(processes, mp_context=ctx, initializer=_init, initargs=(os.getpid(), initializer))
+
+
+class WorkerLost(RuntimeError):
+    """A worker process died (a signal: kill -9, the OOM killer) before its task returned; the message names
+    the tasks that did not finish and says that a rerun resumes (exit 1, `corelib.exitcodes.FAILED`)."""
+
+
+def lost_workers(command: str, unfinished: list[str], what: str) -> WorkerLost:
+    """The `WorkerLost` of `command` whose pool broke with the tasks `unfinished` (names) not done."""
+    shown = ", ".join(unfinished[:4]) + (f" (+{len(unfinished) - 4} more)" if len(unfinished) > 4 else "")
+    return WorkerLost(f"{command}: a worker process died (killed by a signal, e.g. the out-of-memory killer) with "
+                      f"{len(unfinished)} {what} unfinished: {shown or 'none'}; what finished is kept: run the "
+                      "same command again to resume")
 
 
 def manager(ctx):

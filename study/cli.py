@@ -35,6 +35,7 @@ def run_pretrain_command(args: argparse.Namespace) -> int:
     from study.pretrain import load_pretrain_config, resolved_configs, run_pretrain
     from synth.config import check_render_size, render_size, size_statement
 
+    mcdp_cli.outside_datasets(args.out)  # before anything is written
     cfg = load_pretrain_config(args.config, args.overrides)
     size = render_size(resolved_configs(cfg, check_network=False)[0])
     print(f"mcdp pretrain: its world: {size_statement(size)}", file=sys.stderr)
@@ -64,6 +65,7 @@ def run_sweep_command(args: argparse.Namespace) -> int:
     from study.config import check_nested_configs, load_sweep_config
     from synth.config import check_render_size, size_statement
 
+    mcdp_cli.outside_datasets(args.out)  # before anything is written
     preset = resolve_path(args.preset, "sweep preset")
     engine = getattr(args, "engine", None)
     cfg = load_sweep_config(preset, args.overrides, {"engine": engine} if engine else None)
@@ -96,7 +98,8 @@ COMMANDS = [
 
 
 #: the study's commands render: no OpenGL back end is exit 6, as in `synth render` (`corelib.exitcodes`)
-RULES = [([("synth.gl_context", "RenderBackendError")], exitcodes.NO_BACKEND, "error")]
+RULES = [([("synth.gl_context", "RenderBackendError")], exitcodes.NO_BACKEND, "error"),
+         ([("corelib.procs", "WorkerLost")], exitcodes.FAILED, "error")]  # a render or run worker died
 
 
 def main(argv: list[str] | None = None) -> int:

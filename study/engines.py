@@ -73,6 +73,7 @@ def _run_parallel(cfg: SweepConfig, todo: list, out: Path, counters: Counters, l
     """The runs ``cfg.jobs`` at a time in spawned processes (see the module docstring)."""
     import multiprocessing as mp
     from concurrent.futures import ProcessPoolExecutor, as_completed
+    from concurrent.futures.process import BrokenProcessPool
 
     log(f"[sweep] {len(todo)} run(s), {cfg.jobs} at a time (one process each; progress bars off)")
     rows: list[dict | None] = [None] * len(todo)
@@ -92,6 +93,12 @@ def _run_parallel(cfg: SweepConfig, todo: list, out: Path, counters: Counters, l
         except BaseException as exc:
             for f in futures:
                 f.cancel()
+            if isinstance(exc, BrokenProcessPool):  # a run's process died (kill -9, the OOM killer)
+                from corelib.procs import lost_workers
+
+                unfinished = [run_dir_for(out, d["overlap"], m, s).name
+                              for (d, m, s), r in zip(todo, rows) if r is None]
+                raise lost_workers("mcdp sweep", unfinished, "run(s)") from None
             if isinstance(exc, KeyboardInterrupt):  # SIGINT to this process alone: its workers did not get it,
                 for proc in mp.active_children():  # and leaving the with-block would wait for their runs to end
                     proc.terminate()

@@ -58,7 +58,7 @@ def _check_metrics_target(out: Path) -> None:
     check_output_file(out, _is_metrics, "metrics file written by mcdp eval")
 
 
-def _outside_datasets(out: str | Path, flag: str = "--out") -> None:
+def outside_datasets(out: str | Path, flag: str = "--out") -> None:
     """An output inside a dataset would change it behind its manifest (and `synth verify` would not see it)."""
     from corelib.rundir import FolderError
     from synth.dataset import dataset_containing
@@ -88,7 +88,7 @@ def _train(args: argparse.Namespace) -> int:
     from corelib.configlib import load_config
 
     cfg = load_config(RunConfig, args.preset, args.overrides)  # before torch is imported
-    _outside_datasets(args.out)
+    outside_datasets(args.out)
     check_writable(Path(args.out) / "run.json")
     from mcdp.trainer import Trainer
 
@@ -170,7 +170,7 @@ def _eval(args: argparse.Namespace) -> int:
     _eval_overrides(args.overrides)  # a wrong key fails before torch is imported
     out = Path(args.out) if args.out else Path(args.run) / f"metrics_{args.split}.json"
     _check_metrics_target(out)  # before the (long) evaluation: ours or new, in a folder that can be written
-    _outside_datasets(out)
+    outside_datasets(out)
     from mcdp.evaluate import evaluate, format_tables
     from mcdp.predict import Predictor, run_record
     from mcdp.runs import RunError, rig_differences
@@ -179,6 +179,9 @@ def _eval(args: argparse.Namespace) -> int:
     if not ds.has_depth:
         raise RunError(f"dataset {args.data} has no ground-truth depth (manifest has_depth=false); eval needs it")
     pred = Predictor(args.run, ds, args.checkpoint, args.device)
+    stages = pred.stages + ["final"] + (["oracle"] if pred.oracle_weights else [])
+    if args.stage not in stages:  # a choice checked before the (long) evaluation
+        raise RunError(f"--stage {args.stage[:40]!r} is not a stage of {args.run} (its stages: {', '.join(stages)})")
     ecfg = _eval_config(pred.cfg, args.overrides)
     seqs = ds.split(args.split)
     if seqs:  # fail early, with the file name, if the depth layer is missing
@@ -230,11 +233,11 @@ def _predict(args: argparse.Namespace) -> int:
     if args.rrd is not None:
         from synth.view import check_rrd_target, import_rerun
 
-        _outside_datasets(args.rrd, "--rrd")
+        outside_datasets(args.rrd, "--rrd")
         check_rrd_target(args.rrd, "--rrd")
         import_rerun()  # the viz extra missing: one line naming the install command, before any work
     if args.out is not None:
-        _outside_datasets(args.out)
+        outside_datasets(args.out)
         check_writable(Path(args.out) / "predict.json")
     ds = _open_dataset(args.data)
     pred = Predictor(args.run, ds, args.checkpoint, args.device)

@@ -69,7 +69,7 @@ def _outside_datasets(out: str) -> None:
 
 
 def _merge(args) -> int:
-    from synth.render import merge_datasets
+    from synth.merge import merge_datasets
 
     _outside_datasets(args.out)
 

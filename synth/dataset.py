@@ -30,7 +30,7 @@ from typing import Iterable
 import numpy as np
 
 from corelib.hashing import changed_sections, json_sha256, section_digests, sha256_file
-from synth.files import DatasetError, frame_stem, read_depth_exr, read_json, read_png
+from synth.files import DatasetError, frame_stem, read_depth_exr, read_json, read_png, read_regular, within
 from synth.rig import CameraSpec
 
 SCHEMA_VERSION = 1
@@ -90,18 +90,11 @@ class Dataset:
     def inside(self, p: Path) -> Path:
         """`p`, a file of the dataset, when it resolves inside the root; a file symlinked out of the
         dataset is never read (DatasetError naming it)."""
-        real = p.resolve()
-        if not real.is_relative_to(self._real_root):
-            raise DatasetError(f"{p}: is a link to {real}, outside the dataset root {self._real_root}; a "
-                               "dataset's files must lie inside it")
-        return p
+        return within(self.root, p, "", "dataset root", "is a link to")
 
     def read_bytes(self, p: Path) -> bytes:
         """The bytes of the dataset's file `p` (for a copy), refused outside the root (`inside`)."""
-        try:
-            return self.inside(p).read_bytes()
-        except OSError as exc:
-            raise DatasetError(f"{p}: missing or not readable ({exc.strerror or exc})") from None
+        return read_regular(self.inside(p))
 
     def ego(self, seq: str) -> list[dict]:
         if seq not in self._ego_cache:
@@ -199,10 +192,13 @@ def check_manifest_names(root: Path, manifest: dict, mpath: Path) -> None:
 
 
 def dataset_containing(path: str | Path) -> Path | None:
-    """The dataset folder (manifest.json beside rig.json) that one of `path`'s parent folders is, or None:
-    an output named inside a dataset would change it behind its manifest."""
+    """The dataset folder (manifest.json beside rig.json) or nuScenes dataroot (`is_nuscenes_root`) that one
+    of `path`'s parent folders is, or None: an output named inside one would change it behind its manifest
+    or tables (every writer checks this before it writes anything)."""
+    from synth.nuscenes_tables import is_nuscenes_root
+
     for parent in Path(path).resolve().parents:
-        if (parent / MANIFEST).is_file() and (parent / "rig.json").is_file():
+        if ((parent / MANIFEST).is_file() and (parent / "rig.json").is_file()) or is_nuscenes_root(parent):
             return parent
     return None
 
@@ -327,14 +323,14 @@ def open_dataset(path: str | Path, verify: bool = False) -> Dataset:
                 raise DatasetError(f"{root}: a nuScenes dataroot has no checksums to verify")
             return open_nuscenes(root)
         raise DatasetError(f"{mpath}: missing; the dataset is incomplete (interrupted render?) or not a dataset")
-    manifest = read_json(mpath)
+    manifest = read_json(within(root, mpath, "", "dataset root", "is a link to"))
     ver = manifest.get("schema_version") if isinstance(manifest, dict) else None
     if ver != SCHEMA_VERSION:
         raise DatasetError(f"{mpath}: schema_version {repr(ver)[:40]} is not supported (this reader knows "
                            f"{SCHEMA_VERSION})")
     check_manifest_keys(manifest, mpath)
     check_manifest_names(root, manifest, mpath)
-    rig = read_json(root / "rig.json")
+    rig = read_json(within(root, root / "rig.json", "", "dataset root", "is a link to"))
     check_rig(rig, manifest, root / "rig.json")
     if verify:
         problems = verify_dataset(root)

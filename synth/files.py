@@ -10,6 +10,8 @@ from __future__ import annotations
 
 import errno
 import json
+import os
+import stat
 from pathlib import Path
 
 import cv2
@@ -33,14 +35,76 @@ def write_json(path: str | Path, obj) -> None:
     atomic_write_json(path, obj)
 
 
-def read_json(path: str | Path):
+def within(root: str | Path, path: str | Path, who: str = "", kind: str = "dataroot",
+           verb: str = "resolves to") -> Path:
+    """`path` when it resolves inside `root` (a dataset or a nuScenes dataroot); a file that a table or
+    manifest names outside it (``../``, an absolute name) or that is a symbolic link out of it is never
+    read (DatasetError naming it and `who` names it, e.g. ``sample_data <token>``)."""
     path = Path(path)
+    real, real_root = path.resolve(), Path(root).resolve()
+    if not real.is_relative_to(real_root):
+        raise DatasetError(f"{path}: {verb} {real}, outside the {kind} {real_root}{f' ({who})' if who else ''}; a "
+                           f"{kind.split()[0]}'s files must lie inside it")
+    return path
+
+
+def _not_regular(st: os.stat_result) -> str:
+    m = st.st_mode
+    return ("a folder" if stat.S_ISDIR(m) else "a FIFO (named pipe)" if stat.S_ISFIFO(m) else "a character device"
+            if stat.S_ISCHR(m) else "a block device" if stat.S_ISBLK(m) else "a socket" if stat.S_ISSOCK(m)
+            else "not a regular file")
+
+
+def regular_file(path: str | Path, root: str | Path | None = None, who: str = "") -> Path:
+    """`path` when it is a regular file (a link is followed; with `root`, it must resolve inside it,
+    `within`); a FIFO, a device, a socket or a folder is refused without being opened (os.stat), naming
+    the file: the rule of every reader of a dataset's or dataroot's files."""
+    path = Path(path)
+    if root is not None:
+        within(root, path, who)
     try:
-        return json.loads(path.read_text())
+        st = os.stat(path)
     except FileNotFoundError:
         raise DatasetError(f"{path}: file is missing") from None
+    except OSError as exc:
+        raise DatasetError(f"{path}: missing or not readable ({exc.strerror or exc})") from None
+    if not stat.S_ISREG(st.st_mode):
+        raise DatasetError(f"{path}: is {_not_regular(st)}, not a regular file; a dataset's files are regular files")
+    return path
+
+
+def read_regular(path: str | Path, root: str | Path | None = None, who: str = "") -> bytes:
+    """The bytes of the regular file `path` (`regular_file`'s rule). Opened with O_NONBLOCK and checked
+    again on the open descriptor, so a FIFO put in its place after the check never blocks the read."""
+    path = regular_file(path, root, who)
+    try:
+        fd = os.open(path, os.O_RDONLY | os.O_NONBLOCK)
+    except OSError as exc:
+        raise DatasetError(f"{path}: missing or not readable ({exc.strerror or exc})") from None
+    with os.fdopen(fd, "rb") as f:
+        st = os.fstat(f.fileno())
+        if not stat.S_ISREG(st.st_mode):
+            raise DatasetError(f"{path}: is {_not_regular(st)}, not a regular file; a dataset's files are regular "
+                               "files")
+        try:
+            return f.read()
+        except OSError as exc:
+            raise DatasetError(f"{path}: not readable ({exc.strerror or exc})") from None
+
+
+def read_json(path: str | Path, root: str | Path | None = None, who: str = ""):
+    """The JSON value of the regular file `path` (`read_regular`); bytes that are not UTF-8 JSON are
+    refused naming the file."""
+    path = Path(path)
+    data = read_regular(path, root, who)
+    try:
+        return json.loads(data.decode("utf-8"))
+    except UnicodeDecodeError as exc:
+        raise DatasetError(f"{path}: not UTF-8 text (byte {exc.start}), so not valid JSON") from None
     except json.JSONDecodeError as exc:
         raise DatasetError(f"{path}: not valid JSON ({exc})") from None
+    except RecursionError:
+        raise DatasetError(f"{path}: JSON nested too deep") from None
 
 
 PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
@@ -67,10 +131,7 @@ def read_png(path: str | Path, gray: bool = False) -> np.ndarray:
     """(H, W, 3) uint8 RGB or (H, W) gray of a PNG file; a file of any other format (a JPEG under a .png
     name) is refused by its first bytes, naming the file."""
     path = Path(path)
-    try:
-        data = path.read_bytes()
-    except OSError as exc:
-        raise DatasetError(f"{path}: missing or not readable ({exc.strerror or exc})") from None
+    data = read_regular(path)
     if not data.startswith(PNG_SIGNATURE):
         kind = "a JPEG file" if data.startswith(b"\xff\xd8\xff") else "another format"
         raise DatasetError(f"{path}: not a readable PNG ({kind}: its first bytes are not the PNG signature)")
@@ -92,10 +153,7 @@ def read_image(path: str | Path) -> np.ndarray:
     sig, kind = IMAGE_SIGNATURES.get(path.suffix.lower(), (None, path.suffix))
     if sig is None:
         raise DatasetError(f"{path}: not a .png or .jpg image")
-    try:
-        data = path.read_bytes()
-    except OSError as exc:
-        raise DatasetError(f"{path}: missing or not readable ({exc.strerror or exc})") from None
+    data = read_regular(path)
     if not data.startswith(sig):
         raise DatasetError(f"{path}: not a readable {kind} (its first bytes are not the {kind} signature)")
     img = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_COLOR)
@@ -125,6 +183,7 @@ def read_depth_exr(path: str | Path) -> np.ndarray:
     """(H, W) float32 z-depth in metres, 0 = no surface."""
     import OpenEXR
 
+    regular_file(path)  # OpenEXR opens the name itself: a FIFO would block it
     try:
         with OpenEXR.File(str(path)) as f:
             ch = f.channels()

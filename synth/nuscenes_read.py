@@ -28,15 +28,14 @@ Example::
 """
 from __future__ import annotations
 
-import json
 import warnings
 from pathlib import Path
 
 import numpy as np
 
-from synth.files import DatasetError, read_image, read_png
-from synth.nuscenes_tables import (EXPORT_DIR, get_record, lidar_xyz, load_tables, pose_matrix, read_splits,
-                                   resolve_version, view_points)
+from synth.files import DatasetError, read_image, read_json, read_png, regular_file, within
+from synth.nuscenes_tables import (EXPORT_DIR, check_intrinsic, get_record, lidar_xyz, load_tables, pose_matrix,
+                                   read_splits, resolve_version, view_points)
 from synth.rig import CameraSpec
 
 RIG_ORDER = ("CAM_FRONT", "CAM_FRONT_RIGHT", "CAM_BACK_RIGHT", "CAM_BACK", "CAM_BACK_LEFT", "CAM_FRONT_LEFT")
@@ -48,16 +47,6 @@ LIDAR_MIN_DEPTH = 0.1
 LIDAR_MAX_DEPTH = 80.0
 RIG_TOL = 1e-9  # calibrated_sensor values that differ by more are two rigs
 NO_MASKS = "no self-occlusion masks: every pixel counts as scene"
-
-
-def within(root: Path, path: Path, who: str) -> Path:
-    """`path` when it resolves inside the dataroot `root`; a file that a table names outside it (``../``,
-    an absolute name) or that is a symlink out of it is never read (DatasetError naming it)."""
-    real, real_root = path.resolve(), root.resolve()
-    if not real.is_relative_to(real_root):
-        raise DatasetError(f"{path}: resolves to {real}, outside the dataroot {real_root} ({who}); a dataroot's "
-                           "files must lie inside it")
-    return path
 
 
 def _angles(K: np.ndarray, T: np.ndarray, width: int) -> tuple[float, float, float]:
@@ -200,7 +189,7 @@ class NuScenesDataset:
             return self._points_cache[1]
         p = self.depth_path(seq, frame=frame, cam=self.camera_names[0])
         lid = self._rec(seq, frame)["lidar"]
-        within(self.root, p, f"sample_data {lid['token']}")
+        regular_file(p, self.root, f"sample_data {lid['token']}")
         try:
             pts = lidar_xyz(p).astype(np.float64)
         except Exception as exc:  # noqa: BLE001 - the devkit raises bare errors for unreadable files
@@ -245,7 +234,7 @@ class NuScenesDataset:
 def _masks(root: Path, cameras: list[CameraSpec], masks) -> tuple[dict[str, np.ndarray], str]:
     ours = root / EXPORT_DIR / "masks"
     if ours.is_dir():
-        folder, source = ours, f"{EXPORT_DIR}/masks"
+        folder, source = within(root, ours, "the masks folder"), f"{EXPORT_DIR}/masks"
     elif masks is not None:
         folder, source = Path(masks), str(masks)
         if not folder.is_dir():
@@ -256,7 +245,7 @@ def _masks(root: Path, cameras: list[CameraSpec], masks) -> tuple[dict[str, np.n
     out = {}
     for c in cameras:
         p = folder / f"{c.name}.png"
-        m = read_png(p, gray=True)
+        m = read_png(within(root, p, "a mask") if folder == ours else p, gray=True)
         if m.shape != (c.height, c.width):
             raise DatasetError(f"{p}: the mask is {m.shape[1]}x{m.shape[0]}, the {c.name} images are "
                                f"{c.width}x{c.height}")
@@ -295,11 +284,8 @@ def _export_record(root: Path, pixel_centre: str | None) -> tuple[dict | None, s
     """Our export's ``mcdp_synth/export.json`` (None: not our export) and the pixel-centre convention."""
     marker = root / EXPORT_DIR / "export.json"
     export = None
-    if marker.is_file():
-        try:
-            export = json.loads(marker.read_text())
-        except ValueError as exc:
-            raise DatasetError(f"{marker}: not valid JSON ({exc})") from None
+    if marker.exists() or marker.is_symlink():
+        export = read_json(marker, root, "the export record")
     if pixel_centre is None:
         pixel_centre = "half" if export is not None else "integer"
     if pixel_centre not in ("half", "integer"):
@@ -391,9 +377,8 @@ class _Scan:
         vals = (np.asarray(cs.get("camera_intrinsic"), np.float64), np.asarray(cs["rotation"], np.float64),
                 np.asarray(cs["translation"], np.float64))
         if ch not in calib:
-            if vals[0].shape != (3, 3):
-                raise DatasetError(f"{tab / 'calibrated_sensor.json'}: {cs['token']} ({ch}): "
-                                   "camera_intrinsic must be 3x3")
+            check_intrinsic(vals[0], f"{tab / 'calibrated_sensor.json'}: calibrated_sensor {cs['token']} ({ch})")
+            pose_matrix(vals[1], vals[2], f"{tab / 'calibrated_sensor.json'}: calibrated_sensor {cs['token']} ({ch})")
             calib[ch] = (vals, cs["token"])
         elif cs["token"] != calib[ch][1] and not all(
                 a.shape == b.shape and np.allclose(a, b, rtol=0, atol=RIG_TOL) for a, b in zip(vals, calib[ch][0])):
@@ -416,8 +401,9 @@ class _Scan:
         cs = get_record(self.nusc, "calibrated_sensor", sd["calibrated_sensor_token"], who)
         pose = get_record(self.nusc, "ego_pose", sd["ego_pose_token"], who)
         path = self.root / sd["filename"]
-        if not path.is_file():
+        if not path.is_file() and not path.exists():
             raise DatasetError(f"{path}: LiDAR file is missing ({who})")
+        regular_file(path, self.root, who)
         return {"token": sd["token"], "filename": sd["filename"],
                 "T_ego_lidar": pose_matrix(cs["rotation"], cs["translation"], f"calibrated_sensor {cs['token']}"),
                 "T_world_ego": pose_matrix(pose["rotation"], pose["translation"], f"ego_pose {pose['token']}")}

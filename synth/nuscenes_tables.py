@@ -15,13 +15,12 @@ Example::
 """
 from __future__ import annotations
 
-import json
 import math
 from pathlib import Path
 
 import numpy as np
 
-from synth.files import DatasetError
+from synth.files import DatasetError, read_json, regular_file, within
 
 
 EXPORT_DIR = "mcdp_synth"
@@ -64,8 +63,8 @@ def _diagnose_key_error(root: Path, version: str, exc: KeyError) -> str:
     for name in ("sample", "sample_data", "calibrated_sensor", "sensor", "ego_pose", "instance", "category",
                  "sample_annotation"):
         try:
-            tables[name] = json.loads((root / version / f"{name}.json").read_text())
-        except (OSError, ValueError):
+            tables[name] = read_json(root / version / f"{name}.json", root)
+        except DatasetError:
             tables[name] = []
     tokens = {k: {r.get("token") for r in v if isinstance(r, dict)} for k, v in tables.items()}
     refs = [("sample_data", "sample_token", "sample"), ("sample_data", "calibrated_sensor_token", "calibrated_sensor"),
@@ -91,12 +90,7 @@ class PlainTables:
         self._by_token: dict[str, dict[str, dict]] = {}
         for name in self.TABLES:
             f = root / version / f"{name}.json"
-            try:
-                rows = json.loads(f.read_text())
-            except OSError as exc:
-                raise DatasetError(f"{f}: cannot read the table ({type(exc).__name__})") from None
-            except ValueError as exc:
-                raise DatasetError(f"{f}: not valid JSON ({exc})") from None
+            rows = read_json(f, root, f"the {name} table")
             if not isinstance(rows, list) or not all(isinstance(r, dict) and "token" in r for r in rows):
                 raise DatasetError(f"{f}: must be a list of records with a token")
             setattr(self, name, rows)
@@ -121,6 +115,7 @@ def load_tables(root: Path, version: str):
         from nuscenes.nuscenes import NuScenes
     except ImportError:
         NuScenes = None
+    check_tables(root, version)
     try:
         if NuScenes is None:
             return PlainTables(root, version)
@@ -130,6 +125,15 @@ def load_tables(root: Path, version: str):
     except (OSError, ValueError, AssertionError, TypeError) as exc:
         raise DatasetError(f"{root / version}: the devkit could not load the tables ({type(exc).__name__}: "
                            f"{str(exc)[:120]})") from None
+
+
+def check_tables(root: Path, version: str) -> None:
+    """Every ``<version>/*.json`` table (what the devkit opens by name) inside the dataroot and a regular
+    file (`synth.files.regular_file`), checked before the devkit or `PlainTables` reads one."""
+    within(root, root / version, "the version folder")
+    for f in sorted((root / version).iterdir()):
+        if f.suffix == ".json":
+            regular_file(f, root, "a table")
 
 
 def get_record(nusc, table: str, token, who: str) -> dict:
@@ -145,11 +149,8 @@ def read_splits(root: Path, scenes: list[str], version: str) -> tuple[dict[str, 
     """(train / val / test scene names, their source): ``mcdp_synth/splits.json`` if the dataroot has one,
     else the devkit's official splits of the scenes present (test = val where there is no test scene)."""
     f = root / EXPORT_DIR / "splits.json"
-    if f.is_file():
-        try:
-            sp = json.loads(f.read_text())
-        except ValueError as exc:
-            raise DatasetError(f"{f}: not valid JSON ({exc})") from None
+    if f.exists() or f.is_symlink():
+        sp = read_json(f, root, "the splits")
         if not isinstance(sp, dict) or not all(isinstance(v, list) for v in sp.values()):
             raise DatasetError(f"{f}: must map split names to lists of scene names")
         for name, seqs in sp.items():
@@ -218,6 +219,25 @@ def rotation_to_quaternion(R: np.ndarray) -> list[float]:
     return [float(x) for x in q]
 
 
+MAX_FOCAL_PX = 1e5  # a focal length above this (a 0.06 deg field of view at 100 px) is an error in the table
+
+
+def check_intrinsic(K: np.ndarray, where: str) -> np.ndarray:
+    """`K` when it is a pinhole camera_intrinsic: 3x3, finite, fx and fy in (0, `MAX_FOCAL_PX`], last row
+    [0, 0, 1]; else DatasetError naming `where` (the table and token) and the value."""
+    if K.shape != (3, 3):
+        raise DatasetError(f"{where}: camera_intrinsic must be 3x3, got shape {K.shape}")
+    if not np.isfinite(K).all():
+        raise DatasetError(f"{where}: camera_intrinsic holds a non-finite value (NaN or inf)")
+    for name, f in (("fx", K[0, 0]), ("fy", K[1, 1])):
+        if not 0 < f <= MAX_FOCAL_PX:
+            raise DatasetError(f"{where}: camera_intrinsic {name} = {float(f):.6g} px; a focal length must be in "
+                               f"(0, {MAX_FOCAL_PX:.0e}] px")
+    if not np.allclose(K[2], [0.0, 0.0, 1.0], rtol=0, atol=1e-9):
+        raise DatasetError(f"{where}: camera_intrinsic's last row must be [0, 0, 1]")
+    return K
+
+
 def pose_matrix(rotation, translation, where: str) -> np.ndarray:
     """4x4 of a nuScenes pose record (rotation [w, x, y, z], translation); DatasetError naming `where`."""
     try:
@@ -238,6 +258,7 @@ def pose_matrix(rotation, translation, where: str) -> np.ndarray:
 def lidar_xyz(path: Path) -> np.ndarray:
     """(3, N) float32 x, y, z of a LIDAR_TOP ``.bin`` (5 float32 per point): the devkit's
     ``LidarPointCloud.from_file``, or the same read without the devkit."""
+    regular_file(path)
     try:
         from nuscenes.utils.data_classes import LidarPointCloud
     except ImportError:

@@ -3,7 +3,7 @@
 Each sequence is independent and fully determined by ``(seed, sequence_index)``
 (`numpy.random.SeedSequence([seed, index])`), so shard ``k/N`` (the sequences with
 ``index % N == k``) is identical whoever renders it, and shards rendered into one
-folder (or merged with `merge_datasets`) give exactly the full dataset. A sequence
+folder (or merged with `synth.merge.merge_datasets`) give exactly the full dataset. A sequence
 is written into ``<seq>.partial/`` and renamed when complete; a rerun skips complete
 sequences. ``manifest.json`` is written last, once every sequence is present.
 
@@ -25,7 +25,7 @@ import numpy as np
 
 
 from corelib import procs
-from corelib.atomic import DiskFullError, atomic_path
+from corelib.atomic import DiskFullError
 from corelib.rundir import lock_folder
 from scenes.model import Mesh, Scene
 from scenes.textures import LAYER
@@ -331,18 +331,7 @@ def _render_into(cfg: DataConfig, out: Path, rig: Rig, backend: str, workers: in
         finally:
             prefetch.close()
     else:
-        ctx = mp.get_context("spawn")
-        with procs.manager(ctx) as manager:  # the manager and the workers die with this process
-            q = manager.Queue()
-            with procs.worker_pool(ctx, min(workers, len(todo)), _pool_init) as pool:
-                results = [pool.apply_async(render_sequence, (cfg_dict, str(out), i, q)) for i in todo]
-                pending = len(todo) * cfg.dataset.frames
-                while pending:
-                    q.get()
-                    pending -= 1
-                    if bar is not None:
-                        bar.update(1)
-                records = [r.get() for r in results]
+        records = _render_pool(cfg_dict, out, todo, workers, cfg.dataset.frames, bar)
     if bar is not None:
         bar.close()
     elapsed = time.perf_counter() - t0
@@ -356,6 +345,44 @@ def _render_into(cfg: DataConfig, out: Path, rig: Rig, backend: str, workers: in
         summary["splits"] = {k2: len(v) for k2, v in manifest["splits"].items()}
         summary["families"] = manifest["families"]
     return summary
+
+
+def _render_pool(cfg_dict: dict, out: Path, todo: list[int], workers: int, frames: int, bar) -> list[dict]:
+    """The sequences `todo` in `workers` spawned processes; returns their records. A worker that dies
+    (kill -9, the OOM killer) ends the render with `corelib.procs.WorkerLost` naming the sequences not
+    finished (their ``.partial`` folders are removed by the rerun, which renders them again)."""
+    import queue
+    from concurrent.futures.process import BrokenProcessPool
+
+    ctx = mp.get_context("spawn")
+    with procs.manager(ctx) as manager:  # the manager and the workers die with this process
+        q = manager.Queue()
+        with procs.executor(ctx, min(workers, len(todo)), _pool_init) as pool:
+            futures = {pool.submit(render_sequence, cfg_dict, str(out), i, q): i for i in todo}
+            pending = len(todo) * frames
+            while pending:
+                try:
+                    q.get(timeout=0.5)
+                except queue.Empty:  # a task that failed (or a dead worker) sends no more frames
+                    if any(f.done() and f.exception() is not None for f in futures):
+                        break
+                    continue
+                pending -= 1
+                if bar is not None:
+                    bar.update(1)
+            records, lost, error = [], [], None
+            for f, i in futures.items():
+                try:
+                    records.append(f.result())
+                except BrokenProcessPool:
+                    lost.append(sequence_id(i))
+                except Exception as exc:  # noqa: BLE001 - raised once the others are done
+                    error = error or exc
+    if lost:
+        raise procs.lost_workers("synth render", lost, "sequence(s)")
+    if error is not None:
+        raise error
+    return records
 
 
 class _BarQueue:
@@ -397,46 +424,3 @@ def _render_ray(cfg_dict: dict, out: Path, todo: list[int], bar) -> list[dict]:
             raise DiskFullError(out)
         raise RuntimeError(f"{len(failed)} sequence(s) of {out} failed twice on Ray: " + "; ".join(failed))
     return records
-
-
-def _copy_whole(src: Path, dst: Path) -> None:
-    """A file copied whole or not at all (a temporary name, then a rename)."""
-    with atomic_path(dst) as tmp:
-        shutil.copyfile(src, tmp)
-
-
-def merge_datasets(cfg_sources: list[Path], out: Path) -> dict:
-    """Merge shard folders (same config) into `out` and write the manifest when complete."""
-    if not cfg_sources:
-        raise ValueError("merge needs at least one shard folder")
-    first = read_json(cfg_sources[0] / MARKER_DIR / "config.json")
-    cfg = build_config(DataConfig, first["config"], str(cfg_sources[0]))
-    for src in cfg_sources[1:]:
-        other = read_json(src / MARKER_DIR / "config.json")
-        if other["config_hash"] != first["config_hash"]:
-            raise OutputFolderError(f"shard {src} was rendered with another config than {cfg_sources[0]}")
-    prepare_output(cfg, out)
-    lock = lock_folder(out, f"{MARKER_DIR}/lock")  # one writer per folder
-    try:
-        rig = make_rig(cfg)
-        for src in cfg_sources:
-            if not (out / "rig.json").is_file():
-                _copy_whole(src / "rig.json", out / "rig.json")
-            (out / "masks").mkdir(exist_ok=True)
-            for m in sorted((src / "masks").glob("*.png")):
-                if not (out / "masks" / m.name).is_file():
-                    _copy_whole(m, out / "masks" / m.name)
-            for i in complete_sequences(src, cfg.dataset.sequences):
-                dst = out / sequence_id(i)
-                if not dst.exists():
-                    tmp = out / f"{sequence_id(i)}.partial"
-                    if tmp.exists():
-                        shutil.rmtree(tmp)
-                    shutil.copytree(src / sequence_id(i), tmp)
-                    os.sync()  # the copy on disk before the rename seals it
-                    os.replace(tmp, dst)
-        manifest = finalize(cfg, out, rig)
-    finally:
-        lock.release()
-    return {"complete": manifest is not None,
-            "sequences": len(complete_sequences(out, cfg.dataset.sequences)), "expected": cfg.dataset.sequences}

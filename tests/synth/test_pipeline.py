@@ -10,7 +10,8 @@ from synth.cli import main as synth_main
 from synth.config import load_data_config
 from synth.dataset import open_dataset, verify_dataset
 from synth.files import DatasetError, read_depth_exr, write_depth_exr
-from synth.render import OutputFolderError, merge_datasets, render_dataset
+from synth.merge import merge_datasets
+from synth.render import OutputFolderError, render_dataset
 
 QUIET = dict(progress=False, log=lambda *a: None)
 
