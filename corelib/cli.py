@@ -34,6 +34,9 @@ ErrorRule = tuple[Sequence, int, str]
 
 def build_parser(prog: str, description: str, commands: Iterable[Command]) -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog=prog, description=description)
+    from corelib.version import package_version
+
+    parser.add_argument("--version", action="version", version=f"{prog} {package_version()}")
     sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
     for c in commands:
         p = sub.add_parser(c.name, help=c.help, description=c.help)

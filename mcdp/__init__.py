@@ -6,3 +6,6 @@ Example::
     mcdp eval runs/m2 --data data/default --split test
     mcdp sweep configs/sweep/ci.yaml --out sweeps/ci
 """
+from corelib.version import package_version as _package_version
+
+__version__ = _package_version()

@@ -4,4 +4,6 @@ Example::
 
     synth render configs/data/tiny.yaml --out data/tiny
 """
-__version__ = "0.1.0"
+from corelib.version import package_version as _package_version
+
+__version__ = _package_version()
