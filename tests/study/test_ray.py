@@ -83,7 +83,8 @@ def test_ray_sweep_gives_the_local_engines_results(local_ray, local_sweep, tmp_p
     assert ray["counters"] == loc["counters"]
     a, b = _csv(local_sweep), _csv(out)
     assert [r["method"] for r in a] == [r["method"] for r in b] == \
-        ["mono2", "mcdp_m1", "mcdp_m1@cut", "mcdp_m1@oracle", "constant_reference", "flat_road_prior"]
+        ["mono2", "mcdp_m1", "mcdp_m1@cut", "mcdp_m1@oracle", "mcdp_m1@oracle_overlap", "constant_reference",
+         "flat_road_prior"]
     for ra, rb in zip(a, b):
         _same_cells(ra, rb)
 

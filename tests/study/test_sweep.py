@@ -154,14 +154,16 @@ def test_ci_sweep_end_to_end_rerun_and_resume(tmp_path, capsys):
         assert rec["path"] == str(Path(pre["weights"]).resolve()) and rec["sha256"] == pre["sha256"]
 
     rows = list(csv.DictReader((out / "results.csv").open()))
-    # beside each run: <m>@oracle for every method with bases, <m>@cut for every one whose network reads
+    # beside each run: <m>@oracle and <m>@oracle_overlap (the ORACLE weights fitted on all pixels and on the
+    # overlap only) for every method with bases, <m>@cut for every one whose network reads
     # its neighbours at inference (MCDP with refinement, SurroundDepth; not FSM: nothing to cut)
     with_bases = [m for m in cfg.methods if m.startswith("mcdp")]
     refined = [m for m in with_bases if m != "mcdp_m0"]
     cut = refined + ["surround"]
-    n_rows = n + len(cfg.overlaps) * len(cfg.seeds) * (len(with_bases) + len(cut))
+    n_rows = n + len(cfg.overlaps) * len(cfg.seeds) * (2 * len(with_bases) + len(cut))
     assert len(rows) == n_rows + 2 * len(cfg.overlaps)
     assert {r["method"] for r in rows[:n_rows]} == (set(cfg.methods) | {m + "@oracle" for m in with_bases}
+                                                   | {m + "@oracle_overlap" for m in with_bases}
                                                    | {m + "@cut" for m in cut})
     assert [r["method"] for r in rows[n_rows:]] == (["constant_reference"] * len(cfg.overlaps)
                                                      + ["flat_road_prior"] * len(cfg.overlaps))
