@@ -77,7 +77,8 @@ def test_per_camera_overrides_reach_the_rig_and_widen_a_camera():
 
 
 def test_an_added_key_at_its_default_keeps_every_hash():
-    """rig.cameras and the sweep's worlds were added after datasets and runs were cached: at their defaults
+    """rig.cameras, rig.overlap_target and the sweep's worlds were added after datasets and runs were cached:
+    at their defaults
     they leave the config hash as it was (the hash of the dict without them), set they change it."""
     from corelib.configlib import config_hash, config_to_dict, load_config
     from corelib.hashing import json_sha256
@@ -85,7 +86,14 @@ def test_an_added_key_at_its_default_keeps_every_hash():
 
     cfg = load_config(DataConfig, None, [])
     d = config_to_dict(cfg)
-    assert d["rig"]["cameras"] == {}
-    del d["rig"]["cameras"]
+    assert d["rig"]["cameras"] == {} and d["rig"]["overlap_target"] == "angle"
+    del d["rig"]["cameras"], d["rig"]["overlap_target"]
     assert config_hash(cfg) == json_sha256(d)
     assert config_hash(load_config(DataConfig, None, ["rig.cameras.CAM_BACK.hfov_deg=110.0"])) != config_hash(cfg)
+    assert config_hash(load_config(DataConfig, None, ["rig.overlap_target=pixels"])) != config_hash(cfg)
+    from study.config import SweepConfig
+
+    s = SweepConfig()
+    sd = config_to_dict(s)
+    del sd["worlds"]
+    assert config_hash(s) == json_sha256(sd) != config_hash(SweepConfig(worlds="per_seed"))
