@@ -79,10 +79,17 @@ def _cell(pd: dict, digits: int = 4) -> str:
 
 
 def _frac(gain: dict, head: dict) -> str:
+    """The gain as a share of the local headroom, only where that headroom is positive beyond its interval
+    (a share of a headroom that may be zero says nothing)."""
     g, h = gain.get("mean", math.nan), head.get("mean", math.nan)
-    if not (math.isfinite(g) and math.isfinite(h)) or h <= 1e-6:
+    if not (math.isfinite(g) and math.isfinite(h)) or head.get("differs") != 1:
         return "—"
     return f"{100 * g / h:.0f} %"
+
+
+def _propagation(name: str) -> bool:
+    """A quantity that is propagation (reading the neighbours, or a training term), not a comparison."""
+    return "inference-time" in name or "training-time" in name or "refinement gain" in name
 
 
 def format_reach(results: dict, label) -> str:
@@ -97,7 +104,8 @@ def format_reach(results: dict, label) -> str:
         "mean ± 95 % t half-width, **positive = helps** (worse minus better). The two yardsticks read ground truth "
         "(ORACLE): *global* = MCDP (m = 2)'s own bases at per-image weights fitted on the overlap pixels only; "
         "*local* = Mono2's network given the overlap's ground-truth depth as input, filled vs emptied. "
-        "*Recovered* = the gain as a fraction of the local headroom.\n")
+        "*Recovered* = a propagation's gain as a share of the local headroom, given only where that headroom "
+        "is positive beyond its interval.\n")
     seeds = results.get("seeds", [])
     worlds = results.get("sweep_config", {}).get("worlds", "shared")
     add(f"Pairs: {len(seeds)} ({'world k trained with seed k: the intervals cover the scene sample and the seed together' if worlds == 'per_seed' else 'seeds on one shared world: the intervals cover the training seed only'}).\n")
@@ -109,7 +117,7 @@ def format_reach(results: dict, label) -> str:
         add("| quantity | non-overlap px | recovered (of local headroom) |")
         add("|---|---|---|")
         for name, pd in q.items():
-            rec = "" if "headroom" in name else _frac(pd, head)
+            rec = _frac(pd, head) if _propagation(name) else ""
             add(f"| {name} | {_cell(pd)} | {rec} |")
         add("")
     bands = band_names(results)
@@ -154,12 +162,12 @@ def format_verdicts(results: dict) -> str:
         q = quantities(results, o)
         head = q.get("local headroom (ORACLE-local emptied - filled)", {"n": 0})
         glob = q.get("global headroom (init - ORACLE-overlap weights)", {"n": 0})
-        parts = [f"local headroom {_cell(head)} ({_word(head)})", f"global headroom {_cell(glob)}"]
+        L.append(f"- overlap {o:.2f}: local headroom {_cell(head)} ({_word(head)}), global headroom {_cell(glob)} "
+                 f"({_word(glob)})")
         for name, pd in q.items():
             if "headroom" in name:
                 continue
-            parts.append(f"{name} {_cell(pd)}: {_word(pd)}" + (f", {_frac(pd, head)} of the local headroom"
-                                                                 if head.get("n") else ""))
-        L.append(f"- overlap {o:.2f}: " + "; ".join(parts))
+            share = _frac(pd, head) if _propagation(name) else "—"
+            L.append(f"  - {name} {_cell(pd)}: {_word(pd)}" + ("" if share == "—" else f" ({share} of the local headroom)"))
     L.append("")
     return "\n".join(L)
