@@ -195,7 +195,7 @@ class DepthModel(DepthNetwork):
     @property
     def uses_neighbours(self) -> bool:
         """Whether a camera's depth depends on its neighbours' images at inference (then the sweep also
-        evaluates it with them cut: ``Predictor(cut=True)``): MCDP with refinement steps, `mcdp.surround`."""
+        evaluates it with them cut: ``study.probes.Probed(pred, CUT)``): MCDP with refinement steps, `mcdp.surround`."""
         return len(self.weight_nets) > 0
 
     def fresh_parameters(self) -> list[nn.Parameter]:

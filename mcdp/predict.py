@@ -4,22 +4,19 @@
 -> {stage: (N, H, W) float32 metres}`` (the ``predict_fn`` of
 `mcdp.evaluate.evaluate`). The network runs at the training size; depth is
 upsampled bilinearly to each camera's dataset size. Only frame t is used (no
-temporal neighbours, no pose network). No ground truth is read, except by a
-run trained with ``scale.source=oracle_gt_median``, which rescales by the GT
-median exactly as in training and is labelled ORACLE (`Predictor.oracle`), and the
-``oracle_weights`` yardsticks (`mcdp.oracle`), extra stages "oracle" (weights fitted on every
-valid pixel) and "oracle_overlap" (fitted on the overlap pixels only) after "final".
+temporal neighbours, no pose network). No ground truth is read, except what the network itself
+declares as an input: a run trained with ``scale.source=oracle_gt_median`` rescales by the GT
+median exactly as in training and is labelled ORACLE (`Predictor.oracle`), and ORACLE-local
+(``reads_overlap_truth``) is given the overlap's ground-truth depth.
 
-Two switches serve the overlap experiment (`study.stages`):
+Inference only predicts. Its steps are public so that an experiment can change an input or
+observe the outputs without the predictor knowing the experiment (the overlap experiment's cut,
+ORACLE weights and refinement statistics: `study.probes`)::
 
-- ``cut=True`` cuts the neighbours at inference: every camera's neighbour table entry is -1,
-  so each weight network sees zeros and valid = 0 for both neighbours, exactly as a camera
-  without neighbours. As trained minus cut is what the neighbours contribute.
-- `Predictor.refinement` accumulates, over every predicted image, how much the refinement acts:
-  mean |w - 1/n| of the last stage's weights and the mean |refined - init| depth (metres, scene
-  pixels, training size). Near zero means an inert refinement. A cut predictor given the as-trained
-  one as ``reference`` (which then keeps its depths: ``keep=True``) also records ``cut_change_m``, the
-  mean |as trained - cut| depth of the same images: what cutting the neighbours changes, in metres.
+    inp = pred.inputs(seq, frame)      # `Inputs`: what the network reads of one rig sample
+    out = pred.forward(inp)            # the network's outputs (`mcdp.model.DepthModel.forward`)
+    small = pred.stages_of(out)        # {stage: (N, 1, h, w) metres at training size}
+    depth = pred.upsample(small)       # {stage: (N, H, W) float32 metres at the dataset size}
 
 `write_prediction` writes, per rig sample::
 
@@ -34,6 +31,7 @@ Example::
 """
 from __future__ import annotations
 
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -49,6 +47,25 @@ from mcdp.visual import depth_grid
 from synth.protocol import DatasetReader
 
 
+@dataclass(frozen=True)
+class Inputs:
+    """What the depth network reads of one rig sample at inference (a batch of one rig, N cameras).
+
+    rgb (1, N, 3, h, w) float32 in [0, 1] at training size (``rgb_np``: the same, (N, 3, h, w) numpy);
+    nbr (N, 2) int64: each camera's left/right neighbour, -1 for none (`mcdp.data.neighbour_table`);
+    gt_median (1, N) or None: the ground-truth median, ONLY for a ``scale.source=oracle_gt_median`` run;
+    overlap_truth (1, N, 1, h, w) or None: the overlap's ground-truth depth, ONLY for a network that
+    ``reads_overlap_truth`` (None = emptied)."""
+
+    seq: str
+    frame: int
+    rgb: torch.Tensor
+    rgb_np: np.ndarray
+    nbr: torch.Tensor
+    gt_median: torch.Tensor | None = None
+    overlap_truth: torch.Tensor | None = None
+
+
 class Predictor:
     """Depth of every stage for rig samples of a dataset, from a run's checkpoint.
 
@@ -59,12 +76,7 @@ class Predictor:
         device: ``auto`` | ``cpu`` | ``cuda``.
     """
 
-    #: at most this many bytes of depth maps kept for a cut predictor's comparison (``keep=True``)
-    KEEP_BYTES = 64 << 20
-
-    def __init__(self, run_dir, ds: DatasetReader, checkpoint: str = "auto", device: str = "auto", cut: bool = False,
-                 oracle_weights: bool = False, oracle_range: tuple[float, float] = (0.5, 80.0), keep: bool = False,
-                 reference: "Predictor | None" = None):
+    def __init__(self, run_dir, ds: DatasetReader, checkpoint: str = "auto", device: str = "auto"):
         self.ckpt_path = find_checkpoint(run_dir, checkpoint) if run_dir is not None else Path(checkpoint)
         ckpt = load_checkpoint(self.ckpt_path)
         self.cfg = config_from_checkpoint(ckpt, source=str(self.ckpt_path))
@@ -81,109 +93,39 @@ class Predictor:
         self.model.eval()
         self.reader = RigReader(ds, self.cfg.train.height, self.cfg.train.width)
         self.nbr = neighbour_table(ds.neighbours, len(ds.camera_names)).to(self.device)
-        self.cut = bool(cut)
-        if self.cut:  # neighbours cut at inference: as for a camera without neighbours
-            self.nbr = torch.full_like(self.nbr, -1)
         self.K = torch.from_numpy(self.reader.K).to(self.device)[None]
         self.T_ego_cam = torch.from_numpy(self.reader.T_ego_cam).to(self.device)[None]
         self.mask = torch.from_numpy(self.reader.mask).to(self.device)[None]
         self.oracle = self.cfg.scale.oracle
         self.stages = list(self.model.stages)
         self.n_out = self.model.n_out  # depth bases of the network (1: nothing to weight)
-        self.oracle_weights = bool(oracle_weights) and self.n_out > 1
-        self.oracle_range = (float(oracle_range[0]), float(oracle_range[1]))
-        self._acc = {"images": 0, "weight_move": 0.0, "depth_change_m": 0.0, "oracle_weight_move": 0.0,
-                     "cut_images": 0, "cut_change_m": 0.0}
-        self.kept: dict | None = {} if keep else None  # (seq, frame) -> last stage's depth at training size
-        self._kept_bytes = 0
-        self.reference = reference
 
-    @property
-    def refinement(self) -> dict:
-        """How much the refinement acted on the images predicted so far (module docstring)."""
-        a = self._acc
-        k = max(a["images"], 1)
-        out = {"images": a["images"], "cut": self.cut,
-               "weight_move": a["weight_move"] / k if len(self.stages) > 1 else float("nan"),
-               "depth_change_m": a["depth_change_m"] / k if len(self.stages) > 1 else float("nan")}
-        if self.oracle_weights:
-            out["oracle_weight_move"] = a["oracle_weight_move"] / k
-        if self.reference is not None:
-            out["cut_change_m"] = a["cut_change_m"] / a["cut_images"] if a["cut_images"] else float("nan")
-        return out
-
-    def _compare(self, seq: str, frame: int, depth: torch.Tensor) -> None:
-        """Keep this depth (``keep``) and/or add its mean |difference| to the reference's (``reference``)."""
-        if self.kept is not None and self._kept_bytes + depth.numel() * 4 <= self.KEEP_BYTES:
-            self.kept[seq, frame] = depth.float().cpu()
-            self._kept_bytes += depth.numel() * 4
-        ref = None if self.reference is None or self.reference.kept is None else self.reference.kept.get((seq, frame))
-        if ref is not None:
-            m = self.mask.reshape(-1, 1, *self.mask.shape[-2:]).float()
-            diff = (depth.float() - ref.to(depth.device)).abs() * m
-            self._acc["cut_change_m"] += float((diff.flatten(1).sum(1) / m.flatten(1).sum(1).clamp(min=1)).sum())
-            self._acc["cut_images"] += int(depth.shape[0])
-
-    def _record(self, out: dict) -> None:
-        last = self.stages[-1]
-        w = out.get(("weights", last))  # None for a method without basis weights
-        self._acc["images"] += int(out["depth", last, 0].shape[0])
-        if w is None or last == "init" or "init" not in self.stages:
-            return
-        n = w.shape[1]  # (B*N, n) or per pixel (B*N, n, h, w) (`mcdp.local`): the mean over all of them
-        self._acc["weight_move"] += float((w.float() - 1.0 / n).abs().flatten(1).mean(1).sum())
-        m = self.mask.reshape(-1, 1, *self.mask.shape[-2:]).float()
-        diff = (out["depth", last, 0].float() - out["depth", "init", 0].float()).abs() * m
-        self._acc["depth_change_m"] += float((diff.flatten(1).sum(1) / m.flatten(1).sum(1).clamp(min=1)).sum())
-
-    def _oracle_depth(self, seq: str, frame: int, out: dict) -> tuple[torch.Tensor, torch.Tensor]:
-        """ORACLE: depth of this run's bases at weights fitted to the ground truth (`mcdp.oracle`): on every
-        valid pixel ("oracle"), and on the overlap pixels only ("oracle_overlap": what MCDP's one global
-        weight vector per image could carry from a perfectly known overlap to the rest of the image)."""
-        from mcdp.model import combine_bases
-        from mcdp.oracle import fit_oracle_weights, ground_truth_at, overlap_at
-
-        bases = out["bases"][0]  # (N, n, h, w)
-        size = tuple(bases.shape[-2:])
-        gt, valid = ground_truth_at(self.ds, self.reader.mask_full, seq, frame, size, self.oracle_range)
-        gt, valid = gt.to(self.device), valid.to(self.device)
-        wts = fit_oracle_weights(bases, gt, valid, self.model.to_depth)
-        n = wts.shape[1]
-        self._acc["oracle_weight_move"] += float((wts - 1.0 / n).abs().mean(1).sum())
-        ov = overlap_at(self.ds, self.reader.mask_full, seq, frame, size).to(self.device)
-        w_ov = fit_oracle_weights(bases, gt, valid & ov, self.model.to_depth)  # no overlap pixel: 1/n
-        return (self.model.to_depth(combine_bases(bases.float(), wts))[1],
-                self.model.to_depth(combine_bases(bases.float(), w_ov))[1])
-
-    @torch.no_grad()
-    def predict_train_size(self, seq: str, frame: int) -> tuple[dict, np.ndarray]:
-        """({stage: (N, 1, h, w) tensor metres at training size}, rgb (N, 3, h, w))."""
+    def inputs(self, seq: str, frame: int) -> Inputs:
+        """What the network reads of rig sample (seq, frame), as trained."""
         rgb = self.reader.rgb(seq, frame)
-        x = torch.from_numpy(rgb).to(self.device)[None]
-        gtm = None
+        gtm = hint = None
         if self.oracle:  # ORACLE: the reference code's ground-truth median scaling
             gtm = torch.from_numpy(self.reader.gt_median(seq, frame)).to(self.device)[None]
-        hint = None
-        if self.model.reads_overlap_truth and not self.cut:  # ORACLE-local, filled (cut: emptied)
+        if self.model.reads_overlap_truth:  # ORACLE-local's input: the overlap's ground-truth depth
             from mcdp.oracle import overlap_truth_at
 
             hint = overlap_truth_at(self.ds, self.reader.mask_full, seq, frame, tuple(self.mask.shape[-2:]))
             hint = hint.to(self.device)[None]
-        out = self.model(x, self.K, self.T_ego_cam, self.mask, self.nbr, gtm, scales=1, overlap_truth=hint)
-        self._record(out)
-        if self.kept is not None or self.reference is not None:
-            self._compare(seq, frame, out["depth", self.stages[-1], 0])
-        res = {st: out["depth", st, 0].float() for st in self.stages}
-        if self.oracle_weights:  # "final" is named explicitly so that the yardstick stays apart from it
-            res["final"] = res[self.stages[-1]]
-            d_all, d_ov = self._oracle_depth(seq, frame, out)
-            res["oracle"] = d_all * out["scale"].view(-1, 1, 1, 1)
-            res["oracle_overlap"] = d_ov * out["scale"].view(-1, 1, 1, 1)
-        return res, rgb
+        return Inputs(seq, frame, torch.from_numpy(rgb).to(self.device)[None], rgb, self.nbr, gtm, hint)
 
-    def predict(self, seq: str, frame: int) -> dict[str, np.ndarray]:
-        """{stage: (N, H, W) float32 metres at the dataset resolution}, stages in order."""
-        small, _ = self.predict_train_size(seq, frame)
+    @torch.no_grad()
+    def forward(self, inp: Inputs) -> dict:
+        """The network's outputs for ``inp`` at training size (`mcdp.model.DepthModel.forward`, scale 0 only)."""
+        return self.model(inp.rgb, self.K, self.T_ego_cam, self.mask, inp.nbr, inp.gt_median, scales=1,
+                          overlap_truth=inp.overlap_truth)
+
+    def stages_of(self, out: dict) -> dict[str, torch.Tensor]:
+        """{stage: (N, 1, h, w) float32 metres at training size}, stages in order."""
+        return {st: out["depth", st, 0].float() for st in self.stages}
+
+    def upsample(self, small: dict[str, torch.Tensor]) -> dict[str, np.ndarray]:
+        """{stage: (N, 1, h, w) tensor} -> {stage: (N, H, W) float32 numpy at each camera's dataset size}
+        (a list of (H_c, W_c) arrays when the cameras' sizes differ)."""
         res = {}
         for st, d in small.items():
             cams = []
@@ -193,6 +135,15 @@ class Predictor:
             shapes = {a.shape for a in cams}
             res[st] = np.stack(cams) if len(shapes) == 1 else cams
         return res
+
+    def predict_train_size(self, seq: str, frame: int) -> tuple[dict, np.ndarray]:
+        """({stage: (N, 1, h, w) tensor metres at training size}, rgb (N, 3, h, w))."""
+        inp = self.inputs(seq, frame)
+        return self.stages_of(self.forward(inp)), inp.rgb_np
+
+    def predict(self, seq: str, frame: int) -> dict[str, np.ndarray]:
+        """{stage: (N, H, W) float32 metres at the dataset resolution}, stages in order."""
+        return self.upsample(self.predict_train_size(seq, frame)[0])
 
     __call__ = predict
 

@@ -179,7 +179,7 @@ def _eval(args: argparse.Namespace) -> int:
     if not ds.has_depth:
         raise RunError(f"dataset {args.data} has no ground-truth depth (manifest has_depth=false); eval needs it")
     pred = Predictor(args.run, ds, args.checkpoint, args.device)
-    stages = pred.stages + ["final"] + (["oracle"] if pred.oracle_weights else [])
+    stages = pred.stages + ["final"]
     if args.stage not in stages:  # a choice checked before the (long) evaluation
         raise RunError(f"--stage {args.stage[:40]!r} is not a stage of {args.run} (its stages: {', '.join(stages)})")
     ecfg = _eval_config(pred.cfg, args.overrides)

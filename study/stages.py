@@ -201,9 +201,8 @@ def _evaluate(run: _Run, row: dict) -> tuple[dict, dict | None, str]:
         run.log(f"{run.tag}: evaluated already, skipped")
         return metrics, metrics_cut, key
     t0 = time.perf_counter()
-    metrics, metrics_cut = evaluate_run(cfg, run_dir, run.ds, ecfg, run.progress, run.log, run.tag)
-    metrics["run"] = run_record(metrics["_predictor"], run_dir, run.data["path"], rig_differences(run_dir, run.ds))
-    metrics.pop("_predictor")
+    metrics, metrics_cut, pred = evaluate_run(cfg, run_dir, run.ds, ecfg, run.progress, run.log, run.tag)
+    metrics["run"] = run_record(pred, run_dir, run.data["path"], rig_differences(run_dir, run.ds))
     metrics["sweep"] = {"eval_key": key, "overlap": run.overlap, "method": run.method, "seed": run.seed}
     if metrics_cut is not None:
         metrics_cut["sweep"] = {**metrics["sweep"], "cut": True}
@@ -251,22 +250,20 @@ def _row_line(tag: str, row: dict) -> str:
                if "metrics_oracle" in row else ""))
 
 
-def evaluate_run(cfg: SweepConfig, run_dir: Path, ds, ecfg, progress: bool, log, tag: str) -> tuple[dict, dict | None]:
-    """Evaluate one run's checkpoint: as trained (+ the ORACLE-weights stage of a run with bases),
+def evaluate_run(cfg: SweepConfig, run_dir: Path, ds, ecfg, progress: bool, log, tag: str):
+    """Evaluate one run's checkpoint: as trained (+ the ORACLE-weights stages of a run with bases),
     and, for a network whose depth uses the neighbours at inference (``uses_neighbours``: MCDP's refinement,
-    the cross-view attention of `mcdp.surround`), a second time with its neighbours cut at inference.
+    the cross-view attention of `mcdp.surround`, ORACLE-local's input), a second time with its neighbours
+    cut at inference (`study.probes`).
 
-    Returns (metrics, metrics_cut or None); ``metrics["_predictor"]`` is the as-trained predictor and
-    ``metrics["refinement"]`` / ``metrics_cut["refinement"]`` record how much the refinement acted.
+    Returns (metrics, metrics_cut or None, the run's `mcdp.predict.Predictor`); ``metrics["refinement"]`` /
+    ``metrics_cut["refinement"]`` record how much the refinement acted.
     """
     import torch
 
     from mcdp.predict import Predictor
 
-    rng = (ecfg.min_depth, ecfg.max_depth)
-    # keep=True: its depths (<= 64 MiB) are what the cut evaluation of a network that reads its neighbours
-    # is compared with
-    pred = Predictor(run_dir, ds, cfg.checkpoint, cfg.device, oracle_weights=True, oracle_range=rng, keep=True)
+    pred = Predictor(run_dir, ds, cfg.checkpoint, cfg.device)
     threads_before = torch.get_num_threads()
     if pred.cfg.train.threads > 0 and pred.device.type == "cpu":
         # the run's thread count, as in training: a rerun that only evaluates would otherwise use torch's
@@ -274,25 +271,27 @@ def evaluate_run(cfg: SweepConfig, run_dir: Path, ds, ecfg, progress: bool, log,
         # 2 jobs on 2 cores, took a median 147 s per MCDP (m = 2) evaluation against 46 s right after training)
         torch.set_num_threads(pred.cfg.train.threads)
     try:
-        return _evaluate_both(cfg, run_dir, ds, ecfg, progress, log, tag, pred)
+        metrics, metrics_cut = _evaluate_both(ds, ecfg, progress, log, tag, pred)
+        return metrics, metrics_cut, pred
     finally:
         torch.set_num_threads(threads_before)
 
 
-def _evaluate_both(cfg: SweepConfig, run_dir: Path, ds, ecfg, progress: bool, log, tag: str, pred):
+def _evaluate_both(ds, ecfg, progress: bool, log, tag: str, pred):
     """`evaluate_run` once the predictor and the thread count are set."""
     from mcdp.evaluate import evaluate
-    from mcdp.predict import Predictor
+    from study.probes import CUT, Probed
 
-    cuts = pred.model.uses_neighbours  # MCDP's refinement, SurroundDepth's attention, ORACLE-local's input
+    # keep=True: its depths (<= 64 MiB) are what the cut evaluation of a network that reads its neighbours
+    # is compared with
+    trained = Probed(pred, oracle_range=(ecfg.min_depth, ecfg.max_depth), keep=True)
     log(f"{tag}: evaluating {pred.ckpt_path.name} (step {pred.step}) on the {SPLIT} split"
-        + (" (+ ORACLE weights of its bases)" if pred.oracle_weights else ""))
-    metrics = evaluate(ds, pred.predict, SPLIT, ecfg, progress=progress)
-    metrics["refinement"] = pred.refinement
-    metrics["_predictor"] = pred
+        + (" (+ ORACLE weights of its bases)" if trained.oracle_weights else ""))
+    metrics = evaluate(ds, trained.predict, SPLIT, ecfg, progress=progress)
+    metrics["refinement"] = trained.refinement
     metrics_cut = None
-    if cuts:
-        cut = Predictor(run_dir, ds, cfg.checkpoint, cfg.device, cut=True, reference=pred)
+    if pred.model.uses_neighbours:
+        cut = Probed(pred, CUT, reference=trained)
         log(f"{tag}: evaluating it again with the neighbours cut at inference")
         metrics_cut = evaluate(ds, cut.predict, SPLIT, ecfg, progress=progress)
         metrics_cut["refinement"] = cut.refinement

@@ -181,9 +181,12 @@ def test_the_tiny_fsm_preset_trains_two_steps_and_its_cut_evaluation_equals_its_
     rc = main(["train", str(TINY / "fsm.yaml"), "--data", str(tiny_dataset), "--out", str(run), "--no-progress",
                "train.steps=2"])
     assert rc == 0 and (run / "checkpoints" / "last.pt").is_file()
-    pred = Predictor(run, ds, "last", keep=True)
-    cut = Predictor(run, ds, "last", cut=True, reference=pred)
-    assert cut.cut and isinstance(cut.model, FsmDepthModel)
+    from study.probes import CUT, Probed
+
+    net = Predictor(run, ds, "last")
+    pred = Probed(net, keep=True)
+    cut = Probed(net, CUT, reference=pred)
+    assert cut.variant == CUT and isinstance(net.model, FsmDepthModel)
     a = evaluate(ds, pred.predict, "test", EvalConfig(), progress=False)
     c = evaluate(ds, cut.predict, "test", EvalConfig(), progress=False)
     # nothing to cut: the network never reads the neighbours (compared as JSON: NaN == NaN there)

@@ -163,3 +163,17 @@ def test_a_network_outside_the_contract_is_refused():
     m = methods.Method("plain", "Plain", {"model.method": "plain"}, nn.Identity)
     with pytest.raises(TypeError, match="DepthNetwork"):
         methods.network_class(m)
+
+
+def test_inference_knows_no_experiment():
+    """`mcdp.predict.Predictor` only predicts: the cut, the ORACLE weights and the refinement record live in
+    `study.probes` (issue 31); nothing of the experiment is an argument or a member of the predictor."""
+    import inspect
+    import re
+
+    from mcdp.predict import Predictor
+
+    assert list(inspect.signature(Predictor.__init__).parameters) == ["self", "run_dir", "ds", "checkpoint", "device"]
+    src = inspect.getsource(Predictor)
+    for pat in (r"\bcut\b", r"oracle_weights", r"self\.reference", r"\brefinement\b", r"\bkept\b"):
+        assert not re.search(pat, src), pat

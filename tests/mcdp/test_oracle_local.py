@@ -4,6 +4,7 @@ import torch
 
 from mcdp.oracle import overlap_truth, overlap_truth_at
 from mcdp.predict import Predictor
+from study.probes import CUT, Probed
 
 from tests.mcdp.test_refinement import NoNeighbours, _frame, trained
 
@@ -25,18 +26,18 @@ def test_overlap_input_is_the_ground_truth_on_the_overlap_and_empty_without_neig
 def test_filled_differs_from_emptied_and_emptied_is_the_cut(ds, tmp_path, one_thread):
     run = trained(ds, tmp_path / "o", "oracle_local")
     seq, f = _frame(ds)
-    filled = Predictor(run, ds, device="cpu")
-    emptied = Predictor(run, ds, device="cpu", cut=True)
-    assert filled.model.reads_overlap_truth and filled.model.uses_neighbours
+    net = Predictor(run, ds, device="cpu")
+    filled, emptied = Probed(net), Probed(net, CUT)
+    assert net.model.reads_overlap_truth and net.model.uses_neighbours
     with torch.no_grad():  # a hint layer far from zero: the input must change the depth
-        filled.model.hint.weight.normal_(std=1.0)
-        emptied.model.hint.weight.copy_(filled.model.hint.weight)
+        net.model.hint.weight.normal_(std=1.0)
     a, b = filled.predict(seq, f), emptied.predict(seq, f)
+    assert np.array_equal(a["init"], net.predict(seq, f)["init"])  # as trained = the predictor alone
     assert not np.allclose(a["init"], b["init"])
     # emptied = the same network given an all-zero overlap input (what a camera without neighbours gets)
     lone = Predictor(run, NoNeighbours(ds), device="cpu")
     with torch.no_grad():
-        lone.model.hint.weight.copy_(filled.model.hint.weight)
+        lone.model.hint.weight.copy_(net.model.hint.weight)
     assert np.array_equal(lone.predict(seq, f)["init"], b["init"])
 
 

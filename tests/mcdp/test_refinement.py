@@ -14,6 +14,7 @@ from mcdp.model import combine_bases, disp_to_depth
 from mcdp.oracle import fit_oracle_weights, si_log_error
 from mcdp.predict import Predictor
 from mcdp.trainer import Trainer
+from study.probes import CUT, TRAINED, Probed
 
 ROOT = Path(__file__).resolve().parents[2]
 TINY = ROOT / "configs" / "train" / "tiny"
@@ -40,6 +41,11 @@ class NoNeighbours:
         return getattr(self._ds, name)
 
 
+def probe(run, ds, variant=TRAINED, **kw) -> Probed:
+    """The run's predictor evaluated as one variant of the overlap experiment (`study.probes`)."""
+    return Probed(Predictor(run, ds, device="cpu"), variant, **kw)
+
+
 def _frame(ds):
     seq = ds.split("test")[0]
     return seq, 1
@@ -49,7 +55,7 @@ def test_cut_equals_normal_for_mono2(ds, tmp_path, one_thread):
     run = trained(ds, tmp_path / "m", "mono2")
     seq, f = _frame(ds)
     a = Predictor(run, ds, device="cpu").predict(seq, f)
-    b = Predictor(run, ds, device="cpu", cut=True).predict(seq, f)
+    b = probe(run, ds, CUT).predict(seq, f)
     assert list(a) == list(b) == ["init"]
     assert np.array_equal(a["init"], b["init"])
 
@@ -60,11 +66,11 @@ def test_cut_equals_normal_without_neighbours_and_differs_with_them(ds, tmp_path
     seq, f = _frame(ds)
     lone = NoNeighbours(ds)
     a = Predictor(run, lone, device="cpu").predict(seq, f)
-    b = Predictor(run, lone, device="cpu", cut=True).predict(seq, f)
+    b = probe(run, lone, CUT).predict(seq, f)
     for st in ("init", "refine1"):
         assert np.array_equal(a[st], b[st]), st
-    full = Predictor(run, ds, device="cpu")
-    cut = Predictor(run, ds, device="cpu", cut=True)
+    full = probe(run, ds)
+    cut = probe(run, ds, CUT)
     pa, pb = full.predict(seq, f), cut.predict(seq, f)
     assert np.array_equal(pa["init"], pb["init"])  # the bases do not see the neighbours
     assert not np.array_equal(pa["refine1"], pb["refine1"])  # the refinement does
@@ -78,7 +84,7 @@ def test_cut_equals_normal_without_neighbours_and_differs_with_them(ds, tmp_path
 
 def test_refinement_record_of_a_method_without_refinement(ds, tmp_path, one_thread):
     run = trained(ds, tmp_path / "m", "mono2")
-    p = Predictor(run, ds, device="cpu")
+    p = probe(run, ds)
     p.predict(*_frame(ds))
     assert p.refinement["images"] == len(ds.camera_names)
     assert np.isnan(p.refinement["weight_move"]) and np.isnan(p.refinement["depth_change_m"])
@@ -114,7 +120,7 @@ def test_oracle_weights_keep_uniform_without_valid_pixels():
 
 def test_oracle_stage_is_extra_and_labelled(ds, tmp_path, one_thread):
     run = trained(ds, tmp_path / "m1", "mcdp_m1")
-    p = Predictor(run, ds, device="cpu", oracle_weights=True)
+    p = probe(run, ds, oracle_range=(0.5, 80.0))
     out = p.predict(*_frame(ds))
     assert list(out) == ["init", "refine1", "final", "oracle", "oracle_overlap"]
     assert np.array_equal(out["final"], out["refine1"])

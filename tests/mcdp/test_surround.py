@@ -119,11 +119,14 @@ def test_the_tiny_surround_preset_trains_two_steps_and_evaluates_as_trained_and_
     rc = main(["train", str(TINY / "surround.yaml"), "--data", str(tiny_dataset), "--out", str(run), "--no-progress",
                "train.steps=2", "scale.source=odometry"])
     assert rc == 0 and (run / "checkpoints" / "last.pt").is_file()
-    pred = Predictor(run, ds, "last", keep=True)
-    cut = Predictor(run, ds, "last", cut=True, reference=pred)
-    assert isinstance(pred.model, SurroundDepthModel) and pred.model.uses_neighbours
+    from study.probes import CUT, Probed
+
+    net = Predictor(run, ds, "last")
+    pred = Probed(net, keep=True)
+    cut = Probed(net, CUT, reference=pred)
+    assert isinstance(net.model, SurroundDepthModel) and net.model.uses_neighbours
     # two steps moved the zero convolutions off zero: the fresh layers learn
-    assert all(float(b.out.weight.detach().abs().max()) > 0 for b in pred.model.cross_view.values())
+    assert all(float(b.out.weight.detach().abs().max()) > 0 for b in net.model.cross_view.values())
     a = evaluate(ds, pred.predict, "test", EvalConfig(), progress=False)
     c = evaluate(ds, cut.predict, "test", EvalConfig(), progress=False)
     fa, fc = a["stages"]["final"]["median"]["mean"]["abs_rel"], c["stages"]["final"]["median"]["mean"]["abs_rel"]
