@@ -59,7 +59,7 @@ def record_predictions(pred, samples: list[tuple[str, int]], out, point_stride: 
     if progress:
         from tqdm import tqdm
         items = tqdm(samples, desc="rrd", unit="sample")
-    with recording(out, f"predict_{out.stem}", blueprint_of(ds, pred.stages)) as rec:
+    with recording(out, f"predict_{out.stem}", blueprint_of(ds, samples[0][0], pred.stages)) as rec:
         rec.log("run", rr.TextDocument(f"checkpoint {pred.ckpt_path} (step {pred.step}); stages "
                                        f"{', '.join(pred.stages)}; dataset {ds.root}"), static=True)
         recorders: dict[str, RigRecorder] = {}

@@ -12,7 +12,8 @@
     world/ego                     Transform3D = T_world_ego, per frame
     world/ego/body                Mesh3D: the ego body, ego frame (static)
     world/ego/points_gt           Points3D: ground-truth depth of every camera back-projected, ego frame
-    world/ego/<CAM>               Transform3D = T_ego_cam and Pinhole(K, resolution, camera_xyz=RDF) (static)
+    world/ego/<CAM>               Transform3D = T_ego_cam and Pinhole(K, resolution, camera_xyz=RDF, image
+                                  plane 1.5 m from the camera in the 3-D view) (static)
     world/ego/<CAM>/rgb           EncodedImage: the dataset's PNG bytes, per frame
     world/ego/<CAM>/depth         DepthImage, float32 z-depth in metres (meter=1), 0 = no surface, per frame
     world/ego/<CAM>/ego_mask      SegmentationImage (static): 0 = ego body, 1 = scene
@@ -50,6 +51,7 @@ INSTALL = "pip install -e '.[viz]'"
 APP_ID = "mcdp_synth"
 TIMELINE = "time"
 RRD_MAGIC = b"RRF"  # every .rrd file starts with it (RRF0, RRF2, ...)
+FRUSTUM_M = 1.5  # the cameras' image planes in the 3-D view, metres from the camera (a car-sized rig)
 
 
 class ViewError(ValueError):
@@ -133,13 +135,14 @@ def recording(out: Path, name: str, blueprint=None) -> Iterator[object]:
             rec.disconnect()
 
 
-def blueprint_of(ds, stages=()):
-    """The recording's blueprint (`synth.view_blueprint.rig_blueprint`) for `ds`'s cameras."""
+def blueprint_of(ds, seq: str, stages=()):
+    """The recording's blueprint (`synth.view_blueprint.rig_blueprint`) for `ds`'s cameras, its 3-D eye behind
+    the ego of `seq`'s first frame."""
     import rerun.blueprint as rrb
 
     from synth.view_blueprint import rig_blueprint
 
-    return rig_blueprint(rrb, ds.cameras, RigRecorder.cam_path, stages)
+    return rig_blueprint(rrb, ds.cameras, RigRecorder.cam_path, stages, ds.ego(seq)[0]["T_world_ego"])
 
 
 def scene_model(ds, seq: str):
@@ -211,7 +214,8 @@ class RigRecorder:
             T = np.asarray(cam.T_ego_cam, np.float64)
             rec.log(path, rr.Transform3D(translation=T[:3, 3], mat3x3=T[:3, :3]), static=True)
             rec.log(path, rr.Pinhole(image_from_camera=np.asarray(cam.K, np.float64),
-                                     resolution=[cam.width, cam.height], camera_xyz=rr.ViewCoordinates.RDF),
+                                     resolution=[cam.width, cam.height], camera_xyz=rr.ViewCoordinates.RDF,
+                                     image_plane_distance=FRUSTUM_M),
                     static=True)
             rec.log(f"{path}/ego_mask", rr.AnnotationContext([(0, "ego body", (200, 40, 40)), (1, "scene", (0, 0, 0))]),
                     static=True)
@@ -309,7 +313,7 @@ def record_rig(dataset: str | Path, out: str | Path, seq: str | None = None, fra
     seq = pick_sequence(ds, seq)
     rng = parse_frames(frames, ds.n_frames(seq), seq)
     t0 = time.perf_counter()
-    with recording(out, f"{seq}", blueprint_of(ds)) as rec:
+    with recording(out, f"{seq}", blueprint_of(ds, seq)) as rec:
         r = RigRecorder(rr, rec, ds, seq, point_stride)
         r.log_static()
         r.log_sequence()
