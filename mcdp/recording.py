@@ -1,10 +1,12 @@
 """`mcdp predict RUN --data DATA --rrd pred.rrd`: a run's predictions beside the ground truth in a Rerun
-recording (the layout of `synth.view`, plus per stage)::
+recording (the layout of `synth.view`: world mesh, trajectory, blueprint with one tab of depth per stage;
+plus per stage)::
 
     world/ego/<CAM>/pred/<stage>/depth     DepthImage, predicted z-depth (m), dataset resolution
     world/ego/<CAM>/pred/<stage>/abs_rel   Image (float32, one channel): |pred - gt| / gt on pixels with
                                            ground truth in [0.5, 80] m outside the ego mask, 0 elsewhere
-    world/ego/pred/<stage>/points          Points3D, predicted depth back-projected (ego frame, ego body left out)
+    world/ego/pred/<stage>/points          Points3D, predicted depth back-projected (ego frame, ego body left
+                                           out), coloured by the camera's RGB at that pixel
     sample                                 TextLog: which sequence and frame the time shows
 
 Sequences follow one another on the ``time`` timeline: a sequence starts one frame period after the last
@@ -19,7 +21,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from synth.view import RigRecorder, backproject, import_rerun, recording
+from synth.view import RigRecorder, backproject, blueprint_of, import_rerun, recording
 
 GT_RANGE = (0.5, 80.0)  # the evaluator's default ground-truth range (mcdp.evaluate)
 
@@ -57,7 +59,7 @@ def record_predictions(pred, samples: list[tuple[str, int]], out, point_stride: 
     if progress:
         from tqdm import tqdm
         items = tqdm(samples, desc="rrd", unit="sample")
-    with recording(out, f"predict_{out.stem}") as rec:
+    with recording(out, f"predict_{out.stem}", blueprint_of(ds, samples[0][0], pred.stages)) as rec:
         rec.log("run", rr.TextDocument(f"checkpoint {pred.ckpt_path} (step {pred.step}); stages "
                                        f"{', '.join(pred.stages)}; dataset {ds.root}"), static=True)
         recorders: dict[str, RigRecorder] = {}
@@ -66,11 +68,13 @@ def record_predictions(pred, samples: list[tuple[str, int]], out, point_stride: 
                 recorders[seq] = RigRecorder(rr, rec, ds, seq, point_stride, offsets[seq])
                 if len(recorders) == 1:
                     recorders[seq].log_static()
+                recorders[seq].log_sequence(ego_body=len(recorders) == 1)
             gt = recorders[seq].log_frame(frame)
             rec.log("sample", rr.TextLog(f"{seq} frame {frame}"))
             depths = pred.predict(seq, frame)
+            rgb = recorders[seq].rgb
             for stage, d in depths.items():
-                pts = []
+                pts, cols = [], []
                 for c, cam in enumerate(ds.cameras):
                     base = f"{RigRecorder.cam_path(cam.name)}/pred/{stage}"
                     dc = np.asarray(d[c], np.float32)
@@ -78,8 +82,11 @@ def record_predictions(pred, samples: list[tuple[str, int]], out, point_stride: 
                     mask = np.asarray(ds.mask(cam.name), bool)
                     if cam.name in gt:
                         rec.log(f"{base}/abs_rel", rr.Image(abs_rel_image(dc, gt[cam.name], mask), color_model="L"))
-                    pts.append(backproject(dc, cam.K, cam.T_ego_cam, mask, point_stride)[0])
-                rec.log(f"world/ego/pred/{stage}/points", rr.Points3D(np.concatenate(pts), radii=0.05))
+                    p, v, u = backproject(dc, cam.K, cam.T_ego_cam, mask, point_stride)
+                    pts.append(p)
+                    cols.append(rgb[cam.name][v, u])
+                rec.log(f"world/ego/pred/{stage}/points", rr.Points3D(np.concatenate(pts), colors=np.concatenate(cols),
+                                                                      radii=0.05))
     size = out.stat().st_size
     return {"out": str(out), "samples": len(samples), "bytes": size,
             "bytes_per_rig_frame": size / max(len(samples), 1), "sequences": list(offsets)}

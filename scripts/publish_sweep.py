@@ -8,6 +8,10 @@ alone docs/results/<name>/results.csv, docs/results/<name>/plots/*.png and docs/
 committed preface docs/results/<name>/preface.md (what the numbers cannot say themselves: the command,
 the measured wall time, the machine), then the sweep's report (`study.report`) with its plot links
 pointing into docs/results/<name>/.
+
+A report committed with its results.csv only (docs/results/sweep_cpu, sweep_compare: their results.json was
+not kept) gets its plots rebuilt from the CSV (`study.results.results_from_csv`); its .md is left alone,
+since its tables need the full results.json.
 """
 from __future__ import annotations
 
@@ -33,6 +37,16 @@ def main(argv=None) -> int:
     out.mkdir(parents=True, exist_ok=True)
     if args.sweep:
         shutil.copyfile(Path(args.sweep) / "results.json", out / "results.json")
+    if not (out / "results.json").is_file():
+        if not (out / "results.csv").is_file():
+            print(f"error: {out / 'results.json'}: no such file (nor a results.csv beside it)", file=sys.stderr)
+            return 2
+        from study.results import results_from_csv
+
+        plots = make_plots(results_from_csv(out / "results.csv"), out / "plots")
+        print(f"wrote {len(plots)} plots from docs/results/{args.name}/results.csv (no results.json: "
+              f"docs/results/{args.name}.md not rebuilt)")
+        return 0
     results = json.loads((out / "results.json").read_text())
     write_csv(results, out / "results.csv")
     plots = make_plots(results, out / "plots")

@@ -5,7 +5,8 @@
 
     SWEEP/results.json    build_results' dict
     SWEEP/results.csv     one row per (overlap, method, seed), every metric flattened
-    SWEEP/plots/abs_rel_vs_overlap.png, dep_con_vs_overlap.png, overlap_vs_non_overlap_abs_rel.png,
+    SWEEP/plots/paired_vs_mono2.png (each method − Mono2, paired), abs_rel_vs_overlap.png, dep_con_vs_overlap.png,
+                overlap_vs_non_overlap_abs_rel.png,
                 measured_overlap.png
     SWEEP/report.md       tables laid out like the paper's Table 1 (metric and median scaling)
                           and Table 2 (per-camera Dep Con), per overlap; the relative change of
@@ -33,8 +34,8 @@ from study.plots import distance_plot, make_plots
 from study.mechanisms import format_mechanisms
 from study.propagation import format_propagation
 from study.reach import format_reach
-from study.results import (BASELINE, PRIOR_LABEL, REF_LABEL, SCALE_LABEL, YARDSTICKS, method_agg, yardstick_agg,
-                           yardstick_row)
+from study.results import (BASELINE, PRIOR_LABEL, REF_LABEL, SCALE_LABEL, YARDSTICKS, fmt_diff, method_agg,
+                           paired_difference, verdict_word, yardstick_agg, yardstick_row)
 from study.results import fmt_num as _num
 
 
@@ -252,7 +253,7 @@ def _summary_section(results: dict) -> list[str]:
     add("")
     add(format_reach(results, label))
     add("")
-    add("### Verdicts (abs_rel, mean over seeds)\n")
+    add("### Verdicts: against the yardsticks (abs_rel, mean over seeds) and Mono2 (paired over seeds)\n")
     add(_verdicts(results))
     add("")
 
@@ -360,30 +361,16 @@ def _timing_section(results: dict) -> list[str]:
 
 
 def _verdicts(results: dict) -> str:
+    """The verdict lines: each method against the yardsticks (their single numbers, so the mean over seeds), and
+    against Mono2 only through paired differences and their 95 % interval (`verdict_word`), never raw means: in
+    median scaling those are the lines of the mechanisms' section (`study.mechanisms`), in metric scaling here."""
     methods = results["methods"]
-    if BASELINE not in methods:
-        return "- Mono2 is not part of this sweep: no comparison.\n"
-    if len(methods) == 1:
-        return "- Only Mono2 is part of this sweep: no comparison.\n"
+    others = [m for m in methods if m != BASELINE]
     lines = []
+    paired = BASELINE in methods and others and len(results["seeds"]) > 1
     for d in results["data"]:
         o = d["overlap"]
         for sc in ("none", "median"):
-            ref = method_agg(results, o, BASELINE, f"{sc}.mean.abs_rel")["mean"]
-            ref_no = method_agg(results, o, BASELINE, f"{sc}.non_overlap.abs_rel")["mean"]
-            beat, lost = [], []
-            for m in methods:
-                if m == BASELINE:
-                    continue
-                v = method_agg(results, o, m, f"{sc}.mean.abs_rel")["mean"]
-                v_no = method_agg(results, o, m, f"{sc}.non_overlap.abs_rel")["mean"]
-                if not (math.isfinite(v) and math.isfinite(ref)):
-                    lost.append(f"{label(m)} (not comparable: NaN)")
-                    continue
-                no = ("non-overlap also better" if v_no < ref_no else "non-overlap NOT better") \
-                    if math.isfinite(v_no) and math.isfinite(ref_no) else "non-overlap NaN"
-                entry = f"{label(m)} {v:.3f} vs {ref:.3f}" + (" (tie)" if v == ref else "") + f", {no}"
-                (beat if v < ref else lost).append(entry)
             head = f"- overlap {o:.2f}, {SCALE_LABEL[sc]}: "
             cref = yardstick_agg(results, o, f"{sc}.mean.abs_rel")["mean"]
             pref = yardstick_agg(results, o, f"{sc}.mean.abs_rel", "prior")["mean"]
@@ -401,15 +388,25 @@ def _verdicts(results: dict) -> str:
                 lines.append(head + (f"**not better than the constant-depth reference** ({cref:.3f}): "
                                      + ", ".join(worse) if worse else
                                      f"every method beats the constant-depth reference ({cref:.3f})"))
-            if not lost:
-                lines.append(head + "every other method beats Mono2 (" + "; ".join(beat) + ")")
-            elif not beat:
-                lines.append(head + "**no other method beats Mono2** (" + "; ".join(lost) + ")")
-            else:
-                lines.append(head + "beat Mono2: " + "; ".join(beat) + ". **Did not beat Mono2**: " + "; ".join(lost))
+            if paired and sc == "none":
+                cells = []
+                for m in others:
+                    pa = paired_difference(results, o, m, BASELINE, f"{sc}.mean.abs_rel")
+                    pn = paired_difference(results, o, m, BASELINE, f"{sc}.non_overlap.abs_rel")
+                    cells.append(f"{label(m)} {fmt_diff(pa)}: {verdict_word(pa)} (non-overlap px "
+                                 f"{fmt_diff(pn)}: {verdict_word(pn)})")
+                lines.append(head + "each method − Mono2, paired over seeds: " + "; ".join(cells))
+    if BASELINE not in methods:
+        lines.append("- Mono2 is not part of this sweep: no comparison with it.")
+    elif not others:
+        lines.append("- Only Mono2 is part of this sweep: no comparison with it.")
+    elif paired:
+        lines.append("- Against Mono2 in median scaling: the paired verdicts of 'Which mechanism gains from the "
+                     "overlap?' above (and paired_vs_mono2.png); a method is said to be better or worse than Mono2 "
+                     "only where the paired 95 % interval excludes 0.")
     if len(results["seeds"]) == 1:
-        lines.append("- One training seed only: differences smaller than the seed-to-seed spread (unknown here) "
-                     "are not evidence either way.")
+        lines.append("- One training seed only: no paired interval, so no verdict against Mono2; differences smaller "
+                     "than the seed-to-seed spread (unknown here) are not evidence either way.")
     return "\n".join(lines)
 
 

@@ -185,17 +185,8 @@ def build_results(cfg, data: list[dict], rows: list[dict], counters: dict, total
     from corelib.configlib import config_hash, config_to_dict
 
     flats = [f for r in rows for f in flat_rows(r)]
-    names = [m for base in cfg.methods for m in (base, base + CUT, base + ORACLE, base + ORACLE_OVL)
-             if any(f["method"] == m for f in flats) or m == base]
-    aggregate = []
-    for d in data:
-        o = d["overlap"]
-        for method in names:
-            fr = [f for f in flats if f["overlap"] == o and f["method"] == method]
-            keys = [k for k in (fr[0] if fr else {}) if "." in k]
-            aggregate.append({"overlap": o, "method": method, "seeds": [f["seed"] for f in fr],
-                              "status": sorted({f["status"] for f in fr}),
-                              "metrics": {k: mean_std([f.get(k, float("nan")) for f in fr]) for k in keys}})
+    names = evaluation_names(cfg.methods, flats)
+    aggregate = aggregate_flat(flats, [d["overlap"] for d in data], names)
     timing = {
         "render_s": sum(_nz(d["render_s"]) for d in data),
         "train_s": sum(_nz(r.get("train_s")) for r in rows),
@@ -223,6 +214,63 @@ def build_results(cfg, data: list[dict], rows: list[dict], counters: dict, total
     }
 
 
+def evaluation_names(methods, flats: list[dict]) -> list[str]:
+    """The sweep's methods, each followed by those of its evaluations (@cut, @oracle, ...) that have rows."""
+    return [m for base in methods for m in (base, base + CUT, base + ORACLE, base + ORACLE_OVL)
+            if any(f["method"] == m for f in flats) or m == base]
+
+
+def aggregate_flat(flats: list[dict], overlaps, names: list[str]) -> list[dict]:
+    """Per (overlap, method): `mean_std` over seeds of every dotted column of its first row."""
+    aggregate = []
+    for o in overlaps:
+        for method in names:
+            fr = [f for f in flats if f["overlap"] == o and f["method"] == method]
+            keys = [k for k in (fr[0] if fr else {}) if "." in k]
+            aggregate.append({"overlap": o, "method": method, "seeds": [f["seed"] for f in fr],
+                              "status": sorted({f["status"] for f in fr}),
+                              "metrics": {k: mean_std([f.get(k, float("nan")) for f in fr]) for k in keys}})
+    return aggregate
+
+
+def _cell(v: str):
+    if v in ("True", "False"):
+        return v == "True"
+    try:
+        return int(v) if v.lstrip("-").isdigit() else float(v)
+    except ValueError:
+        return v
+
+
+def results_from_csv(path) -> dict:
+    """The part of `build_results`' dict that the plots read (overlaps, methods, seeds, flat, aggregate, the
+    measured overlap and the yardsticks' rows), rebuilt from a results.csv (`study.report.write_csv`) for a
+    sweep whose results.json was not kept. Empty cells are left out of the rows, as they were absent."""
+    import csv
+
+    with open(path, newline="") as fh:
+        table = [{k: _cell(v) for k, v in r.items() if v != ""} for r in csv.DictReader(fh)]
+    if not table or "method" not in table[0]:
+        raise ValueError(f"{path}: not a sweep's results.csv (no rows, or no 'method' column)")
+    yard = {name: which for which, _, name in YARDSTICKS}
+    flats = [r for r in table if r["method"] not in yard]
+    overlaps = sorted({r["overlap"] for r in table})
+    methods = list(dict.fromkeys(r["method"] for r in flats if "@" not in r["method"]))
+    data = []
+    for o in overlaps:
+        rows = [r for r in table if r["overlap"] == o]
+        d = {"overlap": o, "measured": {"target": rows[0].get("target_overlap", o),
+                                        "measured_mean": rows[0].get("measured_overlap", float("nan"))}}
+        for r in rows:
+            if r["method"] in yard:
+                d[yard[r["method"]]] = {"row": {k: v for k, v in r.items() if "." in k}}
+        data.append(d)
+    names = evaluation_names(methods, flats)
+    return {"overlaps": overlaps, "methods": methods, "evaluations": names,
+            "seeds": sorted({r["seed"] for r in flats if "seed" in r}), "flat": flats, "data": data,
+            "aggregate": aggregate_flat(flats, overlaps, names)}
+
+
 def _nz(x) -> float:
     return x if isinstance(x, (int, float)) and math.isfinite(x) else 0.0
 
@@ -247,8 +295,8 @@ YARDSTICKS = (("reference", REF_LABEL, "constant_reference"), ("prior", PRIOR_LA
 def yardstick_row(results: dict, overlap: float, which: str = "reference") -> dict:
     """A yardstick's numbers at one overlap as a flat row (`flat_row`; {} if absent)."""
     for d in results["data"]:
-        if d["overlap"] == overlap and d.get(which):
-            return flat_row({"metrics": d[which]["metrics"]})
+        if d["overlap"] == overlap and d.get(which):  # "row": already flat (`results_from_csv`)
+            return d[which]["row"] if "row" in d[which] else flat_row({"metrics": d[which]["metrics"]})
     return {}
 
 

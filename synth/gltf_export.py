@@ -9,7 +9,9 @@ against the sequence's ego.json poses) and writes (docs/DATASET.md, "glTF export
                              mesh in its own frame, placed at frame 0) and "ego" (the ego body, ego frame,
                              at frame 0); metres; one primitive per (material, tint) with the
                              procedural texture as its base-colour image (sRGB, repeat wrapping) and the
-                             tint as baseColorFactor
+                             tint as baseColorFactor; under "ego" one glTF perspective camera node per
+                             rig camera ("camera/<CAM>"), and the animation "sequence" that moves "ego"
+                             and every mover through the frames (`synth.gltf_cameras`)
     DIR/<seq>/scene.json     per frame: timestamp_s, T_world_ego, every mover's T_world_obj, every
                              camera's T_world_cam (OpenCV axes) and K; the camera table of rig.json
     DIR/export.json          what was exported from what, written last
@@ -125,12 +127,19 @@ def export_sequence(trimesh, ds, seq: str, out_dir: Path) -> dict:
             sc.add_geometry(part, geom_name=part.metadata["name"], node_name=part.metadata["name"],
                             parent_node_name=name)
         n_vertices += mesh.n_vertices
-    glb = sc.export(file_type="glb", include_normals=True)
+    from trimesh.exchange.gltf import export_glb
+
+    from synth.gltf_cameras import CameraHooks
+
+    ego = ds.ego(seq)
+    times = [float(ego[f].get("timestamp_s", f / ds.fps)) for f in range(scene.n_frames)]
+    hooks = CameraHooks(ds.cameras, "ego", {"ego": scene.T_world_ego, **{m.name: m.T_world_obj for m in scene.movers}},
+                        np.asarray(times))
+    glb = export_glb(sc, include_normals=True, buffer_postprocessor=hooks.buffer, tree_postprocessor=hooks.tree)
     out_dir.mkdir(parents=True, exist_ok=True)
     atomic_write_bytes(out_dir / "scene.glb", glb)
     cams = camera_frames(ds, seq)
-    ego = ds.ego(seq)
-    frames = [{"frame": f, "timestamp_s": float(ego[f].get("timestamp_s", f / ds.fps)),
+    frames = [{"frame": f, "timestamp_s": times[f],
                "T_world_ego": scene.T_world_ego[f].tolist(),
                "movers": {m.name: m.T_world_obj[f].tolist() for m in scene.movers},
                "cameras": cams[f]} for f in range(scene.n_frames)]
@@ -140,7 +149,10 @@ def export_sequence(trimesh, ds, seq: str, out_dir: Path) -> dict:
             "T_gltf_world": T_GLTF_WORLD.tolist(), "root_node": ROOT_NODE,
             "nodes": {"static": "static", "ego": "ego", "movers": [m.name for m in scene.movers]},
             "node_frames": "static: world coordinates; a mover: its own frame, placed by T_world_obj; ego: the ego "
-                           "frame (x forward, y left, z up), placed by T_world_ego; the GLB holds frame 0's pose",
+                           "frame (x forward, y left, z up), placed by T_world_ego; the GLB's nodes hold frame 0's "
+                           "pose and its animation 'sequence' every frame's (input: timestamp_s)",
+            "gltf_cameras": "node 'camera/<CAM>' under 'ego': a perspective camera with K's fy and W/H (glTF has no "
+                            "fx != fy nor off-centre principal point: the exact K is 'cameras' here)",
             "camera_convention": "T_world_cam maps OpenCV camera coordinates (x right, y down, z forward) to the "
                                  "world; K in pixels, pixel (c, r) has its centre at (c + 0.5, r + 0.5). A glTF / "
                                  "Blender camera (x right, y up, looking down -z) is T_world_cam @ diag(1, -1, -1, 1)",

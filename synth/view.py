@@ -5,9 +5,15 @@
 (a duration from the sequence start). Entities (metres; the world frame z up, as the dataset's)::
 
     world                         ViewCoordinates RIGHT_HAND_Z_UP (static)
+    world/trajectory              LineStrips3D: the sequence's ego positions (T_world_ego), logged at its start
+    world/scene/static            Mesh3D: the world mesh (the scene model of `synth.gltf_export`, world frame;
+                                  vertex colours = texture mean x tint), logged at the sequence's start
+    world/scene/<mover>           Mesh3D in the mover's frame (at the start) and Transform3D = T_world_obj per frame
     world/ego                     Transform3D = T_world_ego, per frame
+    world/ego/body                Mesh3D: the ego body, ego frame (static)
     world/ego/points_gt           Points3D: ground-truth depth of every camera back-projected, ego frame
-    world/ego/<CAM>               Transform3D = T_ego_cam and Pinhole(K, resolution, camera_xyz=RDF) (static)
+    world/ego/<CAM>               Transform3D = T_ego_cam and Pinhole(K, resolution, camera_xyz=RDF, image
+                                  plane 1.5 m from the camera in the 3-D view) (static)
     world/ego/<CAM>/rgb           EncodedImage: the dataset's PNG bytes, per frame
     world/ego/<CAM>/depth         DepthImage, float32 z-depth in metres (meter=1), 0 = no surface, per frame
     world/ego/<CAM>/ego_mask      SegmentationImage (static): 0 = ego body, 1 = scene
@@ -15,6 +21,10 @@
                                   bit 2 = by its second (`synth.overlap.overlap_mask`, labels in the
                                   entity's AnnotationContext)
     world/lidar                   Points3D, world frame: the sample's LIDAR_TOP sweep (nuScenes datasets only)
+
+The meshes need the synth dataset's manifest config (the scene is rebuilt from it); a nuScenes dataroot
+gets no mesh. The recording carries its blueprint (`synth.view_blueprint`: a 3-D world view beside the
+six cameras in a grid, masks hidden until toggled).
 
 ``K`` goes in unchanged: Rerun's pinhole puts pixel (0, 0)'s corner at the image origin and its
 default principal point at (W/2, H/2), the +0.5 pixel-centre convention of rig.json. The recording is
@@ -41,6 +51,7 @@ INSTALL = "pip install -e '.[viz]'"
 APP_ID = "mcdp_synth"
 TIMELINE = "time"
 RRD_MAGIC = b"RRF"  # every .rrd file starts with it (RRF0, RRF2, ...)
+FRUSTUM_M = 1.5  # the cameras' image planes in the 3-D view, metres from the camera (a car-sized rig)
 
 
 class ViewError(ValueError):
@@ -107,21 +118,56 @@ def check_rrd_target(out: str | Path, flag: str = "--out") -> Path:
 
 
 @contextmanager
-def recording(out: Path, name: str) -> Iterator[object]:
-    """A RecordingStream saving into a temporary file beside `out`, renamed onto `out` when the block
-    ends without error (flushed and disconnected first); removed otherwise."""
+def recording(out: Path, name: str, blueprint=None) -> Iterator[object]:
+    """A RecordingStream saving into a temporary file beside `out` (with `blueprint` as its default layout),
+    renamed onto `out` when the block ends without error (flushed and disconnected first); removed otherwise."""
     rr = import_rerun()
     out.parent.mkdir(parents=True, exist_ok=True)
     with atomic_path(out) as tmp:
         rec = rr.RecordingStream(APP_ID, recording_id=name)
         rec.set_log_time_enabled(False)  # one timeline: the dataset's time (no wall clock, no tick)
         rec.set_log_tick_enabled(False)
-        rec.save(str(tmp))
+        rec.save(str(tmp), default_blueprint=blueprint)
         try:
             yield rec
             rec.flush()
         finally:
             rec.disconnect()
+
+
+def blueprint_of(ds, seq: str, stages=()):
+    """The recording's blueprint (`synth.view_blueprint.rig_blueprint`) for `ds`'s cameras, its 3-D eye behind
+    the ego of `seq`'s first frame."""
+    import rerun.blueprint as rrb
+
+    from synth.view_blueprint import rig_blueprint
+
+    return rig_blueprint(rrb, ds.cameras, RigRecorder.cam_path, stages, ds.ego(seq)[0]["T_world_ego"])
+
+
+def scene_model(ds, seq: str):
+    """(DataConfig, Scene) of a synth dataset's sequence (`synth.gltf_export.rebuild_scene`), or None for a
+    dataset without a manifest config (a nuScenes dataroot) or whose scene cannot be rebuilt (one line why)."""
+    import sys
+
+    from synth.files import DatasetError
+    from synth.gltf_export import rebuild_scene
+
+    if not hasattr(ds, "read_bytes") or "config" not in getattr(ds, "manifest", {}):
+        return None
+    try:
+        return rebuild_scene(ds, seq)
+    except DatasetError as e:
+        print(f"synth view: no world mesh for {seq}: {e}", file=sys.stderr)
+        return None
+
+
+def mesh3d(rr, mesh, textures: np.ndarray):
+    """A `scenes.model.Mesh` as rr.Mesh3D, each vertex coloured by its texture layer's mean colour x its tint."""
+    mean = textures.reshape(len(textures), -1, 3).mean(axis=1)
+    colors = np.clip(mean[mesh.layers] * mesh.tints, 0, 255).astype(np.uint8)
+    return rr.Mesh3D(vertex_positions=mesh.positions, triangle_indices=mesh.indices, vertex_normals=mesh.normals,
+                     vertex_colors=colors)
 
 
 def backproject(depth: np.ndarray, K: np.ndarray, T_ego_cam: np.ndarray, keep: np.ndarray,
@@ -153,6 +199,8 @@ class RigRecorder:
             self.nbrs[self.names[i]].append(j)
             self.nbrs[self.names[j]].append(i)
         self.lidar = getattr(ds, "lidar_points_world", None)  # nuScenes datasets only
+        self.model = None  # (DataConfig, Scene) once `log_sequence` rebuilt it
+        self.rgb: dict[str, np.ndarray] = {}  # the last logged frame's images, per camera
 
     @staticmethod
     def cam_path(name: str) -> str:
@@ -166,7 +214,8 @@ class RigRecorder:
             T = np.asarray(cam.T_ego_cam, np.float64)
             rec.log(path, rr.Transform3D(translation=T[:3, 3], mat3x3=T[:3, :3]), static=True)
             rec.log(path, rr.Pinhole(image_from_camera=np.asarray(cam.K, np.float64),
-                                     resolution=[cam.width, cam.height], camera_xyz=rr.ViewCoordinates.RDF),
+                                     resolution=[cam.width, cam.height], camera_xyz=rr.ViewCoordinates.RDF,
+                                     image_plane_distance=FRUSTUM_M),
                     static=True)
             rec.log(f"{path}/ego_mask", rr.AnnotationContext([(0, "ego body", (200, 40, 40)), (1, "scene", (0, 0, 0))]),
                     static=True)
@@ -179,6 +228,28 @@ class RigRecorder:
                 labels.append((3, "seen by both neighbours", (200, 60, 220)))
             rec.log(f"{path}/overlap", rr.AnnotationContext(labels), static=True)
 
+    def log_sequence(self, ego_body: bool = True) -> None:
+        """At the sequence's start: its trajectory, the world mesh and the movers' meshes (synth datasets),
+        and (`ego_body`: once per recording) the ego body."""
+        rr, rec = self.rr, self.rec
+        self.set_frame(0)
+        T = np.asarray([np.asarray(e["T_world_ego"], np.float64) for e in self.ego])
+        rec.log("world/trajectory", rr.LineStrips3D([T[:, :3, 3]], colors=(255, 220, 0), radii=0.08,
+                                                    labels=[self.seq]))
+        self.model = scene_model(self.ds, self.seq)
+        if self.model is None:
+            return
+        cfg, scene = self.model
+        rec.log("world/scene/static", mesh3d(rr, scene.static, scene.textures))
+        for m in scene.movers:
+            rec.log(f"world/scene/{m.name}", mesh3d(rr, m.mesh, scene.textures))
+            T0 = np.asarray(m.T_world_obj[0], np.float64)
+            rec.log(f"world/scene/{m.name}", rr.Transform3D(translation=T0[:3, 3], mat3x3=T0[:3, :3]))
+        if ego_body:
+            from synth.render import make_ego_mesh
+
+            rec.log("world/ego/body", mesh3d(rr, make_ego_mesh(cfg), scene.textures), static=True)
+
     def set_frame(self, frame: int) -> float:
         t = self.offset + float(self.ego[frame].get("timestamp_s", frame / self.ds.fps))
         self.rec.set_time(TIMELINE, duration=t)
@@ -190,10 +261,15 @@ class RigRecorder:
         self.set_frame(frame)
         T_we = np.asarray(self.ego[frame]["T_world_ego"], np.float64)
         rec.log("world/ego", rr.Transform3D(translation=T_we[:3, 3], mat3x3=T_we[:3, :3]))
+        for m in (self.model[1].movers if self.model else []):
+            T = np.asarray(m.T_world_obj[frame], np.float64)
+            rec.log(f"world/scene/{m.name}", rr.Transform3D(translation=T[:3, 3], mat3x3=T[:3, :3]))
         depths, pts, cols = {}, [], []
+        self.rgb = {}
         for cam in ds.cameras:
             path = self.cam_path(cam.name)
             rgb = ds.read_rgb(self.seq, cam.name, frame)  # checked: size, readable
+            self.rgb[cam.name] = rgb
             png = ds.rgb_path(self.seq, cam.name, frame)
             if png.suffix == ".png" and hasattr(ds, "read_bytes"):
                 rec.log(f"{path}/rgb", rr.EncodedImage(contents=ds.read_bytes(png), media_type="image/png"))
@@ -237,9 +313,10 @@ def record_rig(dataset: str | Path, out: str | Path, seq: str | None = None, fra
     seq = pick_sequence(ds, seq)
     rng = parse_frames(frames, ds.n_frames(seq), seq)
     t0 = time.perf_counter()
-    with recording(out, f"{seq}") as rec:
+    with recording(out, f"{seq}", blueprint_of(ds, seq)) as rec:
         r = RigRecorder(rr, rec, ds, seq, point_stride)
         r.log_static()
+        r.log_sequence()
         for f in rng:
             r.log_frame(f)
     n = len(rng)

@@ -1,4 +1,5 @@
-"""`mcdp predict --rrd`: every stage's predicted depth, abs_rel image and points beside the ground truth,
+"""`mcdp predict --rrd`: every stage's predicted depth, abs_rel image and coloured points beside the ground truth
+(with the blueprint, the world mesh and the trajectory of `synth view`),
 read back with Rerun's own chunk reader and `rerun rrd verify`. Skips without the viz extra."""
 from __future__ import annotations
 
@@ -71,7 +72,14 @@ def test_predict_rrd_holds_every_stage_beside_the_ground_truth(run, tiny_dataset
                 np.testing.assert_array_equal(gt, ds.read_depth(seq, cam, f))
                 err = image_of(dict(ents[f"/world/ego/{cam}/pred/{stage}/abs_rel"])[t], "Image")
                 np.testing.assert_allclose(err, abs_rel_image(d[c], gt, ds.mask(cam)), rtol=1e-5, atol=1e-7)
-            assert t in dict(ents[f"/world/ego/pred/{stage}/points"])
+            pts = dict(ents[f"/world/ego/pred/{stage}/points"])[t]
+            colors = np.asarray(pts["Points3D:colors"], np.uint32)
+            assert len(colors) == len(pts["Points3D:positions"]) and len(np.unique(colors)) > 10  # the RGB's
+    from tests.synth.test_view import check_blueprint
+
+    check_blueprint(out, ds.cameras, ["RGB", "depth (ground truth)", "depth init", "depth refine1"])
+    assert "/world/scene/static" in ents and "/world/ego/body" in ents
+    assert [t for t, _ in ents["/world/trajectory"]] == [times[0]]  # one sequence: its trajectory, at its start
 
 
 def test_predict_needs_out_or_rrd_and_refuses_a_foreign_rrd(run, tiny_dataset, tmp_path, capsys):

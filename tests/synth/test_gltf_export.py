@@ -106,3 +106,82 @@ def test_missing_extra_names_the_install_command(monkeypatch):
     monkeypatch.setitem(sys.modules, "trimesh", None)
     with pytest.raises(DatasetError, match=r"pip install -e '\.\[viz\]'"):
         import_trimesh()
+
+
+def read_glb(path) -> tuple[dict, bytes]:
+    """(the JSON chunk, the BIN chunk) of a GLB (glTF 2.0, section 4.4: 12-byte header, then chunks)."""
+    import struct
+
+    data = path.read_bytes()
+    magic, version, _ = struct.unpack_from("<4sII", data, 0)
+    assert (magic, version) == (b"glTF", 2)
+    n, kind = struct.unpack_from("<I4s", data, 12)
+    assert kind == b"JSON"
+    tree = json.loads(data[20:20 + n])
+    m, kind = struct.unpack_from("<I4s", data, 20 + n)
+    assert kind == b"BIN\x00"
+    return tree, data[28 + n:28 + n + m]
+
+
+def accessor(tree: dict, blob: bytes, i: int) -> np.ndarray:
+    acc = tree["accessors"][i]
+    view = tree["bufferViews"][acc["bufferView"]]
+    width = {"SCALAR": 1, "VEC3": 3, "VEC4": 4}[acc["type"]]
+    assert acc["componentType"] == 5126  # float32
+    a = np.frombuffer(blob, np.float32, acc["count"] * width, view["byteOffset"] + acc.get("byteOffset", 0))
+    return a.reshape(acc["count"], width)
+
+
+def node_matrix(node: dict) -> np.ndarray:
+    if "matrix" in node:
+        return np.asarray(node["matrix"], np.float64).reshape(4, 4).T  # column-major
+    x, y, z, w = node.get("rotation", [0, 0, 0, 1])
+    T = np.eye(4)
+    T[:3, :3] = trimesh.transformations.quaternion_matrix([w, x, y, z])[:3, :3]
+    T[:3, 3] = node.get("translation", [0, 0, 0])
+    return T
+
+
+def test_glb_holds_the_rig_cameras_and_the_poses_as_an_animation(export, model, tiny_dataset):
+    """Six glTF perspective cameras under the 'ego' node, whose pose in the world frame (ego @ camera under the z-up root, glTF's
+    -z looking axis flipped back) is T_world_ego[0] @ T_ego_cam; the animation 'sequence' holds every frame's
+    ego and mover pose at the frames' timestamps."""
+    from synth.gltf_cameras import GL_FROM_CV
+
+    tree, blob = read_glb(export / SEQ / "scene.glb")
+    rig = json.loads((tiny_dataset / "rig.json").read_text())
+    ego = json.loads((tiny_dataset / SEQ / "ego.json").read_text())["frames"]
+    names = {n.get("name"): i for i, n in enumerate(tree["nodes"])}
+    cams = {c["name"]: c for c in tree["cameras"]}
+    assert sorted(cams) == sorted(c["name"] for c in rig["cameras"])
+    ego_node = tree["nodes"][names["ego"]]
+    for cam in rig["cameras"]:
+        i = names[f"camera/{cam['name']}"]
+        assert i in ego_node["children"]
+        node = tree["nodes"][i]
+        assert tree["cameras"][node["camera"]]["name"] == cam["name"]
+        p = cams[cam["name"]]["perspective"]
+        assert p["yfov"] == pytest.approx(2 * np.arctan(cam["height"] / (2 * cam["K"][1][1])))
+        assert p["aspectRatio"] == pytest.approx(cam["width"] / cam["height"])
+        T = node_matrix(ego_node) @ node_matrix(node) @ np.linalg.inv(GL_FROM_CV)
+        want = np.asarray(ego[0]["T_world_ego"]) @ np.asarray(cam["T_ego_cam"])
+        np.testing.assert_allclose(T, want, atol=1e-5)
+    (anim,) = tree["animations"]
+    assert anim["name"] == "sequence"
+    track = {}
+    for ch in anim["channels"]:
+        s = anim["samplers"][ch["sampler"]]
+        track[(tree["nodes"][ch["target"]["node"]]["name"], ch["target"]["path"])] = (
+            accessor(tree, blob, s["input"])[:, 0], accessor(tree, blob, s["output"]))
+    mover = model.movers[0]
+    for name, poses in (("ego", model.T_world_ego), (mover.name, mover.T_world_obj)):
+        t, xyz = track[(name, "translation")]
+        np.testing.assert_allclose(t, [f["timestamp_s"] for f in ego], atol=1e-6)
+        np.testing.assert_allclose(xyz, poses[:, :3, 3], atol=1e-4)
+        _, q = track[(name, "rotation")]
+        for f in range(len(poses)):
+            x, y, z, w = q[f]
+            R = trimesh.transformations.quaternion_matrix([w, x, y, z])[:3, :3]
+            np.testing.assert_allclose(R, poses[f][:3, :3], atol=1e-5)
+    sc = trimesh.load_scene(export / SEQ / "scene.glb", process=False)  # still a scene trimesh reads
+    assert sc.has_camera

@@ -66,6 +66,105 @@ def test_recording_verifies_and_holds_the_rig_of_rig_json(recording, tiny_datase
         np.testing.assert_allclose(np.asarray(tr["Transform3D:mat3x3"][0]).reshape(3, 3).T, T[:3, :3], atol=1e-6)
 
 
+def read_blueprint(path) -> dict[str, dict]:
+    """{entity path: {component: value}} of the blueprint store of `path` (`RrdReader.blueprints`)."""
+    from rerun.chunk import RrdReader
+
+    reader = RrdReader(path)
+    (store,) = reader.blueprints()
+    out: dict[str, dict] = {}
+    for chunk in reader.stream(store=store):
+        rb = chunk.to_record_batch()
+        for n in rb.schema.names:
+            if ":" in n:
+                out.setdefault(chunk.entity_path, {})[n] = rb.column(n).to_pylist()[-1]
+    return out
+
+
+def blueprint_views(bp: dict) -> dict[str, dict]:
+    """{view id: {"class", "origin", "name", "hidden": entity paths with EntityBehavior visible=False}}."""
+    views = {}
+    for path, comp in bp.items():
+        if "ViewBlueprint:class_identifier" in comp:
+            hidden = [p.split("/ViewContents/overrides/", 1)[1].rsplit("/visualizers", 1)[0] for p, c in bp.items()
+                      if p.startswith(path + "/ViewContents/overrides/") and c.get("EntityBehavior:visible") == [False]]
+            views[path.strip("/")] = {"class": comp["ViewBlueprint:class_identifier"][0],
+                                      "origin": comp["ViewBlueprint:space_origin"][0],
+                                      "name": (comp.get("ViewBlueprint:display_name") or [None])[0], "hidden": hidden}
+    return views
+
+
+def check_blueprint(path, cameras, tabs: list[str]) -> dict:
+    """The blueprint of `synth.view_blueprint`: one 3-D view of world hiding the cameras' depth and masks;
+    per tab a grid of one 2-D view per camera in ring order, the masks hidden; returns the views."""
+    from synth.view_blueprint import ring_order
+
+    bp = read_blueprint(path)
+    views = blueprint_views(bp)
+    (world,) = [v for v in views.values() if v["class"] == "3D"]
+    assert world["origin"] == "world"
+    names, cols = ring_order(cameras)
+    assert set(f"world/ego/{n}/{p}" for n in names for p in ("depth", "ego_mask", "overlap")) <= set(world["hidden"])
+    grids = {c["ContainerBlueprint:display_name"][0]: c for c in bp.values() if "ContainerBlueprint:grid_columns" in c}
+    assert sorted(grids) == sorted(tabs)
+    for tab, grid in grids.items():
+        assert grid["ContainerBlueprint:grid_columns"] == [cols]
+        order = [views[v]["origin"] for v in grid["ContainerBlueprint:contents"]]
+        assert order == [f"world/ego/{n}" for n in names], tab
+        for v in grid["ContainerBlueprint:contents"]:
+            o = views[v]["origin"]
+            assert {f"{o}/ego_mask", f"{o}/overlap"} <= set(views[v]["hidden"]), tab  # masks: toggles, off
+            if tab == "RGB":
+                assert f"{o}/rgb" not in views[v]["hidden"] and f"{o}/depth" in views[v]["hidden"]
+    return views
+
+
+def test_recording_carries_the_blueprint(recording, tiny_dataset):
+    from synth.dataset import open_dataset
+
+    ds = open_dataset(tiny_dataset)
+    check_blueprint(recording, ds.cameras, ["RGB", "depth (ground truth)"])
+
+
+def test_ring_order_is_front_row_then_back_row():
+    from types import SimpleNamespace
+
+    from synth.view_blueprint import ring_order
+
+    def cam(name, yaw_deg):  # optical axis (camera z) at `yaw_deg` in the ego frame (x forward, y left)
+        a = np.radians(yaw_deg)
+        T = np.eye(4)
+        T[:3, 2] = [np.cos(a), np.sin(a), 0.0]
+        return SimpleNamespace(name=name, T_ego_cam=T)
+
+    cams = [cam("F", 0), cam("FR", -55), cam("BR", -110), cam("B", 180), cam("BL", 110), cam("FL", 55)]
+    assert ring_order(cams) == (["FL", "F", "FR", "BL", "B", "BR"], 3)
+
+
+def test_recording_holds_the_world_mesh_trajectory_and_ego_body(recording, tiny_dataset):
+    from synth.dataset import open_dataset
+    from synth.gltf_export import rebuild_scene
+
+    ds = open_dataset(tiny_dataset)
+    cfg, model = rebuild_scene(ds, "seq_00001")
+    ego = ds.ego("seq_00001")
+    t0 = round(ego[0]["timestamp_s"] * 1e9)
+    ents = read_rrd(recording)
+    (row,) = [r for t, r in ents["/world/scene/static"] if "Mesh3D:vertex_positions" in r]
+    np.testing.assert_allclose(np.asarray(row["Mesh3D:vertex_positions"]), model.static.positions, rtol=1e-6)
+    assert len(row["Mesh3D:triangle_indices"]) == model.static.n_triangles
+    assert [t for t, r in ents["/world/scene/static"]] == [t0]  # at the sequence's start
+    (strip,) = [r["LineStrips3D:strips"] for t, r in ents["/world/trajectory"]]
+    np.testing.assert_allclose(np.asarray(strip[0]), [np.asarray(e["T_world_ego"])[:3, 3] for e in ego], rtol=1e-6)
+    (body,) = [r for t, r in ents["/world/ego/body"] if t is None]  # static: the same car in every sequence
+    assert len(body["Mesh3D:vertex_positions"]) > 100
+    mover = model.movers[0]
+    poses = {t: r for t, r in ents[f"/world/scene/{mover.name}"] if "Transform3D:translation" in r}
+    t2 = round(ego[2]["timestamp_s"] * 1e9)
+    np.testing.assert_allclose(poses[t2]["Transform3D:translation"][0], mover.T_world_obj[2][:3, 3], rtol=1e-6)
+    assert sorted(poses) == [t0] + [round(ego[f]["timestamp_s"] * 1e9) for f in (1, 2, 3)]
+
+
 def test_one_depth_image_per_camera_and_frame_equal_to_the_exr(recording, tiny_dataset):
     from synth.dataset import open_dataset
 
@@ -116,6 +215,7 @@ def test_a_nuscenes_dataroot_records_its_lidar_sweep_in_the_world_frame(tiny_dat
         got = np.asarray(rows[round(ego[f]["timestamp_s"] * 1e9)]["Points3D:positions"], np.float64)
         np.testing.assert_allclose(got, want, rtol=0, atol=1e-6 * max(1.0, np.abs(want).max()))
     assert not [t for t, _ in ents["/world/lidar"] if t is None]
+    assert "/world/trajectory" in ents and not [e for e in ents if e.startswith("/world/scene")]  # no scene model
     assert len([t for t, _ in ents[f"/world/ego/{ds.camera_names[0]}/depth"] if t is not None]) == 2
 
 

@@ -1,0 +1,107 @@
+"""The sweep's figures (study/plots.py) from committed data: the paired-difference figure draws
+study.results' paired differences, a results.csv alone rebuilds the plots' numbers, and the committed
+propagation report is what the code writes from its committed results.json."""
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+
+import pytest
+
+from study.plots import PAIRED_KEYS, make_plots, paired_plot, paired_series
+from study.report import format_report
+from study.results import (BASELINE, method_agg, paired_difference, results_from_csv, yardstick_agg)
+
+ROOT = Path(__file__).resolve().parents[2]
+PROP = ROOT / "docs" / "results" / "propagation"
+
+
+@pytest.fixture(scope="module")
+def prop():
+    return json.loads((PROP / "results.json").read_text())
+
+
+def _small(res: dict, methods=("mono2", "mcdp_local")) -> dict:
+    """A small results dict: two methods of the committed propagation sweep (their rows, aggregate, data)."""
+    keep = set(methods)
+    return {**res, "methods": list(methods), "evaluations": list(methods),
+            "flat": [f for f in res["flat"] if f["method"] in keep],
+            "aggregate": [a for a in res["aggregate"] if a["method"] in keep]}
+
+
+def _same(a: float, b: float) -> bool:
+    return (math.isnan(a) and math.isnan(b)) or a == pytest.approx(b, rel=1e-9, abs=1e-12)
+
+
+def test_paired_figure_from_a_small_results(prop, tmp_path):
+    small = _small(prop)
+    path = paired_plot(small, tmp_path)
+    assert path == tmp_path / "paired_vs_mono2.png" and path.stat().st_size > 10_000
+    from PIL import Image
+
+    w, h = Image.open(path).size
+    assert w > 2 * h  # three panels side by side, the legend below
+    series = paired_series(small)
+    assert set(series) == {k for k, _ in PAIRED_KEYS} == {"median.mean.abs_rel", "median.non_overlap.abs_rel",
+                                                          "dep_con.mean"}
+    for key, per_method in series.items():
+        assert list(per_method) == ["mcdp_local"]
+        for o, pd in zip(small["overlaps"], per_method["mcdp_local"]):
+            assert pd == paired_difference(prop, o, "mcdp_local", BASELINE, key)  # the report's numbers
+            assert pd["n"] == 3
+
+
+def test_no_paired_figure_without_mono2(prop, tmp_path):
+    assert paired_plot(_small(prop, ("fsm", "mcdp_local")), tmp_path) is None
+
+
+def test_make_plots_writes_the_paired_and_absolute_figures(prop, tmp_path):
+    names = [p.name for p in make_plots(_small(prop), tmp_path)]
+    assert names == ["paired_vs_mono2.png", "abs_rel_vs_overlap.png", "dep_con_vs_overlap.png",
+                     "overlap_vs_non_overlap_abs_rel.png", "measured_overlap.png"]
+
+
+def test_results_csv_rebuilds_the_numbers_the_plots_read(prop):
+    csv = results_from_csv(PROP / "results.csv")
+    assert csv["overlaps"] == prop["overlaps"] and csv["methods"] == prop["methods"]
+    assert csv["seeds"] == prop["seeds"]
+    for o in prop["overlaps"]:
+        for m in prop["methods"]:
+            for key in ("median.mean.abs_rel", "none.non_overlap.abs_rel", "dep_con.mean"):
+                a, b = method_agg(csv, o, m, key), method_agg(prop, o, m, key)
+                assert _same(a["mean"], b["mean"]) and _same(a["ci95"], b["ci95"]), (o, m, key)
+                if m != BASELINE:
+                    pa, pb = paired_difference(csv, o, m, BASELINE, key), paired_difference(prop, o, m, BASELINE, key)
+                    assert _same(pa["mean"], pb["mean"]) and pa["differs"] == pb["differs"], (o, m, key)
+        for which in ("reference", "prior"):
+            for key in ("median.mean.abs_rel", "none.mean.abs_rel"):
+                assert _same(yardstick_agg(csv, o, key, which)["mean"], yardstick_agg(prop, o, key, which)["mean"])
+
+
+def test_results_csv_without_rows_is_one_line_naming_the_file(tmp_path):
+    bad = tmp_path / "results.csv"
+    bad.write_text("a,b\n")
+    with pytest.raises(ValueError, match=r"results\.csv: not a sweep's results\.csv"):
+        results_from_csv(bad)
+
+
+def test_committed_propagation_report_is_what_the_code_writes(prop):
+    """docs/results/propagation.md below its preface is format_report of the committed results.json: nothing
+    but the verdict section was reworded by the paired figures' change."""
+    text = (ROOT / "docs" / "results" / "propagation.md").read_text()
+    marker = "do not edit by hand.\n\n"
+    body = text[text.index(marker) + len(marker):]
+    plots = [f"propagation/plots/{n}.png" for n in ("paired_vs_mono2", "abs_rel_vs_overlap", "dep_con_vs_overlap",
+                                                    "overlap_vs_non_overlap_abs_rel", "measured_overlap",
+                                                    "propagation_by_distance")]
+    assert body == format_report(prop, plots)
+
+
+def test_the_verdict_section_says_better_only_where_the_paired_interval_does(prop):
+    text = format_report(prop, [])
+    sec = text[text.index("### Verdicts: against the yardsticks"):text.index("## Overlap 0.10")]
+    assert "beat Mono2" not in sec and "beats Mono2" not in sec  # no raw-mean comparison with Mono2
+    assert "each method − Mono2, paired over seeds" in sec
+    assert sec.count("**lower (better)**") == 1  # metric scaling, 0.30, MCDP w/o L_con on non-overlap px
+    assert text.count("### Verdicts") == 1 + text.count("### Verdicts: which mechanism")
