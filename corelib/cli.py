@@ -37,12 +37,25 @@ def build_parser(prog: str, description: str, commands: Iterable[Command]) -> ar
     from corelib.version import package_version
 
     parser.add_argument("--version", action="version", version=f"{prog} {package_version()}")
+    _verbosity(parser, "top_")
+    common = argparse.ArgumentParser(add_help=False)
+    _verbosity(common, "")
     sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
     for c in commands:
-        p = sub.add_parser(c.name, help=c.help, description=c.help)
+        p = sub.add_parser(c.name, help=c.help, description=c.help, parents=[common])
         c.add_arguments(p)
         p.set_defaults(_run=c.run)
     return parser
+
+
+def _verbosity(p: argparse.ArgumentParser, prefix: str) -> None:
+    """``-q`` / ``-v`` before or after the subcommand (`corelib.logs.set_verbosity`; a run's train.log keeps
+    everything either way)."""
+    g = p.add_mutually_exclusive_group()
+    g.add_argument("-q", "--quiet", dest=prefix + "quiet", action="count", default=0,
+                   help="warnings and errors only on stderr")
+    g.add_argument("-v", "--verbose", dest=prefix + "verbose", action="count", default=0,
+                   help="debug lines too on stderr (e.g. every logged training step)")
 
 
 def _classes(errors: Sequence) -> tuple[type[BaseException], ...]:
@@ -82,6 +95,9 @@ def main(prog: str, description: str, commands: Iterable[Command], argv: list[st
         args = parse_command_line(parser, argv)
     except SystemExit as exc:  # argparse already printed usage + error
         return int(exc.code or 0)
+    from corelib.logs import set_verbosity
+
+    set_verbosity(args.quiet + args.top_quiet, args.verbose + args.top_verbose)
     where = f"{prog} {args.command}"
     try:
         return int(args._run(args) or 0)

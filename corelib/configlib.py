@@ -212,7 +212,10 @@ def load_config(cls: Type[T], path: str | Path | None = None, overrides: Iterabl
                 values: dict[str, Any] | None = None, base: dict[str, Any] | None = None) -> T:
     """Load a preset file (optional) over ``base`` (dotted keys -> values: defaults the preset may
     change), apply a user's ``key=value`` overrides, then the program's own ``values`` (dotted keys ->
-    Python values, no text round trip); returns a frozen config."""
+    Python values, no text round trip); returns a frozen config. A relative ``path`` that is not in the
+    working directory is looked up under the project root (`resolve_path`: ``configs/...`` from anywhere)."""
+    if path is not None:
+        path = resolve_path(path, "config file")
     data = deep_merge(nest(base or {}), read_yaml(path) if path is not None else {})
     ov = list(overrides)
     data = deep_merge(data, parse_overrides(ov))

@@ -1,4 +1,5 @@
-"""Training logs: TensorBoard scalars and six-camera image grids, written by the trainer only.
+"""Training logs: TensorBoard scalars, six-camera image grids and the run's config as text, written by the
+trainer only.
 
 Example::
 
@@ -35,6 +36,12 @@ class TrainLogger:
             if k.startswith("_") or (isinstance(v, torch.Tensor) and v.numel() != 1):
                 continue
             self.writer.add_scalar(k, float(v.detach()) if isinstance(v, torch.Tensor) else v, step)
+
+    def text(self, tag: str, text: str, step: int) -> None:
+        """``text`` (e.g. the resolved config YAML) under ``tag`` in TensorBoard's Text tab (markdown: indented
+        four spaces, a code block, so YAML keeps its lines)."""
+        if self.writer is not None:
+            self.writer.add_text(tag, "\n".join("    " + line for line in text.splitlines()), step)
 
     def images(self, batch: dict, outputs: dict, losses: dict, step: int) -> None:
         """Rows: the rig's RGB at t, one colour-mapped disparity row per stage, then the masks

@@ -24,7 +24,9 @@ Run folder::
     RUN/checkpoints/last.pt    model, optimiser, step, config (atomic: tmp + os.replace)
     RUN/checkpoints/best.pt    lowest val loss: networks, step, config (no optimiser state: a
                                third of the size; resuming always starts from last.pt)
-    RUN/tensorboard/           scalars and six-camera image grids
+    RUN/tensorboard/           scalars (val/depth_*: `mcdp.validation`), six-camera image grids, the config
+    RUN/train.log              every line of the run (`corelib.logs`: the stderr lines, and DEBUG the
+                               logged steps' losses), appended on resume
 
 Example::
 
@@ -33,16 +35,15 @@ Example::
 from __future__ import annotations
 
 import math
-import sys
 import time
 from pathlib import Path
 
-import numpy as np
 import torch
 import yaml
 
 from corelib.atomic import atomic_write_json, atomic_write_text
 from corelib.configlib import config_to_dict
+from corelib.logs import close_run_log, logger, run_log
 from corelib.rundir import FolderError, claim
 from mcdp.config import RunConfig
 from mcdp.data import RigDataset, StepBatchSampler, collate
@@ -51,6 +52,7 @@ from mcdp.distributed import Dist
 from mcdp.logger import TrainLogger
 from mcdp.runs import CHECKPOINT_VERSION, RunError, atomic_torch_save, check_resume, resolve_device, resolve_precision
 from mcdp.system import SelfSupervisedSystem
+from mcdp.validation import validation_loss
 from mcdp.warmstart import warm_start
 
 #: steps a fresh network may stay a constant map before the collapse guard warns
@@ -59,6 +61,9 @@ COLLAPSE_GRACE_STEPS = 100
 COLLAPSE_STREAK = 5
 #: fp16 steps in a row the GradScaler may skip (non-finite gradients) before training stops
 FP16_SKIP_LIMIT = 20
+
+
+log = logger("mcdp.train")
 
 
 class TrainingDiverged(RuntimeError):
@@ -84,7 +89,7 @@ class Trainer:
         self.progress = progress
         self.log = TrainLogger(None)
         self.dist = Dist.from_env()  # torchrun's ranks, or one process
-        self._lock = None
+        self._lock = self._log_file = None
         try:
             self.device = self.dist.start(resolve_device(cfg.train.device))
             # the run folder is ours (marker) and ours alone (flock) before anything is read or written;
@@ -167,7 +172,9 @@ class Trainer:
             return  # rank 0 writes the run folder and the logs
         self.run_dir.mkdir(parents=True, exist_ok=True)
         (self.run_dir / "checkpoints").mkdir(exist_ok=True)
-        atomic_write_text(self.run_dir / "config.yaml", yaml.safe_dump(config_to_dict(cfg), sort_keys=False))
+        self._log_file = run_log(self.run_dir / "train.log")
+        config_text = yaml.safe_dump(config_to_dict(cfg), sort_keys=False)
+        atomic_write_text(self.run_dir / "config.yaml", config_text)
         atomic_write_json(self.run_dir / "run.json", {
             "data": str(Path(ds.root).resolve()),
             "cameras": list(ds.camera_names), "rig": [c.to_json() for c in ds.cameras],  # mcdp eval compares it
@@ -176,6 +183,7 @@ class Trainer:
             "init_from": self.init_from,
         })
         self.log = TrainLogger(self.run_dir / "tensorboard" if tensorboard else None)
+        self.log.text("config", config_text, self.step)
 
     # ------------------------------------------------------------------ state
     def state(self) -> dict:
@@ -227,9 +235,9 @@ class Trainer:
         if saved_world != self.dist.world and self.dist.is_main:
             # exact in what is trained: batches and augmentation are functions of the step, and the
             # global batch is the same; only the split of each batch over processes changes
-            print(f"mcdp train: resuming a run trained on {saved_world} process(es) with {self.dist.world}: "
-                  "the same global batches; numbers differ as an N-rank run differs from a 1-process one "
-                  "(per-rank BatchNorm statistics)", file=sys.stderr)
+            log.info(f"mcdp train: resuming a run trained on {saved_world} process(es) with {self.dist.world}: "
+                     "the same global batches; numbers differ as an N-rank run differs from a 1-process one "
+                     "(per-rank BatchNorm statistics)")
 
     # ------------------------------------------------------------------ schedule
     def lr_at(self, step: int) -> float:
@@ -247,28 +255,10 @@ class Trainer:
 
     @torch.no_grad()
     def validate(self) -> float | None:
-        """Final-stage L_p + lambda L_con on fixed val samples (no ground truth); None without a val split."""
+        """Final-stage L_p + lambda L_con on fixed val samples (no ground truth); None without a val split.
+        With ground truth in the dataset, the same samples' depth metrics go to TensorBoard (`mcdp.validation`)."""
         idx = self.val_indices()
-        if not idx:
-            return None
-        self.depth.eval()
-        if self.pose is not None:
-            self.pose.eval()
-        vals = []
-        final = self.depth.stages[-1]
-        lam = self.cfg.loss.consistency_weight
-        for i in idx[self.dist.rank::self.dist.world]:  # each rank its share; the mean over all below
-            batch = self.to_device(collate([self.val_set[i]]))
-            _, losses = self.system.process_batch(batch, self.step, train=False)
-            v = losses[f"photometric/{final}"]
-            if lam > 0 and f"consistency/{final}" in losses:
-                v = v + lam * losses[f"consistency/{final}"]
-            vals.append(float(v))
-        self.depth.train()
-        if self.pose is not None:
-            self.pose.train()
-        total, count = self.dist.sum_([float(np.sum(vals)), float(len(vals))], self.device)
-        return total / count
+        return validation_loss(self, idx) if idx else None
 
     # ------------------------------------------------------------------ logging
     def check_spread(self, outputs: dict, batch: dict) -> dict:
@@ -289,7 +279,7 @@ class Trainer:
         # only when COLLAPSE_STREAK logged checks in a row agree (one odd batch is not a collapse)
         armed = self.spread_armed or self.step >= COLLAPSE_GRACE_STEPS
         if reason is not None and armed and self.collapse_streak == COLLAPSE_STREAK and self.dist.is_main:
-            print(f"mcdp train: WARNING step {self.step}: depth collapsed: {reason}", file=sys.stderr)
+            log.warning(f"mcdp train: WARNING step {self.step}: depth collapsed: {reason}")
         self.spread = dict(spread, collapsed=reason)
         self.log.scalars({f"depth_spread/{k}": spread[k] for k in ("ratio", "at_min", "at_max")}, self.step)
         return spread
@@ -358,6 +348,7 @@ class Trainer:
                 t_last, n_last = now, 0
                 self.log.scalars({**{f"train/{k}": v for k, v in losses.items() if not k.startswith("_")},
                                   "train/lr": lr, "perf/rig_samples_per_s": rate, "perf/step_s": dt_step}, self.step)
+                log.debug(f"step {self.step}/{tc.steps} loss {lv:.5f} lr {lr:.2e} {rate:.2f} rig samples/s")
             if self.log.enabled and (self.step % tc.image_every == 0 or self.step == 1):
                 self.log.images(batch, outputs, losses, self.step)
             if bar is not None:
@@ -439,6 +430,8 @@ class Trainer:
 
     def close(self) -> None:
         self.log.close()
+        close_run_log(self._log_file)
+        self._log_file = None
         if hasattr(self, "_threads_before"):
             torch.set_num_threads(self._threads_before)
         self.dist.stop()

@@ -6,6 +6,7 @@ Example::
 
     mcdp pretrain configs/pretrain/tiny.yaml --out pretrain/tiny [key=value ...]   # cached by its config hash
     mcdp sweep configs/sweep/ci.yaml --out SWEEP [key=value ...]
+    mcdp sweep configs/sweep/ci.yaml --print-config [key=value ...]   # the resolved config; nothing run (pretrain too)
 """
 from __future__ import annotations
 
@@ -15,15 +16,18 @@ import sys
 from corelib import exitcodes
 from corelib.cli import Command
 from study import method_commands as mcdp_cli
-from corelib.configlib import resolve_path
+from corelib.presets import preset_path
 
 # the study's modules (and torch, which they import) are imported by the command that runs, once its
 # config is checked: a wrong key fails in well under a second
 
 
 def _pretrain_args(p: argparse.ArgumentParser) -> None:
-    p.add_argument("config", help="pretraining config YAML, e.g. configs/pretrain/tiny.yaml")
-    p.add_argument("--out", required=True, help="pretraining folder (reused when its config hash matches)")
+    p.add_argument("config", help="pretraining config YAML, e.g. configs/pretrain/tiny.yaml (list: mcdp presets "
+                   "pretrain)")
+    p.add_argument("--out", help="pretraining folder (reused when its config hash matches); required unless "
+                   "--print-config")
+    mcdp_cli.add_print_config(p)
     p.add_argument("--no-progress", action="store_true")
     p.add_argument("--yes", action="store_true", help="start a pretraining whose render is larger than "
                    "synth.config.MAX_RENDER_BYTES (500 GB uncompressed) without refusing")
@@ -35,8 +39,11 @@ def run_pretrain_command(args: argparse.Namespace) -> int:
     from study.pretrain import load_pretrain_config, resolved_configs, run_pretrain
     from synth.config import check_render_size, render_size, size_statement
 
+    cfg = load_pretrain_config(preset_path(args.config, "pretrain"), args.overrides)
+    if args.print_config:
+        return mcdp_cli.print_config(cfg)
+    mcdp_cli.require(args, "--out")
     mcdp_cli.outside_datasets(args.out)  # before anything is written
-    cfg = load_pretrain_config(args.config, args.overrides)
     size = render_size(resolved_configs(cfg, check_network=False)[0])
     print(f"mcdp pretrain: its world: {size_statement(size)}", file=sys.stderr)
     check_render_size(size, args.yes, f"{args.config} data_overrides")
@@ -45,8 +52,10 @@ def run_pretrain_command(args: argparse.Namespace) -> int:
 
 
 def _sweep_args(p: argparse.ArgumentParser) -> None:
-    p.add_argument("preset", help="sweep preset YAML, e.g. configs/sweep/ci.yaml")
-    p.add_argument("--out", required=True, help="sweep folder; a rerun resumes and skips finished work")
+    p.add_argument("preset", help="sweep preset YAML, e.g. configs/sweep/ci.yaml (list: mcdp presets sweep)")
+    p.add_argument("--out", help="sweep folder; a rerun resumes and skips finished work; required unless "
+                   "--print-config")
+    mcdp_cli.add_print_config(p)
     p.add_argument("--no-progress", action="store_true", help="no progress bars (log lines only)")
     p.add_argument("--engine", choices=["local", "ray"], default=None,
                    help="where renders and runs execute (overrides the config's engine): local processes, or Ray "
@@ -65,10 +74,13 @@ def run_sweep_command(args: argparse.Namespace) -> int:
     from study.config import check_nested_configs, load_sweep_config
     from synth.config import check_render_size, size_statement
 
-    mcdp_cli.outside_datasets(args.out)  # before anything is written
-    preset = resolve_path(args.preset, "sweep preset")
+    preset = preset_path(args.preset, "sweep")
     engine = getattr(args, "engine", None)
     cfg = load_sweep_config(preset, args.overrides, {"engine": engine} if engine else None)
+    if args.print_config:
+        return mcdp_cli.print_config(cfg)
+    mcdp_cli.require(args, "--out")
+    mcdp_cli.outside_datasets(args.out)  # before anything is written
     size = check_nested_configs(cfg, yes=True)  # its overrides' configs too, before the sweep's modules are imported
     if cfg.engine == "ray":  # refused before anything is said or written
         from corelib.cluster import import_ray

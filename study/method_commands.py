@@ -6,6 +6,8 @@ library with no command line of its own.
 ::
 
     mcdp train configs/train/<preset>.yaml --data DATA --out RUN [key=value ...]   # resumes if RUN has a checkpoint
+    mcdp train configs/train/<preset>.yaml --print-config [key=value ...]         # the resolved config; nothing run
+    mcdp presets [train|sweep|pretrain|data]                                      # the presets in configs/
     mcdp eval RUN --data DATA [--split test] [--out metrics.json] [--checkpoint auto|best|last|PATH] [eval.key=value ...]
     mcdp predict RUN --data DATA --out PRED [--split test] [--max-samples N] [--ply] [--rrd pred.rrd]
     mcdp pretrain configs/pretrain/tiny.yaml --out DIR [key=value ...]           # added by study.cli
@@ -76,18 +78,55 @@ def _open_dataset(path: str):
 
 # --------------------------------------------------------------------------- train
 def _train_args(p: argparse.ArgumentParser) -> None:
-    p.add_argument("preset", help="training preset YAML, e.g. configs/train/mcdp_m1.yaml")
-    p.add_argument("--data", required=True, help="dataset folder (synth render output)")
-    p.add_argument("--out", required=True, help="run folder; training resumes if it holds checkpoints/last.pt")
+    p.add_argument("preset", help="training preset YAML, e.g. configs/train/mcdp_m1.yaml (list: mcdp presets train)")
+    p.add_argument("--data", help="dataset folder (synth render output); required unless --print-config")
+    p.add_argument("--out", help="run folder; training resumes if it holds checkpoints/last.pt; required unless "
+                   "--print-config")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
+    add_print_config(p)
     p.add_argument("overrides", nargs="*", help="config overrides key=value, e.g. train.steps=100 model.bases=16")
+
+
+def add_print_config(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--print-config", action="store_true", help="print the resolved config (YAML, overrides "
+                   "applied) on stdout and exit 0; nothing is run or written")
+
+
+def print_config(cfg) -> int:
+    """The resolved config as YAML on stdout (``--print-config``); 0."""
+    import yaml
+
+    from corelib.configlib import config_to_dict
+
+    print(yaml.safe_dump(config_to_dict(cfg), sort_keys=False), end="")
+    return 0
+
+
+def require(args: argparse.Namespace, *flags: str) -> None:
+    """The flags a command needs unless ``--print-config`` (argparse's own wording, exit 2)."""
+    from corelib.configlib import ConfigError
+
+    missing = [f for f in flags if getattr(args, f.lstrip("-").replace("-", "_")) is None]
+    if missing:
+        raise ConfigError(f"the following arguments are required: {', '.join(missing)}")
+
+
+#: what `mcdp train` says when a method with bases starts without a pretraining (README, "Training on a CPU")
+NO_INIT_WARNING = ("mcdp train: warning: model.method={method} (a network with bases) starts from scratch: without "
+                   "model.init_from it tends to collapse to a constant depth; pretrain first (mcdp pretrain "
+                   "configs/pretrain/tiny.yaml --out pretrain/tiny) and pass model.init_from=pretrain/tiny/pretrained.pt")
 
 
 def _train(args: argparse.Namespace) -> int:
     from mcdp.config import RunConfig
     from corelib.configlib import load_config
+    from corelib.logs import logger
+    from corelib.presets import preset_path
 
-    cfg = load_config(RunConfig, args.preset, args.overrides)  # before torch is imported
+    cfg = load_config(RunConfig, preset_path(args.preset, "train"), args.overrides)  # before torch is imported
+    if args.print_config:
+        return print_config(cfg)
+    require(args, "--data", "--out")
     outside_datasets(args.out)
     check_writable(Path(args.out) / "run.json")
     from mcdp.trainer import Trainer
@@ -96,31 +135,27 @@ def _train(args: argparse.Namespace) -> int:
     trainer = Trainer(cfg, ds, args.out, progress=not args.no_progress)
     m, tc = cfg.model, cfg.train
     n_params = sum(p.numel() for p in trainer.depth.parameters())
-    say = print if trainer.dist.is_main else (lambda *a, **k: None)  # torchrun: rank 0 speaks
+    log = logger("mcdp.train")  # stderr and RUN/train.log (corelib.logs)
+    say = log.info if trainer.dist.is_main else (lambda *a, **k: None)  # torchrun: rank 0 speaks
     ranks = f", {trainer.dist.world} ranks (torchrun; global batch)" if trainer.dist.enabled else ""
     say(
         f"mcdp train: method={m.method} bases={trainer.depth.n_out} refine_steps={m.refine_steps} "
         f"neighbours={m.neighbours} "
         f"lambda={cfg.loss.consistency_weight} scale={cfg.scale.source}"
-        + (" [ORACLE: uses ground-truth median scale]" if cfg.scale.oracle else ""),
-        file=sys.stderr,
-    )
+        + (" [ORACLE: uses ground-truth median scale]" if cfg.scale.oracle else ""))
     say(
         f"  {len(ds.camera_names)} cameras, {len(trainer.train_set)} train / {len(trainer.val_set)} val rig samples, "
         f"{tc.height}x{tc.width}, batch {tc.batch_size}{ranks}, depth net {n_params / 1e6:.2f} M params, "
         f"device {trainer.device}, precision {tc.precision}"
-        + (f", resuming at step {trainer.step}" if trainer.step else ""),
-        file=sys.stderr,
-    )
+        + (f", resuming at step {trainer.step}" if trainer.step else ""))
+    if trainer.dist.is_main and trainer.step == 0 and m.init_from is None and getattr(trainer.depth, "has_bases", False):
+        log.warning(NO_INIT_WARNING.format(method=m.method))
     try:
         summary = trainer.train()
+        say(f"mcdp train: step {summary['steps']} ({summary['trained']} this run), "
+            f"best val loss {summary['best_val']:.4f}, checkpoints in {Path(args.out) / 'checkpoints'}")
     finally:
         trainer.close()
-    say(
-        f"mcdp train: step {summary['steps']} ({summary['trained']} this run), "
-        f"best val loss {summary['best_val']:.4f}, checkpoints in {Path(args.out) / 'checkpoints'}",
-        file=sys.stderr,
-    )
     return 0
 
 
@@ -288,11 +323,26 @@ def _record_source(out: Path, run: str, pred, data: str) -> None:
     atomic_write_json(p, {**rec, "checkpoint": str(pred.ckpt_path), "step": pred.step})
 
 
+# --------------------------------------------------------------------------- presets
+def _presets_args(p: argparse.ArgumentParser) -> None:
+    from corelib.presets import KINDS
+
+    p.add_argument("kind", nargs="?", choices=list(KINDS), help="one kind (default: all)")
+
+
+def _presets(args: argparse.Namespace) -> int:
+    from corelib.presets import KINDS, format_presets
+
+    print(format_presets([args.kind] if args.kind else list(KINDS)))
+    return 0
+
+
 # --------------------------------------------------------------------------- main
 COMMANDS: list[Command] = [
     Command("train", "train a model (resumes if RUN has a checkpoint)", _train_args, _train),
     Command("eval", "evaluate a run on a split -> metrics.json and per-camera tables", _eval_args, _eval),
     Command("predict", "write depth grids, EXR depth and optional PLY for a split", _predict_args, _predict),
+    Command("presets", "list the presets in configs/ (train, sweep, pretrain, data)", _presets_args, _presets),
 ]
 
 #: errors -> exit codes (`corelib.cli`: first match wins; then a full disk, a refused file, Ctrl-C)

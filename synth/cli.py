@@ -4,6 +4,9 @@ Examples::
 
     synth render configs/data/tiny.yaml --out data/tiny rig.overlap=0.3 --workers 2
     synth render configs/data/default.yaml --out data/def --shard 0/4   # one of four deterministic shards
+    synth render configs/data/tiny.yaml --print-config rig.overlap=0.3  # the resolved config; nothing rendered
+    synth presets                                                       # the data presets in configs/data
+    synth info data/tiny [--json]                                       # sequences, splits, overlap, size
     synth verify data/tiny
     synth preview data/tiny --out sheet.png
     synth merge --out data/full shard0 shard1
@@ -22,9 +25,12 @@ from corelib.cli import Command
 
 
 def _render_args(r: argparse.ArgumentParser) -> None:
-    r.add_argument("config", help="preset YAML, e.g. configs/data/tiny.yaml; then key=value overrides, "
-                   "e.g. rig.overlap=0.3 seed=2")
-    r.add_argument("--out", required=True, help="output dataset folder (new, empty, or a partial render to resume)")
+    r.add_argument("config", help="preset YAML, e.g. configs/data/tiny.yaml (list: synth presets); then key=value "
+                   "overrides, e.g. rig.overlap=0.3 seed=2")
+    r.add_argument("--out", help="output dataset folder (new, empty, or a partial render to resume); required "
+                   "unless --print-config")
+    r.add_argument("--print-config", action="store_true", help="print the resolved config (YAML, overrides "
+                   "applied) on stdout and exit 0; nothing is rendered or written")
     r.add_argument("--workers", type=int, default=1, help="worker processes (default 1)")
     r.add_argument("--shard", default=None, help="K/N: render only sequences with index %% N == K")
     r.add_argument("--engine", default="local", choices=["local", "ray"], help="local: --workers processes; ray: one Ray task per sequence on a local Ray "
@@ -33,6 +39,26 @@ def _render_args(r: argparse.ArgumentParser) -> None:
     r.add_argument("--yes", action="store_true", help="start a render larger than synth.config.MAX_RENDER_BYTES "
                    "(500 GB uncompressed) without refusing")
     r.set_defaults(overrides=[])
+
+
+def _info_args(i: argparse.ArgumentParser) -> None:
+    i.add_argument("data", help="finished synth dataset folder (or a nuScenes dataroot)")
+    i.add_argument("--json", action="store_true", help="the summary as JSON")
+
+
+def _info(args) -> int:
+    from synth.info import dataset_info, format_info
+
+    info = dataset_info(args.data)
+    print(json.dumps(info, indent=1) if args.json else format_info(info))
+    return 0
+
+
+def _presets(args) -> int:
+    from corelib.presets import format_presets
+
+    print(format_presets(["data"]))
+    return 0
 
 
 def _verify_args(v: argparse.ArgumentParser) -> None:
@@ -128,11 +154,21 @@ def main(argv: list[str] | None = None) -> int:
 
 def _render(args) -> int:
     from corelib.configlib import ConfigError
+    from corelib.presets import preset_path
     from synth.config import check_render_size, load_data_config, render_size, size_statement
     from synth.dataset import dataset_containing
     from synth.render import parse_shard, render_dataset
 
-    cfg = load_data_config(args.config, args.overrides)
+    cfg = load_data_config(preset_path(args.config, "data"), args.overrides)
+    if args.print_config:
+        import yaml
+
+        from corelib.configlib import config_to_dict
+
+        print(yaml.safe_dump(config_to_dict(cfg), sort_keys=False), end="")
+        return 0
+    if args.out is None:
+        raise ConfigError("the following arguments are required: --out")
     shard = parse_shard(args.shard)
     inside = dataset_containing(args.out)
     if inside is not None:
@@ -216,6 +252,9 @@ def _verify(args) -> int:
 #: the subcommands, in the one CLI style of `synth` and `mcdp` (`corelib.cli`)
 COMMANDS = [
     Command("render", "render a dataset from a preset (+ key=value overrides)", _render_args, _render),
+    Command("info", "summary of a dataset: sequences, frames, splits, families, overlap per pair, image size, "
+            "disk size", _info_args, _info),
+    Command("presets", "list the data presets in configs/data", lambda p: None, _presets),
     Command("verify", "check a dataset's integrity and contract; non-zero exit on any problem", _verify_args, _verify),
     Command("preview", "contact sheet: 6 cameras x (RGB, depth, mask, overlap)", _preview_args, _preview),
     Command("merge", "merge shard folders rendered with one config into one dataset", _merge_args, _merge),
