@@ -16,6 +16,8 @@ Example::
     atomic_write_bytes(path, png_bytes)
     with atomic_path(path) as tmp:      # for libraries that write to a file name themselves
         exr.write(str(tmp))
+    with atomic_pipe(path) as name:     # for libraries that write from their own threads and hang on an
+        rec.save(name); ...; rec.disconnect()   # error of theirs (Rerun's file sink on a full disk)
 """
 from __future__ import annotations
 
@@ -24,6 +26,7 @@ import hashlib
 import json
 import os
 import re
+import threading
 from contextlib import contextmanager
 from pathlib import Path
 from typing import Iterator
@@ -59,6 +62,20 @@ USER_ERRNOS = {errno.EACCES: "permission denied", errno.EPERM: "operation not pe
                errno.ENOTDIR: "a part of the path is a file, not a folder", errno.EISDIR: "is a folder",
                errno.ELOOP: "too many levels of symbolic links", errno.ENOENT: "no such file or folder",
                errno.EEXIST: "already exists"}
+
+
+@contextmanager
+def naming(path: str | Path) -> Iterator[None]:
+    """Give an OSError raised in the block without a file name (a ``write`` or ``flush`` on an open file
+    object: ENOSPC, EIO) the name `path`, so that its one line names the file."""
+    try:
+        yield
+    except OSError as exc:
+        if exc.filename is not None or exc.errno is None:
+            raise
+        if is_disk_full(exc):
+            raise DiskFullError(path) from None
+        raise OSError(exc.errno, exc.strerror, str(path)) from None
 
 
 def is_user_file_error(exc: BaseException) -> bool:
@@ -216,3 +233,57 @@ def atomic_write_json(path: str | Path, obj, fsync: bool = True, **dumps) -> Non
     """JSON (``indent=1`` unless given) written whole or not at all."""
     dumps.setdefault("indent", 1)
     atomic_write_text(path, json.dumps(obj, **dumps), fsync=fsync)
+
+
+@contextmanager
+def atomic_pipe(path: str | Path, fsync: bool = True) -> Iterator[str]:
+    """For a library that writes a file by name from a thread of its own and cannot report a failed write
+    (Rerun's file sink: its flush and disconnect wait forever once a write failed, e.g. on a full disk):
+    yields a name (``/dev/fd/N``, the write end of a pipe) to hand it. A thread of ours copies what arrives
+    into `atomic_path`'s temporary file beside `path`; after a failed write it goes on reading (and
+    dropping) the stream, so the library never blocks nor sees an error. The library must have closed the
+    name when the block ends (Rerun: ``disconnect``); then the copy's error is raised (a full disk as
+    `DiskFullError` naming `path`) and the temporary removed, or the file renamed onto `path` when whole."""
+    with atomic_path(path, fsync=False) as tmp:
+        r, w = os.pipe()
+        failed: list[BaseException] = []
+
+        def copy() -> None:
+            try:
+                dst = open(tmp, "wb")
+            except BaseException as exc:  # noqa: BLE001 (raised below, in the caller's thread)
+                failed.append(exc)
+                dst = None
+            try:
+                while chunk := os.read(r, 1 << 20):
+                    if dst is not None and not failed:
+                        try:
+                            dst.write(chunk)
+                        except BaseException as exc:  # noqa: BLE001
+                            failed.append(exc)
+                if dst is not None and not failed:
+                    dst.flush()
+                    if fsync:
+                        os.fsync(dst.fileno())
+            except BaseException as exc:  # noqa: BLE001
+                failed.append(exc)
+            finally:
+                os.close(r)
+                if dst is not None:
+                    try:
+                        dst.close()
+                    except BaseException as exc:  # noqa: BLE001
+                        failed.append(exc)
+
+        copier = threading.Thread(target=copy, name=f"atomic_pipe {path}", daemon=True)
+        copier.start()
+        try:
+            yield f"/dev/fd/{w}"
+        finally:
+            os.close(w)  # the library's own copy of the write end is closed: end of the stream
+            copier.join()
+        if failed:
+            exc = failed[0]
+            if isinstance(exc, OSError) and exc.filename is None and exc.errno is not None:
+                raise OSError(exc.errno, exc.strerror, str(tmp)) from None  # atomic_path names `path`
+            raise exc

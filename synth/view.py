@@ -28,8 +28,8 @@ six cameras in a grid, masks hidden until toggled).
 
 ``K`` goes in unchanged: Rerun's pinhole puts pixel (0, 0)'s corner at the image origin and its
 default principal point at (W/2, H/2), the +0.5 pixel-centre convention of rig.json. The recording is
-written to a temporary name beside ``--out`` and renamed when whole; an existing ``--out`` is replaced
-only when it is an .rrd file. `mcdp.recording` adds predictions to the same layout.
+written to a temporary name beside ``--out`` and renamed when whole (a full disk: one line naming
+``--out``, exit 4, no temporary left); an existing ``--out`` is replaced only when it is an .rrd file. `mcdp.recording` adds predictions to the same layout.
 
 Example::
 
@@ -43,7 +43,7 @@ from typing import Iterator
 
 import numpy as np
 
-from corelib.atomic import atomic_path
+from corelib.atomic import atomic_pipe
 from corelib.rundir import FolderError, check_output_file
 from synth.overlap import overlap_mask
 
@@ -120,14 +120,16 @@ def check_rrd_target(out: str | Path, flag: str = "--out") -> Path:
 @contextmanager
 def recording(out: Path, name: str, blueprint=None) -> Iterator[object]:
     """A RecordingStream saving into a temporary file beside `out` (with `blueprint` as its default layout),
-    renamed onto `out` when the block ends without error (flushed and disconnected first); removed otherwise."""
+    renamed onto `out` when the block ends without error (flushed and disconnected first); removed otherwise.
+    Rerun writes into a pipe and our thread writes the file (`corelib.atomic.atomic_pipe`), so a full disk
+    ends the block with `DiskFullError` naming `out` (exit 4) instead of hanging Rerun's flush."""
     rr = import_rerun()
     out.parent.mkdir(parents=True, exist_ok=True)
-    with atomic_path(out) as tmp:
+    with atomic_pipe(out) as sink:  # Rerun's file sink hangs once a write fails: it writes into a pipe of ours
         rec = rr.RecordingStream(APP_ID, recording_id=name)
         rec.set_log_time_enabled(False)  # one timeline: the dataset's time (no wall clock, no tick)
         rec.set_log_tick_enabled(False)
-        rec.save(str(tmp), default_blueprint=blueprint)
+        rec.save(sink, default_blueprint=blueprint)
         try:
             yield rec
             rec.flush()

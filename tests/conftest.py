@@ -123,3 +123,36 @@ def default_signals() -> None:
 
     signal.signal(signal.SIGINT, signal.SIG_DFL)
     signal.signal(signal.SIGHUP, signal.SIG_DFL)
+
+
+def run_on_small_disk(cmd: list[str], mount: Path, size: str = "64k", full: bool = False, timeout: float = 300,
+                      env: dict | None = None):
+    """Run `cmd` with a tmpfs of `size` at `mount` (an empty folder), in a user and mount namespace of its
+    own (``unshare -rm``: no root needed, nothing mounted outside it): a real disk that fills while `cmd`
+    writes, or is `full` from the start. Returns (CompletedProcess, the names left in `mount` as `cmd`
+    saw them). Skips where the kernel allows no such namespace. A `cmd` that hangs fails the test
+    (subprocess.TimeoutExpired after `timeout` s)."""
+    import shlex
+    import shutil
+    import subprocess
+
+    if shutil.which("unshare") is None:
+        pytest.skip("no unshare(1): a small tmpfs needs a user and mount namespace")
+    probe = subprocess.run(["unshare", "-rm", "mount", "-t", "tmpfs", "-o", "size=4k", "none", str(mount)],
+                           capture_output=True, text=True, timeout=30)
+    if probe.returncode != 0:
+        pytest.skip(f"no user and mount namespace here (unshare -rm mount: {probe.stderr.strip()[:200]})")
+    fill = f"dd if=/dev/zero of={shlex.quote(str(mount))}/fill bs=1k count=100000 2>/dev/null; " if full else ""
+    script = (f"mount -t tmpfs -o size={size} none {shlex.quote(str(mount))} || exit 99; {fill}"
+              f"{shlex.join(cmd)}; rc=$?; echo; echo LEFT:; ls -A {shlex.quote(str(mount))}; exit $rc")
+    res = subprocess.run(["unshare", "-rm", "sh", "-c", script], capture_output=True, text=True, timeout=timeout,
+                         env=env, preexec_fn=default_signals)
+    head, _, left = res.stdout.rpartition("\nLEFT:\n")
+    res.stdout = head
+    return res, sorted(left.split())
+
+
+@pytest.fixture
+def small_disk():
+    """`run_on_small_disk(cmd, mount, size, full, timeout, env)`: `cmd` on a real tmpfs that fills."""
+    return run_on_small_disk

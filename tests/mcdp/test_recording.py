@@ -98,3 +98,19 @@ def test_abs_rel_image_by_hand():
     pred = np.array([[12.0, 5.0], [50.0, 3.0]], np.float32)
     mask = np.array([[True, True], [True, False]])
     np.testing.assert_allclose(abs_rel_image(pred, gt, mask), [[0.2, 0.0], [0.0, 0.0]], rtol=1e-6)
+
+
+def test_predict_rrd_on_a_full_disk_exits_4_naming_the_file_and_leaves_no_temporary(run, tiny_dataset, tmp_path,
+                                                                                    capsys, monkeypatch,
+                                                                                    full_disk_after):
+    """Issue 32, finding 7: was a traceback, exit 1 (Rerun's own file sink met the full disk)."""
+    import corelib.atomic
+
+    out = tmp_path / "p.rrd"
+    args = ["predict", str(run), "--data", str(tiny_dataset), "--rrd", str(out), "--max-samples", "1", "--no-progress"]
+    monkeypatch.setattr(corelib.atomic, "open", full_disk_after(0, ".rrd"), raising=False)
+    capsys.readouterr()
+    assert main(args) == 4
+    err = capsys.readouterr().err.strip().splitlines()
+    assert err[-1].startswith("mcdp predict: error: ") and f"{out}: no space left on device" in err[-1], err
+    assert not any("Traceback" in line for line in err) and list(tmp_path.iterdir()) == []

@@ -252,3 +252,41 @@ def test_missing_extra_names_the_install_command(monkeypatch):
     monkeypatch.setitem(sys.modules, "rerun", None)  # `import rerun` raises ImportError
     with pytest.raises(view.ViewError, match=r"pip install -e '\.\[viz\]'"):
         view.import_rerun()
+
+
+# --------------------------------------------------------------------------- a full disk (issue 32, finding 7)
+def test_a_full_disk_while_recording_exits_4_naming_the_file_and_leaves_no_temporary(tiny_dataset, tmp_path, capsys,
+                                                                                      monkeypatch, full_disk_after):
+    """Rerun writes into a pipe; our writer (`corelib.atomic.atomic_pipe`) meets the full disk: one line naming
+    --out, exit 4, nothing under its name or a temporary one; the same command then writes it."""
+    import corelib.atomic
+    from synth.cli import main
+
+    out = tmp_path / "v.rrd"
+    args = ["view", str(tiny_dataset), "--frames", "0:2", "--out", str(out)]
+    monkeypatch.setattr(corelib.atomic, "open", full_disk_after(0, ".rrd"), raising=False)
+    capsys.readouterr()
+    assert main(args) == 4
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith("synth view: error: ") and f"{out}: no space left on device" in err[0]
+    assert list(tmp_path.iterdir()) == []
+    monkeypatch.undo()
+    assert main(args) == 0 and "verified without error" in rrd_verify(out)
+
+
+@pytest.mark.parametrize("full", [False, True], ids=["fills-while-writing", "full-from-the-start"])
+def test_synth_view_on_a_real_disk_that_fills_ends_in_exit_4_not_a_hang(tiny_dataset, tmp_path, small_disk, full):
+    """A real 64 KiB tmpfs (the recording is ~0.3 MB): Rerun's own file sink hung here forever."""
+    import os
+    from pathlib import Path
+
+    mnt = tmp_path / "mnt"
+    mnt.mkdir()
+    root = Path(__file__).resolve().parents[2]
+    env = {**os.environ, "PYTHONPATH": str(root), "OMP_NUM_THREADS": "1"}
+    res, left = small_disk([sys.executable, "-m", "synth.cli", "view", str(tiny_dataset), "--frames", "0:2",
+                            "--out", str(mnt / "v.rrd")], mnt, full=full, timeout=120, env=env)
+    err = res.stderr.strip().splitlines()
+    assert res.returncode == 4, res.stderr[-2000:]
+    assert len(err) == 1 and f"{mnt / 'v.rrd'}: no space left on device" in err[0], err
+    assert left == (["fill"] if full else [])
