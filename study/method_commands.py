@@ -148,7 +148,7 @@ def _train(args: argparse.Namespace) -> int:
         f"{tc.height}x{tc.width}, batch {tc.batch_size}{ranks}, depth net {n_params / 1e6:.2f} M params, "
         f"device {trainer.device}, precision {tc.precision}"
         + (f", resuming at step {trainer.step}" if trainer.step else ""))
-    if trainer.dist.is_main and trainer.step == 0 and m.init_from is None and getattr(trainer.depth, "has_bases", False):
+    if trainer.dist.is_main and trainer.step == 0 and m.init_from is None and trainer.depth.has_bases:
         log.warning(NO_INIT_WARNING.format(method=m.method))
     try:
         summary = trainer.train()
