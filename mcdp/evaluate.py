@@ -56,7 +56,7 @@ valid, e.g. a camera without neighbours has NaN overlap metrics)::
 
 Example::
 
-    ds = synth.dataset.open_dataset("data/tiny")
+    ds = synth.open.open_dataset("data/tiny")
     m = evaluate(ds, lambda seq, f: {"init": model_depth(seq, f)}, "test", EvalConfig())
     print(format_tables(m))
 """
@@ -68,7 +68,7 @@ import numpy as np
 import torch
 
 from mcdp.config import EvalConfig
-from synth.overlap import BAND_NAMES, distance_bands, overlap_mask
+from synth.overlap import BAND_NAMES, distance_bands, overlap_union
 from synth.protocol import DatasetReader
 
 from . import geometry
@@ -196,13 +196,7 @@ class _Truth:
                 raise ValueError(f"ds.read_depth({seq!r}, {rig.names[c]!r}, {f}) has shape {g.shape}, expected "
                                  f"{rig.shapes[c]}")
         self.valids = [valid_gt_mask(g, m, cfg.min_depth, cfg.max_depth) for g, m in zip(self.gts, rig.masks)]
-        overlaps = []
-        for i in range(len(rig.names)):
-            ov = np.zeros(rig.shapes[i], dtype=bool)
-            for j in rig.nbrs[i]:
-                ov |= overlap_mask(self.gts[i], rig.Ks[i], rig.Ts[i], self.gts[j], rig.Ks[j], rig.Ts[j],
-                                   mask_i=rig.masks[i], mask_j=rig.masks[j])
-            overlaps.append(ov)
+        overlaps = [overlap_union(i, self.gts, rig.Ks, rig.Ts, rig.masks, rig.nbrs[i]) for i in range(len(rig.names))]
         self.g_v = [g[v] for g, v in zip(self.gts, self.valids)]  # 1-D, float64
         self.lg_v = [np.log(g) for g in self.g_v]
         ov_v = [o[v] for o, v in zip(overlaps, self.valids)]

@@ -96,20 +96,14 @@ def overlap_truth(ds, masks, seq: str, frame: int) -> list:
     (a camera without neighbours: 0 everywhere). ORACLE input: it reads ground truth."""
     import numpy as np
 
-    from synth.overlap import overlap_mask
+    from synth.overlap import neighbours_of, overlap_union
 
     names, cams = list(ds.camera_names), list(ds.cameras)
     gts = [np.asarray(ds.read_depth(seq, n, frame), np.float64) for n in names]
-    out = []
-    for i in range(len(names)):
-        ov = np.zeros(gts[i].shape, bool)
-        for a, b in ds.neighbours:
-            for s_, t_ in ((a, b), (b, a)):
-                if t_ == i:
-                    ov |= overlap_mask(gts[i], cams[i].K, cams[i].T_ego_cam, gts[s_], cams[s_].K, cams[s_].T_ego_cam,
-                                       mask_i=masks[i], mask_j=masks[s_])
-        out.append(np.where(ov, gts[i], 0.0).astype(np.float32))
-    return out
+    Ks, Ts = [c.K for c in cams], [c.T_ego_cam for c in cams]
+    nbrs = neighbours_of(ds.neighbours, len(names))
+    return [np.where(overlap_union(i, gts, Ks, Ts, masks, nbrs[i]), gts[i], 0.0).astype(np.float32)
+            for i in range(len(names))]
 
 
 def overlap_truth_at(ds, masks, seq: str, frame: int, size: tuple[int, int]) -> torch.Tensor:

@@ -14,6 +14,7 @@ from pathlib import Path
 from corelib.configlib import ConfigError, config_hash, config_to_dict
 from study.config import SPLIT, SweepConfig, data_config_for, eval_config_for, world_key
 from study.stages import Counters, finite, read_json, write_json, summarize_metrics
+from synth.overlap import target_pair_mean
 
 def measured_overlap(ov: dict) -> dict:
     """Target and measured pixel overlap of a dataset (from its overlap record, `synth.dataset.Dataset.overlap`).
@@ -27,9 +28,7 @@ def measured_overlap(ov: dict) -> dict:
     pp = ov.get("per_pair_measured", {})
     target = ov.get("target")
     geo = ov.get("geometric", target) if ov.get("knob") == "pixels" else target  # pairs' targets are angles
-    same = [v["measured"] for v in pp.values()
-            if finite(geo) and finite(v.get("target")) and abs(v["target"] - geo) < 1e-3
-            and finite(v.get("measured"))]
+    mean_at_target, n_at_target = target_pair_mean(pp, geo) if isinstance(pp, dict) else (float("nan"), 0)
     allm = [v["measured"] for v in pp.values() if finite(v.get("measured"))]
     return {
         "target": target,
@@ -38,9 +37,9 @@ def measured_overlap(ov: dict) -> dict:
         "geometric": ov.get("geometric", target),
         "hfov_deg": ov.get("hfov_deg"),
         "yaw_spacing_deg": ov.get("yaw_spacing_deg"),
-        "measured_mean": sum(same) / len(same) if same else float("nan"),
+        "measured_mean": mean_at_target,
         "measured_all": sum(allm) / len(allm) if allm else float("nan"),
-        "pairs_at_target": len(same),
+        "pairs_at_target": n_at_target,
         "pairs": len(pp),
         "per_pair": {k: {"target": v.get("target"), "measured": v.get("measured")} for k, v in pp.items()},
     }
@@ -75,7 +74,8 @@ def combine_worlds(recs: list[dict]) -> dict:
 def _rendered(out: Path):
     """The dataset rendered into `out` (a `synth.dataset.Dataset`), or None when there is none to reuse: no
     manifest (never rendered, or interrupted) or one that does not open (rendering again repairs it)."""
-    from synth.dataset import MANIFEST, open_dataset
+    from synth.dataset import MANIFEST
+    from synth.open import open_dataset
     from synth.files import DatasetError
 
     if not (out / MANIFEST).is_file():
@@ -89,7 +89,7 @@ def _rendered(out: Path):
 def render_stage(cfg: SweepConfig, overlap: float, sweep_dir: Path, counters: Counters, log, progress: bool,
                  world: int | None = None) -> dict:
     """Render (or reuse / resume) the dataset of one overlap (and world: `study.config.worlds_of`); its record."""
-    from synth.dataset import open_dataset
+    from synth.open import open_dataset
     from synth.protocol import SPLITS
     from synth.render import render_dataset
 
@@ -138,7 +138,7 @@ def reference_stage(cfg: SweepConfig, d: dict, sweep_dir: Path, counters: Counte
     A method worse than this reference has learnt no usable depth structure.
     """
     from mcdp.evaluate import constant_depth_predictor, evaluate, median_gt_depth
-    from synth.dataset import open_dataset
+    from synth.open import open_dataset
 
     from mcdp.priors import flat_road_predictor
 

@@ -79,7 +79,7 @@ def measure(cfg, geometric: float, renderer, scenes) -> float:
     for the layout of geometric overlap `geometric`."""
     from scenes.textures import LAYER
     from synth.gl_backend import LightState
-    from synth.overlap import overlap_fraction_counts
+    from synth.overlap import overlap_fraction_counts, pair_overlaps
     from synth.rig import build_rig, ego_body_mesh
 
     rig = build_rig(cfg.rig.model_copy(update={"overlap": geometric, "overlap_target": "angle"}), cfg.camera)
@@ -101,7 +101,8 @@ def measure(cfg, geometric: float, renderer, scenes) -> float:
         for k, v in overlap_fraction_counts(depths, masks, list(rig.cameras), pairs).items():
             t = tot.setdefault(k, [0, 0])
             t[0], t[1] = t[0] + v[0], t[1] + v[1]
-    fr = [v[1] / v[0] for v in tot.values() if v[0]]
+    fr = [x for p in pair_overlaps(tot, rig.names, pairs).values() for k, x in p.items()
+          if k != "measured" and np.isfinite(x)]  # every direction of every pair at the target
     return float(np.mean(fr)) if fr else 0.0
 
 
@@ -110,15 +111,10 @@ def overlap_record(cfg, rig, totals: dict) -> dict:
     layout was built with, its calibration) and, per adjacent pair, its geometric target and measured pixel
     overlap (mean of both directions) from ``totals`` ({"A->B": [valid pixels of A, of those seen by B]},
     summed over every frame of the dataset)."""
+    from synth.overlap import pair_overlaps
+
     targets = rig.pair_target_overlap()
-    per_pair = {}
-    for i, j in rig.neighbours:
-        a, b = rig.names[i], rig.names[j]
-        fwd, bwd = totals.get(f"{a}->{b}", [0, 0]), totals.get(f"{b}->{a}", [0, 0])
-        m_ab = fwd[1] / fwd[0] if fwd[0] else float("nan")
-        m_ba = bwd[1] / bwd[0] if bwd[0] else float("nan")
-        per_pair[f"{a}-{b}"] = {"target": targets[f"{a}-{b}"], "measured": (m_ab + m_ba) / 2,
-                                f"{a}->{b}": m_ab, f"{b}->{a}": m_ba}
+    per_pair = {k: {"target": targets[k], **v} for k, v in pair_overlaps(totals, rig.names, rig.neighbours).items()}
     rec = {"target": cfg.rig.overlap, "mode": cfg.rig.overlap_mode, "knob": cfg.rig.overlap_target,
            "geometric": rig.overlap_target, "yaw_spacing_deg": rig.yaw_spacing_deg,
            "hfov_deg": rig.cameras[0].hfov_deg, "per_pair_measured": per_pair}

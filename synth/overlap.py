@@ -14,9 +14,16 @@ its ground-truth 3-D point
 
 It is a property of the rig and the scene, never of a model.
 
+The summaries every caller shares are here too, so each is written once: who is camera i's neighbour
+(`neighbours_of`), the union over them (`overlap_union`, the evaluator's overlap region; per neighbour:
+`overlaps_by_neighbour`), a pair's measured overlap from pixel counts (`pair_overlaps`: each direction and
+their mean) and the mean over the pairs at a target (`target_pair_mean`).
+
 Example::
 
     ov = overlap_mask(gt_i, K_i, T_i, gt_j, K_j, T_j, mask_i=m_i, mask_j=m_j)   # (H_i, W_i) bool
+    nb = neighbours_of(ds.neighbours, len(ds.cameras))                       # [[1, 5], [0, 2], ...]
+    ov = overlap_union(i, gts, Ks, Ts, masks, nb[i])                          # seen by any neighbour
 """
 from __future__ import annotations
 
@@ -220,6 +227,63 @@ def overlap_fraction_counts(depths: dict, masks: dict, cameras: list, neighbours
             seen = _seen_by_j(pts, np.linalg.inv(Tj) @ Ti, _arr(cj.K, "K", (3, 3)), near_j, mj, z_tol)
             out[f"{ci.name}->{cj.name}"] = [n_valid, int(seen.size)]
     return out
+
+
+def neighbours_of(neighbours, n_cameras: int) -> list[list[int]]:
+    """For each camera, the cameras it forms an adjacent pair with (either order), in the pairs' order."""
+    out: list[list[int]] = [[] for _ in range(int(n_cameras))]
+    for a, b in neighbours:
+        a, b = int(a), int(b)
+        if b not in out[a]:
+            out[a].append(b)
+        if a not in out[b]:
+            out[b].append(a)
+    return out
+
+
+def overlaps_by_neighbour(i: int, depths, Ks, Ts, masks, nbrs) -> list[np.ndarray]:
+    """Camera ``i``'s overlap with each camera of ``nbrs`` (`overlap_mask`), in that order: (H_i, W_i) bool
+    each. ``depths``, ``Ks``, ``Ts`` (T_ego_cam) and ``masks`` (self-occlusion, True / > 127 = scene; or
+    None) are indexed by camera."""
+    def m(k):
+        return None if masks is None else masks[k]
+
+    return [overlap_mask(depths[i], Ks[i], Ts[i], depths[j], Ks[j], Ts[j], mask_i=m(i), mask_j=m(j)) for j in nbrs]
+
+
+def overlap_union(i: int, depths, Ks, Ts, masks, nbrs) -> np.ndarray:
+    """(H_i, W_i) bool: the pixels of camera ``i`` seen by at least one camera of ``nbrs`` (its overlap region;
+    all False without neighbours). Arguments as `overlaps_by_neighbour`."""
+    ov = np.zeros(np.shape(depths[i]), bool)
+    for o in overlaps_by_neighbour(i, depths, Ks, Ts, masks, nbrs):
+        ov |= o
+    return ov
+
+
+def pair_overlaps(totals: dict, names, neighbours) -> dict[str, dict[str, float]]:
+    """Per adjacent pair "A-B": the measured pixel overlap of each direction ("A->B": the fraction of A's
+    valid pixels that B sees) and their mean ("measured"), from ``totals`` ({"A->B": [valid pixels of A, of
+    those seen by B]}, e.g. summed `overlap_fraction_counts`); NaN for a direction without valid pixels."""
+    out = {}
+    for i, j in neighbours:
+        a, b = names[i], names[j]
+        fwd, bwd = totals.get(f"{a}->{b}", [0, 0]), totals.get(f"{b}->{a}", [0, 0])
+        m_ab = fwd[1] / fwd[0] if fwd[0] else float("nan")
+        m_ba = bwd[1] / bwd[0] if bwd[0] else float("nan")
+        out[f"{a}-{b}"] = {"measured": (m_ab + m_ba) / 2, f"{a}->{b}": m_ab, f"{b}->{a}": m_ba}
+    return out
+
+
+def target_pair_mean(per_pair: dict, target: float, tol: float = 1e-3) -> tuple[float, int]:
+    """(mean measured overlap, number of pairs) over the pairs of ``per_pair`` ({"A-B": {"target", "measured"}})
+    whose geometric target is ``target`` within ``tol``; (NaN, 0) when none is. In ``spacing`` mode the ring
+    does not close, so the pairs that take up the remaining angle have another target and are left out."""
+    def fin(x) -> bool:
+        return isinstance(x, (int, float)) and not isinstance(x, bool) and np.isfinite(x)
+
+    same = [float(v["measured"]) for v in per_pair.values()
+            if fin(target) and fin(v.get("target")) and abs(v["target"] - target) < tol and fin(v.get("measured"))]
+    return (float(np.mean(same)) if same else float("nan")), len(same)
 
 
 #: upper edges of the distance bands, as fractions of the image width (`distance_bands`)

@@ -23,7 +23,7 @@ from corelib.atomic import atomic_write_bytes
 from corelib.rundir import FolderError, check_output_file
 from synth.dataset import Dataset, dataset_containing
 from synth.files import PNG_SIGNATURE, encode_png
-from synth.overlap import overlap_mask
+from synth.overlap import overlaps_by_neighbour
 
 _TEXT = b"Software\0mcdp-synth preview"
 _TAG = struct.pack(">I", len(_TEXT)) + b"tEXt" + _TEXT + struct.pack(">I", zlib.crc32(b"tEXt" + _TEXT))
@@ -81,12 +81,14 @@ def make_preview(ds: Dataset, out: str | Path, seq: str | None = None, frame: in
     names = ds.camera_names
     depths = {n: ds.read_depth(seq, n, frame) for n in names}
     rows = []
-    for i, cam in enumerate(ds.cameras):
+    cams = list(ds.cameras)
+    dl, Ks, Ts = [depths[c.name] for c in cams], [c.K for c in cams], [c.T_ego_cam for c in cams]
+    masks = [ds.mask(c.name) for c in cams]
+    for i, cam in enumerate(cams):
         rgb = ds.read_rgb(seq, cam.name, frame)
-        mask = ds.mask(cam.name)
-        prev_c, next_c = ds.cameras[(i - 1) % len(names)], ds.cameras[(i + 1) % len(names)]
-        by_prev, by_next = (overlap_mask(depths[cam.name], cam.K, cam.T_ego_cam, depths[o.name], o.K, o.T_ego_cam,
-                                         mask_i=mask, mask_j=ds.mask(o.name)) for o in (prev_c, next_c))
+        mask = masks[i]
+        # the ring's previous and next camera (blue / red), whatever order the rig lists its pairs in
+        by_prev, by_next = overlaps_by_neighbour(i, dl, Ks, Ts, masks, [(i - 1) % len(names), (i + 1) % len(names)])
         gray = rgb.mean(axis=2, keepdims=True).repeat(3, axis=2)
         ov = gray.copy()
         ov[by_prev] = 0.5 * ov[by_prev] + 0.5 * np.array([40, 90, 255])

@@ -45,7 +45,7 @@ import numpy as np
 
 from corelib.atomic import atomic_pipe
 from corelib.rundir import FolderError, check_output_file
-from synth.overlap import overlap_mask
+from synth.overlap import neighbours_of, overlaps_by_neighbour
 
 INSTALL = "pip install -e '.[viz]'"
 APP_ID = "mcdp_synth"
@@ -196,10 +196,7 @@ class RigRecorder:
         self.stride, self.offset = int(point_stride), float(time_offset_s)
         self.ego = ds.ego(seq)
         self.names = list(ds.camera_names)
-        self.nbrs = {n: [] for n in self.names}
-        for i, j in ds.neighbours:
-            self.nbrs[self.names[i]].append(j)
-            self.nbrs[self.names[j]].append(i)
+        self.nbrs = dict(zip(self.names, neighbours_of(ds.neighbours, len(self.names))))
         self.lidar = getattr(ds, "lidar_points_world", None)  # nuScenes datasets only
         self.model = None  # (DataConfig, Scene) once `log_sequence` rebuilt it
         self.rgb: dict[str, np.ndarray] = {}  # the last logged frame's images, per camera
@@ -286,12 +283,12 @@ class RigRecorder:
             pts.append(p)
             cols.append(rgb[v, u])
         if depths:
-            for c, cam in enumerate(ds.cameras):
+            cams = list(ds.cameras)
+            dl, Ks, Ts = [depths[c.name] for c in cams], [c.K for c in cams], [c.T_ego_cam for c in cams]
+            masks = [ds.mask(c.name) for c in cams]
+            for c, cam in enumerate(cams):
                 code = np.zeros((cam.height, cam.width), np.uint8)
-                for b, j in enumerate(self.nbrs[cam.name][:2]):
-                    cj = ds.cameras[j]
-                    ov = overlap_mask(depths[cam.name], cam.K, cam.T_ego_cam, depths[cj.name], cj.K, cj.T_ego_cam,
-                                      mask_i=ds.mask(cam.name), mask_j=ds.mask(cj.name))
+                for b, ov in enumerate(overlaps_by_neighbour(c, dl, Ks, Ts, masks, self.nbrs[cam.name][:2])):
                     code |= ov.astype(np.uint8) << b
                 rec.log(f"{self.cam_path(cam.name)}/overlap", rr.SegmentationImage(code))
             rec.log("world/ego/points_gt", rr.Points3D(np.concatenate(pts), colors=np.concatenate(cols), radii=0.05))
@@ -307,7 +304,7 @@ def record_rig(dataset: str | Path, out: str | Path, seq: str | None = None, fra
     summary (sequence, frames, bytes, seconds)."""
     import time
 
-    from synth.dataset import open_dataset
+    from synth.open import open_dataset
 
     out = check_rrd_target(out)
     rr = import_rerun()

@@ -239,3 +239,32 @@ def test_distance_bands_partition_the_image_and_the_overlap_is_band_zero():
         assert (frac[b == len(BAND_EDGES) + 1] > BAND_EDGES[-1]).all()
     none = distance_bands(np.zeros((8, 12), bool))
     assert (none == len(BAND_NAMES) - 1).all()  # an image without overlap: all in the last band
+
+
+def test_the_summaries_neighbours_union_and_pair_means():
+    """The summaries every caller shares (synth.overlap): who neighbours whom, the union over them, per-pair
+    and target-pair means; hand-computed."""
+    from synth.overlap import neighbours_of, overlap_union, overlaps_by_neighbour, pair_overlaps, target_pair_mean
+
+    ring = [(0, 1), (1, 2), (2, 3), (3, 4), (4, 5), (5, 0)]
+    nb = neighbours_of(ring, 6)
+    assert nb[0] == [1, 5] and nb[3] == [2, 4] and all(len(n) == 2 for n in nb)
+    assert neighbours_of([(0, 1), (1, 0)], 3) == [[1], [0], []]  # a pair listed twice counts once; 2 has none
+    # camera 0 between a neighbour 3 px to its right (1) and one 3 px to its left (2)
+    K, T0, T1, gt = two_camera_rig(shift_px=3)
+    T2 = T0.copy()
+    T2[:3, 3] = 2 * T0[:3, 3] - T1[:3, 3]
+    depths, Ks, Ts = [gt, gt, gt], [K, K, K], [T0, T1, T2]
+    by = overlaps_by_neighbour(0, depths, Ks, Ts, None, [1, 2])
+    assert by[0][:, :3].sum() == 0 and by[0][:, 3:].all() and by[1][:, 13:].sum() == 0 and by[1][:, :13].all()
+    union = overlap_union(0, depths, Ks, Ts, None, [1, 2])
+    assert union.all() and (union == (by[0] | by[1])).all()
+    assert not overlap_union(0, depths, Ks, Ts, None, []).any()  # no neighbour: no overlap
+    pp = pair_overlaps({"A->B": [100, 30], "B->A": [50, 10], "B->C": [0, 0]}, ["A", "B", "C"], [(0, 1), (1, 2)])
+    assert pp["A-B"] == pytest.approx({"measured": 0.25, "A->B": 0.3, "B->A": 0.2})
+    assert np.isnan(pp["B-C"]["B->C"]) and np.isnan(pp["B-C"]["measured"])  # no valid pixels: no number
+    per_pair = {"A-B": {"target": 0.3, "measured": 0.2}, "B-C": {"target": 0.3, "measured": 0.4},
+                "C-D": {"target": -0.1, "measured": 0.0}, "D-E": {"target": 0.3, "measured": float("nan")}}
+    assert target_pair_mean(per_pair, 0.3) == (pytest.approx(0.3), 2)  # the gap pair and NaN are left out
+    m, n = target_pair_mean(per_pair, 0.5)
+    assert np.isnan(m) and n == 0
