@@ -23,7 +23,7 @@ pixel counts as scene only if (almost) all of it is scene.
 
 Example::
 
-    ds = synth.dataset.open_dataset("data/tiny")
+    ds = synth.open.open_dataset("data/tiny")
     train = RigDataset(ds, "train", height=64, width=96)
     batch = collate([train[0], train[1]])
 """

@@ -71,7 +71,7 @@ def outside_datasets(out: str | Path, flag: str = "--out") -> None:
 
 
 def _open_dataset(path: str):
-    from synth.dataset import open_dataset
+    from synth.open import open_dataset
 
     return open_dataset(path)
 

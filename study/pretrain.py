@@ -124,7 +124,7 @@ def _pretrain(cfg: PretrainConfig, out: Path, dcfg, rcfg, h: str, progress: bool
     from mcdp.trainer import Trainer
     from corelib.hashing import sha256_file
     from mcdp.warmstart import FORMAT, VERSION
-    from synth.dataset import open_dataset
+    from synth.open import open_dataset
     from synth.render import render_dataset
 
     started = out / "pretrain.config.json"

@@ -89,7 +89,7 @@ def run_dir_for(sweep_dir: Path, overlap: float, method: str, seed: int) -> Path
 def run_stage(cfg: SweepConfig, overlap: float, data: dict, method: str, seed: int, sweep_dir: Path,
               counters: Counters, log, progress: bool, init_from: str | None = None) -> dict:
     """Train (or reuse / resume) and evaluate one (overlap, method, seed); returns its result row."""
-    from synth.dataset import open_dataset
+    from synth.open import open_dataset
 
     rcfg, preset = run_config_for(cfg, method, seed, init_from)
     rhash = config_hash(rcfg)

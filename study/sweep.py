@@ -145,7 +145,7 @@ def _run_sweep(cfg: SweepConfig, out: Path, progress: bool, log, config_source: 
 
 
 def _previews(data: list[dict], out: Path, log) -> list[str]:
-    from synth.dataset import open_dataset
+    from synth.open import open_dataset
     from synth.preview import make_preview
 
     paths = []

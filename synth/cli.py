@@ -73,7 +73,7 @@ def _preview_args(pv: argparse.ArgumentParser) -> None:
 
 
 def _preview(args) -> int:
-    from synth.dataset import open_dataset
+    from synth.open import open_dataset
     from synth.preview import make_preview
 
     print(f"wrote {make_preview(open_dataset(args.data), args.out, args.sequence, args.frame)}")

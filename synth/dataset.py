@@ -308,20 +308,14 @@ def check_rig(rig, manifest: dict, rpath: Path) -> None:
         raise DatasetError(f"{rpath}: 'neighbours' must be a list of [i, j] camera indices below {n}")
 
 
-def open_dataset(path: str | Path, verify: bool = False) -> Dataset:
-    """Open a dataset folder; `verify=True` also checks every file's sha256."""
+def open_synth(path: str | Path, verify: bool = False) -> Dataset:
+    """Open a folder rendered by this package (`synth.open.open_dataset` opens any format); ``verify=True``
+    also checks every file's sha256."""
     root = Path(path)
     if not root.is_dir():
         raise DatasetError(f"{root}: dataset folder does not exist")
     mpath = root / MANIFEST
     if not mpath.is_file():
-        from synth.nuscenes_read import open_nuscenes  # the devkit loads only when needed
-        from synth.nuscenes_tables import is_nuscenes_root
-
-        if is_nuscenes_root(root):
-            if verify:
-                raise DatasetError(f"{root}: a nuScenes dataroot has no checksums to verify")
-            return open_nuscenes(root)
         raise DatasetError(f"{mpath}: missing; the dataset is incomplete (interrupted render?) or not a dataset")
     manifest = read_json(within(root, mpath, "", "dataset root", "is a link to"))
     ver = manifest.get("schema_version") if isinstance(manifest, dict) else None

@@ -163,7 +163,8 @@ def export_sequence(trimesh, ds, seq: str, out_dir: Path) -> dict:
 
 def export_gltf(dataset: str | Path, out: str | Path, progress: bool = False) -> dict:
     """Export every sequence of `dataset` into `out` (module docstring); returns a summary."""
-    from synth.dataset import dataset_containing, open_dataset
+    from synth.dataset import dataset_containing
+    from synth.open import open_dataset
 
     trimesh = import_trimesh()
     src, out = Path(dataset), Path(out)

@@ -1,6 +1,6 @@
 """`synth info DATA`: what a dataset holds, read from its manifest (nothing decoded): sequences and frames,
 splits, scene families, cameras and image size, depth, the rig's measured overlap per camera pair, and
-its size on disk. Works for a rendered dataset and, through the same reader (`synth.dataset.open_dataset`),
+its size on disk. Works for a rendered dataset and, through the same reader (`synth.open.open_dataset`),
 a nuScenes dataroot (no families or overlap record there).
 
 Example::
@@ -31,7 +31,7 @@ def disk_bytes(root: str | Path) -> tuple[int, int]:
 def dataset_info(path: str | Path) -> dict:
     """A JSON-able summary of the dataset at ``path`` (`synth.files.DatasetError` naming the file if it is
     not one)."""
-    from synth.dataset import open_dataset
+    from synth.open import open_dataset
 
     ds = open_dataset(path)
     m = getattr(ds, "manifest", {}) or {}

@@ -42,7 +42,8 @@ import numpy as np
 
 from corelib.atomic import atomic_write_bytes
 from corelib.rundir import lock_folder
-from synth.dataset import is_plain_name, open_dataset
+from synth.dataset import is_plain_name
+from synth.open import open_dataset
 from synth.files import DatasetError, read_json, read_png, write_json, write_png
 from synth.lidar import LidarConfig, luma, simulate_sweep
 from synth.nuscenes_tables import rotation_to_quaternion

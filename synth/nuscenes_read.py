@@ -3,7 +3,7 @@
 `open_nuscenes(root)` loads the tables with the official devkit (``nuscenes-devkit``, the ``nuscenes``
 extra; where it is not installed, as beside the ``viz`` extra, the same records are read as plain JSON
 and the devkit's LiDAR reader, projection and quaternion are replaced by the same numpy) and returns a `NuScenesDataset` with the interface `mcdp` uses (`synth.protocol.DatasetReader`):
-cameras, neighbours, splits, sequences, ego poses, RGB, depth, masks. `synth.dataset.open_dataset`
+cameras, neighbours, splits, sequences, ego poses, RGB, depth, masks. `synth.open.open_dataset`
 calls it for a folder that looks like a dataroot (`is_nuscenes_root`). docs/NUSCENES.md, "Reading a
 nuScenes dataroot", has the mapping and its limits; in short:
 
@@ -23,7 +23,7 @@ Every problem is a `DatasetError` of one line naming the token, file or channel.
 
 Example::
 
-    ds = open_nuscenes("NS_ROOT")          # or synth.dataset.open_dataset("NS_ROOT")
+    ds = open_nuscenes("NS_ROOT")          # or synth.open.open_dataset("NS_ROOT")
     d = ds.read_depth(ds.split("test")[0], "CAM_FRONT", 1)   # sparse LiDAR z-depth, 0 = none
 """
 from __future__ import annotations

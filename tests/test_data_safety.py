@@ -79,7 +79,7 @@ def test_an_untouched_dataset_verifies(data, capsys):
     ("rig.json", lambda r: r.update(neighbours=[[0, 99]]), "'neighbours' must be"),
 ])
 def test_a_malformed_manifest_or_rig_is_refused_naming_the_key(data, capsys, path, edit, named):
-    from synth.dataset import open_dataset
+    from synth.open import open_dataset
     from synth.files import DatasetError
 
     _edit_json(data / path, edit)
@@ -122,7 +122,7 @@ CORRUPT = {
 @pytest.mark.parametrize("case", list(CORRUPT))
 def test_a_corrupt_data_file_is_refused_naming_the_file(tree_hash, data, capsys, case):
     from synth.cli import main
-    from synth.dataset import open_dataset
+    from synth.open import open_dataset
     from synth.files import DatasetError
 
     kind, damage, named = CORRUPT[case]

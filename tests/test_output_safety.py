@@ -94,7 +94,7 @@ def test_export_refuses_a_depth_file_symlinked_out_of_the_dataset(data, tmp_path
 
 
 def test_readers_and_verify_refuse_a_file_symlinked_out_of_the_dataset(data, tmp_path, capsys):
-    from synth.dataset import open_dataset
+    from synth.open import open_dataset
     from synth.files import DatasetError
 
     link, _ = _link_depth_outside(data, tmp_path)
@@ -137,7 +137,7 @@ def test_a_full_disk_during_export_exits_4_and_leaves_no_part_file(data, tmp_pat
 
 # --------------------------------------------------------------------------- 8: a JPEG under .png
 def test_a_jpeg_under_a_png_name_is_refused_where_it_is_read(data, tmp_path, capsys):
-    from synth.dataset import open_dataset
+    from synth.open import open_dataset
     from synth.files import DatasetError
 
     png = data / SEQ_CAM / "000000.png"

@@ -112,7 +112,7 @@ def alarm():
 
 
 def _read_all_synth(d: Path) -> None:
-    from synth.dataset import open_dataset
+    from synth.open import open_dataset
 
     ds = open_dataset(d)
     seq = ds.split("test")[0]
@@ -213,7 +213,7 @@ def test_a_version_folder_linked_out_of_the_dataroot_is_refused(ns_root, tmp_pat
 
 
 def test_a_manifest_that_is_not_utf8_is_refused_naming_it(tiny_dataset, tmp_path):
-    from synth.dataset import open_dataset
+    from synth.open import open_dataset
     from synth.files import DatasetError
 
     d = tmp_path / "data"

@@ -46,7 +46,7 @@ def _rename_seq(m, new):
 ])
 def test_a_manifest_name_that_is_not_plain_is_refused_naming_the_field(tree_hash, tiny_dataset, tmp_path, capsys, edit, field):
     from synth.cli import main as synth_main
-    from synth.dataset import open_dataset
+    from synth.open import open_dataset
     from synth.files import DatasetError
 
     d = _copy(tiny_dataset, tmp_path)
@@ -77,7 +77,7 @@ def test_mcdp_predict_refuses_a_manifest_whose_sequence_leaves_the_root(tiny_dat
 
 
 def test_a_sequence_folder_symlinked_outside_the_root_is_refused(tiny_dataset, tmp_path):
-    from synth.dataset import open_dataset
+    from synth.open import open_dataset
     from synth.files import DatasetError
 
     d = _copy(tiny_dataset, tmp_path / "in")
@@ -143,7 +143,7 @@ def test_a_non_finite_gradient_stops_before_the_weights_change(tiny_dataset, tmp
     from mcdp.config import RunConfig
     from mcdp.trainer import Trainer, TrainingDiverged
     from corelib.configlib import load_config
-    from synth.dataset import open_dataset
+    from synth.open import open_dataset
 
     cfg = load_config(RunConfig, TINY_TRAIN / "mono2.yaml", ["train.steps=3"])
     tr = Trainer(cfg, open_dataset(tiny_dataset), tmp_path / "run", progress=False, tensorboard=False)
@@ -162,7 +162,7 @@ def test_a_nan_validation_loss_stops_training(tiny_dataset, tmp_path, monkeypatc
     from mcdp.config import RunConfig
     from mcdp.trainer import Trainer, TrainingDiverged
     from corelib.configlib import load_config
-    from synth.dataset import open_dataset
+    from synth.open import open_dataset
 
     cfg = load_config(RunConfig, TINY_TRAIN / "mono2.yaml", ["train.steps=4", "train.val_every=2"])
     tr = Trainer(cfg, open_dataset(tiny_dataset), tmp_path / "run", progress=False, tensorboard=False)
@@ -218,7 +218,7 @@ def test_a_second_writer_of_the_same_folder_is_refused_naming_the_pid(tiny_datas
     from corelib.rundir import FolderError
     from mcdp.trainer import Trainer
     from corelib.configlib import load_config
-    from synth.dataset import open_dataset
+    from synth.open import open_dataset
 
     ds = open_dataset(tiny_dataset)
     cfg = load_config(RunConfig, TINY_TRAIN / "mono2.yaml", ["train.steps=1"])

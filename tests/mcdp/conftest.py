@@ -17,6 +17,6 @@ def one_thread():
 @pytest.fixture(scope="module")
 def ds(tiny_dataset):
     """The tiny dataset (tests/conftest.py), opened."""
-    from synth.dataset import open_dataset
+    from synth.open import open_dataset
 
     return open_dataset(tiny_dataset)

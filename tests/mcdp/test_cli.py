@@ -82,7 +82,7 @@ def test_eval_defaults_to_run_folder_and_val_split(trained_run, tiny_dataset):
 
 
 def test_predict_writes_grids_exr_and_ply(trained_run, tiny_dataset, tmp_path):
-    from synth.dataset import open_dataset
+    from synth.open import open_dataset
     from synth.files import read_depth_exr
 
     out = tmp_path / "pred"

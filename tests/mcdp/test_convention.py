@@ -69,7 +69,7 @@ def _best_pair(ds, seq):
 
 
 def test_cross_camera_warp_with_gt_depth_matches_on_the_overlap(tiny_dataset):
-    from synth.dataset import open_dataset
+    from synth.open import open_dataset
 
     ds = open_dataset(tiny_dataset)
     seq = ds.split("train")[0]
@@ -86,7 +86,7 @@ def test_cross_camera_warp_with_gt_depth_matches_on_the_overlap(tiny_dataset):
 @pytest.mark.parametrize("offset", [-1, 1])
 def test_temporal_warp_with_gt_depth_and_odometry(tiny_dataset, offset):
     """Same camera, frame t+offset -> t, with the odometry motion mcdp uses for scale.source=odometry."""
-    from synth.dataset import open_dataset
+    from synth.open import open_dataset
 
     ds = open_dataset(tiny_dataset)
     seq = ds.split("train")[0]

@@ -109,7 +109,7 @@ def test_bf16_autocast_trains_on_cpu(tiny_dataset, tmp_path, one_thread):
     from corelib.configlib import load_config
     from mcdp.config import RunConfig
     from mcdp.trainer import Trainer
-    from synth.dataset import open_dataset
+    from synth.open import open_dataset
 
     cfg = load_config(RunConfig, PRESET, ["train.steps=2", "train.precision=bf16", "train.num_workers=0"])
     tr = Trainer(cfg, open_dataset(tiny_dataset), tmp_path / "run", progress=False, tensorboard=False)

@@ -63,7 +63,7 @@ def test_a_registered_toy_method_trains_two_steps_and_evaluates(toy, tiny_datase
     from mcdp.evaluate import EvalConfig, evaluate
     from mcdp.predict import Predictor
     from mcdp.trainer import Trainer
-    from synth.dataset import open_dataset
+    from synth.open import open_dataset
     from study.config import SweepConfig
 
     ds = open_dataset(tiny_dataset)

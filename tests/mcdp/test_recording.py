@@ -48,7 +48,7 @@ def run(tiny_dataset, tmp_path_factory):
 def test_predict_rrd_holds_every_stage_beside_the_ground_truth(run, tiny_dataset, tmp_path, one_thread):
     from mcdp.predict import Predictor
     from mcdp.recording import abs_rel_image
-    from synth.dataset import open_dataset
+    from synth.open import open_dataset
 
     out = tmp_path / "pred.rrd"
     assert main(["predict", str(run), "--data", str(tiny_dataset), "--rrd", str(out), "--max-samples", "2",

@@ -24,7 +24,7 @@ def export(tiny_dataset, tmp_path_factory):
 
 @pytest.fixture(scope="module")
 def model(tiny_dataset):
-    from synth.dataset import open_dataset
+    from synth.open import open_dataset
     from synth.gltf_export import rebuild_scene
 
     return rebuild_scene(open_dataset(tiny_dataset), SEQ)[1]

@@ -7,7 +7,7 @@ from synth.cli import main
 
 
 def test_info_prints_sequences_splits_and_overlap(tiny_dataset, capsys):
-    from synth.dataset import open_dataset
+    from synth.open import open_dataset
 
     ds = open_dataset(tiny_dataset)
     assert main(["info", str(tiny_dataset)]) == 0
@@ -22,7 +22,7 @@ def test_info_prints_sequences_splits_and_overlap(tiny_dataset, capsys):
 
 
 def test_info_json_matches_the_manifest(tiny_dataset, capsys):
-    from synth.dataset import open_dataset
+    from synth.open import open_dataset
 
     ds = open_dataset(tiny_dataset)
     assert main(["info", str(tiny_dataset), "--json"]) == 0

@@ -22,7 +22,7 @@ from nuscenes.utils.geometry_utils import view_points  # noqa: E402
 from pyquaternion import Quaternion  # noqa: E402
 
 from corelib.hashing import sha256_file  # noqa: E402
-from synth.dataset import open_dataset  # noqa: E402
+from synth.open import open_dataset  # noqa: E402
 from synth.files import read_depth_exr, read_png  # noqa: E402
 from synth.lidar import LidarConfig  # noqa: E402
 from synth.nuscenes_export import (ExportError, NUSCENES_CAMERAS, TABLES, export_nuscenes,  # noqa: E402

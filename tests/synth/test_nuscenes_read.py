@@ -19,7 +19,7 @@ import mcdp.trainer  # noqa: F401,E402  torch before the in-process GL renderer 
 from study.method_commands import main  # noqa: E402
 from mcdp.evaluate import EvalConfig, evaluate  # noqa: E402
 from mcdp.predict import Predictor  # noqa: E402
-from synth.dataset import open_dataset  # noqa: E402
+from synth.open import open_dataset  # noqa: E402
 from synth.files import DatasetError, read_png  # noqa: E402
 from synth.nuscenes_export import export_nuscenes  # noqa: E402
 from synth.nuscenes_read import NO_MASKS, RIG_ORDER, NuScenesDataset, open_nuscenes  # noqa: E402

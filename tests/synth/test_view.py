@@ -120,7 +120,7 @@ def check_blueprint(path, cameras, tabs: list[str]) -> dict:
 
 
 def test_recording_carries_the_blueprint(recording, tiny_dataset):
-    from synth.dataset import open_dataset
+    from synth.open import open_dataset
 
     ds = open_dataset(tiny_dataset)
     check_blueprint(recording, ds.cameras, ["RGB", "depth (ground truth)"])
@@ -142,7 +142,7 @@ def test_ring_order_is_front_row_then_back_row():
 
 
 def test_recording_holds_the_world_mesh_trajectory_and_ego_body(recording, tiny_dataset):
-    from synth.dataset import open_dataset
+    from synth.open import open_dataset
     from synth.gltf_export import rebuild_scene
 
     ds = open_dataset(tiny_dataset)
@@ -166,7 +166,7 @@ def test_recording_holds_the_world_mesh_trajectory_and_ego_body(recording, tiny_
 
 
 def test_one_depth_image_per_camera_and_frame_equal_to_the_exr(recording, tiny_dataset):
-    from synth.dataset import open_dataset
+    from synth.open import open_dataset
 
     ds = open_dataset(tiny_dataset)
     ego = ds.ego("seq_00001")
@@ -189,11 +189,11 @@ def test_one_depth_image_per_camera_and_frame_equal_to_the_exr(recording, tiny_d
 
 
 def test_a_nuscenes_dataroot_records_its_lidar_sweep_in_the_world_frame(tiny_dataset, tmp_path):
-    """The LiDAR branch: our nuScenes export of the tiny render, opened by `synth.dataset.open_dataset`
+    """The LiDAR branch: our nuScenes export of the tiny render, opened by `synth.open.open_dataset`
     (the plain-JSON reader here: this environment cannot have nuscenes-devkit, which pins numpy < 2),
     recorded by `synth view`: world/lidar holds `lidar_points_world` of each frame at that frame's time."""
     from synth.cli import main
-    from synth.dataset import open_dataset
+    from synth.open import open_dataset
     from synth.nuscenes_export import export_nuscenes
     from synth.nuscenes_read import NuScenesDataset
 
