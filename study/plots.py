@@ -9,6 +9,7 @@
 """
 from __future__ import annotations
 
+import math
 from pathlib import Path
 
 from mcdp.methods import label
@@ -52,11 +53,28 @@ def _legend(fig, axes, ncol: int | None = None) -> None:
                    ncol=ncol or min(len(names), 4), frameon=False)
 
 
-def _style(ax, title: str, ylabel: str, xs) -> None:
+def x_axis(results: dict) -> tuple[str, list[str]]:
+    """The overlap axis of every figure: its label and tick labels "target (measured)", the measured pixel
+    overlap over the pairs at the target (`study.worlds.measured_overlap`) under each target, so the axis
+    reads as the overlap the data has. With ``rig.overlap_target=pixels`` the target is itself a pixel
+    overlap (the calibrated knob); with ``angle`` it is the shared fraction of the hfov."""
+    xs = results["overlaps"]
+    data = results.get("data") or []
+    meas = [(d.get("measured") or {}).get("measured_mean") for d in data]
+    knobs = {(d.get("measured") or {}).get("knob") or "angle" for d in data}
+    label = ("pixel overlap: target (measured)" if knobs == {"pixels"}
+             else f"{XLABEL} (measured pixel overlap)")
+    if len(meas) != len(xs) or not all(isinstance(m, (int, float)) and math.isfinite(m) for m in meas):
+        return XLABEL, [f"{o:.2f}" for o in xs]
+    return label, [f"{o:.2f}\n({m:.2f})" for o, m in zip(xs, meas)]
+
+
+def _style(ax, title: str, ylabel: str, xs, axis: tuple[str, list[str]] | None = None) -> None:
+    label, ticks = axis or (XLABEL, [f"{o:.2f}" for o in xs])
     ax.set_title(title, fontsize=10)
-    ax.set_xlabel(XLABEL, fontsize=9)
+    ax.set_xlabel(label, fontsize=9)
     ax.set_ylabel(ylabel, fontsize=9)
-    ax.set_xticks(xs, [f"{o:.2f}" for o in xs])
+    ax.set_xticks(xs, ticks)
     ax.grid(alpha=0.3)
 
 
@@ -95,7 +113,7 @@ def make_plots(results: dict, plot_dir: Path) -> list[Path]:
     fig, axes = plt.subplots(1, 3, figsize=(14, 4.2))
     for ax, sc in zip(axes, ("none", "median")):
         methods_on(ax, f"{sc}.mean.abs_rel")
-        _style(ax, f"methods, {SCALE_LABEL[sc]} scaling", "abs_rel (lower is better)", xs)
+        _style(ax, f"methods, {SCALE_LABEL[sc]} scaling", "abs_rel (lower is better)", xs, x_axis(results))
     ax = axes[2]
     for sc, ls in (("none", "-"), ("median", "--")):
         ax.plot(xs, [yardstick_agg(results, o, f"{sc}.mean.abs_rel")["mean"] for o in xs], "k" + ls, marker="^",
@@ -103,7 +121,7 @@ def make_plots(results: dict, plot_dir: Path) -> list[Path]:
         ax.plot(xs, [yardstick_agg(results, o, f"{sc}.mean.abs_rel", "prior")["mean"] for o in xs], ls,
                 color="darkgoldenrod", marker="v", label=f"{PRIOR_LABEL}, {SCALE_LABEL[sc]}")
     band(ax, "median.mean.abs_rel", "range of the methods, median")
-    _style(ax, "yardsticks (no training)", "abs_rel", xs)
+    _style(ax, "yardsticks (no training)", "abs_rel", xs, x_axis(results))
     fig.suptitle("abs_rel vs overlap, test split, all pixels (mean ± 95 % interval over seeds, unpaired; the "
                  "comparison with Mono2: paired_vs_mono2.png)", fontsize=11)
     fig.tight_layout()
@@ -112,11 +130,11 @@ def make_plots(results: dict, plot_dir: Path) -> list[Path]:
 
     fig, axes = plt.subplots(1, 2, figsize=(10, 4.2))
     methods_on(axes[0], "dep_con.mean")
-    _style(axes[0], "methods", "Dep Con (lower is better)", xs)
+    _style(axes[0], "methods", "Dep Con (lower is better)", xs, x_axis(results))
     axes[1].plot(xs, [yardstick_agg(results, o, "dep_con.mean")["mean"] for o in xs], "k--", marker="^",
                  label=REF_LABEL)
     band(axes[1], "dep_con.mean", "range of the methods")
-    _style(axes[1], "yardstick", "Dep Con", xs)
+    _style(axes[1], "yardstick", "Dep Con", xs, x_axis(results))
     fig.suptitle("Dep Con (unscaled ratio |D − D̂| / D_gt, mean over camera pairs)", fontsize=11)
     fig.tight_layout()
     _legend(fig, axes)
@@ -128,7 +146,7 @@ def make_plots(results: dict, plot_dir: Path) -> list[Path]:
             c = colors[i % len(colors)]
             ax.plot(xs, series(m, f"{sc}.overlap.abs_rel")[0], marker="o", color=c, label=label(m))
             ax.plot(xs, series(m, f"{sc}.non_overlap.abs_rel")[0], marker="s", ls="--", color=c)
-        _style(ax, f"{SCALE_LABEL[sc]} scaling", "abs_rel (lower is better)", xs)
+        _style(ax, f"{SCALE_LABEL[sc]} scaling", "abs_rel (lower is better)", xs, x_axis(results))
     axes[0].plot([], [], "k-", marker="o", label="overlap pixels (solid)")
     axes[0].plot([], [], "k--", marker="s", label="non-overlap pixels (dashed)")
     fig.suptitle("abs_rel on overlap vs non-overlap pixels (mean over seeds)", fontsize=11)
@@ -140,7 +158,7 @@ def make_plots(results: dict, plot_dir: Path) -> list[Path]:
     meas = [d["measured"]["measured_mean"] for d in results["data"]]
     ax.plot(xs, xs, "k:", label="target (geometric)")
     ax.plot(xs, meas, "o-", label="measured pixel overlap")
-    _style(ax, "measured vs target overlap\n(pairs at the target)", "overlap", xs)
+    _style(ax, "measured vs target overlap\n(pairs at the target)", "overlap", xs, x_axis(results))
     ax.legend(fontsize=8)
     fig.tight_layout()
     paths.append(_save(plt, fig, plot_dir / "measured_overlap.png"))
@@ -179,7 +197,7 @@ def paired_plot(results: dict, plot_dir: Path) -> Path | None:
                 ax.plot([xi], [yi], "o", color=c, mfc=c if p["differs"] else "white", ms=6)
         ax.axhline(0.0, color="k", lw=0.8)
         unit = "abs_rel, median scaling" if key.startswith("median.") else "ratio"
-        _style(ax, name, f"{name} − Mono2 ({unit})", xs)
+        _style(ax, name, f"{name} − Mono2 ({unit})", xs, x_axis(results))
     fig.suptitle("Each method − Mono2, paired over seeds" + (" (one seed: no interval)" if one_seed else
                  ", 95 % t-interval; < 0 = better than Mono2; filled = beyond the interval"), fontsize=11)
     fig.tight_layout()
