@@ -1,5 +1,7 @@
 """One trained run evaluated on dense rendered depth and on the LiDAR depth of its nuScenes export.
 
+Feeds: docs/NUSCENES.md
+
     .venv/bin/python benchmarks/dense_vs_lidar.py [--sequences 40 --frames 10 --steps 300]
 
 Renders a tiny-preset world, trains mono2 from scratch (the recipe of docs/results/learning.md:
@@ -39,7 +41,7 @@ def main(argv=None) -> int:
     from mcdp.predict import Predictor
     from mcdp.trainer import Trainer
     from synth.config import load_data_config
-    from synth.dataset import open_dataset
+    from synth.open import open_dataset
     from synth.nuscenes_export import export_nuscenes
     from synth.render import render_dataset
 

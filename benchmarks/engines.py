@@ -1,5 +1,7 @@
 """The engines side by side: render rig-frames/s and the CI sweep's wall time, local vs Ray.
 
+Feeds: docs/results/scaling.md
+
     OMP_NUM_THREADS=1 .venv/bin/python benchmarks/engines.py [--sequences 6 --frames 6] [--no-sweep]
 
 Render: configs/data/tiny.yaml (96x64) with ``--sequences`` x ``--frames``, end to end

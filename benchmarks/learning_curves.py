@@ -1,5 +1,7 @@
 """Learning curves: test-split depth accuracy of a training recipe against steps and CPU minutes.
 
+Feeds: docs/results/learning.md
+
 Trains one preset (self-supervised, no ground truth) and, optionally, the same
 depth network supervised with ground-truth depth (log-L1; the upper bound),
 evaluating on the test split every ``--every`` steps. Every table carries its
@@ -35,7 +37,7 @@ from mcdp.predict import Predictor  # noqa: E402
 from mcdp.priors import flat_road_predictor  # noqa: E402
 from mcdp.trainer import Trainer  # noqa: E402
 from corelib.configlib import load_config  # noqa: E402
-from synth.dataset import open_dataset  # noqa: E402
+from synth.open import open_dataset  # noqa: E402
 
 EVAL = EvalConfig(min_depth=0.5, max_depth=80.0, frame_stride=2, skip_ends=True)
 

@@ -1,5 +1,7 @@
 """Target vs measured pixel overlap for rig.overlap in 0.1 .. 0.6, both overlap modes.
 
+Feeds: docs/results/overlap.md
+
     .venv/bin/python benchmarks/overlap_table.py [--sequences 2 --frames 3 --width 320 --height 192]
 
 Renders a small dataset per (mode, overlap) into a temporary folder and prints, per mode, the
@@ -23,8 +25,8 @@ def frustum_only(path: Path) -> dict[str, float]:
     image (no ego mask in j, no z-test), as the manifest measured it before the one definition."""
     import numpy as np
 
-    from synth.dataset import open_dataset
-    from synth.overlap import overlap_mask
+    from synth.open import open_dataset
+    from synth.overlap import overlap_mask, pair_overlaps
 
     ds = open_dataset(path)
     cams, tot = ds.cameras, {}
@@ -37,11 +39,10 @@ def frustum_only(path: Path) -> dict[str, float]:
                     far = np.full_like(depth[cj.name], 1e12)  # nothing in j is nearer: no z-test
                     ov = overlap_mask(depth[ci.name], ci.K, ci.T_ego_cam, far, cj.K, cj.T_ego_cam,
                                       mask_i=ds.mask(ci.name))
-                    t = tot.setdefault((a, b), [0, 0, 0, 0])
-                    k = 0 if (i, j) == (a, b) else 2
-                    t[k] += int(((depth[ci.name] > 0) & ds.mask(ci.name)).sum())
-                    t[k + 1] += int(ov.sum())
-    return {f"{cams[a].name}-{cams[b].name}": (t[1] / t[0] + t[3] / t[2]) / 2 for (a, b), t in tot.items()}
+                    t = tot.setdefault(f"{ci.name}->{cj.name}", [0, 0])
+                    t[0] += int(((depth[ci.name] > 0) & ds.mask(ci.name)).sum())
+                    t[1] += int(ov.sum())
+    return {k: v["measured"] for k, v in pair_overlaps(tot, ds.camera_names, ds.neighbours).items()}
 
 
 def main(argv=None) -> int:

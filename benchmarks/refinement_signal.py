@@ -1,4 +1,6 @@
 """Does the training loss know which basis weights are better? The gradient that reaches MCDP's
+
+Feeds: docs/results/refinement.md
 refined weights, compared with the direction to the ORACLE weights of the same bases.
 
 For a trained MCDP run and rig samples of a split, per image (camera) i:
@@ -33,7 +35,7 @@ from mcdp.data import RigDataset, collate  # noqa: E402
 from mcdp.oracle import fit_oracle_weights, ground_truth_at  # noqa: E402
 from mcdp.runs import config_from_checkpoint, find_checkpoint, load_checkpoint  # noqa: E402
 from mcdp.system import SelfSupervisedSystem  # noqa: E402
-from synth.dataset import open_dataset  # noqa: E402
+from synth.open import open_dataset  # noqa: E402
 
 
 def tangent(g: torch.Tensor) -> torch.Tensor:

@@ -1,4 +1,6 @@
 """Where an end-to-end rig frame's CPU goes: each writer task alone, the compression its bytes require,
+
+Feeds: docs/results/render_throughput.md
 scene generation, and the process's CPU by thread in end-to-end, render-only and files-off runs.
 
     .venv/bin/python benchmarks/render_costs.py [--size 320x192 --frames 10 --scenes 6]

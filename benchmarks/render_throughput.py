@@ -1,5 +1,7 @@
 """Render throughput and memory: rig-frames/s (six cameras, RGB + depth written) and RSS.
 
+Feeds: docs/results/render_throughput.md
+
     .venv/bin/python benchmarks/render_throughput.py [--sequences 2 --frames 20 --renders 1000 --rounds 3]
 
 Prints a table: resolution, end-to-end rig-frames/s of one process (scene generation,

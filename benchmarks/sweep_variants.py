@@ -1,4 +1,6 @@
 """Variants of one sweep recipe side by side: the consistency-weight table, the budget (learning-curve)
+
+Feeds: docs/results/consistency_weight.md, docs/results/budget.md, docs/results/refinement.md
 table, and probes of the refinement's knobs, all from ONE shared pretraining and the same datasets.
 
 Each variant is the base sweep preset plus its own training overrides, run by `mcdp sweep` into

@@ -1,5 +1,7 @@
 """Training steps/s with 1 process vs 2 torchrun processes (gloo, CPU) at the same global batch.
 
+Feeds: docs/SCALING.md
+
     .venv/bin/python benchmarks/train_scaling.py [--preset configs/train/tiny/mono2.yaml] [--batch 2]
 
 Renders the tiny dataset into a temporary folder, then times `mcdp train` for a short and a long

@@ -1,5 +1,7 @@
 """Seconds per training step and peak memory of every training preset, with the ratio to mono2.
 
+Feeds: docs/results/train_step.md
+
 One rig sample per step (6 cameras x 3 frames), random images on a synthetic
 six-camera ring (no dataset needed), the presets' own settings otherwise.
 Each (preset, size) runs in a fresh subprocess so that peak memory (CPU: max

@@ -1,5 +1,7 @@
 """Where a training step's wall time goes, timed with `time.perf_counter`, not `torch.profiler`.
 
+Feeds: docs/results/train_step.md
+
     .venv/bin/python benchmarks/train_step_breakdown.py [--presets mono2 mcdp_m2 --steps 5 --threads 1]
 
 The profiler misattributes time on some CPUs (docs/results/train_step.md shows a 10 ms convolution
