@@ -57,7 +57,7 @@ import torch
 
 from mcdp.geometry import warp_by_depth
 from mcdp.losses import min_reprojection, photometric_error
-from mcdp.model import MonoDepthModel
+from mcdp.model import LossContext, MonoDepthModel
 
 SPATIAL_WEIGHT = 0.1
 POSE_TRANSLATION_WEIGHT = 1.0
@@ -67,9 +67,13 @@ CONTEXTS = (0, -1, 1)
 
 
 class FsmDepthModel(MonoDepthModel):
-    """FSM's depth network: Monodepth2's, one image in, one depth out (no neighbour at inference)."""
+    """FSM's depth network: Monodepth2's, one image in, one depth out (no neighbour at inference); its own
+    loss terms are `fsm_loss`."""
 
     model = "fsm"
+
+    def loss_terms(self, outputs: dict, batch: dict, ctx: LossContext) -> dict:
+        return fsm_loss(outputs, batch, ctx)
 
 
 def spatial_photometric(depth: torch.Tensor, rgb: torch.Tensor, mask: torch.Tensor, K: torch.Tensor,
@@ -154,17 +158,18 @@ def pose_consistency(motions: dict, T_ego_cam: torch.Tensor, ref: int = 0) -> tu
     return torch.stack(t_err).mean(), torch.stack(r_err).mean()
 
 
-def fsm_loss(outputs: dict, batch: dict, cfg) -> dict:
+def fsm_loss(outputs: dict, batch: dict, ctx: LossContext) -> dict:
     """FSM's own terms for `mcdp.system.SelfSupervisedSystem` (weighted; module docstring).
 
-    Reads from ``outputs`` the depths of every stage and scale, ``"poses"`` ({-1, +1}: (B*N, 4, 4)
-    T_src_tgt, the camera motions of the step's temporal warps) and ``"pairs"`` ((P,), (P,)).
+    Reads from ``outputs`` the depths of every stage and scale, and from the step's `LossContext` its
+    ``poses`` ({-1, +1}: (B*N, 4, 4) T_src_tgt, the camera motions of the temporal warps) and ``pairs``.
     """
+    cfg = ctx.cfg
     rgb = batch["rgb"].float()
     B, N = rgb.shape[:2]
     H, W = rgb.shape[-2:]
-    tgt, src = outputs["pairs"]
-    motions = {o: p.reshape(B, N, 4, 4) for o, p in outputs["poses"].items()}
+    tgt, src = ctx.pairs
+    motions = {o: p.reshape(B, N, 4, 4) for o, p in ctx.poses.items()}
     out: dict = {}
     if tgt.numel() > 0 and SPATIAL_WEIGHT > 0:
         total = 0.0

@@ -3,9 +3,9 @@
 A method is an entry here: its name (the row key in sweeps and reports, and the name of its
 presets ``configs/train/<name>.yaml`` and ``configs/train/tiny/<name>.yaml``), its display
 label, the config values that make it this method (``defaults``: dotted keys, applied under
-the preset and the user's overrides; the presets must agree with them, tested), the builder of
-its depth network (which also checks what it needs of ``ModelConfig``: ``check_config``) and,
-optionally, loss terms of its own. Table order = report order.
+the preset and the user's overrides; the presets must agree with them, tested), and the class of
+its depth network (which checks what it needs of ``ModelConfig``: ``check_config``, and holds the
+method's own loss terms: ``loss_terms``). Table order = report order.
 
 The depth network's contract is one class, `mcdp.model.DepthNetwork`: every method's network subclasses
 it (most through `mcdp.model.DepthModel`; `network_class` refuses anything else) and overrides what differs. Its declared members, read as
@@ -14,23 +14,24 @@ naming the key), ``.cfg``, ``.stages`` (stage names, the last is evaluated), ``n
 channels), ``has_bases`` (n bases combined by weights), ``uses_neighbours`` (the depth reads other cameras
 at inference: the sweep also evaluates it cut), ``joint_pose`` (the pose network moves the rig as one),
 ``reads_overlap_truth`` (an ORACLE whose input holds the overlap's ground truth), ``fresh_parameters()``
-(the layers no pretraining initialises: they learn at ``train.weight_lr_mult`` x the rate) and
-``forward(rgb, K, T_ego_cam, mask, nbr, oracle_gt_median=None, scales=None, refine_scales=None,
+(the layers no pretraining initialises: they learn at ``train.weight_lr_mult`` x the rate),
+``loss_terms(outputs, batch, ctx)`` (the method's own terms, below) and ``forward(rgb, K, T_ego_cam, mask, nbr, oracle_gt_median=None, scales=None, refine_scales=None,
 overlap_truth=None) -> {("disp" | "depth", stage, scale): (B*N, 1, h, w), "stages": [...], "scale":
 (B*N,)}``. tests/mcdp/test_methods.py checks every registered method against it.
 
-A method's own loss terms (``loss_terms``): ``(outputs, batch, cfg) -> {name: scalar}``, each
-scalar already weighted; `mcdp.system.SelfSupervisedSystem` adds them to the step's loss and
-logs each under its name (the val loss that picks ``best.pt`` stays L_p + lambda L_con). Besides
-the depth network's outputs, ``outputs`` then holds the step's ``"poses"`` ({-1, +1}: (B*N, 4, 4)
-T_src_tgt, the camera motions of the temporal warps: predicted, or the odometry's under
-``scale.source=odometry``) and ``"pairs"`` ((P,), (P,) int64: the directed adjacent camera pairs
-(tgt, src)), e.g. for `mcdp.fsm`.
+A method's own loss terms: the network's ``loss_terms(outputs, batch, ctx) -> {name: scalar}``, each
+scalar already weighted; `mcdp.system.SelfSupervisedSystem` adds them to the step's loss and logs
+each under its name (the val loss that picks ``best.pt`` stays L_p + lambda L_con). ``outputs`` are
+the depth network's own; what the terms read of the step besides them is the frozen
+`mcdp.model.LossContext` ``ctx``: ``cfg``, ``poses`` ({-1, +1}: (B*N, 4, 4) T_src_tgt, the camera
+motions of the temporal warps: predicted, or the odometry's under ``scale.source=odometry``),
+``pairs`` ((P,), (P,) int64: the directed adjacent camera pairs (tgt, src)) and ``step``, e.g. for
+`mcdp.fsm`.
 
-To add a method: write its network (and loss terms) in one module, then add one line to
+To add a method: write its network (and its loss terms) in one module, then add one line to
 `METHODS` below (or call `register` from your own code before training)::
 
-    register(Method("toy", "Toy net", {"model.method": "toy"}, ToyDepth, loss_terms=toy_loss))
+    register(Method("toy", "Toy net", {"model.method": "toy"}, ToyDepth))
 """
 from __future__ import annotations
 
@@ -44,10 +45,6 @@ from mcdp.config import LossConfig, ModelConfig
 if TYPE_CHECKING:  # this table is read before torch is imported (a config is checked first)
     import torch.nn as nn
 
-#: a method's own loss terms: (outputs of the depth network, batch, RunConfig) -> {name: weighted scalar}
-LossTerms = Callable[[dict, dict, Any], dict]
-
-
 @dataclass(frozen=True)
 class Method:
     name: str
@@ -55,8 +52,6 @@ class Method:
     defaults: Mapping[str, Any] = field(default_factory=dict)
     #: the network's class (or any builder), or its "module:name", imported when first built or checked
     build: Callable[[ModelConfig], nn.Module] | str = "mcdp.model:DepthModel"
-    #: its own loss terms, or their "module:name" (imported when first used), or None
-    loss_terms: LossTerms | str | None = None
 
     @property
     def model(self) -> str:
@@ -67,11 +62,6 @@ class Method:
     def builder(self) -> Callable[[ModelConfig], nn.Module]:
         """`build`, imported if it was given as "module:name" (so this table never imports torch)."""
         return _resolve(self.build)
-
-    @property
-    def terms(self) -> LossTerms | None:
-        """`loss_terms`, imported if it was given as "module:name"."""
-        return None if self.loss_terms is None else _resolve(self.loss_terms)
 
 
 def _resolve(obj):
@@ -98,7 +88,7 @@ for _m in (
     Method("mono2", "Mono2", {"model.method": "mono2", "model.refine_steps": 0, "loss.consistency_weight": 0.0},
            "mcdp.model:MonoDepthModel"),
     Method("fsm", "FSM", {"model.method": "fsm", "model.refine_steps": 0, "loss.consistency_weight": 0.0},
-           "mcdp.fsm:FsmDepthModel", loss_terms="mcdp.fsm:fsm_loss"),
+           "mcdp.fsm:FsmDepthModel"),
     Method("surround", "SurroundDepth", {"model.method": "surround", "model.refine_steps": 0,
                                          "loss.consistency_weight": 0.0}, "mcdp.surround:SurroundDepthModel"),
     Method("mcdp_m0", "MCDP (m = 0)", {"model.method": "mcdp", "model.refine_steps": 0,
@@ -147,7 +137,8 @@ def method_of(cfg: ModelConfig) -> Method:
 def network_class(method: Method) -> type:
     """The method's network class: a subclass of `mcdp.model.DepthNetwork`, the one contract (its declared
     members: ``stages``, ``n_out``, ``has_bases``, ``uses_neighbours``, ``joint_pose``,
-    ``reads_overlap_truth``, ``fresh_parameters()``, ``check_config(cfg)``, ``forward``); TypeError otherwise."""
+    ``reads_overlap_truth``, ``fresh_parameters()``, ``check_config(cfg)``, ``loss_terms``, ``forward``); TypeError
+    otherwise."""
     from mcdp.model import DepthNetwork
 
     net = method.builder

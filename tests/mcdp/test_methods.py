@@ -40,21 +40,19 @@ class ToyDepth(DepthNetwork):
             out["depth", "init", s] = disp_to_depth(up, self.cfg.min_depth, self.cfg.max_depth)[1]
         return out
 
+    def loss_terms(self, outputs, batch, ctx):
+        """The toy method's own loss term: a pull of the full-resolution disparity towards its mean (weighted)."""
+        disp = outputs["disp", "init", 0]
+        return {"toy/flatness": TOY_WEIGHT * (disp - disp.mean()).abs().mean()}
+
 
 TOY_WEIGHT = 1e-2
-
-
-def toy_loss(outputs: dict, batch: dict, cfg: RunConfig) -> dict:
-    """The toy method's own loss term: a pull of the full-resolution disparity towards its mean (weighted)."""
-    disp = outputs["disp", "init", 0]
-    return {"toy/flatness": TOY_WEIGHT * (disp - disp.mean()).abs().mean()}
 
 
 @pytest.fixture
 def toy():
     m = methods.register(methods.Method("toy", "Toy net", {"model.method": "toy", "model.refine_steps": 0,
-                                                           "loss.consistency_weight": 0.0}, ToyDepth,
-                                        loss_terms=toy_loss))
+                                                           "loss.consistency_weight": 0.0}, ToyDepth))
     yield m
     methods.METHODS.pop("toy")
 
