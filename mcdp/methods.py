@@ -148,6 +148,12 @@ def network_class(method: Method) -> type:
     return net
 
 
+def model_config(method: Method) -> ModelConfig:
+    """The ``model`` section a method's registry defaults make (every other key at `ModelConfig`'s default):
+    what a report reads of a method without a run, e.g. ``network_class(m).fresh_layers(model_config(m))``."""
+    return ModelConfig(**{k.split(".", 1)[1]: v for k, v in method.defaults.items() if k.startswith("model.")})
+
+
 def check_model(cfg: ModelConfig) -> None:
     """ConfigError, naming the key, when ``cfg.method``'s network cannot be built from ``cfg`` (without building it)."""
     network_class(method_of(cfg)).check_config(cfg)

@@ -134,6 +134,7 @@ class DepthNetwork(nn.Module):
     - ``joint_pose``: the pose network moves the rig as one (it is given the extrinsics);
     - ``reads_overlap_truth``: an ORACLE whose input holds the overlap's ground truth (`mcdp.oracle_local`);
     - ``fresh_parameters()``: the layers no pretraining initialises (they learn at ``train.weight_lr_mult``);
+      ``fresh_layers(cfg)`` (classmethod): what they are, in words, for reports ("" when there are none);
     - ``loss_terms(outputs, batch, ctx)``: the method's own loss terms, ``{name: weighted scalar}`` added to
       the step's loss and logged under their names (`LossContext`: what the step gives them; none by default);
     - ``forward(rgb, K, T_ego_cam, mask, nbr, oracle_gt_median=None, scales=None, refine_scales=None,
@@ -159,6 +160,12 @@ class DepthNetwork(nn.Module):
 
     def fresh_parameters(self) -> list[nn.Parameter]:
         return []
+
+    @classmethod
+    def fresh_layers(cls, cfg: ModelConfig) -> str:
+        """`fresh_parameters` of the network built from ``cfg``, named for a report ("weight networks");
+        "" when nothing starts fresh. A classmethod: the report reads it without building the network."""
+        return ""
 
     def loss_terms(self, outputs: dict, batch: dict, ctx: LossContext) -> dict:
         """This method's own loss terms for one step: {name: scalar, already weighted}; none by default."""
@@ -232,6 +239,10 @@ class DepthModel(DepthNetwork):
         """Parameters no pretraining initialises (`mcdp.warmstart` copies only ``encoder.*`` and
         ``decoder.*``); they learn at ``train.weight_lr_mult`` x the rate."""
         return [p for name, p in self.named_parameters() if not name.startswith(("encoder.", "decoder."))]
+
+    @classmethod
+    def fresh_layers(cls, cfg: ModelConfig) -> str:
+        return "weight networks" if cls.has_bases and cfg.refine_steps > 0 else ""
 
     def encode(self, x: torch.Tensor, B: int, N: int, nbr: torch.Tensor) -> list[torch.Tensor]:
         """Encoder features of the B*N images x (BN, 3, H, W); a method may mix the cameras here

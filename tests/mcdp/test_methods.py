@@ -131,6 +131,9 @@ def test_every_registered_network_keeps_the_contract(name):
         assert isinstance(getattr(net, member), bool), member
     fresh = net.fresh_parameters()
     assert all(isinstance(p, nn.Parameter) for p in fresh)
+    # what a report says starts fresh (read without building the network) is what does
+    words = type(net).fresh_layers(methods.model_config(methods.METHODS[name]))
+    assert isinstance(words, str) and bool(words) == bool(fresh), (words, len(fresh))
     N, H, W = 2, 64, 96
     K = torch.tensor([[80.0, 0, 48], [0, 80, 32], [0, 0, 1]]).expand(1, N, 3, 3)
     T = torch.eye(4).expand(1, N, 4, 4).clone()
