@@ -28,10 +28,21 @@ motions of the temporal warps: predicted, or the odometry's under ``scale.source
 ``pairs`` ((P,), (P,) int64: the directed adjacent camera pairs (tgt, src)) and ``step``, e.g. for
 `mcdp.fsm`.
 
-To add a method: write its network (and its loss terms) in one module, then add one line to
-`METHODS` below (or call `register` from your own code before training)::
+A method's own parameters (e.g. FSM's loss weights): a pydantic model named in its row's ``params``;
+the run config's ``method_params:`` section holds the keys a run sets, validated against that model
+(`method_params`, `check_run`: an unknown key or a bad value is one ConfigError naming
+``method_params.<key>``; a method without a model refuses any key), and the validated model reaches the
+loss terms as ``ctx.params``. Left empty the section is not hashed, so runs that set nothing keep their
+hashes (`corelib.configlib.added_key`).
 
-    register(Method("toy", "Toy net", {"model.method": "toy"}, ToyDepth))
+A report reads a method through its row and network class, never its name: ``has_bases`` and
+``fresh_layers(model_config(row))`` (`study.report.warm_start_line`).
+
+To add a method: write its network (its loss terms and its params model with it) in one module, then
+add one line to `METHODS` below (or call `register` from your own code before training; `unregister`
+removes it, e.g. in a test's teardown: tests/mcdp/test_toy_method.py does all of this)::
+
+    register(Method("toy", "Toy net", {"model.method": "toy"}, ToyDepth, params=ToyParams))
 """
 from __future__ import annotations
 
@@ -39,8 +50,10 @@ import importlib
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any, Callable, Mapping
 
+from pydantic import BaseModel, ValidationError
+
 from corelib.configlib import ConfigError
-from mcdp.config import LossConfig, ModelConfig
+from mcdp.config import LossConfig, ModelConfig, RunConfig
 
 if TYPE_CHECKING:  # this table is read before torch is imported (a config is checked first)
     import torch.nn as nn
@@ -52,11 +65,19 @@ class Method:
     defaults: Mapping[str, Any] = field(default_factory=dict)
     #: the network's class (or any builder), or its "module:name", imported when first built or checked
     build: Callable[[ModelConfig], nn.Module] | str = "mcdp.model:DepthModel"
+    #: the pydantic model of the method's own parameters (the run config's ``method_params`` section), or its
+    #: "module:name", or None (then ``method_params`` must stay empty)
+    params: type[BaseModel] | str | None = None
 
     @property
     def model(self) -> str:
         """The ``model.method`` value this method trains."""
         return str(self.defaults.get("model.method", self.name))
+
+    @property
+    def params_model(self) -> type[BaseModel] | None:
+        """`params`, imported if it was given as "module:name"."""
+        return None if self.params is None else _resolve(self.params)
 
     @property
     def builder(self) -> Callable[[ModelConfig], nn.Module]:
@@ -84,11 +105,16 @@ def register(method: Method) -> Method:
     return method
 
 
+def unregister(name: str) -> Method:
+    """Remove a registered method (e.g. a test's own, in its fixture's teardown); KeyError if none is so named."""
+    return METHODS.pop(name)
+
+
 for _m in (
     Method("mono2", "Mono2", {"model.method": "mono2", "model.refine_steps": 0, "loss.consistency_weight": 0.0},
            "mcdp.model:MonoDepthModel"),
     Method("fsm", "FSM", {"model.method": "fsm", "model.refine_steps": 0, "loss.consistency_weight": 0.0},
-           "mcdp.fsm:FsmDepthModel"),
+           "mcdp.fsm:FsmDepthModel", params="mcdp.fsm:FsmParams"),
     Method("surround", "SurroundDepth", {"model.method": "surround", "model.refine_steps": 0,
                                          "loss.consistency_weight": 0.0}, "mcdp.surround:SurroundDepthModel"),
     Method("mcdp_m0", "MCDP (m = 0)", {"model.method": "mcdp", "model.refine_steps": 0,
@@ -157,6 +183,36 @@ def model_config(method: Method) -> ModelConfig:
 def check_model(cfg: ModelConfig) -> None:
     """ConfigError, naming the key, when ``cfg.method``'s network cannot be built from ``cfg`` (without building it)."""
     network_class(method_of(cfg)).check_config(cfg)
+
+
+def method_params(cfg: RunConfig) -> BaseModel | None:
+    """The run's method parameters: ``cfg.method_params`` validated against its method's params model
+    (unset keys at the model's defaults), or None for a method without one. ConfigError, one line naming
+    ``method_params.<key>``, for an unknown key or a bad value."""
+    method = method_of(cfg.model)
+    model, given = method.params_model, dict(cfg.method_params)
+    if model is None:
+        if given:
+            raise ConfigError(f"method_params.{sorted(given)[0]}: method {method.name!r} has no parameters of its "
+                              "own (leave method_params empty)")
+        return None
+    known = sorted(model.model_fields)
+    for key in given:
+        if key not in model.model_fields:
+            raise ConfigError(f"method_params.{key}: unknown key for method {method.name!r} (its parameters: "
+                              f"{', '.join(known)})")
+    try:
+        return model.model_validate(given)
+    except ValidationError as err:
+        e = err.errors()[0]
+        where = ".".join(str(p) for p in e["loc"])
+        raise ConfigError(f"method_params.{where}: {e['msg']} (got {str(e.get('input'))[:80]!r})") from None
+
+
+def check_run(cfg: RunConfig) -> None:
+    """ConfigError, naming the key, when ``cfg``'s network cannot be built or its method_params are wrong."""
+    check_model(cfg.model)
+    method_params(cfg)
 
 
 def build_depth_model(cfg: ModelConfig) -> nn.Module:

@@ -43,7 +43,7 @@ from mcdp.config import RunConfig
 from mcdp.data import directed_pairs, neighbour_table
 from mcdp.geometry import splat_depth, warp_by_depth
 from mcdp.losses import consistency_loss, photometric_error, reprojection_loss, smoothness_loss
-from mcdp.methods import method_of
+from mcdp.methods import method_of, method_params
 from mcdp.model import LossContext, is_refined, resize_mask_to
 from mcdp.pose import PoseModel, odometry_camera_motion
 
@@ -101,6 +101,7 @@ class SelfSupervisedSystem(torch.nn.Module):
         self.cfg = cfg
         method = method_of(cfg.model)
         self.depth = method.builder(cfg.model)
+        self.params = method_params(cfg)  # the method's own parameters (LossContext.params), or None
         self.pose = PoseModel(cfg.model.pretrained) if cfg.scale.source != "odometry" else None
         self.register_buffer("nbr", neighbour_table(neighbours, n_cams), persistent=False)
         tgt, src = directed_pairs(neighbours)
@@ -213,7 +214,7 @@ class SelfSupervisedSystem(torch.nn.Module):
                     stage_loss = stage_loss + lam * lcon
             losses[f"stage/{stage}"] = stage_loss.detach()
             total = total + stage_loss
-        ctx = LossContext(cfg=cfg, params=None, poses=poses, pairs=(self.pair_tgt, self.pair_src), step=step)
+        ctx = LossContext(cfg=cfg, params=self.params, poses=poses, pairs=(self.pair_tgt, self.pair_src), step=step)
         for name, term in self.depth.loss_terms(outputs, batch, ctx).items():
             losses[name] = term.detach()
             total = total + term
