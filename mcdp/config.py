@@ -13,6 +13,10 @@ checkpoint. Sections:
 - ``scale``: where metric scale comes from (no ground truth unless the labelled oracle).
 - ``train``: optimisation, resolution, seeding, logging cadence.
 - ``eval``: evaluation settings (`EvalConfig`, read by `mcdp.evaluate`).
+- ``method_params``: the method's own parameters (e.g. FSM's loss weights): keys of the params model
+  its registry row declares (`mcdp.methods.Method.params`), validated there (`mcdp.methods.method_params`:
+  an unknown key or a bad value is a ConfigError naming ``method_params.<key>``); unset keys keep the
+  model's defaults. Empty by default, and then outside the run's hash (`corelib.configlib.added_key`).
 """
 from __future__ import annotations
 
@@ -21,7 +25,7 @@ from typing import Annotated, Any, Literal
 
 from pydantic import BeforeValidator, Field, field_validator, model_validator
 
-from corelib.configlib import StrictModel
+from corelib.configlib import StrictModel, added_key
 
 _SCI_FLOAT = re.compile(r"^[-+]?(\d+\.?\d*|\.\d+)[eE][-+]?\d+$")
 
@@ -291,6 +295,8 @@ class RunConfig(StrictModel):
     scale: ScaleConfig = ScaleConfig()
     train: TrainConfig = TrainConfig()
     eval: EvalConfig = EvalConfig()
+    #: the method's own parameters, checked against its registry row's params model (module docstring)
+    method_params: dict[str, Any] = added_key(default_factory=dict)
 
 
 # Keys that may change when a run is resumed (they do not change what is learned
@@ -313,7 +319,8 @@ RESUMABLE_KEYS = (
 def upgrade_config_dict(d: dict[str, Any]) -> dict[str, Any]:
     """A saved run config of an older version in today's keys (`_upgrade_train`)."""
     train = d.get("train")
-    return {**d, "train": _upgrade_train(train)} if isinstance(train, dict) else d
+    d = {**d, "train": _upgrade_train(train)} if isinstance(train, dict) else d
+    return d if "method_params" in d else {**d, "method_params": {}}  # saved before the section existed
 
 
 def resume_conflicts(saved: dict[str, Any], requested: dict[str, Any]) -> list[str]:

@@ -29,8 +29,9 @@ per-pixel minimum over frames t-1 / t+1 of the same camera, auto-masked, weight 
   squared translation (m^2) and squared Euler-angle (rad^2) differences, summed over the other
   cameras, mean over the batch and the two temporal directions (the paper's L_pcc).
 
-Weights (module constants, not config keys: a new key would change the config hash of every
-existing run and so void the sweep's caches; the reasons are here):
+Weights (`FsmParams`: the run config's ``method_params`` section, e.g.
+``method_params.spatial_weight=0.2``; the defaults are the module constants below, and a run that
+leaves the section empty keeps its config hash; the reasons for the defaults are here):
 
 - ``SPATIAL_WEIGHT = 0.1``: the authors' released FSM model (TRI-ML/vidar
   ``arch/models/depth/FSMModel.py``, ``stereo_weight = 0.1``): the spatial contexts see the scene
@@ -54,10 +55,13 @@ depth network starts fresh. The pose network starts as for every method (not pre
 from __future__ import annotations
 
 import torch
+from pydantic import Field
 
+from corelib.configlib import StrictModel
+from mcdp.config import MAX_WEIGHT, Float
 from mcdp.geometry import warp_by_depth
 from mcdp.losses import min_reprojection, photometric_error
-from mcdp.model import MonoDepthModel
+from mcdp.model import LossContext, MonoDepthModel
 
 SPATIAL_WEIGHT = 0.1
 POSE_TRANSLATION_WEIGHT = 1.0
@@ -66,10 +70,23 @@ POSE_ROTATION_WEIGHT = 1.0
 CONTEXTS = (0, -1, 1)
 
 
+class FsmParams(StrictModel):
+    """FSM's own loss weights (``method_params``; module docstring): the spatial photometric term's and the
+    pose consistency's translation (per m^2) and rotation (per rad^2) weights."""
+
+    spatial_weight: Float = Field(SPATIAL_WEIGHT, ge=0, le=MAX_WEIGHT, allow_inf_nan=False)
+    pose_translation_weight: Float = Field(POSE_TRANSLATION_WEIGHT, ge=0, le=MAX_WEIGHT, allow_inf_nan=False)
+    pose_rotation_weight: Float = Field(POSE_ROTATION_WEIGHT, ge=0, le=MAX_WEIGHT, allow_inf_nan=False)
+
+
 class FsmDepthModel(MonoDepthModel):
-    """FSM's depth network: Monodepth2's, one image in, one depth out (no neighbour at inference)."""
+    """FSM's depth network: Monodepth2's, one image in, one depth out (no neighbour at inference); its own
+    loss terms are `fsm_loss`."""
 
     model = "fsm"
+
+    def loss_terms(self, outputs: dict, batch: dict, ctx: LossContext) -> dict:
+        return fsm_loss(outputs, batch, ctx)
 
 
 def spatial_photometric(depth: torch.Tensor, rgb: torch.Tensor, mask: torch.Tensor, K: torch.Tensor,
@@ -154,19 +171,20 @@ def pose_consistency(motions: dict, T_ego_cam: torch.Tensor, ref: int = 0) -> tu
     return torch.stack(t_err).mean(), torch.stack(r_err).mean()
 
 
-def fsm_loss(outputs: dict, batch: dict, cfg) -> dict:
+def fsm_loss(outputs: dict, batch: dict, ctx: LossContext) -> dict:
     """FSM's own terms for `mcdp.system.SelfSupervisedSystem` (weighted; module docstring).
 
-    Reads from ``outputs`` the depths of every stage and scale, ``"poses"`` ({-1, +1}: (B*N, 4, 4)
-    T_src_tgt, the camera motions of the step's temporal warps) and ``"pairs"`` ((P,), (P,)).
+    Reads from ``outputs`` the depths of every stage and scale, and from the step's `LossContext` its
+    ``poses`` ({-1, +1}: (B*N, 4, 4) T_src_tgt, the camera motions of the temporal warps) and ``pairs``.
     """
+    cfg, w = ctx.cfg, ctx.params or FsmParams()
     rgb = batch["rgb"].float()
     B, N = rgb.shape[:2]
     H, W = rgb.shape[-2:]
-    tgt, src = outputs["pairs"]
-    motions = {o: p.reshape(B, N, 4, 4) for o, p in outputs["poses"].items()}
+    tgt, src = ctx.pairs
+    motions = {o: p.reshape(B, N, 4, 4) for o, p in ctx.poses.items()}
     out: dict = {}
-    if tgt.numel() > 0 and SPATIAL_WEIGHT > 0:
+    if tgt.numel() > 0 and w.spatial_weight > 0:
         total = 0.0
         for stage in outputs["stages"]:
             scales = [s for s in range(8) if ("depth", stage, s) in outputs]
@@ -177,8 +195,8 @@ def fsm_loss(outputs: dict, batch: dict, cfg) -> dict:
                                         tgt, src, cfg.loss.ssim_alpha)
                 st = st + r["pair"].sum() / N
             total = total + st / len(scales)
-        out["fsm/spatial"] = SPATIAL_WEIGHT * total
+        out["fsm/spatial"] = w.spatial_weight * total
     if cfg.scale.source != "odometry":  # a pose network predicts each camera's motion
         t, r = pose_consistency(motions, batch["T_ego_cam"])
-        out["fsm/pose_consistency"] = POSE_TRANSLATION_WEIGHT * t + POSE_ROTATION_WEIGHT * r
+        out["fsm/pose_consistency"] = w.pose_translation_weight * t + w.pose_rotation_weight * r
     return out

@@ -43,9 +43,9 @@ class TrainLogger:
         if self.writer is not None:
             self.writer.add_text(tag, "\n".join("    " + line for line in text.splitlines()), step)
 
-    def images(self, batch: dict, outputs: dict, losses: dict, step: int) -> None:
+    def images(self, batch: dict, outputs: dict, step: int) -> None:
         """Rows: the rig's RGB at t, one colour-mapped disparity row per stage, then the masks
-        (red: scene mask, green: pixels used by L_p)."""
+        (red: scene mask, green: pixels used by L_p: the step's ``outputs["used"]``, `mcdp.system`)."""
         if self.writer is None:
             return
         import torchvision
@@ -56,7 +56,7 @@ class TrainLogger:
             disp = outputs["disp", stage, 0][:N].detach().float().cpu()
             rows.append(torch.from_numpy(colorize_disparity(disp[:, 0].numpy())).permute(0, 3, 1, 2).float() / 255)
         m = batch["mask"][0].float().cpu()
-        used = losses["_used"][:N].float().cpu()
+        used = outputs["used"][:N].float().cpu()
         rows.append(torch.cat([m, used, m * 0], 1))
         grid = torchvision.utils.make_grid(torch.cat(rows, 0), nrow=N, padding=2)
         self.writer.add_image("rig/rgb_depth_per_stage_masks", grid, step)

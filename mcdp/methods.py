@@ -3,9 +3,9 @@
 A method is an entry here: its name (the row key in sweeps and reports, and the name of its
 presets ``configs/train/<name>.yaml`` and ``configs/train/tiny/<name>.yaml``), its display
 label, the config values that make it this method (``defaults``: dotted keys, applied under
-the preset and the user's overrides; the presets must agree with them, tested), the builder of
-its depth network (which also checks what it needs of ``ModelConfig``: ``check_config``) and,
-optionally, loss terms of its own. Table order = report order.
+the preset and the user's overrides; the presets must agree with them, tested), and the class of
+its depth network (which checks what it needs of ``ModelConfig``: ``check_config``, and holds the
+method's own loss terms: ``loss_terms``). Table order = report order.
 
 The depth network's contract is one class, `mcdp.model.DepthNetwork`: every method's network subclasses
 it (most through `mcdp.model.DepthModel`; `network_class` refuses anything else) and overrides what differs. Its declared members, read as
@@ -14,23 +14,35 @@ naming the key), ``.cfg``, ``.stages`` (stage names, the last is evaluated), ``n
 channels), ``has_bases`` (n bases combined by weights), ``uses_neighbours`` (the depth reads other cameras
 at inference: the sweep also evaluates it cut), ``joint_pose`` (the pose network moves the rig as one),
 ``reads_overlap_truth`` (an ORACLE whose input holds the overlap's ground truth), ``fresh_parameters()``
-(the layers no pretraining initialises: they learn at ``train.weight_lr_mult`` x the rate) and
-``forward(rgb, K, T_ego_cam, mask, nbr, oracle_gt_median=None, scales=None, refine_scales=None,
+(the layers no pretraining initialises: they learn at ``train.weight_lr_mult`` x the rate),
+``loss_terms(outputs, batch, ctx)`` (the method's own terms, below) and ``forward(rgb, K, T_ego_cam, mask, nbr, oracle_gt_median=None, scales=None, refine_scales=None,
 overlap_truth=None) -> {("disp" | "depth", stage, scale): (B*N, 1, h, w), "stages": [...], "scale":
 (B*N,)}``. tests/mcdp/test_methods.py checks every registered method against it.
 
-A method's own loss terms (``loss_terms``): ``(outputs, batch, cfg) -> {name: scalar}``, each
-scalar already weighted; `mcdp.system.SelfSupervisedSystem` adds them to the step's loss and
-logs each under its name (the val loss that picks ``best.pt`` stays L_p + lambda L_con). Besides
-the depth network's outputs, ``outputs`` then holds the step's ``"poses"`` ({-1, +1}: (B*N, 4, 4)
-T_src_tgt, the camera motions of the temporal warps: predicted, or the odometry's under
-``scale.source=odometry``) and ``"pairs"`` ((P,), (P,) int64: the directed adjacent camera pairs
-(tgt, src)), e.g. for `mcdp.fsm`.
+A method's own loss terms: the network's ``loss_terms(outputs, batch, ctx) -> {name: scalar}``, each
+scalar already weighted; `mcdp.system.SelfSupervisedSystem` adds them to the step's loss and logs
+each under its name (the val loss that picks ``best.pt`` stays L_p + lambda L_con). ``outputs`` are
+the depth network's own; what the terms read of the step besides them is the frozen
+`mcdp.model.LossContext` ``ctx``: ``cfg``, ``poses`` ({-1, +1}: (B*N, 4, 4) T_src_tgt, the camera
+motions of the temporal warps: predicted, or the odometry's under ``scale.source=odometry``),
+``pairs`` ((P,), (P,) int64: the directed adjacent camera pairs (tgt, src)) and ``step``, e.g. for
+`mcdp.fsm`.
 
-To add a method: write its network (and loss terms) in one module, then add one line to
-`METHODS` below (or call `register` from your own code before training)::
+A method's own parameters (e.g. FSM's loss weights): a pydantic model named in its row's ``params``;
+the run config's ``method_params:`` section holds the keys a run sets, validated against that model
+(`method_params`, `check_run`: an unknown key or a bad value is one ConfigError naming
+``method_params.<key>``; a method without a model refuses any key), and the validated model reaches the
+loss terms as ``ctx.params``. Left empty the section is not hashed, so runs that set nothing keep their
+hashes (`corelib.configlib.added_key`).
 
-    register(Method("toy", "Toy net", {"model.method": "toy"}, ToyDepth, loss_terms=toy_loss))
+A report reads a method through its row and network class, never its name: ``has_bases`` and
+``fresh_layers(model_config(row))`` (`study.report.warm_start_line`).
+
+To add a method: write its network (its loss terms and its params model with it) in one module, then
+add one line to `METHODS` below (or call `register` from your own code before training; `unregister`
+removes it, e.g. in a test's teardown: tests/mcdp/test_toy_method.py does all of this)::
+
+    register(Method("toy", "Toy net", {"model.method": "toy"}, ToyDepth, params=ToyParams))
 """
 from __future__ import annotations
 
@@ -38,15 +50,13 @@ import importlib
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any, Callable, Mapping
 
+from pydantic import BaseModel, ValidationError
+
 from corelib.configlib import ConfigError
-from mcdp.config import LossConfig, ModelConfig
+from mcdp.config import LossConfig, ModelConfig, RunConfig
 
 if TYPE_CHECKING:  # this table is read before torch is imported (a config is checked first)
     import torch.nn as nn
-
-#: a method's own loss terms: (outputs of the depth network, batch, RunConfig) -> {name: weighted scalar}
-LossTerms = Callable[[dict, dict, Any], dict]
-
 
 @dataclass(frozen=True)
 class Method:
@@ -55,8 +65,9 @@ class Method:
     defaults: Mapping[str, Any] = field(default_factory=dict)
     #: the network's class (or any builder), or its "module:name", imported when first built or checked
     build: Callable[[ModelConfig], nn.Module] | str = "mcdp.model:DepthModel"
-    #: its own loss terms, or their "module:name" (imported when first used), or None
-    loss_terms: LossTerms | str | None = None
+    #: the pydantic model of the method's own parameters (the run config's ``method_params`` section), or its
+    #: "module:name", or None (then ``method_params`` must stay empty)
+    params: type[BaseModel] | str | None = None
 
     @property
     def model(self) -> str:
@@ -64,14 +75,14 @@ class Method:
         return str(self.defaults.get("model.method", self.name))
 
     @property
+    def params_model(self) -> type[BaseModel] | None:
+        """`params`, imported if it was given as "module:name"."""
+        return None if self.params is None else _resolve(self.params)
+
+    @property
     def builder(self) -> Callable[[ModelConfig], nn.Module]:
         """`build`, imported if it was given as "module:name" (so this table never imports torch)."""
         return _resolve(self.build)
-
-    @property
-    def terms(self) -> LossTerms | None:
-        """`loss_terms`, imported if it was given as "module:name"."""
-        return None if self.loss_terms is None else _resolve(self.loss_terms)
 
 
 def _resolve(obj):
@@ -94,11 +105,16 @@ def register(method: Method) -> Method:
     return method
 
 
+def unregister(name: str) -> Method:
+    """Remove a registered method (e.g. a test's own, in its fixture's teardown); KeyError if none is so named."""
+    return METHODS.pop(name)
+
+
 for _m in (
     Method("mono2", "Mono2", {"model.method": "mono2", "model.refine_steps": 0, "loss.consistency_weight": 0.0},
            "mcdp.model:MonoDepthModel"),
     Method("fsm", "FSM", {"model.method": "fsm", "model.refine_steps": 0, "loss.consistency_weight": 0.0},
-           "mcdp.fsm:FsmDepthModel", loss_terms="mcdp.fsm:fsm_loss"),
+           "mcdp.fsm:FsmDepthModel", params="mcdp.fsm:FsmParams"),
     Method("surround", "SurroundDepth", {"model.method": "surround", "model.refine_steps": 0,
                                          "loss.consistency_weight": 0.0}, "mcdp.surround:SurroundDepthModel"),
     Method("mcdp_m0", "MCDP (m = 0)", {"model.method": "mcdp", "model.refine_steps": 0,
@@ -147,7 +163,8 @@ def method_of(cfg: ModelConfig) -> Method:
 def network_class(method: Method) -> type:
     """The method's network class: a subclass of `mcdp.model.DepthNetwork`, the one contract (its declared
     members: ``stages``, ``n_out``, ``has_bases``, ``uses_neighbours``, ``joint_pose``,
-    ``reads_overlap_truth``, ``fresh_parameters()``, ``check_config(cfg)``, ``forward``); TypeError otherwise."""
+    ``reads_overlap_truth``, ``fresh_parameters()``, ``check_config(cfg)``, ``loss_terms``, ``forward``); TypeError
+    otherwise."""
     from mcdp.model import DepthNetwork
 
     net = method.builder
@@ -157,9 +174,45 @@ def network_class(method: Method) -> type:
     return net
 
 
+def model_config(method: Method) -> ModelConfig:
+    """The ``model`` section a method's registry defaults make (every other key at `ModelConfig`'s default):
+    what a report reads of a method without a run, e.g. ``network_class(m).fresh_layers(model_config(m))``."""
+    return ModelConfig(**{k.split(".", 1)[1]: v for k, v in method.defaults.items() if k.startswith("model.")})
+
+
 def check_model(cfg: ModelConfig) -> None:
     """ConfigError, naming the key, when ``cfg.method``'s network cannot be built from ``cfg`` (without building it)."""
     network_class(method_of(cfg)).check_config(cfg)
+
+
+def method_params(cfg: RunConfig) -> BaseModel | None:
+    """The run's method parameters: ``cfg.method_params`` validated against its method's params model
+    (unset keys at the model's defaults), or None for a method without one. ConfigError, one line naming
+    ``method_params.<key>``, for an unknown key or a bad value."""
+    method = method_of(cfg.model)
+    model, given = method.params_model, dict(cfg.method_params)
+    if model is None:
+        if given:
+            raise ConfigError(f"method_params.{sorted(given)[0]}: method {method.name!r} has no parameters of its "
+                              "own (leave method_params empty)")
+        return None
+    known = sorted(model.model_fields)
+    for key in given:
+        if key not in model.model_fields:
+            raise ConfigError(f"method_params.{key}: unknown key for method {method.name!r} (its parameters: "
+                              f"{', '.join(known)})")
+    try:
+        return model.model_validate(given)
+    except ValidationError as err:
+        e = err.errors()[0]
+        where = ".".join(str(p) for p in e["loc"])
+        raise ConfigError(f"method_params.{where}: {e['msg']} (got {str(e.get('input'))[:80]!r})") from None
+
+
+def check_run(cfg: RunConfig) -> None:
+    """ConfigError, naming the key, when ``cfg``'s network cannot be built or its method_params are wrong."""
+    check_model(cfg.model)
+    method_params(cfg)
 
 
 def build_depth_model(cfg: ModelConfig) -> nn.Module:

@@ -33,6 +33,9 @@ Example::
 """
 from __future__ import annotations
 
+from dataclasses import dataclass
+from typing import Any
+
 import torch
 import torch.nn as nn
 import torch.nn.functional as F
@@ -96,6 +99,27 @@ def resize_mask_to(mask: torch.Tensor, h: int, w: int) -> torch.Tensor:
     return (F.adaptive_avg_pool2d(mask, (h, w)) > 0.99).to(mask.dtype)
 
 
+@dataclass(frozen=True)
+class LossContext:
+    """What a method's own loss terms (`DepthNetwork.loss_terms`) read of the training step besides the
+    depth network's outputs and the batch; built by `mcdp.system.SelfSupervisedSystem` for every step.
+
+    - ``cfg``: the `mcdp.config.RunConfig`;
+    - ``params``: the method's own parameters (its registry row's ``params`` model validated from the run
+      config's ``method_params`` section, `mcdp.methods.method_params`), or None for a method without any;
+    - ``poses``: {-1, +1}: (B*N, 4, 4) T_src_tgt, the camera motions of the step's temporal warps
+      (predicted, or the odometry's under ``scale.source=odometry``);
+    - ``pairs``: ((P,), (P,)) int64, the directed adjacent camera pairs (tgt, src);
+    - ``step``: the optimiser step the batch trains (0-based).
+    """
+
+    cfg: Any
+    params: Any
+    poses: dict
+    pairs: tuple
+    step: int = 0
+
+
 class DepthNetwork(nn.Module):
     """The contract of every method's depth network (`mcdp.methods`): what the trainer, the predictor, the
     warm start and the report read of it, declared here with its defaults and never probed with getattr.
@@ -110,6 +134,9 @@ class DepthNetwork(nn.Module):
     - ``joint_pose``: the pose network moves the rig as one (it is given the extrinsics);
     - ``reads_overlap_truth``: an ORACLE whose input holds the overlap's ground truth (`mcdp.oracle_local`);
     - ``fresh_parameters()``: the layers no pretraining initialises (they learn at ``train.weight_lr_mult``);
+      ``fresh_layers(cfg)`` (classmethod): what they are, in words, for reports ("" when there are none);
+    - ``loss_terms(outputs, batch, ctx)``: the method's own loss terms, ``{name: weighted scalar}`` added to
+      the step's loss and logged under their names (`LossContext`: what the step gives them; none by default);
     - ``forward(rgb, K, T_ego_cam, mask, nbr, oracle_gt_median=None, scales=None, refine_scales=None,
       overlap_truth=None)``: the outputs of `DepthModel.forward`.
     """
@@ -133,6 +160,16 @@ class DepthNetwork(nn.Module):
 
     def fresh_parameters(self) -> list[nn.Parameter]:
         return []
+
+    @classmethod
+    def fresh_layers(cls, cfg: ModelConfig) -> str:
+        """`fresh_parameters` of the network built from ``cfg``, named for a report ("weight networks");
+        "" when nothing starts fresh. A classmethod: the report reads it without building the network."""
+        return ""
+
+    def loss_terms(self, outputs: dict, batch: dict, ctx: LossContext) -> dict:
+        """This method's own loss terms for one step: {name: scalar, already weighted}; none by default."""
+        return {}
 
 
 class DepthModel(DepthNetwork):
@@ -202,6 +239,10 @@ class DepthModel(DepthNetwork):
         """Parameters no pretraining initialises (`mcdp.warmstart` copies only ``encoder.*`` and
         ``decoder.*``); they learn at ``train.weight_lr_mult`` x the rate."""
         return [p for name, p in self.named_parameters() if not name.startswith(("encoder.", "decoder."))]
+
+    @classmethod
+    def fresh_layers(cls, cfg: ModelConfig) -> str:
+        return "weight networks" if cls.has_bases and cfg.refine_steps > 0 else ""
 
     def encode(self, x: torch.Tensor, B: int, N: int, nbr: torch.Tensor) -> list[torch.Tensor]:
         """Encoder features of the B*N images x (BN, 3, H, W); a method may mix the cameras here

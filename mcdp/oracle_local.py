@@ -56,6 +56,10 @@ class OracleLocalModel(MonoDepthModel):
         evaluates it emptied (cut)."""
         return True
 
+    @classmethod
+    def fresh_layers(cls, cfg) -> str:
+        return "overlap-input layer"
+
     def encode(self, x: torch.Tensor, B: int, N: int, nbr: torch.Tensor, overlap_truth=None) -> list[torch.Tensor]:
         if overlap_truth is None or bool((nbr < 0).all()):  # emptied: as a camera without neighbours
             overlap_truth = torch.zeros(x.shape[0], 1, *x.shape[-2:], device=x.device, dtype=x.dtype)

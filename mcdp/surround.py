@@ -124,6 +124,10 @@ class SurroundDepthModel(MonoDepthModel):
     def uses_neighbours(self) -> bool:
         return True
 
+    @classmethod
+    def fresh_layers(cls, cfg) -> str:
+        return "cross-view blocks"
+
     def encode(self, x: torch.Tensor, B: int, N: int, nbr: torch.Tensor) -> list[torch.Tensor]:
         if N > MAX_CAMERAS:
             raise ValueError(f"model.method=surround has camera embeddings for at most {MAX_CAMERAS} cameras, "

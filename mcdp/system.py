@@ -23,8 +23,10 @@ Loss (paper eq. 9), with masks excluded from every mean::
   z-buffer; L1 in metres on pixels both cameras see (outside both ego masks).
 - L_vel (PackNet): | ||t_pred|| - ||t_odom|| | per camera and source frame, with
   the ego odometry motion transformed into each camera.
-- a method's own terms (`mcdp.methods.Method.loss_terms`, none for MCDP and Mono2), added
-  weighted as the method returns them.
+- a method's own terms (its network's `mcdp.model.DepthNetwork.loss_terms`, none for MCDP and
+  Mono2), added weighted as the method returns them; what they read of the step besides the
+  outputs and the batch is a `mcdp.model.LossContext` (the poses, the camera pairs, the step, the
+  method's own parameters), never an entry written into ``outputs``.
 
 Example::
 
@@ -41,8 +43,8 @@ from mcdp.config import RunConfig
 from mcdp.data import directed_pairs, neighbour_table
 from mcdp.geometry import splat_depth, warp_by_depth
 from mcdp.losses import consistency_loss, photometric_error, reprojection_loss, smoothness_loss
-from mcdp.methods import method_of
-from mcdp.model import is_refined, resize_mask_to
+from mcdp.methods import method_of, method_params
+from mcdp.model import LossContext, is_refined, resize_mask_to
 from mcdp.pose import PoseModel, odometry_camera_motion
 
 
@@ -88,7 +90,10 @@ class SelfSupervisedSystem(torch.nn.Module):
 
     ``process_batch(batch, step, train)`` -> (outputs, losses) for a batch of
     the `mcdp.data` schema on this module's device; ``losses["loss"]`` is the
-    scalar to minimise, other entries are detached statistics.
+    scalar to minimise, other entries are detached scalar statistics (every
+    value a 0-d tensor). ``outputs`` are the depth network's, plus the step's
+    one entry ``"used"``: (B*N, 1, H, W) the pixels L_p counted at the final
+    stage, full resolution (the image log's green mask).
     """
 
     def __init__(self, cfg: RunConfig, neighbours, n_cams: int):
@@ -96,7 +101,7 @@ class SelfSupervisedSystem(torch.nn.Module):
         self.cfg = cfg
         method = method_of(cfg.model)
         self.depth = method.builder(cfg.model)
-        self.loss_terms = method.terms  # the method's own terms (`mcdp.methods.Method`), or None
+        self.params = method_params(cfg)  # the method's own parameters (LossContext.params), or None
         self.pose = PoseModel(cfg.model.pretrained) if cfg.scale.source != "odometry" else None
         self.register_buffer("nbr", neighbour_table(neighbours, n_cams), persistent=False)
         tgt, src = directed_pairs(neighbours)
@@ -145,7 +150,7 @@ class SelfSupervisedSystem(torch.nn.Module):
                 overlap_truth=batch.get("overlap_truth"),
             )
         poses, pose_stats = self.predict_poses(batch, net_rgb)
-        losses = self.compute_losses(batch, outputs, poses, need_con=need_con)
+        losses = self.compute_losses(batch, outputs, poses, need_con=need_con, step=step)
         for k, v in pose_stats.items():
             losses[f"pose/{k}"] = v
         if "velocity" in pose_stats and cfg.scale.source == "velocity":
@@ -154,8 +159,10 @@ class SelfSupervisedSystem(torch.nn.Module):
 
     forward = process_batch  # DistributedDataParallel calls forward: its gradient hooks need it
 
-    def compute_losses(self, batch: dict, outputs: dict, poses: dict, need_con: bool | None = None) -> dict:
-        """Photometric + smoothness per stage and scale, L_con per stage (module docstring)."""
+    def compute_losses(self, batch: dict, outputs: dict, poses: dict, need_con: bool | None = None,
+                       step: int = 0) -> dict:
+        """Photometric + smoothness per stage and scale, L_con per stage, the method's own terms (module
+        docstring); writes ``outputs["used"]``."""
         cfg = self.cfg
         rgb = batch["rgb"].float()
         B, N, _, C, H, W = rgb.shape
@@ -196,7 +203,7 @@ class SelfSupervisedSystem(torch.nn.Module):
                     losses[f"reprojection/{stage}"] = rep.detach()
                     losses[f"smoothness/{stage}"] = smooth.detach()
                     if stage == outputs["stages"][-1]:
-                        losses["_used"] = used.detach()
+                        outputs["used"] = used.detach()
             lp = lp_sum / len(st_scales)
             losses[f"photometric/{stage}"] = lp.detach()
             stage_loss = lp
@@ -207,12 +214,10 @@ class SelfSupervisedSystem(torch.nn.Module):
                     stage_loss = stage_loss + lam * lcon
             losses[f"stage/{stage}"] = stage_loss.detach()
             total = total + stage_loss
-        if self.loss_terms is not None:
-            # what a method's own terms may need of the step besides the depth (`mcdp.methods`)
-            outputs["poses"], outputs["pairs"] = poses, (self.pair_tgt, self.pair_src)
-            for name, term in self.loss_terms(outputs, batch, cfg).items():
-                losses[name] = term.detach()
-                total = total + term
+        ctx = LossContext(cfg=cfg, params=self.params, poses=poses, pairs=(self.pair_tgt, self.pair_src), step=step)
+        for name, term in self.depth.loss_terms(outputs, batch, ctx).items():
+            losses[name] = term.detach()
+            total = total + term
         losses["loss"] = total
         return losses
 

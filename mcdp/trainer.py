@@ -350,7 +350,7 @@ class Trainer:
                                   "train/lr": lr, "perf/rig_samples_per_s": rate, "perf/step_s": dt_step}, self.step)
                 log.debug(f"step {self.step}/{tc.steps} loss {lv:.5f} lr {lr:.2e} {rate:.2f} rig samples/s")
             if self.log.enabled and (self.step % tc.image_every == 0 or self.step == 1):
-                self.log.images(batch, outputs, losses, self.step)
+                self.log.images(batch, outputs, self.step)
             if bar is not None:
                 bar.set_postfix(loss=f"{ema:.4f}", rig_s=f"{1.0 / max(dt_step, 1e-9):.2f}/s", lr=f"{lr:.1e}")
                 bar.update(1)

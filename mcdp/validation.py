@@ -1,7 +1,9 @@
 """The trainer's validation: the val loss that picks best.pt, and depth metrics for TensorBoard only.
 
 `validation_loss` is the final stage's L_p + lambda L_con on the fixed val rig samples
-(`mcdp.trainer.Trainer.val_indices`), no ground truth. Where the dataset has depth, the final stage's
+(`mcdp.trainer.Trainer.val_indices`), no ground truth: the step's own ``stage/<final>`` loss
+(`mcdp.system`), read as the training step computes it, never re-weighted here (a method's own terms
+and the velocity term are not in it). Where the dataset has depth, the final stage's
 depth of those samples is also scored (`DepthAccumulator`, logged as ``val/depth_<metric>``): abs_rel, sq_rel, rmse,
 rmse_log, a1..a3 (`mcdp.metrics`), pixels of every camera pooled, at dataset resolution (the prediction
 resized bilinearly), clamped and masked as `mcdp.evaluate` does (``eval.min_depth`` / ``max_depth``, the
@@ -36,17 +38,13 @@ def validation_loss(t, idx: list[int]) -> float:
         n.eval()
     vals = []
     final = t.depth.stages[-1]
-    lam = t.cfg.loss.consistency_weight
     for i in idx[t.dist.rank::t.dist.world]:
         batch = t.to_device(collate([t.val_set[i]]))
         outputs, losses = t.system.process_batch(batch, t.step, train=False)
         if acc is not None:
             seq, frame = t.val_set.seqs[int(batch["seq_index"][0])], int(batch["frame"][0])
             acc.add(t.ds, seq, frame, outputs["depth", final, 0][:, 0].float().cpu().numpy(), t.cfg.eval)
-        v = losses[f"photometric/{final}"]
-        if lam > 0 and f"consistency/{final}" in losses:
-            v = v + lam * losses[f"consistency/{final}"]
-        vals.append(float(v))
+        vals.append(float(losses[f"stage/{final}"]))
     for n in nets:
         n.train()
     total, count = t.dist.sum_([float(np.sum(vals)), float(len(vals))], t.device)

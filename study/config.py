@@ -14,7 +14,7 @@ from typing import Literal
 from pydantic import Field, field_validator, model_validator
 
 from corelib.configlib import ConfigError, StrictModel, added_key, config_to_dict, load_config, override_key, resolve_path
-from mcdp.methods import METHODS, PAPER_METHODS, check_model
+from mcdp.methods import METHODS, PAPER_METHODS, check_run
 from study.pretrain import PretrainConfig
 
 
@@ -219,7 +219,7 @@ def check_nested_configs(cfg: SweepConfig, yes: bool = False) -> dict:
             resolved_configs(cfg.pretrain)
         where = "train_overrides"
         for rcfg in runs:
-            check_model(rcfg.model)
+            check_run(rcfg)  # the network's keys and the method's own method_params
     except ConfigError as exc:
         raise ConfigError(f"sweep {where}: {exc}") from None
     size = total_render_size(render_size(w) for w in worlds)

@@ -28,7 +28,7 @@ from pathlib import Path
 
 from corelib.atomic import atomic_write_json, atomic_write_text
 from mcdp.diagnostics import COLLAPSE_RATIO
-from mcdp.methods import METHODS, label
+from mcdp.methods import METHODS, label, model_config, network_class
 from mcdp.metrics import METRIC_NAMES
 from study.plots import distance_plot, make_plots
 from study.mechanisms import format_mechanisms
@@ -130,18 +130,15 @@ def warm_start_line(methods: list[str]) -> str:
     """Which part of the shared pretraining each of the sweep's methods starts from (`mcdp.warmstart`: a
     network with bases takes the n basis channels, one without them the mono head) and which of their
     layers start fresh (the pretraining has neither MCDP's weight networks nor SurroundDepth's cross-view
-    blocks), naming only the sweep's own methods (all registered: `study.stages` builds runs from them)."""
+    blocks), naming only the sweep's own methods (all registered: `study.stages` builds runs from them).
+    Read from each network's declared members (``has_bases``, ``fresh_layers``), never from its name."""
     mono, bases, fresh = [], [], []
     for m in methods:
-        meth = METHODS[m]
-        net = meth.builder  # the network's class: what it is made of, not what it is called
+        net = network_class(METHODS[m])  # the network's class: what it is made of, not what it is called
         (bases if net.has_bases else mono).append(label(m))
-        if net.has_bases and int(meth.defaults.get("model.refine_steps", 0)) > 0:
-            fresh.append(f"{label(m)}'s weight networks")
-        elif meth.model == "surround":
-            fresh.append(f"{label(m)}'s cross-view blocks")
-        elif net.reads_overlap_truth:
-            fresh.append(f"{label(m)}'s overlap-input layer")
+        layers = net.fresh_layers(model_config(METHODS[m]))
+        if layers:
+            fresh.append(f"{label(m)}'s {layers}")
     parts = []
     if mono:
         parts.append(f"{_join(mono)} start{'s' if len(mono) == 1 else ''} from its mono head")

@@ -164,8 +164,12 @@ def test_the_system_adds_fsm_terms_for_the_fsm_preset(ds, rigs, source):
     assert isinstance(system.depth, FsmDepthModel)
     b = rigs[0][0]
     with torch.no_grad():
-        _, losses = system.process_batch(b, 0, train=False)
+        out, losses = system.process_batch(b, 0, train=False)
     assert float(losses["fsm/spatial"]) > 0
+    # the terms read the step through their LossContext: nothing is written into the outputs for them, and
+    # the loss dict holds scalars only (no side channel such as the old losses["_used"])
+    assert "poses" not in out and "pairs" not in out and out["used"].shape == b["mask"].flatten(0, 1).shape
+    assert all(v.dim() == 0 for v in losses.values()), [k for k, v in losses.items() if v.dim()]
     assert ("fsm/pose_consistency" in losses) == (source == "velocity")
     extra = sum(float(v) for k, v in losses.items() if k.startswith("fsm/"))
     vel = cfg.scale.velocity_weight * float(losses["pose/velocity"]) if source == "velocity" else 0.0

@@ -1,5 +1,6 @@
-"""The method registry (mcdp/methods.py): a new method (its network and its own loss term) is one
-module plus one registry line; the built-in presets agree with their registry entries."""
+"""The method registry (mcdp/methods.py): every registered network keeps the contract, the built-in presets
+agree with their registry entries, a method's own weights live in its ``method_params`` section. (That a new
+method is one module plus one registry row: tests/mcdp/test_toy_method.py.)"""
 from __future__ import annotations
 
 from pathlib import Path
@@ -7,89 +8,12 @@ from pathlib import Path
 import pytest
 import torch
 import torch.nn as nn
-import torch.nn.functional as F
 
 from corelib.configlib import ConfigError, config_to_dict, load_config, read_yaml
 from mcdp import methods
-from mcdp.config import ModelConfig, RunConfig
-from mcdp.data import collate
-from mcdp.model import DepthNetwork, disp_to_depth
+from mcdp.config import RunConfig
 
 ROOT = Path(__file__).resolve().parents[2]
-
-
-class ToyDepth(DepthNetwork):
-    """The smallest depth network with the contract (`mcdp.model.DepthNetwork`): one conv, one stage, every scale."""
-
-    model = "toy"
-
-    def __init__(self, cfg: ModelConfig):
-        super().__init__()
-        self.cfg, self.stages = cfg, ["init"]
-        self.conv = nn.Conv2d(3, 1, 3, padding=1)
-
-    def forward(self, rgb, K, T_ego_cam, mask, nbr, oracle_gt_median=None, scales=None, refine_scales=None,
-                overlap_truth=None):
-        B, N, _, H, W = rgb.shape
-        sig = torch.sigmoid(self.conv(rgb.reshape(B * N, 3, H, W)))
-        out = {"stages": self.stages, "scale": torch.ones(B * N)}
-        for s in range(self.cfg.scales if scales is None else min(scales, self.cfg.scales)):
-            sig_s = F.avg_pool2d(sig, 2 ** s) if s else sig
-            out["disp", "init", s] = disp_to_depth(sig_s, self.cfg.min_depth, self.cfg.max_depth)[0]
-            up = F.interpolate(sig_s, size=(H, W), mode="bilinear", align_corners=False) if s else sig_s
-            out["depth", "init", s] = disp_to_depth(up, self.cfg.min_depth, self.cfg.max_depth)[1]
-        return out
-
-
-TOY_WEIGHT = 1e-2
-
-
-def toy_loss(outputs: dict, batch: dict, cfg: RunConfig) -> dict:
-    """The toy method's own loss term: a pull of the full-resolution disparity towards its mean (weighted)."""
-    disp = outputs["disp", "init", 0]
-    return {"toy/flatness": TOY_WEIGHT * (disp - disp.mean()).abs().mean()}
-
-
-@pytest.fixture
-def toy():
-    m = methods.register(methods.Method("toy", "Toy net", {"model.method": "toy", "model.refine_steps": 0,
-                                                           "loss.consistency_weight": 0.0}, ToyDepth,
-                                        loss_terms=toy_loss))
-    yield m
-    methods.METHODS.pop("toy")
-
-
-def test_a_registered_toy_method_trains_two_steps_and_evaluates(toy, tiny_dataset, tmp_path):
-    from mcdp.evaluate import EvalConfig, evaluate
-    from mcdp.predict import Predictor
-    from mcdp.trainer import Trainer
-    from synth.open import open_dataset
-    from study.config import SweepConfig
-
-    ds = open_dataset(tiny_dataset)
-    cfg = load_config(RunConfig, ROOT / "configs/train/tiny/mono2.yaml", ["train.steps=2", "train.threads=1"],
-                      {"model.method": "toy"})
-    tr = Trainer(cfg, ds, tmp_path / "run", progress=False, tensorboard=False)
-    try:
-        assert isinstance(tr.depth, ToyDepth)
-        summary = tr.train()
-    finally:
-        tr.close()
-    assert summary["steps"] == 2 and all(torch.isfinite(torch.tensor(summary["losses"])))
-    # its own loss term is in the step's loss, logged under its name
-    batch = next(iter(torch.utils.data.DataLoader(tr.train_set, batch_size=1, collate_fn=collate)))
-    with torch.no_grad():
-        out, losses = tr.system.process_batch(batch, 0, train=False)
-    assert losses["toy/flatness"].item() > 0
-    assert losses["loss"].item() == pytest.approx(
-        losses["stage/init"].item() + losses["toy/flatness"].item() + cfg.scale.velocity_weight
-        * losses["pose/velocity"].item(), rel=1e-6)
-    pred = Predictor(tmp_path / "run", ds, "last")
-    metrics = evaluate(ds, pred.predict, "test", EvalConfig(), progress=False)
-    assert metrics["stages"]["final"]["median"]["mean"]["abs_rel"] > 0
-    # the study knows it by its registry line alone: sweeps accept it, reports label it, in table order
-    assert SweepConfig(methods=["toy", "mono2"]).methods == ["mono2", "toy"]
-    assert methods.label("toy") == "Toy net"
 
 
 def test_an_unregistered_model_is_refused_naming_the_key():
@@ -133,6 +57,9 @@ def test_every_registered_network_keeps_the_contract(name):
         assert isinstance(getattr(net, member), bool), member
     fresh = net.fresh_parameters()
     assert all(isinstance(p, nn.Parameter) for p in fresh)
+    # what a report says starts fresh (read without building the network) is what does
+    words = type(net).fresh_layers(methods.model_config(methods.METHODS[name]))
+    assert isinstance(words, str) and bool(words) == bool(fresh), (words, len(fresh))
     N, H, W = 2, 64, 96
     K = torch.tensor([[80.0, 0, 48], [0, 80, 32], [0, 0, 1]]).expand(1, N, 3, 3)
     T = torch.eye(4).expand(1, N, 4, 4).clone()
@@ -177,3 +104,66 @@ def test_inference_knows_no_experiment():
     src = inspect.getsource(Predictor)
     for pat in (r"\bcut\b", r"oracle_weights", r"self\.reference", r"\brefinement\b", r"\bkept\b"):
         assert not re.search(pat, src), pat
+
+
+# --------------------------------------------------------------------------- a method's own parameters
+def fsm_cfg(*overrides: str) -> RunConfig:
+    return load_config(RunConfig, ROOT / "configs/train/tiny/fsm.yaml", list(overrides))
+
+
+def test_a_methods_own_weights_live_in_its_method_params_section():
+    """FSM's weights come from ``method_params`` validated against its row's params model: today's values
+    by default, a set key changes only that weight, and a wrong key or value is one ConfigError naming it."""
+    from mcdp.fsm import FsmParams
+
+    p = methods.method_params(fsm_cfg())
+    assert isinstance(p, FsmParams) and (p.spatial_weight, p.pose_translation_weight, p.pose_rotation_weight) == (
+        0.1, 1.0, 1.0)
+    p = methods.method_params(fsm_cfg("method_params.spatial_weight=0.25"))
+    assert (p.spatial_weight, p.pose_rotation_weight) == (0.25, 1.0)
+    with pytest.raises(ConfigError, match=r"^method_params\.spatial_wieght: unknown key for method 'fsm' \(its "
+                                          r"parameters: pose_rotation_weight, pose_translation_weight, spatial_weight\)$"):
+        methods.check_run(fsm_cfg("method_params.spatial_wieght=0.2"))
+    with pytest.raises(ConfigError, match=r"^method_params\.spatial_weight: .*greater than or equal to 0"):
+        methods.method_params(fsm_cfg("method_params.spatial_weight=-1"))
+    mono = load_config(RunConfig, ROOT / "configs/train/tiny/mono2.yaml", ["method_params.spatial_weight=0.2"])
+    with pytest.raises(ConfigError, match=r"^method_params\.spatial_weight: method 'mono2' has no parameters"):
+        methods.method_params(mono)
+    assert methods.method_params(load_config(RunConfig, ROOT / "configs/train/tiny/mono2.yaml")) is None
+
+
+def test_an_empty_method_params_section_leaves_the_run_hash_and_resume_as_they_were():
+    """The section is an added key: empty, it is not hashed (every existing run keeps its hash) and a checkpoint
+    saved before it existed resumes; set, it enters the hash."""
+    from corelib.configlib import config_hash, hashed_dict
+    from mcdp.config import resume_conflicts, upgrade_config_dict
+
+    cfg = fsm_cfg()
+    assert "method_params" not in hashed_dict(cfg)
+    assert config_hash(cfg) != config_hash(fsm_cfg("method_params.spatial_weight=0.2"))
+    old = {k: v for k, v in config_to_dict(cfg).items() if k != "method_params"}  # a config saved before
+    assert resume_conflicts(upgrade_config_dict(old), config_to_dict(cfg)) == []
+    assert resume_conflicts(upgrade_config_dict(old), config_to_dict(fsm_cfg("method_params.spatial_weight=0.2"))) \
+        == ["method_params.spatial_weight"]
+
+
+def test_fsm_reads_its_weights_from_the_loss_context():
+    """The spatial term is its weight times the unweighted term: doubling method_params.spatial_weight doubles it."""
+    from mcdp.data import directed_pairs
+    from mcdp.fsm import FsmDepthModel, FsmParams
+    from mcdp.model import LossContext
+
+    torch.manual_seed(0)
+    N, H, W = 2, 16, 24
+    K = torch.tensor([[20.0, 0, 12], [0, 20, 8], [0, 0, 1]]).expand(1, N, 3, 3)
+    T = torch.eye(4).expand(1, N, 4, 4).clone()
+    T[0, 1, 0, 3] = 0.3  # the second camera 30 cm to the side: they overlap
+    batch = {"rgb": torch.rand(1, N, 3, 3, H, W), "mask": torch.ones(1, N, 1, H, W), "K": K, "T_ego_cam": T}
+    outputs = {"stages": ["init"], ("depth", "init", 0): torch.full((N, 1, H, W), 5.0)}
+    poses = {o: torch.eye(4).expand(N, 4, 4) for o in (-1, 1)}
+    cfg = fsm_cfg()
+    net = FsmDepthModel.__new__(FsmDepthModel)  # loss_terms reads no layer: no network needs building
+    terms = {w: FsmDepthModel.loss_terms(net, outputs, batch, LossContext(
+        cfg, FsmParams(spatial_weight=w), poses, directed_pairs([(0, 1)]), 0)) for w in (0.1, 0.2)}
+    assert float(terms[0.1]["fsm/spatial"]) > 0
+    assert float(terms[0.2]["fsm/spatial"]) == pytest.approx(2 * float(terms[0.1]["fsm/spatial"]), rel=1e-6)

@@ -150,3 +150,28 @@ def test_a_checkpoint_whose_pickle_runs_code_is_refused_and_the_code_does_not_ru
         load_checkpoint(bad)
     assert str(bad) in str(err.value) and len(str(err.value)) < 400
     assert not (tmp_path / "pwned").exists()
+
+
+def test_the_val_loss_is_the_steps_own_final_stage_loss(ds, tmp_path, one_thread):
+    """Validation reads the step's ``stage/<final>`` loss (nothing re-weighted in mcdp.validation), and that
+    value is what picks best.pt: L_p + lambda L_con of the final stage, the same batch in eval mode."""
+    from mcdp.data import collate
+    from mcdp.validation import validation_loss
+
+    tr = Trainer(cfg_of("mcdp_m1", "train.steps=1"), ds, tmp_path / "run", progress=False, tensorboard=False)
+    try:
+        i = tr.val_indices()[0]
+        val = validation_loss(tr, [i])
+        tr.depth.eval()
+        tr.pose.eval()
+        with torch.no_grad():
+            _, losses = tr.system.process_batch(tr.to_device(collate([tr.val_set[i]])), tr.step, train=False)
+        tr.depth.train()
+        tr.pose.train()
+    finally:
+        tr.close()
+    final, lam = tr.depth.stages[-1], tr.cfg.loss.consistency_weight
+    assert final == "refine1" and lam > 0 and float(losses[f"consistency/{final}"]) > 0
+    assert val == float(losses[f"stage/{final}"])
+    assert val == pytest.approx(float(losses[f"photometric/{final}"] + lam * losses[f"consistency/{final}"]),
+                                rel=1e-6)

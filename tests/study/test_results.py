@@ -57,3 +57,17 @@ def test_the_setup_names_only_the_sweeps_methods_and_the_head_each_starts_from()
     assert warm_start_line(["mcdp_m0", "mcdp_m2"]) == (
         "MCDP (m = 0) and MCDP (m = 2) start from its basis channels; MCDP (m = 2)'s weight networks start fresh")
     assert warm_start_line(["mono2"]) == "Mono2 starts from its mono head"
+
+
+def test_the_warm_start_line_reads_the_network_not_its_name():
+    """A row named nothing like a built-in method gets the line its network's declared members give."""
+    from mcdp import methods
+    from mcdp.surround import SurroundDepthModel
+    from study.report import warm_start_line
+
+    methods.register(methods.Method("xview", "X-View", {"model.method": "surround", "model.refine_steps": 0},
+                                    SurroundDepthModel))
+    try:
+        assert warm_start_line(["xview"]) == "X-View starts from its mono head; X-View's cross-view blocks start fresh"
+    finally:
+        methods.METHODS.pop("xview")
