@@ -13,6 +13,7 @@ from typing import Any
 
 from corelib.atomic import atomic_write_json
 from corelib.configlib import ConfigError, config_hash, config_to_dict
+from corelib.version import code_version, warn_other_code
 from study.config import SPLIT, SweepConfig, eval_config_for, overlap_key, run_config_for
 
 
@@ -153,6 +154,7 @@ def _train(run: _Run, row: dict) -> bool:
         run.counters.bump("train_skipped")
         row.update(train_s=status.get("train_s", float("nan")), train_skipped=True, steps=status.get("steps"))
         run.log(f"{tag}: trained already ({status.get('steps')} steps), skipped")
+        warn_other_code(f"run {run_dir}", status.get("code_version"), lambda line: run.log(f"{tag}: {line}"))
         return True
     if status.get("data_hash") not in (None, data["config_hash"]):
         raise ConfigError(f"{run_dir} was trained on another dataset; delete it or use a new --out")
@@ -186,7 +188,8 @@ def _train(run: _Run, row: dict) -> bool:
     if resumed_at:
         run.counters.bump("train_resumed")
     run.status = {"run_config_hash": rhash, "data_hash": data["config_hash"], "trained": True,
-                  "steps": summary["steps"], "train_s": train_s, "best_val": summary["best_val"]}
+                  "steps": summary["steps"], "train_s": train_s, "best_val": summary["best_val"],
+                  "code_version": code_version()}
     write_json(run.status_path, run.status)
     row.update(train_s=train_s, train_skipped=False, steps=summary["steps"])
     return True
