@@ -35,18 +35,22 @@ def test_the_run_hash_of_a_run_in_two_folders_is_equal(tmp_path):
     assert run_hash(plain) == config_hash(plain)
 
 
-def test_a_copied_sweep_folder_resumes_without_redoing_anything(tmp_path):
+def test_a_copied_sweep_folder_resumes_without_redoing_anything(tmp_path, capsys):
     src, dst = tmp_path / "here" / "sweep", tmp_path / "there" / "moved"
     assert study_cli.main(["sweep", str(CI), "--out", str(src), *MINI]) == 0
     first = json.loads((src / "results.json").read_text())
     assert first["counters"]["trained"] == 1 and first["pretrain"] is not None
     shutil.copytree(src, dst)
+    capsys.readouterr()
     assert study_cli.main(["sweep", str(CI), "--out", str(dst), *MINI]) == 0
+    err = capsys.readouterr().err
+    assert f"[pretrain] {dst / 'pretrain'}" in err and "reused" in err and "warning:" not in err  # same code
     res = json.loads((dst / "results.json").read_text())
     c = res["counters"]
     assert (c["rendered"], c["trained"], c["evaluated"], c["reference_evaluated"]) == (0, 0, 0, 0)
     assert (c["render_skipped"], c["train_skipped"], c["eval_skipped"], c["reference_skipped"]) == (1, 1, 1, 1)
     assert res["pretrain"]["sha256"] == first["pretrain"]["sha256"]
+    assert res["pretrain"]["train_s"] == first["pretrain"]["train_s"]  # the recorded pretraining, not a new one
     assert res["pretrain"]["weights"].startswith(str(dst))  # the copy's own pretraining, not the original's
     assert [r["run_config_hash"] for r in res["rows"]] == [r["run_config_hash"] for r in first["rows"]]
     assert [r["metrics"] for r in res["rows"]] == [r["metrics"] for r in first["rows"]]
