@@ -36,6 +36,12 @@ class StrictModel(BaseModel):
 
     model_config = ConfigDict(extra="forbid", frozen=True, strict=True, validate_default=True)
 
+    def hashed_form(self, d: dict[str, Any]) -> dict[str, Any]:
+        """What `config_hash` hashes of this section, given its plain dict `d` (after the `added_key` keys at
+        their default are left out): `d` itself. A section overrides it only to keep the hash of a key whose
+        form changed while what it makes did not (`scenes.config.SceneConfig.family_weights`)."""
+        return d
+
 
 #: at most this many problems of one config are listed (the rest counted), each value echoed to `_ECHO` chars
 MAX_ERROR_LINES = 8
@@ -259,7 +265,7 @@ def _hashed(cfg: BaseModel, d: dict[str, Any]) -> dict[str, Any]:
             out.pop(name, None)
         elif isinstance(value, BaseModel) and isinstance(out.get(name), dict):
             out[name] = _hashed(value, out[name])
-    return out
+    return cfg.hashed_form(out) if isinstance(cfg, StrictModel) else out
 
 
 def hashed_dict(cfg: BaseModel) -> dict[str, Any]:

@@ -300,8 +300,10 @@ class RunConfig(StrictModel):
 
 
 # Keys that may change when a run is resumed (they do not change what is learned
-# up to the current step, or only extend it).
+# up to the current step, or only extend it). ``model.init_from`` is read by a fresh run only (a resumed one
+# starts from its checkpoint): its path changes when a sweep folder is moved.
 RESUMABLE_KEYS = (
+    "model.init_from",
     "train.steps",
     "train.val_every",
     "train.val_samples",

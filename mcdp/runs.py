@@ -12,9 +12,11 @@ Example::
 
     ckpt = load_checkpoint(find_checkpoint("runs/m1"))   # best.pt, else last.pt
     cfg = config_from_checkpoint(ckpt)
+    run_hash(cfg)   # its cache key: the config with the warm start named by content, not path
 """
 from __future__ import annotations
 
+import functools
 import io
 import json
 from pathlib import Path
@@ -23,7 +25,7 @@ import numpy as np
 import torch
 
 from corelib.atomic import atomic_write_bytes
-from corelib.configlib import build_config, config_to_dict
+from corelib.configlib import build_config, config_hash, config_to_dict, hashed_dict
 from mcdp.config import RunConfig, resume_conflicts, upgrade_config_dict
 
 CHECKPOINT_VERSION = 1
@@ -31,6 +33,35 @@ CHECKPOINT_VERSION = 1
 
 class RunError(ValueError):
     """A run folder or checkpoint cannot be used as asked; the message says why and what to do."""
+
+
+# --------------------------------------------------------------------------- the cache key of a run
+def run_hash(cfg: RunConfig) -> str:
+    """The cache key of a run (a sweep's ``run_config_hash``): `config_hash` of its resolved config with
+    ``model.init_from`` named by the sha256 of the weights it starts from instead of by their path, so a
+    sweep folder (its runs and the pretraining they start from) copied or moved elsewhere keeps every
+    run's key. The content, not the pretraining's config hash: a pretraining made again to other bits
+    (a GPU's nondeterminism) is another start, and its runs are trained again. A missing file keeps its
+    path (the training then refuses it, naming ``model.init_from``). Without a warm start it is
+    `config_hash` itself."""
+    d = hashed_dict(cfg)
+    src = cfg.model.init_from
+    if src is not None and Path(src).is_file():
+        d["model"]["init_from"] = {"sha256": _file_digest(Path(src))}
+    return config_hash(d)
+
+
+def _file_digest(path: Path) -> str:
+    """sha256 of a file, computed once per process for the same file, size and modification time."""
+    st = path.stat()
+    return _digest(str(path.resolve()), st.st_size, st.st_mtime_ns)
+
+
+@functools.lru_cache(maxsize=16)
+def _digest(path: str, size: int, mtime_ns: int) -> str:
+    from corelib.hashing import sha256_file
+
+    return sha256_file(path)
 
 
 # --------------------------------------------------------------------------- checkpoints

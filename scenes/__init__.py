@@ -28,7 +28,7 @@ def pick_family(cfg: SceneConfig, rng: np.random.Generator) -> str:
     """The concrete family of one sequence: `cfg.family`, or a weighted draw for "mixed"."""
     if cfg.family != "mixed":
         return cfg.family
-    w = np.asarray(cfg.family_weights, dtype=np.float64)
+    w = np.asarray([cfg.family_weights[f] for f in FAMILIES], dtype=np.float64)
     return FAMILIES[int(rng.choice(len(FAMILIES), p=w / w.sum()))]
 
 

@@ -194,12 +194,12 @@ def _run_ray(cfg: SweepConfig, todo: list, out: Path, counters: Counters, log, i
 
 def _failed_row(cfg: SweepConfig, out: Path, d: dict, method: str, seed: int, exc: BaseException, before: int,
                 init_from: str | None) -> dict:
-    from corelib.configlib import config_hash
+    from mcdp.runs import run_hash
 
     rcfg, preset = run_config_for(cfg, method, seed, init_from)
     # the attempts that raised, as the task recorded them (a crashed worker records nothing)
     raised = _count_lines(errors_path(out, d["overlap"], method, seed)) - before
     return {"overlap": d["overlap"], "method": method, "seed": seed,
             "run_dir": str(run_dir_for(out, d["overlap"], method, seed)), "preset": str(preset),
-            "run_config_hash": config_hash(rcfg), "status": "failed", "error": error_line(exc),
+            "run_config_hash": run_hash(rcfg), "status": "failed", "error": error_line(exc),
             "failed_attempts": raised}

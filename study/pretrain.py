@@ -18,7 +18,7 @@ from the same encoder and trunk trained for the same steps.
 
 Layout of DIR::
 
-    pretrain.json      resolved config, its hash, sha256 of pretrained.pt (written last)
+    pretrain.json      resolved config, its hash, sha256 of pretrained.pt, code version (written last)
     pretrained.pt      {"format": "mcdp-pretrain", "version", "config_hash", "model", "depth_model", "step"}
     data/              the rendered pretraining world (synth contract v1)
     run/               the training run (checkpoints, tensorboard)
@@ -39,6 +39,7 @@ from pydantic import Field
 
 from corelib.atomic import atomic_write_json
 from corelib.configlib import ConfigError, StrictModel, config_hash, config_to_dict, hashed_dict, load_config, resolve_path
+from corelib.version import code_version, warn_other_code
 
 MARKER = "pretrain.json"
 WEIGHTS = "pretrained.pt"
@@ -111,6 +112,7 @@ def run_pretrain(cfg: PretrainConfig, out: str | Path, progress: bool = True,
     rec = cached(out, h)
     if rec is not None:
         log(f"[pretrain] {out}: pretraining {h[:12]} is complete (step {rec['step']}), reused")
+        warn_other_code(f"pretraining {out}", rec.get("code_version"), lambda line: log(f"[pretrain] {line}"))
         return rec
     lock = claim(out, "pretrain", legacy=("pretrain.config.json",))
     try:
@@ -157,7 +159,7 @@ def _pretrain(cfg: PretrainConfig, out: Path, dcfg, rcfg, h: str, progress: bool
     atomic_torch_save(state, out / WEIGHTS)
     rec = {"config_hash": h, "sha256": sha256_file(out / WEIGHTS), "path": str((out / WEIGHTS).resolve()),
            "step": trainer.step, "render_s": render_s, "train_s": train_s,
-           "depth_spread": trainer.spread, "config": resolved}
+           "depth_spread": trainer.spread, "config": resolved, "code_version": code_version()}
     atomic_write_json(out / MARKER, rec)
     log(f"[pretrain] done: {out / WEIGHTS} (step {trainer.step}, render {render_s:.0f} s, train {train_s:.0f} s)")
     return rec

@@ -13,6 +13,7 @@ from typing import Any
 
 from corelib.atomic import atomic_write_json
 from corelib.configlib import ConfigError, config_hash, config_to_dict
+from corelib.version import code_version, warn_other_code
 from study.config import SPLIT, SweepConfig, eval_config_for, overlap_key, run_config_for
 
 
@@ -92,9 +93,10 @@ def run_stage(cfg: SweepConfig, overlap: float, data: dict, method: str, seed: i
     from synth.open import open_dataset
 
     rcfg, preset = run_config_for(cfg, method, seed, init_from)
-    rhash = config_hash(rcfg)
     run_dir = run_dir_for(sweep_dir, overlap, method, seed)
-    run = _Run(cfg, overlap, data, method, seed, rcfg, rhash, run_dir, read_json(run_dir / STATUS) or {},
+    status = read_json(run_dir / STATUS) or {}
+    rhash = sweep_run_hash(rcfg, status)
+    run = _Run(cfg, overlap, data, method, seed, rcfg, rhash, run_dir, status,
                f"[sweep] overlap {overlap:.2f} {method} seed {seed}", counters, log, progress)
     row: dict[str, Any] = {"overlap": overlap, "method": method, "seed": seed, "run_dir": str(run_dir),
                            "preset": str(preset), "run_config_hash": rhash, "status": "ok"}
@@ -107,6 +109,16 @@ def run_stage(cfg: SweepConfig, overlap: float, data: dict, method: str, seed: i
     _fill_row(row, run.status, metrics, metrics_cut, key)
     log(_row_line(run.tag, row))
     return row
+
+
+def sweep_run_hash(rcfg, status: dict) -> str:
+    """The run's cache key, `mcdp.runs.run_hash` (free of the sweep folder's path); for a run whose status
+    was recorded before that, under the key of its day (`config_hash`, which held ``model.init_from``'s
+    path), that one while it still matches: such a run is reused where it lies, not trained again."""
+    from mcdp.runs import run_hash
+
+    legacy = config_hash(rcfg)
+    return legacy if rcfg.model.init_from is not None and status.get("run_config_hash") == legacy else run_hash(rcfg)
 
 
 @dataclass
@@ -142,6 +154,7 @@ def _train(run: _Run, row: dict) -> bool:
         run.counters.bump("train_skipped")
         row.update(train_s=status.get("train_s", float("nan")), train_skipped=True, steps=status.get("steps"))
         run.log(f"{tag}: trained already ({status.get('steps')} steps), skipped")
+        warn_other_code(f"run {run_dir}", status.get("code_version"), lambda line: run.log(f"{tag}: {line}"))
         return True
     if status.get("data_hash") not in (None, data["config_hash"]):
         raise ConfigError(f"{run_dir} was trained on another dataset; delete it or use a new --out")
@@ -175,7 +188,8 @@ def _train(run: _Run, row: dict) -> bool:
     if resumed_at:
         run.counters.bump("train_resumed")
     run.status = {"run_config_hash": rhash, "data_hash": data["config_hash"], "trained": True,
-                  "steps": summary["steps"], "train_s": train_s, "best_val": summary["best_val"]}
+                  "steps": summary["steps"], "train_s": train_s, "best_val": summary["best_val"],
+                  "code_version": code_version()}
     write_json(run.status_path, run.status)
     row.update(train_s=train_s, train_skipped=False, steps=summary["steps"])
     return True
@@ -301,8 +315,10 @@ def _evaluate_both(ds, ecfg, progress: bool, log, tag: str, pred):
 def _remove_last(run_dir: Path, status: dict, status_path: Path) -> dict:
     """keep_last=false: delete last.pt of a trained run whose evaluated checkpoint is best.pt."""
     last, best = run_dir / "checkpoints" / "last.pt", run_dir / "checkpoints" / "best.pt"
+    # by name: the recorded path is where the run was evaluated, which a moved sweep folder no longer is
+    # (the sweep evaluates only checkpoints/best.pt or last.pt of the run's own folder)
     evaluated = Path(status.get("checkpoint") or "")
-    if status.get("trained") and last.is_file() and best.is_file() and evaluated.resolve() == best.resolve():
+    if status.get("trained") and last.is_file() and best.is_file() and evaluated.name == best.name:
         status = {**status, "last_removed": True}
         write_json(status_path, status)  # first: an interruption between the two leaves a last.pt, not a lie
         last.unlink()

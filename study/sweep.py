@@ -27,11 +27,13 @@ Layout of SWEEP::
 
 Resumption: a dataset whose manifest's ``config_hash`` equals the resolved data
 config's hash is reused (an incomplete one is resumed by `synth.render.render_dataset`);
-a run whose ``sweep_status.json`` records the same resolved run config as
+a run whose ``sweep_status.json`` records the same run hash (`mcdp.runs.run_hash`:
+the resolved run config, its warm start named by the weights' sha256) as
 trained is not retrained (an interrupted one resumes from ``checkpoints/last.pt``
 through `mcdp.trainer.Trainer`); an evaluation is reused when its key (run
-config, checkpoint step, eval config, dataset hash) is unchanged. A rerun of a
-finished sweep only rewrites the report.
+hash, checkpoint step, eval config, dataset hash) is unchanged. A rerun of a
+finished sweep only rewrites the report. No key holds a path: a sweep folder
+copied or moved elsewhere resumes there with nothing redone.
 
 Honesty rules kept here: model selection (``best.pt``) uses the val split's
 self-supervised loss only; the test split is read once per run, by the

@@ -12,6 +12,7 @@ import time
 from pathlib import Path
 
 from corelib.configlib import ConfigError, config_hash, config_to_dict
+from corelib.version import code_version, warn_other_code
 from study.config import SPLIT, SweepConfig, data_config_for, eval_config_for, world_key
 from study.stages import Counters, finite, read_json, write_json, summarize_metrics
 from synth.overlap import target_pair_mean
@@ -102,6 +103,7 @@ def render_stage(cfg: SweepConfig, overlap: float, sweep_dir: Path, counters: Co
     if ds is not None and ds.config_hash == h:
         counters.bump("render_skipped")
         log(f"[sweep] {wkey}: dataset {out} is complete (config hash {h[:12]}), reused")
+        warn_other_code(f"dataset {out}", ds.code_version, lambda line: log(f"[sweep] {wkey}: {line}"))
         render_s, skipped = status.get("render_s", float("nan")), True
     else:
         if ds is not None:
@@ -149,6 +151,7 @@ def reference_stage(cfg: SweepConfig, d: dict, sweep_dir: Path, counters: Counte
     cached = read_json(path)
     if cached is not None and cached.get("key") == key:
         counters.bump("reference_skipped")
+        warn_other_code(f"yardsticks {path}", cached.get("code_version"), lambda line: log(f"[sweep] {line}"))
         return cached["reference"], cached["prior"]
     ds = open_dataset(d["path"])
     ecfg = eval_config_for(cfg)
@@ -161,7 +164,7 @@ def reference_stage(cfg: SweepConfig, d: dict, sweep_dir: Path, counters: Counte
     metrics = evaluate(ds, flat_road_predictor(ds, depth), SPLIT, ecfg, progress=False)
     prior = {"kind": "flat-road prior: road-plane depth from the rig geometry, capped at the constant", "far_m": depth,
              "metrics": summarize_metrics(metrics), "eval_s": time.perf_counter() - t0}
-    write_json(path, {"key": key, "reference": ref, "prior": prior})
+    write_json(path, {"key": key, "reference": ref, "prior": prior, "code_version": code_version()})
     counters.bump("reference_evaluated")
     for name, r in (("constant-depth reference", ref), ("flat-road prior", prior)):
         log(f"[sweep] overlap {o:.2f}: {name} ({depth:.2f} m): abs_rel metric "

@@ -70,6 +70,12 @@ class Dataset:
         return self.manifest.get("config_hash")
 
     @property
+    def code_version(self) -> str | None:
+        """The code that rendered the dataset (`corelib.version.code_version`; None before it was recorded)."""
+        v = self.manifest.get("code_version")
+        return v if isinstance(v, str) else None
+
+    @property
     def overlap(self) -> dict:
         """The rig's overlap record: target, mode, per-pair measured pixel overlap (docs/DATASET.md)."""
         return self.manifest.get("overlap", {})
@@ -251,7 +257,7 @@ def integrity_problems(root: Path, manifest: dict) -> list[str]:
 
 _REQUIRED_KEYS = {"schema_version": int, "generator": str, "cameras": list, "image_size": dict, "fps": (int, float),
                   "splits": dict, "sequences": dict, "files": dict}
-_OPTIONAL_KEYS = {"generator_version", "config", "config_hash", "seed", "has_depth", "families", "overlap", INTEGRITY}
+_OPTIONAL_KEYS = {"generator_version", "code_version", "config", "config_hash", "seed", "has_depth", "families", "overlap", INTEGRITY}
 
 
 def check_manifest_keys(manifest, mpath: Path) -> None:

@@ -27,6 +27,7 @@ import numpy as np
 from corelib import procs
 from corelib.atomic import DiskFullError
 from corelib.rundir import lock_folder
+from corelib.version import code_version, warn_other_code
 from scenes.model import Mesh, Scene
 from scenes.textures import LAYER
 from synth import __version__
@@ -213,7 +214,19 @@ def prepare_output(cfg: DataConfig, out: Path) -> None:
                 "choose another --out or render with the same config to resume")
     out.mkdir(parents=True, exist_ok=True)
     (out / MARKER_DIR).mkdir(exist_ok=True)
-    write_json(marker, {"config": config_to_dict(cfg), "config_hash": config_hash(cfg), "seed": cfg.seed})
+    # the code that began the render stays the record: a resume (or a rerun over a complete one) by other code
+    # does not make the sequences already written its own (a render begun before it was recorded: None)
+    code = began_with(out) if marker.is_file() else code_version()
+    write_json(marker, {"config": config_to_dict(cfg), "config_hash": config_hash(cfg), "seed": cfg.seed,
+                        "code_version": code})
+
+
+def began_with(out: Path) -> str | None:
+    """The code version that began the render into `out` (`corelib.version.code_version`, in its marker),
+    None when the marker does not record one."""
+    marker = out / MARKER_DIR / "config.json"
+    v = read_json(marker).get("code_version") if marker.is_file() else None
+    return v if isinstance(v, str) else None
 
 
 def _write_static(cfg: DataConfig, out: Path, rig: Rig) -> None:
@@ -254,6 +267,7 @@ def finalize(cfg: DataConfig, out: Path, rig: Rig) -> dict | None:
             t[1] += b
     manifest = {
         "schema_version": SCHEMA_VERSION, "generator": GENERATOR, "generator_version": __version__,
+        "code_version": began_with(out),
         "config": config_to_dict(cfg), "config_hash": config_hash(cfg), "seed": cfg.seed,
         "cameras": rig.names, "image_size": {"width": cfg.camera.width, "height": cfg.camera.height},
         "fps": cfg.dataset.fps, "has_depth": True,
@@ -287,6 +301,7 @@ def render_dataset(cfg: DataConfig, out: str | Path, workers: int = 1, shard: tu
     from synth.gl_backend import select_backend
     backend = select_backend(cfg.render.backend)
     prepare_output(cfg, out)
+    warn_other_code(f"the render in {out}", began_with(out), lambda line: log(f"synth render: {line}"))
     lock = lock_folder(out, f"{MARKER_DIR}/lock")  # a second writer of `out` is refused, naming the pid
     try:
         return _render_into(cfg, out, rig, backend, workers, (k, N), engine, progress, log)

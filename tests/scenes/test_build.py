@@ -1,5 +1,6 @@
 """build_scene: every family, determinism, ego poses, keep-out, movers, validation."""
 import json
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -9,6 +10,7 @@ from scenes.model import Mesh, Mover, Scene
 from scenes.polyline import distance_to_polyline
 from scenes.world import KEEPOUT_M, KEEPOUT_Z_M, MOVER_CLEARANCE_M
 
+ROOT = Path(__file__).resolve().parents[2]
 SPEED = {"urban": (6.0, 12.0), "residential": (6.0, 12.0), "highway": (18.0, 28.0)}
 N_FRAMES, FPS = 12, 10.0
 CASES = [(fam, seed) for fam in FAMILIES for seed in (0, 1)]  # include straight and turning routes
@@ -122,10 +124,14 @@ def test_determinism(scenes):
 def test_mixed_draws_families():
     fams = {pick_family(SceneConfig(), np.random.default_rng(s)) for s in range(12)}
     assert fams == set(FAMILIES)
-    only = {pick_family(SceneConfig(family_weights=(0.0, 0.0, 1.0)), np.random.default_rng(s)) for s in range(5)}
-    assert only == {"highway"}
+    only = {pick_family(SceneConfig(family_weights={"urban": 0.0, "residential": 0.0}), np.random.default_rng(s))
+            for s in range(5)}
+    assert only == {"highway"}  # a family left out keeps its default weight (1)
+    old = {pick_family(SceneConfig(family_weights=(0.0, 0.0, 1.0)), np.random.default_rng(s)) for s in range(5)}
+    assert old == {"highway"}  # the positional list of old configs and manifests
     assert pick_family(SceneConfig(family="urban"), np.random.default_rng(0)) == "urban"
-    sc = build_scene(SceneConfig(texture_size=128, family_weights=(0.0, 1.0, 0.0)), 2, 10.0, np.random.default_rng(0))
+    sc = build_scene(SceneConfig(texture_size=128, family_weights={"urban": 0, "residential": 1, "highway": 0}), 2,
+                     10.0, np.random.default_rng(0))
     assert sc.family == "residential"
 
 
@@ -167,8 +173,34 @@ def test_config_validation():
         build_config(SceneConfig, {"family": "desert"})
     with pytest.raises(ConfigError, match="texture_size"):
         build_config(SceneConfig, {"texture_size": 100})
-    with pytest.raises(ConfigError, match="family_weights"):
-        build_config(SceneConfig, {"family_weights": [0, 0, 0]})
+    for bad, said in (([0, 0, 0], "must not all be 0"), ({"urban": 0, "residential": 0, "highway": 0}, "must not all be 0"),
+                      ({"desert": 1.0}, "family_weights.desert: unknown scene family"),
+                      ({"urban": -1.0}, r"family_weights.urban must be in \[0, 1000\]"),
+                      ({"highway": float("nan")}, "family_weights.highway must be"), ([1, 2], "3 numbers, got 2")):
+        with pytest.raises(ConfigError, match=said):
+            build_config(SceneConfig, {"family_weights": bad})
+
+
+def test_family_weights_are_a_mapping_hashed_as_the_positional_list_of_old():
+    """{urban: 1, residential: 1, highway: 1}, filled in from the defaults, in the draw's order; every dataset
+    rendered when it was a list keeps its hash (tiny.yaml's, pinned), whichever form a preset writes."""
+    from corelib.configlib import config_hash, config_to_dict, load_config
+    from synth.config import DataConfig
+
+    tiny = ROOT / "configs" / "data" / "tiny.yaml"
+    cfg = load_config(DataConfig, tiny)
+    assert config_to_dict(cfg)["scene"]["family_weights"] == {"urban": 1.0, "residential": 1.0, "highway": 1.0}
+    assert config_hash(cfg) == "4c93be54b2f0ddb35c56d70e7fd2b087d4a0e648eeb11eb99ebc6a5727a1c9d8"  # before the mapping
+    assert config_hash(load_config(DataConfig, tiny, ["scene.family_weights=[1,1,1]"])) == config_hash(cfg)
+    part = load_config(DataConfig, tiny, ["scene.family_weights.highway=0"])
+    assert list(part.scene.family_weights.items()) == [("urban", 1.0), ("residential", 1.0), ("highway", 0.0)]
+    assert config_hash(part) == config_hash(load_config(DataConfig, tiny, ["scene.family_weights=[1,1,0]"])) \
+        != config_hash(cfg)
+    for w in ((1.0, 1.0, 1.0), (0.0, 2.0, 1.0), (0.5, 0.0, 0.0)):  # the same draw as the tuple's, seed by seed
+        sc = SceneConfig(family_weights=dict(zip(FAMILIES, w)))
+        p = np.asarray(w) / sum(w)
+        assert [pick_family(sc, np.random.default_rng(s)) for s in range(40)] == \
+            [FAMILIES[int(np.random.default_rng(s).choice(3, p=p))] for s in range(40)]
 
 
 def test_every_family_has_one_builder():

@@ -17,7 +17,7 @@ ROOT = Path(__file__).resolve().parents[2]
 CAMS = ["CAM_A", "CAM_B"]
 
 
-def _write_dataset(out: Path, h: str, target: float) -> None:
+def _write_dataset(out: Path, h: str, target: float, **extra) -> None:
     out.mkdir(parents=True)
     eye = [[1, 0, 0, 0], [0, 1, 0, 0], [0, 0, 1, 0], [0, 0, 0, 1]]
     rig = {"cameras": [{"name": n, "width": 8, "height": 6, "K": [[4, 0, 4], [0, 4, 3], [0, 0, 1]], "T_ego_cam": eye,
@@ -27,7 +27,7 @@ def _write_dataset(out: Path, h: str, target: float) -> None:
     manifest = {"schema_version": 1, "generator": "mcdp-synth", "cameras": CAMS, "image_size": {"width": 8, "height": 6},
                 "fps": 10, "splits": {"train": ["seq_0000", "seq_0001"], "val": [], "test": ["seq_0002"]},
                 "sequences": {f"seq_000{i}": {"frames": 3} for i in range(3)}, "files": {}, "config_hash": h,
-                "overlap": overlap}
+                "overlap": overlap, **{k: v for k, v in extra.items() if v is not None}}
     (out / "rig.json").write_text(json.dumps(rig))
     (out / "manifest.json").write_text(json.dumps(manifest))
 

@@ -88,6 +88,8 @@ def test_an_added_key_at_its_default_keeps_every_hash():
     d = config_to_dict(cfg)
     assert d["rig"]["cameras"] == {} and d["rig"]["overlap_target"] == "angle"
     del d["rig"]["cameras"], d["rig"]["overlap_target"]
+    assert d["scene"]["family_weights"] == {"urban": 1.0, "residential": 1.0, "highway": 1.0}
+    d["scene"]["family_weights"] = [1.0, 1.0, 1.0]  # hashed in its positional form of old (SceneConfig.hashed_form)
     assert config_hash(cfg) == json_sha256(d)
     assert config_hash(load_config(DataConfig, None, ["rig.cameras.CAM_BACK.hfov_deg=110.0"])) != config_hash(cfg)
     assert config_hash(load_config(DataConfig, None, ["rig.overlap_target=pixels"])) != config_hash(cfg)
