@@ -45,9 +45,9 @@ import numpy as np
 
 from corelib.atomic import atomic_pipe
 from corelib.rundir import FolderError, check_output_file
+from synth.extras import VIZ_INSTALL as INSTALL
 from synth.overlap import overlap_mask
 
-INSTALL = "pip install -e '.[viz]'"
 APP_ID = "mcdp_synth"
 TIMELINE = "time"
 RRD_MAGIC = b"RRF"  # every .rrd file starts with it (RRF0, RRF2, ...)
