@@ -150,8 +150,7 @@ def blueprint_of(ds, seq: str, stages=()):
 def scene_model(ds, seq: str):
     """(DataConfig, Scene) of a synth dataset's sequence (`synth.gltf_export.rebuild_scene`), or None for a
     dataset without a manifest config (a nuScenes dataroot) or whose scene cannot be rebuilt (one line why)."""
-    import sys
-
+    from corelib.logs import logger
     from synth.files import DatasetError
     from synth.gltf_export import rebuild_scene
 
@@ -160,7 +159,7 @@ def scene_model(ds, seq: str):
     try:
         return rebuild_scene(ds, seq)
     except DatasetError as e:
-        print(f"synth view: no world mesh for {seq}: {e}", file=sys.stderr)
+        logger("synth.view").warning(f"synth view: no world mesh for {seq}: {e}")
         return None
 
 

@@ -57,3 +57,14 @@ def test_the_setup_names_only_the_sweeps_methods_and_the_head_each_starts_from()
     assert warm_start_line(["mcdp_m0", "mcdp_m2"]) == (
         "MCDP (m = 0) and MCDP (m = 2) start from its basis channels; MCDP (m = 2)'s weight networks start fresh")
     assert warm_start_line(["mono2"]) == "Mono2 starts from its mono head"
+
+
+def test_the_t_table_is_scipys_quantile_to_three_decimals():
+    """study.results keeps a 30-entry table instead of depending on scipy (its comment says why); where
+    scipy is installed (the nuScenes devkit pulls it in), every entry is its t.ppf(0.975, df)."""
+    stats = pytest.importorskip("scipy.stats")
+    from study.results import T975
+
+    assert len(T975) == 30
+    for df, t in enumerate(T975, start=1):
+        assert t == pytest.approx(round(float(stats.t.ppf(0.975, df)), 3), abs=1e-9), df
