@@ -8,8 +8,10 @@ folder, ``mcdp predict --out``, ``mcdp sweep --out``):
 - a non-empty folder is accepted only when it carries the marker of the same kind (or, for
   folders written before markers existed, one of the kind's own files, ``legacy``); anything
   else, such as a folder with the user's own files, is refused before a byte is written;
-- an exclusive ``flock`` on ``.lock`` is held until `FolderLock.release` (or process exit): a
-  second process writing the same folder is refused at once, naming the holder's pid.
+- an exclusive lock on ``.lock`` (`filelock.FileLock`: ``flock`` on Unix) is held until
+  `FolderLock.release` (or process exit): a second process writing the same folder is refused at once,
+  naming the holder's pid, which the holder writes into the lock file when it gets the lock (a refused
+  attempt leaves the file as it is).
 
 `check_output_file(path, is_ours, what)` does the same for a single file a command writes (``synth
 preview --out``, ``mcdp eval --out``): new, or a regular file the command recognises as its own,
@@ -28,12 +30,13 @@ Example::
 """
 from __future__ import annotations
 
-import fcntl
 import json
 import os
 import stat
 from pathlib import Path
 from typing import Callable
+
+from filelock import FileLock, Timeout
 
 from corelib.atomic import atomic_write_json, check_writable, remove_stale_temps
 
@@ -46,16 +49,21 @@ class FolderError(ValueError):
 
 
 class FolderLock:
-    def __init__(self, folder: Path, fh):
-        self.folder, self._fh = folder, fh
+    def __init__(self, folder: Path, lock: FileLock):
+        self.folder, self._lock = folder, lock
 
     def release(self) -> None:
-        if self._fh is not None:
+        if self._lock is not None:
             try:
-                fcntl.flock(self._fh, fcntl.LOCK_UN)
+                self._lock.release(force=True)
             finally:
-                self._fh.close()
-                self._fh = None
+                self._lock = None
+
+
+def _write_pid(fd: int) -> None:
+    """`FileLock`'s on_acquired hook: this process's pid into the lock file it now holds."""
+    os.ftruncate(fd, 0)
+    os.pwrite(fd, str(os.getpid()).encode(), 0)
 
 
 def _kind_of(folder: Path) -> str | None:
@@ -87,24 +95,24 @@ def claim(folder: str | Path, kind: str, legacy: tuple[str, ...] = ()) -> Folder
 
 
 def lock_folder(folder: str | Path, lock_file: str | Path = LOCK) -> FolderLock:
-    """An exclusive, non-blocking flock on ``folder/lock_file`` (created; it holds the pid). FolderError
+    """An exclusive, non-blocking lock on ``folder/lock_file`` (created; it holds the pid). FolderError
     naming the holder's pid when another process has it; released by `FolderLock.release` or exit."""
     folder = Path(folder)
-    fh = open(folder / lock_file, "a+")
+    path = folder / lock_file
+    # thread_local=False: the process holds it, whichever thread releases; on_acquired: the pid is written
+    # under the lock (it also keeps the lock native: no soft-lock fallback whose marker the pid would clobber)
+    lock = FileLock(path, timeout=0, thread_local=False, on_acquired=_write_pid)
     try:
-        fcntl.flock(fh, fcntl.LOCK_EX | fcntl.LOCK_NB)
-    except OSError:
-        fh.seek(0)
-        holder = fh.read().strip()[:20] or "?"
-        fh.close()
+        lock.acquire()
+    except Timeout:
+        try:
+            holder = path.read_text(errors="replace").strip()[:20] or "?"
+        except OSError:
+            holder = "?"
         raise FolderError(f"{folder} is being written by another process (pid {holder}); wait for it or use "
                           "another --out") from None
-    fh.seek(0)
-    fh.truncate()
-    fh.write(str(os.getpid()))
-    fh.flush()
     remove_stale_temps(folder)  # what a writer killed with SIGKILL left; no other writer runs here now
-    return FolderLock(folder, fh)
+    return FolderLock(folder, lock)
 
 
 def check_output_file(path: str | Path, is_ours: Callable[[Path], bool], what: str, flag: str = "--out") -> Path:

@@ -173,7 +173,12 @@ def rig_point_cloud(
 
 
 def write_ply(path: str | Path, points: np.ndarray, colors: np.ndarray) -> None:
-    """Binary little-endian PLY with float xyz and uchar rgb."""
+    """Binary little-endian PLY with float xyz and uchar rgb.
+
+    Hand-written (a 10-line header and one numpy record array) on purpose: trimesh, which writes PLY, is
+    only in the optional ``viz`` extra, which lives in its own environment (``.venv-viz``: rerun-sdk needs
+    numpy >= 2), while ``mcdp predict --ply`` runs in ``.venv``; plyfile would be a new dependency for
+    the same ten lines. tests/mcdp/test_cli.py reads the file back."""
     n = len(points)
     header = (
         "ply\nformat binary_little_endian 1.0\n"

@@ -25,7 +25,6 @@ from __future__ import annotations
 import json
 import os
 import socket
-import sys
 import time
 import traceback
 from pathlib import Path
@@ -33,6 +32,7 @@ from pathlib import Path
 from corelib import exitcodes
 from corelib.cluster import error_line
 from corelib.configlib import ConfigError
+from corelib.logs import logger
 from study.config import SweepConfig, run_config_for
 from study.stages import Counters, run_dir_for, run_stage
 
@@ -59,7 +59,7 @@ def _stage_job(cfg: SweepConfig, d: dict, method: str, seed: int, out: Path, ini
     """One run in a worker process: no progress bars, log lines to stderr; the row and its counters."""
     counters = Counters()
     row = run_stage(cfg, d["overlap"], d, method, seed, out, counters,
-                    lambda s: print(s, file=sys.stderr, flush=True), False, init_from)
+                    logger("sweep").info, False, init_from)
     return row, dict(counters)
 
 

@@ -247,7 +247,8 @@ def _predict_args(p: argparse.ArgumentParser) -> None:
     p.add_argument("--data", required=True, help="dataset folder")
     p.add_argument("--out", default=None, help="output folder (grids, EXR, PLY); --out, --rrd or both")
     p.add_argument("--rrd", default=None, help="also (or only) a Rerun recording *.rrd: ground truth and every "
-                   "stage's depth, points and abs_rel image (mcdp.recording; pip install -e '.[viz]')")
+                   "stage's depth, points and abs_rel image (mcdp.recording; the viz extra: .venv-viz/bin/mcdp, "
+                   "made by scripts/setup.sh --test)")
     p.add_argument("--split", default="test", choices=["train", "val", "test"])
     p.add_argument("--max-samples", type=int, default=None, help="at most this many rig samples")
     p.add_argument("--stride", type=int, default=1, help="every k-th frame")

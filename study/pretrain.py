@@ -30,7 +30,6 @@ interrupted pretraining resumes (render and training both resume).
 from __future__ import annotations
 
 import json
-import sys
 import time
 from pathlib import Path
 from typing import Callable
@@ -38,6 +37,7 @@ from typing import Callable
 from pydantic import Field
 
 from corelib.atomic import atomic_write_json
+from corelib.logs import logger
 from corelib.configlib import ConfigError, StrictModel, config_hash, config_to_dict, hashed_dict, load_config, resolve_path
 from corelib.version import code_version, warn_other_code
 
@@ -106,7 +106,7 @@ def run_pretrain(cfg: PretrainConfig, out: str | Path, progress: bool = True,
     """Render + train + export a pretraining into ``out`` (or return the cached one). Returns its record."""
     from corelib.rundir import claim
 
-    log = log or (lambda s: print(s, file=sys.stderr, flush=True))
+    log = log or logger("pretrain").info  # stderr (-q hides it) and, during a run, its train.log
     out = Path(out)
     dcfg, rcfg, h = resolved_configs(cfg)
     rec = cached(out, h)

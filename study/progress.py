@@ -13,6 +13,11 @@ that is the wall time per run at the achieved parallelism. Runs a rerun skips (t
 before) count as done but not in the rate, so a resumed sweep's ETA is that of the work left, assuming
 the runs still to come are not skipped.
 
+tqdm draws the bar, but the ETA is computed here, not by tqdm: tqdm's rate is of bar updates over the
+time since the bar began (smoothed), so the pretraining and renders before the first run and the runs a
+rerun skips at once would enter it (a resumed sweep's ETA near zero); and the ``--no-progress`` lines
+(a sweep's log) keep their ``1m15s`` format where tqdm's `format_interval` writes ``01:15``.
+
 Example::
 
     p = SweepProgress(total=90, log=print, bar=False)

@@ -132,6 +132,10 @@ def flat_row(row: dict) -> dict[str, Any]:
     return out
 
 
+#: two-sided 95 % Student-t quantiles t_0.975(df) for df = 1..30 (beyond: the normal 1.96; t is 2.04 at 31 df,
+#: and a sweep has 3-4 seeds). Kept as a table rather than scipy.stats.t.ppf: scipy (about 110 MB installed)
+#: is no core dependency (only the optional nuScenes devkit pulls it in), and 30 constants do not justify it;
+#: tests/study/test_results.py checks every entry against scipy where it is installed.
 T975 = (12.706, 4.303, 3.182, 2.776, 2.571, 2.447, 2.365, 2.306, 2.262, 2.228, 2.201, 2.179, 2.160, 2.145,
         2.131, 2.120, 2.110, 2.101, 2.093, 2.086, 2.080, 2.074, 2.069, 2.064, 2.060, 2.056, 2.052, 2.048,
         2.045, 2.042)

@@ -49,6 +49,7 @@ from typing import Callable
 import yaml
 
 from corelib.atomic import atomic_write_text
+from corelib.logs import logger
 from corelib.configlib import config_hash, config_to_dict
 from study.config import SPLIT, SweepConfig, check_nested_configs, overlap_key, worlds_of
 from study.report import write_all
@@ -71,7 +72,7 @@ def run_sweep(cfg: SweepConfig, out: str | Path, progress: bool = True, log: Cal
     """
     from corelib.rundir import claim
 
-    log = log or (lambda s: print(s, file=sys.stderr, flush=True))
+    log = log or logger("sweep").info  # stderr (-q hides it) and, during a run, its train.log
     out = Path(out)
     check_nested_configs(cfg, yes)  # a typo in an override, a huge render: refused before anything is written
     if cfg.engine == "ray":

@@ -11,8 +11,8 @@ Examples::
     synth preview data/tiny --out sheet.png
     synth merge --out data/full shard0 shard1
     synth export data/tiny --format nuscenes --out data/tiny_ns [--version v1.0-synth] [lidar.azimuth_res_deg=0.4]
-    synth export data/tiny --format gltf --out data/tiny_gltf          # pip install -e '.[viz]'
-    synth view data/tiny --seq seq_00000 --frames 0:4 --out rig.rrd    # Rerun recording; pip install -e '.[viz]'
+    synth export data/tiny --format gltf --out data/tiny_gltf          # the viz extra: .venv-viz/bin/synth
+    synth view data/tiny --seq seq_00000 --frames 0:4 --out rig.rrd    # Rerun recording; .venv-viz/bin/synth
 """
 from __future__ import annotations
 
@@ -108,7 +108,8 @@ def _export_args(e: argparse.ArgumentParser) -> None:
     e.add_argument("data", help="finished synth dataset folder")
     e.add_argument("--format", required=True, choices=["nuscenes", "gltf"],
                    help="nuscenes: a nuScenes dataroot; gltf: per sequence the world and movers as GLB + poses JSON "
-                        "(docs/DATASET.md, 'glTF export'; pip install -e '.[viz]')")
+                        "(docs/DATASET.md, 'glTF export'; needs the viz extra: .venv-viz/bin/synth, made by "
+                        "scripts/setup.sh --test)")
     e.add_argument("--out", required=True, help="dataroot to write (new, empty, or a previous export of this dataset)")
     e.add_argument("--version", default="v1.0-synth", help="table folder name (NuScenes(version=...)); "
                    "default v1.0-synth")
@@ -261,7 +262,8 @@ COMMANDS = [
     Command("export", "write a dataset in another format (nuScenes dataroot: docs/NUSCENES.md; glTF)", _export_args,
             lambda args: _export(args) if args.format == "nuscenes" else _export_gltf(args)),
     Command("view", "Rerun recording (.rrd) of a sequence: rig, images, depth, masks, points "
-            "(pip install -e '.[viz]'; open with `rerun FILE.rrd`)", _view_args, _view),
+            "(the viz extra: .venv-viz/bin/synth, made by scripts/setup.sh --test; open with `rerun FILE.rrd`)",
+            _view_args, _view),
 ]
 
 

@@ -34,11 +34,11 @@ import numpy as np
 from corelib.atomic import atomic_write_bytes
 from corelib.configlib import build_config
 from corelib.rundir import FolderError, claim
+from synth.extras import VIZ_INSTALL as INSTALL
 from synth.files import DatasetError, read_json, write_json
 
 FORMAT = "mcdp-synth-gltf"
 FORMAT_VERSION = 1
-INSTALL = "pip install -e '.[viz]'"
 MARKER = "export.json"
 # glTF is y up: x stays, world z -> glTF y, world y -> glTF -z
 T_GLTF_WORLD = np.array([[1.0, 0, 0, 0], [0, 0, 1, 0], [0, -1, 0, 0], [0, 0, 0, 1]])

@@ -3,8 +3,9 @@
 Overlap column: the camera's RGB in grey, tinted blue where the previous camera in
 ring order sees the pixel, red where the next one does (purple: both).
 
-The sheet carries a PNG text chunk (``Software: mcdp-synth preview``) right after its header: `--out`
-may name a new file or an earlier sheet, never a file of anyone else (`check_preview_target`).
+The sheet carries a PNG text chunk (``Software: mcdp-synth preview``, written and read by Pillow's
+`PngImagePlugin`; sheets of earlier versions carry the same chunk): `--out` may name a new file or an
+earlier sheet, never a file of anyone else (`check_preview_target`).
 
 Example::
 
@@ -12,34 +13,41 @@ Example::
 """
 from __future__ import annotations
 
-import struct
-import zlib
+import io
+import warnings
 from pathlib import Path
 
 import cv2
 import numpy as np
+from PIL import Image, PngImagePlugin
 
 from corelib.atomic import atomic_write_bytes
 from corelib.rundir import FolderError, check_output_file
 from synth.dataset import Dataset, dataset_containing
-from synth.files import PNG_SIGNATURE, encode_png
 from synth.overlap import overlaps_by_neighbour
 
-_TEXT = b"Software\0mcdp-synth preview"
-_TAG = struct.pack(">I", len(_TEXT)) + b"tEXt" + _TEXT + struct.pack(">I", zlib.crc32(b"tEXt" + _TEXT))
-_IHDR_END = len(PNG_SIGNATURE) + 25  # signature, then the IHDR chunk (4 + 4 + 13 + 4 bytes)
+SOFTWARE = "mcdp-synth preview"  # the value of the sheet's ``Software`` text chunk
 
 
-def tag_png(png: bytes) -> bytes:
-    """PNG bytes with the preview's text chunk inserted after IHDR (where `is_preview` looks for it)."""
-    return png[:_IHDR_END] + _TAG + png[_IHDR_END:]
+def encode_preview(sheet: np.ndarray) -> bytes:
+    """uint8 RGB (H, W, 3) -> PNG bytes carrying the ``Software`` text chunk (before the image data)."""
+    info = PngImagePlugin.PngInfo()
+    info.add_text("Software", SOFTWARE)
+    buf = io.BytesIO()
+    Image.fromarray(sheet).save(buf, format="PNG", pnginfo=info, compress_level=3)
+    return buf.getvalue()
 
 
 def is_preview(path: Path) -> bool:
-    """True for a PNG file that `make_preview` wrote."""
-    with open(path, "rb") as f:
-        head = f.read(_IHDR_END + len(_TAG))
-    return head.startswith(PNG_SIGNATURE) and head[_IHDR_END:] == _TAG
+    """True for a PNG file that `make_preview` wrote. Pillow reads only the chunks before the image data
+    (the pixels are never decoded), so any file, however large or malformed, is answered cheaply."""
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", Image.DecompressionBombWarning)
+            with Image.open(path, formats=["PNG"]) as im:
+                return im.info.get("Software") == SOFTWARE
+    except (OSError, SyntaxError, ValueError, Image.DecompressionBombError):  # not a PNG, or a broken one
+        return False
 
 
 def check_preview_target(out: str | Path) -> Path:
@@ -100,5 +108,5 @@ def make_preview(ds: Dataset, out: str | Path, seq: str | None = None, frame: in
         rows.append(np.concatenate(tiles, axis=1))
     sheet = np.concatenate(rows, axis=0)
     out.parent.mkdir(parents=True, exist_ok=True)
-    atomic_write_bytes(out, tag_png(encode_png(sheet)))
+    atomic_write_bytes(out, encode_preview(sheet))
     return out

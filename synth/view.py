@@ -45,9 +45,9 @@ import numpy as np
 
 from corelib.atomic import atomic_pipe
 from corelib.rundir import FolderError, check_output_file
+from synth.extras import VIZ_INSTALL as INSTALL
 from synth.overlap import neighbours_of, overlaps_by_neighbour
 
-INSTALL = "pip install -e '.[viz]'"
 APP_ID = "mcdp_synth"
 TIMELINE = "time"
 RRD_MAGIC = b"RRF"  # every .rrd file starts with it (RRF0, RRF2, ...)
@@ -150,8 +150,7 @@ def blueprint_of(ds, seq: str, stages=()):
 def scene_model(ds, seq: str):
     """(DataConfig, Scene) of a synth dataset's sequence (`synth.gltf_export.rebuild_scene`), or None for a
     dataset without a manifest config (a nuScenes dataroot) or whose scene cannot be rebuilt (one line why)."""
-    import sys
-
+    from corelib.logs import logger
     from synth.files import DatasetError
     from synth.gltf_export import rebuild_scene
 
@@ -160,7 +159,7 @@ def scene_model(ds, seq: str):
     try:
         return rebuild_scene(ds, seq)
     except DatasetError as e:
-        print(f"synth view: no world mesh for {seq}: {e}", file=sys.stderr)
+        logger("synth.view").warning(f"synth view: no world mesh for {seq}: {e}")
         return None
 
 

@@ -10,6 +10,7 @@ import importlib.util
 import os
 import re
 import subprocess
+import sys
 from pathlib import Path
 
 import pytest
@@ -31,3 +32,25 @@ def test_viz_tests_pass_in_the_viz_environment():
     assert res.returncode == 0, tail
     m = re.search(r"(\d+) passed", tail)
     assert m and int(m.group(1)) > 0 and "skipped" not in tail.splitlines()[-1], tail
+
+
+@pytest.mark.parametrize("module,argv", [
+    ("rerun", ["synth", "view", "{tmp}/no_data", "--out", "{tmp}/rig.rrd"]),
+    ("rerun", ["mcdp", "predict", "{tmp}/no_run", "--data", "{tmp}/no_data", "--rrd", "{tmp}/pred.rrd"]),
+    ("trimesh", ["synth", "export", "{tmp}/no_data", "--format", "gltf", "--out", "{tmp}/gltf"]),
+])
+def test_a_missing_viz_extra_names_the_environment_that_has_it(module, argv, tmp_path, monkeypatch, capsys):
+    """Without the extra, each viz command fails with one line (exit 2) that names .venv-viz and the setup
+    command that makes it, before it reads anything: not `pip install -e '.[viz]'` into this environment."""
+    from study.cli import main as mcdp_main
+    from synth.cli import main as synth_main
+
+    monkeypatch.setitem(sys.modules, module, None)  # `import rerun` / `import trimesh` raise ImportError
+    argv = [a.replace("{tmp}", str(tmp_path)) for a in argv]
+    code = (synth_main if argv[0] == "synth" else mcdp_main)(argv[1:])
+    err = capsys.readouterr().err.strip()
+    assert code == 2, err
+    assert len(err.splitlines()) == 1, err
+    assert f"optional extra 'viz' ({'rerun-sdk' if module == 'rerun' else 'trimesh'})" in err
+    assert ".venv-viz" in err and "bash scripts/setup.sh --test" in err, err
+    assert list(tmp_path.iterdir()) == []

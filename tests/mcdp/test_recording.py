@@ -10,7 +10,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-rr = pytest.importorskip("rerun", reason="the viz extra is not installed: pip install -e '.[viz]'")
+rr = pytest.importorskip("rerun", reason="the viz extra is not here: it is in .venv-viz (tests/test_viz_env.py)")
 
 import mcdp.trainer  # noqa: F401,E402  torch before the in-process GL renderer (tests/mcdp/test_cli.py)
 from study.method_commands import main  # noqa: E402

@@ -71,3 +71,14 @@ def test_the_warm_start_line_reads_the_network_not_its_name():
         assert warm_start_line(["xview"]) == "X-View starts from its mono head; X-View's cross-view blocks start fresh"
     finally:
         methods.METHODS.pop("xview")
+
+
+def test_the_t_table_is_scipys_quantile_to_three_decimals():
+    """study.results keeps a 30-entry table instead of depending on scipy (its comment says why); where
+    scipy is installed (the nuScenes devkit pulls it in), every entry is its t.ppf(0.975, df)."""
+    stats = pytest.importorskip("scipy.stats")
+    from study.results import T975
+
+    assert len(T975) == 30
+    for df, t in enumerate(T975, start=1):
+        assert t == pytest.approx(round(float(stats.t.ppf(0.975, df)), 3), abs=1e-9), df

@@ -8,7 +8,7 @@ import sys
 import numpy as np
 import pytest
 
-trimesh = pytest.importorskip("trimesh", reason="the viz extra is not installed: pip install -e '.[viz]'")
+trimesh = pytest.importorskip("trimesh", reason="the viz extra is not here: it is in .venv-viz (tests/test_viz_env.py)")
 
 SEQ = "seq_00001"
 

@@ -9,7 +9,7 @@ import sys
 import numpy as np
 import pytest
 
-rr = pytest.importorskip("rerun", reason="the viz extra is not installed: pip install -e '.[viz]'")
+rr = pytest.importorskip("rerun", reason="the viz extra is not here: it is in .venv-viz (tests/test_viz_env.py)")
 
 
 def read_rrd(path) -> dict[str, list[tuple[int | None, dict]]]:
