@@ -35,7 +35,7 @@ import stat
 from pathlib import Path
 from typing import Callable
 
-from corelib.atomic import atomic_write_json, check_writable, remove_stale_temps
+from corelib.atomic import atomic_write_json, check_writable, naming, remove_stale_temps
 
 MARKER = ".mcdp"
 LOCK = ".lock"
@@ -99,10 +99,13 @@ def lock_folder(folder: str | Path, lock_file: str | Path = LOCK) -> FolderLock:
         fh.close()
         raise FolderError(f"{folder} is being written by another process (pid {holder}); wait for it or use "
                           "another --out") from None
-    fh.seek(0)
-    fh.truncate()
-    fh.write(str(os.getpid()))
-    fh.flush()
+    try:  # unbuffered, so that a close never writes again; a disk full from the start fails here, naming the file
+        with naming(folder / lock_file):
+            os.ftruncate(fh.fileno(), 0)
+            os.write(fh.fileno(), str(os.getpid()).encode())  # O_APPEND: at 0, the file is empty
+    except BaseException:
+        fh.close()
+        raise
     remove_stale_temps(folder)  # what a writer killed with SIGKILL left; no other writer runs here now
     return FolderLock(folder, fh)
 
