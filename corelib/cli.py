@@ -80,7 +80,7 @@ def parse_command_line(parser: argparse.ArgumentParser, argv: list[str] | None) 
     args, extra = parser.parse_known_args(argv)
     stray = [e for e in extra if e.startswith("-") or "=" not in e]
     if stray or (extra and not hasattr(args, "overrides")):
-        parser.error(f"unrecognized arguments: {' '.join(stray or extra)}")
+        parser.error(f"unrecognized arguments: {bounded(' '.join(stray or extra), 300)}")
     if extra:
         args.overrides = list(args.overrides) + extra
     return args
@@ -107,12 +107,24 @@ def main(prog: str, description: str, commands: Iterable[Command], argv: list[st
     except Exception as exc:  # noqa: BLE001 (matched against the rules below; anything else is re-raised)
         for errors, code, label in rules:
             if isinstance(exc, _classes(errors)):
-                print(f"{where}: {label}: {exc}", file=sys.stderr)
+                print(f"{where}: {label}: {bounded(str(exc))}", file=sys.stderr)
                 return code
         if isinstance(exc, OSError) and is_disk_full(exc):
-            print(f"{where}: error: {disk_full_message(exc)}", file=sys.stderr)
+            if exc.filename is None and getattr(args, "out", None) is not None:  # a writer that named no file
+                exc = OSError(exc.errno, exc.strerror, f"a file under {args.out}")
+            print(f"{where}: error: {bounded(disk_full_message(exc))}", file=sys.stderr)
             return DISK_FULL
         if isinstance(exc, OSError) and is_user_file_error(exc):  # permission denied, read-only fs, a name too long
-            print(f"{where}: error: {file_error_message(exc)}", file=sys.stderr)
+            print(f"{where}: error: {bounded(file_error_message(exc))}", file=sys.stderr)
             return USAGE
         raise
+
+
+#: the longest error message printed (characters); a longer one is cut, the rest counted
+MAX_MESSAGE = 2000
+
+
+def bounded(text: str, limit: int = MAX_MESSAGE) -> str:
+    """``text`` cut to ``limit`` characters, with the count of the rest: whatever a message echoes (a path, a
+    value of the user's), the error stays a few lines."""
+    return text if len(text) <= limit else f"{text[:limit]}... ({len(text) - limit} more characters)"

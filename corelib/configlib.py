@@ -89,9 +89,35 @@ _Loader.add_implicit_resolver(
 MAX_CONFIG_BYTES = 1 << 20
 
 
-#: the deepest nesting of mappings and lists a config may have (presets: 3); deeper would exhaust the
-#: composer's recursion with a traceback of thousands of lines
+#: the deepest nesting of mappings and lists a config may have (presets: 3), counting the parts of a dotted
+#: override key; deeper would exhaust the composer's recursion with a traceback of thousands of lines
 MAX_CONFIG_DEPTH = 32
+
+#: the most keys and list items a config may hold at all depths together, a file, the overrides or both
+#: merged (presets: at most 54; a resolved run config: about 60)
+MAX_CONFIG_KEYS = 10_000
+
+
+def check_bounds(data: Any, source: str) -> None:
+    """ConfigError naming ``source`` when ``data`` (a parsed config) is nested more than `MAX_CONFIG_DEPTH`
+    levels or holds more than `MAX_CONFIG_KEYS` keys and list items; walked without recursion."""
+    entries, stack = 0, [(data, 1)]
+    while stack:
+        node, depth = stack.pop()
+        if isinstance(node, dict):
+            children = list(node.values())
+        elif isinstance(node, (list, tuple)):
+            children = list(node)
+        else:
+            continue
+        if depth > MAX_CONFIG_DEPTH:
+            raise ConfigError(f"{_cut(source, 300)}: nested more than {MAX_CONFIG_DEPTH} levels deep; a config is a "
+                              "few levels deep")
+        entries += len(children)
+        if entries > MAX_CONFIG_KEYS:
+            raise ConfigError(f"{_cut(source, 300)}: more than {MAX_CONFIG_KEYS} keys and list items; a config has "
+                              "a few dozen")
+        stack += [(c, depth + 1) for c in children]
 
 
 def _no_alias(loader, parent, index):
@@ -132,23 +158,30 @@ def override_key(item: str) -> str:
 def parse_overrides(overrides: Iterable[str]) -> dict[str, Any]:
     """Parse ``a.b=value`` strings into a nested dict; values are parsed as YAML scalars/lists."""
     out: dict[str, Any] = {}
-    for item in overrides:
+    items = list(overrides)
+    if len(items) > MAX_CONFIG_KEYS:
+        raise ConfigError(f"{len(items)} overrides, more than the {MAX_CONFIG_KEYS} keys a config may have")
+    for item in items:
         if "=" not in item:
-            raise ConfigError(f"override {item!r} is not of the form key=value (e.g. rig.overlap=0.3)")
+            raise ConfigError(f"override {_cut(item)!r} is not of the form key=value (e.g. rig.overlap=0.3)")
         key, raw = override_key(item), item.split("=", 1)[1]
         if not key or any(not part for part in key.split(".")):
-            raise ConfigError(f"override {item!r} has an empty key")
+            raise ConfigError(f"override {_cut(item)!r} has an empty key")
+        parts = key.split(".")
+        if len(parts) > MAX_CONFIG_DEPTH:
+            raise ConfigError(f"override {_cut(key)}: nested more than {MAX_CONFIG_DEPTH} levels deep ({len(parts)} "
+                              "dotted parts); a config is a few levels deep")
         try:
             value = load_yaml_text(raw) if raw.strip() != "" else ""
         except yaml.YAMLError as exc:
-            raise ConfigError(f"override {key}: cannot parse value {raw[:80]!r}: {_short(exc)}") from None
+            raise ConfigError(f"override {_cut(key)}: cannot parse value {raw[:80]!r}: {_short(exc)}") from None
         node = out
-        parts = key.split(".")
         for p in parts[:-1]:
             node = node.setdefault(p, {})
             if not isinstance(node, dict):
-                raise ConfigError(f"override {key}: {p} is set both as a value and as a section")
+                raise ConfigError(f"override {_cut(key)}: {_cut(p)} is set both as a value and as a section")
         node[parts[-1]] = value
+    check_bounds(out, "overrides")
     return out
 
 
@@ -166,19 +199,24 @@ def deep_merge(base: dict[str, Any], upd: dict[str, Any]) -> dict[str, Any]:
 def read_yaml(path: str | Path) -> dict[str, Any]:
     """Read a YAML mapping; errors name the file."""
     p = Path(path)
-    if not p.is_file():
-        raise ConfigError(f"config file {p} does not exist")
+    name = _cut(str(p), 300)
+    try:
+        if not p.is_file():
+            raise ConfigError(f"config file {name} does not exist")
+    except OSError as exc:  # a name longer than the file system allows
+        raise ConfigError(f"config file {name}: {exc.strerror or exc}") from None
     size = p.stat().st_size
     if size > MAX_CONFIG_BYTES:
-        raise ConfigError(f"config file {p} is {size} bytes, more than the {MAX_CONFIG_BYTES} a config may have")
+        raise ConfigError(f"config file {name} is {size} bytes, more than the {MAX_CONFIG_BYTES} a config may have")
     try:
         data = load_yaml_text(p.read_text())
     except (yaml.YAMLError, UnicodeDecodeError) as exc:
-        raise ConfigError(f"config file {p} is not valid YAML: {_short(exc)}") from None
+        raise ConfigError(f"config file {name} is not valid YAML: {_short(exc)}") from None
     if data is None:
         data = {}
     if not isinstance(data, dict):
-        raise ConfigError(f"config file {p} must hold a mapping at the top level, not {type(data).__name__}")
+        raise ConfigError(f"config file {name} must hold a mapping at the top level, not {type(data).__name__}")
+    check_bounds(data, f"config file {name}")
     return data
 
 
@@ -206,12 +244,15 @@ def resolve_path(p: str | Path, kind: str) -> Path:
     """A preset path as the user typed it: relative to the working directory if it exists there, else
     to the project root (``configs/...`` works from anywhere); ConfigError naming ``kind`` otherwise."""
     p = Path(p)
-    if p.is_absolute() or p.exists():
-        return p
-    alt = PROJECT_ROOT / p
-    if alt.exists():
-        return alt
-    raise ConfigError(f"{kind} {p} does not exist (looked in {Path.cwd()} and {PROJECT_ROOT})")
+    try:
+        if p.is_absolute() or p.exists():
+            return p
+        alt = PROJECT_ROOT / p
+        if alt.exists():
+            return alt
+    except OSError as exc:  # a name longer than the file system allows
+        raise ConfigError(f"{kind} {_cut(str(p), 300)}: {exc.strerror or exc}") from None
+    raise ConfigError(f"{kind} {_cut(str(p), 300)} does not exist (looked in {Path.cwd()} and {PROJECT_ROOT})")
 
 
 def load_config(cls: Type[T], path: str | Path | None = None, overrides: Iterable[str] = (),
@@ -232,6 +273,7 @@ def load_config(cls: Type[T], path: str | Path | None = None, overrides: Iterabl
         source += " + overrides " + " ".join(ov)
     if values:
         source += " + " + ", ".join(sorted(values))
+    check_bounds(data, f"config {source}")
     return build_config(cls, data, source)
 
 

@@ -38,7 +38,7 @@ from typing import Callable
 
 from filelock import FileLock, Timeout
 
-from corelib.atomic import atomic_write_json, check_writable, remove_stale_temps
+from corelib.atomic import atomic_write_json, check_writable, naming, remove_stale_temps
 
 MARKER = ".mcdp"
 LOCK = ".lock"
@@ -102,8 +102,9 @@ def lock_folder(folder: str | Path, lock_file: str | Path = LOCK) -> FolderLock:
     # thread_local=False: the process holds it, whichever thread releases; on_acquired: the pid is written
     # under the lock (it also keeps the lock native: no soft-lock fallback whose marker the pid would clobber)
     lock = FileLock(path, timeout=0, thread_local=False, on_acquired=_write_pid)
-    try:
-        lock.acquire()
+    try:  # the pid is the first write: a disk full from the start fails here, naming the lock file
+        with naming(path):
+            lock.acquire()
     except Timeout:
         try:
             holder = path.read_text(errors="replace").strip()[:20] or "?"
@@ -111,6 +112,10 @@ def lock_folder(folder: str | Path, lock_file: str | Path = LOCK) -> FolderLock:
             holder = "?"
         raise FolderError(f"{folder} is being written by another process (pid {holder}); wait for it or use "
                           "another --out") from None
+    except BaseException:
+        if lock.is_locked:
+            lock.release(force=True)
+        raise
     remove_stale_temps(folder)  # what a writer killed with SIGKILL left; no other writer runs here now
     return FolderLock(folder, lock)
 

@@ -13,16 +13,23 @@ from pathlib import Path
 
 import torch
 
+from corelib.atomic import naming
 from mcdp.visual import colorize_disparity
 
 
 class TrainLogger:
     def __init__(self, folder: str | Path | None):
         self.writer = None
+        self.folder = None if folder is None else Path(folder)
         if folder is not None:
             from torch.utils.tensorboard import SummaryWriter
 
-            self.writer = SummaryWriter(str(folder))
+            with naming(self.folder):
+                self.writer = SummaryWriter(str(folder))
+
+    def _named(self):
+        """TensorBoard's writer thread reports a full disk without a file name: name the folder it writes."""
+        return naming(self.folder)
 
     @property
     def enabled(self) -> bool:
@@ -35,13 +42,15 @@ class TrainLogger:
         for k, v in values.items():
             if k.startswith("_") or (isinstance(v, torch.Tensor) and v.numel() != 1):
                 continue
-            self.writer.add_scalar(k, float(v.detach()) if isinstance(v, torch.Tensor) else v, step)
+            with self._named():
+                self.writer.add_scalar(k, float(v.detach()) if isinstance(v, torch.Tensor) else v, step)
 
     def text(self, tag: str, text: str, step: int) -> None:
         """``text`` (e.g. the resolved config YAML) under ``tag`` in TensorBoard's Text tab (markdown: indented
         four spaces, a code block, so YAML keeps its lines)."""
         if self.writer is not None:
-            self.writer.add_text(tag, "\n".join("    " + line for line in text.splitlines()), step)
+            with self._named():
+                self.writer.add_text(tag, "\n".join("    " + line for line in text.splitlines()), step)
 
     def images(self, batch: dict, outputs: dict, step: int) -> None:
         """Rows: the rig's RGB at t, one colour-mapped disparity row per stage, then the masks
@@ -59,13 +68,16 @@ class TrainLogger:
         used = outputs["used"][:N].float().cpu()
         rows.append(torch.cat([m, used, m * 0], 1))
         grid = torchvision.utils.make_grid(torch.cat(rows, 0), nrow=N, padding=2)
-        self.writer.add_image("rig/rgb_depth_per_stage_masks", grid, step)
+        with self._named():
+            self.writer.add_image("rig/rgb_depth_per_stage_masks", grid, step)
 
     def flush(self) -> None:
         if self.writer is not None:
-            self.writer.flush()
+            with self._named():
+                self.writer.flush()
 
     def close(self) -> None:
         if self.writer is not None:
-            self.writer.close()
-            self.writer = None
+            writer, self.writer = self.writer, None
+            with self._named():
+                writer.close()
