@@ -226,18 +226,28 @@ def distance_plot(results: dict, plot_dir: Path) -> Path | None:
     import matplotlib.pyplot as plt
 
     overlaps = results["overlaps"]
-    fig, axes = plt.subplots(1, len(overlaps), figsize=(4.2 * len(overlaps) + 1.5, 4.2), sharey=True, squeeze=False)
+    # no shared y: a band with few pixels (far from a wide overlap) has a wide interval that would flatten
+    # every other panel; each panel's axis covers its means and is clipped at 3x the largest of them
+    fig, axes = plt.subplots(1, len(overlaps), figsize=(4.2 * len(overlaps) + 1.5, 4.2), squeeze=False)
     x = list(range(len(bands)))
-    for ax, o in zip(axes[0], overlaps):
+    axis = x_axis(results)[1]
+    for ax, o, tick in zip(axes[0], overlaps, axis):
+        reach, top = 0.0, 0.0
         for k, (name, (a, b), ls) in enumerate(lines):
             pds = [paired(results, o, (a, f"median.band.{bd}.abs_rel"), (b, f"median.band.{bd}.abs_rel")) for bd in bands]
             y = [p["mean"] for p in pds]
             e = [p["ci95"] if p["n"] > 1 else 0.0 for p in pds]
+            fin = [(abs(v), abs(v) + d) for v, d in zip(y, e) if math.isfinite(v) and math.isfinite(d)]
+            top = max([top] + [v for v, _ in fin])
+            reach = max([reach] + [r for _, r in fin])
             ax.errorbar([xi + 0.04 * (k - len(lines) / 2) for xi in x], y, yerr=e, marker="o", ls=ls, capsize=3,
                         label=name)
+        lim = max(0.005, min(reach, 3.0 * top)) * 1.1
+        ax.set_ylim(-lim, lim)
         ax.axhline(0.0, color="k", lw=0.8)
         ax.set_xticks(x, bands, rotation=30, fontsize=8)
-        ax.set_title(f"overlap {o:.2f}", fontsize=10)
+        clipped = " (intervals clipped)" if reach > lim else ""
+        ax.set_title(f"overlap {tick.replace(chr(10), ' ')}{clipped}", fontsize=10)
         ax.set_xlabel("distance to the overlap (fraction of width)")
         ax.grid(alpha=0.3)
     axes[0][0].set_ylabel("abs_rel gain (median scaling; > 0 helps)")
