@@ -55,10 +55,15 @@ def _not_regular(st: os.stat_result) -> str:
             else "not a regular file")
 
 
+#: the largest file any reader takes (its size is checked on the open descriptor before a byte is read): a
+#: 4096 x 4096 float32 EXR is 64 MiB, the largest nuScenes table (v1.0-trainval sample_data.json) about 1 GiB
+MAX_READ_BYTES = 2 * 2**30
+
+
 def regular_file(path: str | Path, root: str | Path | None = None, who: str = "") -> Path:
     """`path` when it is a regular file (a link is followed; with `root`, it must resolve inside it,
-    `within`); a FIFO, a device, a socket or a folder is refused without being opened (os.stat), naming
-    the file: the rule of every reader of a dataset's or dataroot's files."""
+    `within`); a FIFO, a device, a socket, a folder or a file larger than `MAX_READ_BYTES` is refused without
+    being opened (os.stat), naming the file: the rule of every reader of a dataset's or dataroot's files."""
     path = Path(path)
     if root is not None:
         within(root, path, who)
@@ -70,12 +75,20 @@ def regular_file(path: str | Path, root: str | Path | None = None, who: str = ""
         raise DatasetError(f"{path}: missing or not readable ({exc.strerror or exc})") from None
     if not stat.S_ISREG(st.st_mode):
         raise DatasetError(f"{path}: is {_not_regular(st)}, not a regular file; a dataset's files are regular files")
+    _check_size(path, st)
     return path
 
 
+def _check_size(path: Path, st: os.stat_result) -> None:
+    if st.st_size > MAX_READ_BYTES:
+        raise DatasetError(f"{path}: {st.st_size} bytes, more than any dataset file may hold ({MAX_READ_BYTES} "
+                           "bytes); refused before reading")
+
+
 def read_regular(path: str | Path, root: str | Path | None = None, who: str = "") -> bytes:
-    """The bytes of the regular file `path` (`regular_file`'s rule). Opened with O_NONBLOCK and checked
-    again on the open descriptor, so a FIFO put in its place after the check never blocks the read."""
+    """The bytes of the regular file `path` (`regular_file`'s rule), at most `MAX_READ_BYTES`. Opened with
+    O_NONBLOCK and checked again on the open descriptor, so a FIFO put in its place after the check never
+    blocks the read, and a file larger than the bound is refused before it is read."""
     path = regular_file(path, root, who)
     try:
         fd = os.open(path, os.O_RDONLY | os.O_NONBLOCK)
@@ -86,8 +99,9 @@ def read_regular(path: str | Path, root: str | Path | None = None, who: str = ""
         if not stat.S_ISREG(st.st_mode):
             raise DatasetError(f"{path}: is {_not_regular(st)}, not a regular file; a dataset's files are regular "
                                "files")
+        _check_size(path, st)  # again on the descriptor: the file may have been replaced since
         try:
-            return f.read()
+            return f.read(MAX_READ_BYTES + 1)
         except OSError as exc:
             raise DatasetError(f"{path}: not readable ({exc.strerror or exc})") from None
 

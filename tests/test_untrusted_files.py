@@ -141,6 +141,30 @@ def test_every_synth_reader_refuses_a_special_file_or_a_link_out_naming_it(tiny_
     assert str(p) in str(e.value) and len(str(e.value).splitlines()) == 1, e.value
 
 
+@pytest.mark.parametrize("rel", SYNTH_FILES)
+def test_every_synth_reader_refuses_a_file_larger_than_its_bound_before_reading_it(tiny_dataset, tmp_path, rel):
+    """Finding 3's size rule: a (sparse) 3 GiB file in place of any dataset file is refused by its size on the
+    open descriptor, naming it, before a byte is read (the sparse file costs no disk)."""
+    import resource
+
+    from synth.files import MAX_READ_BYTES, DatasetError
+
+    d = tmp_path / "data"
+    shutil.copytree(tiny_dataset, d)
+    seq = json.loads((d / "manifest.json").read_text())["splits"]["test"][0]
+    p = d / rel.format(seq=seq)
+    p.unlink()
+    with open(p, "wb") as f:
+        f.truncate(3 * 2**30)
+    assert p.stat().st_size > MAX_READ_BYTES
+    before = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
+    with pytest.raises(DatasetError) as e:
+        _read_all_synth(d)
+    assert str(p) in str(e.value) and "refused before reading" in str(e.value), e.value
+    assert len(str(e.value).splitlines()) == 1
+    assert resource.getrusage(resource.RUSAGE_SELF).ru_maxrss - before < 512 * 2**10  # KiB: nothing was read
+
+
 def test_eval_on_a_dataset_with_a_fifo_image_exits_2_naming_it(tiny_dataset, tmp_path, capsys, alarm):
     from study.method_commands import main
 
