@@ -81,13 +81,15 @@ def test_a_lock_file_that_cannot_be_written_is_named(tmp_path, monkeypatch):
     from corelib import rundir
     from corelib.atomic import DiskFullError
 
-    def full(fd, data):
+    def full(fd, data, *offset):
         raise OSError(errno.ENOSPC, "No space left on device")
 
-    monkeypatch.setattr(rundir.os, "write", full)
+    monkeypatch.setattr(rundir.os, "pwrite", full)  # the pid, written by the lock's on_acquired hook
     with pytest.raises(DiskFullError) as e:
         rundir.claim(tmp_path / "run", "run")
     assert e.value.filename == str(tmp_path / "run" / ".lock")
+    monkeypatch.undo()
+    rundir.claim(tmp_path / "run", "run").release()  # the failed claim left no lock held
 
 
 def test_tensorboard_on_a_full_disk_names_its_folder(tmp_path):
