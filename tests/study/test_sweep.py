@@ -218,6 +218,16 @@ def test_parallel_jobs_give_the_same_numbers_as_sequential(tmp_path):
     for a, b in zip(seq["rows"], par["rows"]):
         assert a["method"] == b["method"]
         assert a["metrics"] == b["metrics"], a["method"]
+    # the smoke sweep stays under the size the README states (1.7 GB for its 14 runs: the 276 MB pretraining
+    # and one 103 MB best.pt per run, no last.pt): per run and in all, scaled to these two runs
+    runs = sorted((tmp_path / "par" / "runs").glob("*/*"))
+    assert len(runs) == 2 and all(_du(r) < 120e6 for r in runs), [(r.name, _du(r)) for r in runs]
+    assert _du(tmp_path / "par") < 300e6 + len(runs) * 120e6
+
+
+def _du(path: Path) -> int:
+    """Bytes of the regular files under ``path``."""
+    return sum(f.stat().st_size for f in path.rglob("*") if f.is_file() and not f.is_symlink())
 
 
 def test_the_smoke_sweep_keeps_no_last_pt():
