@@ -45,6 +45,7 @@ from corelib.atomic import atomic_write_json, atomic_write_text
 from corelib.configlib import config_to_dict
 from corelib.logs import close_run_log, logger, run_log
 from corelib.rundir import FolderError, claim
+from corelib.version import code_version, warn_other_code
 from mcdp.config import RunConfig
 from mcdp.data import RigDataset, StepBatchSampler, collate
 from mcdp.diagnostics import collapse_reason, depth_spread
@@ -203,6 +204,7 @@ class Trainer:
             "depth_spread": dict(self.spread),
             "init_from": self.init_from,
             "world_size": self.dist.world,
+            "code_version": code_version(),
         }
 
     def save_checkpoint(self, name: str = "last.pt", weights_only: bool = False) -> Path:
@@ -219,6 +221,9 @@ class Trainer:
         return path
 
     def _restore(self, ckpt: dict) -> None:
+        if self.dist.is_main:  # a run resumed by other code: one warning line (corelib.version)
+            warn_other_code(f"checkpoint {self.run_dir / 'checkpoints' / 'last.pt'}",
+                            ckpt.get("code_version"), log.warning)
         self.depth.load_state_dict(ckpt["depth_model"])
         if self.pose is not None:
             self.pose.load_state_dict(ckpt["pose_model"])

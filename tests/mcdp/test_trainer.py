@@ -77,6 +77,25 @@ def test_different_seed_gives_different_weights(ds, tmp_path):
     assert any(not torch.equal(sa[k], sb[k]) for k in sa)
 
 
+def test_resuming_a_run_made_by_other_code_warns_once_and_resumes(ds, tmp_path, capsys):
+    from corelib.version import code_version
+
+    run = tmp_path / "run"
+    train(ds, run, "mono2", "train.steps=1")
+    assert state_of(run)["code_version"] == code_version()  # every checkpoint records the code that wrote it
+    capsys.readouterr()
+    train(ds, run, "mono2", "train.steps=2")  # the same code resumes without a word
+    assert "made by code" not in capsys.readouterr().err
+    ckpt = state_of(run)
+    ckpt["code_version"] = "0.0.1+src.000000000000"
+    torch.save(ckpt, run / "checkpoints" / "last.pt")
+    summary = train(ds, run, "mono2", "train.steps=3")
+    err = capsys.readouterr().err
+    assert summary["trained"] == 1 and state_of(run)["step"] == 3  # a warning, not a refusal
+    lines = [ln for ln in err.splitlines() if "made by code 0.0.1+src.000000000000" in ln]
+    assert len(lines) == 1 and "last.pt" in lines[0] and code_version() in lines[0], err
+
+
 def test_resume_with_a_conflicting_config_names_the_keys(ds, tmp_path):
     run = tmp_path / "run"
     train(ds, run, "mcdp_m1", "train.steps=1")
