@@ -298,7 +298,8 @@ def added_key(default: Any = ..., **kw) -> Any:
 
 
 def _hashed(cfg: BaseModel, d: dict[str, Any]) -> dict[str, Any]:
-    """`d` (= config_to_dict(cfg)) without the `added_key` keys that hold their default, at every depth."""
+    """`d` (= config_to_dict(cfg)) without the `added_key` keys that hold their default, at every depth (in
+    sections and in mappings of sections)."""
     out = dict(d)
     for name, field in type(cfg).model_fields.items():
         value = getattr(cfg, name)
@@ -307,6 +308,10 @@ def _hashed(cfg: BaseModel, d: dict[str, Any]) -> dict[str, Any]:
             out.pop(name, None)
         elif isinstance(value, BaseModel) and isinstance(out.get(name), dict):
             out[name] = _hashed(value, out[name])
+        elif isinstance(value, dict) and isinstance(out.get(name), dict):  # a mapping of sections (rig.cameras)
+            sub = out[name]
+            out[name] = {k: _hashed(v, sub[k]) if isinstance(v, BaseModel) and isinstance(sub.get(k), dict) else sub[k]
+                         for k, v in value.items()}
     return cfg.hashed_form(out) if isinstance(cfg, StrictModel) else out
 
 

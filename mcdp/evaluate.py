@@ -275,7 +275,8 @@ def evaluate(
         ds: the dataset (`synth.protocol.DatasetReader`; reads camera_names, cameras, neighbours,
             split, n_frames, read_depth, mask, ground_truth).
         predict_fn: ``(seq, frame) -> {stage: (Ncam, H, W) float depth in metres}``
-            at the dataset resolution, cameras in rig order, stages in order
+            at the dataset resolution (or a list of Ncam (H_c, W_c) arrays, each camera at its own
+            size, when the cameras' sizes differ), cameras in rig order, stages in order
             (the last one is also reported as "final").
         split: "train" | "val" | "test".
         cfg: EvalConfig (defaults if None).

@@ -25,8 +25,14 @@ def colorize_disparity(disp: np.ndarray, vmax_percentile: float = 95.0) -> np.nd
 
 
 def depth_grid(rgb: list[np.ndarray], depths: dict[str, list[np.ndarray]]) -> np.ndarray:
-    """Rows: RGB, then one colour-mapped disparity row per stage; cameras side by side -> (H', W', 3) uint8."""
-    rows = [np.concatenate(rgb, axis=1)]
+    """Rows: RGB, then one colour-mapped disparity row per stage; cameras side by side -> (H', W', 3) uint8.
+    Cameras of different sizes: each row is as tall as the tallest, a shorter image padded black below."""
+    h = max(a.shape[0] for a in rgb)
+
+    def row(tiles) -> np.ndarray:
+        return np.concatenate([np.pad(t, ((0, h - t.shape[0]), (0, 0), (0, 0))) for t in tiles], axis=1)
+
+    rows = [row(rgb)]
     for _, ds in depths.items():
-        rows.append(np.concatenate([colorize_disparity(1.0 / np.maximum(d, 1e-6)) for d in ds], axis=1))
+        rows.append(row([colorize_disparity(1.0 / np.maximum(d, 1e-6)) for d in ds]))
     return np.concatenate(rows, axis=0)

@@ -6,7 +6,7 @@ neighbour's vertical field of view, close points are shifted by the baseline bet
 ego body and occluders hide the rest. With ``pixels``, the geometric overlap of the layout (the yaw
 spacing in ``spacing`` mode, the hfov in ``fov`` mode) is solved so that the mean measured pixel overlap
 over the pairs at the target, on a calibration sample of the world's own scenes (frame 0 of its first
-`SAMPLES` sequences, at the dataset's image size, ego body included), equals ``rig.overlap`` within
+`SAMPLES` sequences, each camera at its image size, ego body included), equals ``rig.overlap`` within
 `TOL` (bisection: the measured overlap grows with the geometric one).
 
 The solution is a function of the config alone (scenes from the seed), kept per process by config
@@ -95,7 +95,7 @@ def measure(cfg, geometric: float, renderer, scenes) -> float:
         T_we = scene.T_world_ego[0]
         depths, masks = {}, {}
         for c in rig.cameras:
-            out = renderer.render(c.K, T_we @ c.T_ego_cam, frame=0, light=light)
+            out = renderer.render(c.K, T_we @ c.T_ego_cam, frame=0, light=light, size=(c.width, c.height))
             depths[c.name] = out["depth"]
             masks[c.name] = np.where(out["ego"], 0, 255).astype(np.uint8)
         for k, v in overlap_fraction_counts(depths, masks, list(rig.cameras), pairs).items():

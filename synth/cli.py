@@ -159,6 +159,7 @@ def _render(args) -> int:
     from synth.config import check_render_size, load_data_config, render_size, size_statement
     from synth.dataset import dataset_containing
     from synth.render import parse_shard, render_dataset
+    from synth.rig import camera_sizes_of, sizes_text
 
     cfg = load_data_config(preset_path(args.config, "data"), args.overrides)
     if args.print_config:
@@ -179,7 +180,8 @@ def _render(args) -> int:
 
         import_ray()
     size = render_size(cfg, shard[1])
-    print(f"synth render: {size_statement(size, f' of {cfg.camera.width}x{cfg.camera.height}')}", file=sys.stderr)
+    print(f"synth render: {size_statement(size, f' of {sizes_text(camera_sizes_of(cfg.rig, cfg.camera))}')}",
+          file=sys.stderr)
     check_render_size(size, args.yes, args.config)
     s = render_dataset(cfg, args.out, workers=args.workers, shard=shard, engine=args.engine,
                        progress=not args.no_progress)

@@ -82,14 +82,16 @@ _BYTES_PER_PIXEL = 3 + 4  # RGB uint8 + float32 z-depth, before PNG / EXR compre
 
 
 def render_size(cfg: DataConfig, shard_of: int = 1) -> dict:
-    """What a render writes: rig frames, images and an upper bound of its bytes (images uncompressed;
-    the tiny preset's files measured about 2 bytes a pixel). ``shard_of`` N: one of N shards."""
-    from synth.rig import CAMERA_NAMES
+    """What a render writes: rig frames, images and an upper bound of its bytes (images uncompressed, each
+    camera at its own size; the tiny preset's files measured about 2 bytes a pixel). ``shard_of`` N: one of N
+    shards."""
+    from synth.rig import camera_sizes_of
 
+    sizes = camera_sizes_of(cfg.rig, cfg.camera)
     rig_frames = -(-cfg.dataset.sequences // shard_of) * cfg.dataset.frames
-    images = rig_frames * len(CAMERA_NAMES)
-    return {"rig_frames": rig_frames, "images": images,
-            "max_bytes": images * cfg.camera.width * cfg.camera.height * _BYTES_PER_PIXEL}
+    images = rig_frames * len(sizes)
+    pixels = sum(w * h for w, h in sizes.values())  # of one rig frame
+    return {"rig_frames": rig_frames, "images": images, "max_bytes": rig_frames * pixels * _BYTES_PER_PIXEL}
 
 
 def total_render_size(sizes) -> dict:

@@ -4,9 +4,10 @@ Layout (docs/DATASET.md)::
 
     <dataset>/
       manifest.json          written LAST (schema_version, generator version, resolved config,
-                             seed, cameras, image size, fps, splits, overlap, sha256 of every file)
+                             seed, cameras, image size (and each camera's, where one differs), fps,
+                             splits, overlap, sha256 of every file)
       rig.json               cameras [{name, width, height, K, T_ego_cam, hfov_deg, yaw_deg}], neighbours
-      masks/<CAM>.png        uint8, 255 = scene, 0 = ego body
+      masks/<CAM>.png        uint8, 255 = scene, 0 = ego body (each file at its camera's size)
       <seq>/ego.json         per frame: timestamp_s, T_world_ego (4x4), lighting
       <seq>/<CAM>/<frame:06d>.png         RGB uint8 sRGB
       <seq>/<CAM>/<frame:06d>.depth.exr   float32 z-depth in metres (channel "Z"), 0 = no surface
@@ -32,6 +33,7 @@ import numpy as np
 from corelib.hashing import changed_sections, json_sha256, section_digests, sha256_file
 from synth.files import DatasetError, frame_stem, read_depth_exr, read_json, read_png, read_regular, within
 from synth.rig import CameraSpec
+from synth.sizes import camera_sizes, shared_size, size_problems
 
 SCHEMA_VERSION = 1
 GENERATOR = "mcdp-synth"
@@ -51,14 +53,17 @@ class Dataset:
         self.neighbours = [tuple(p) for p in rig["neighbours"]]
         self._ego_cache: dict[str, list] = {}
         self._mask_cache: dict[str, np.ndarray] = {}
+        self._sizes = {c.name: (c.width, c.height) for c in self.cameras}
 
     @property
     def width(self) -> int:
-        return self.cameras[0].width
+        """The image width every camera shares; a rig of several sizes has none (`shared_size`)."""
+        return shared_size(self.root, self.cameras)[0]
 
     @property
     def height(self) -> int:
-        return self.cameras[0].height
+        """The image height every camera shares (`width`)."""
+        return shared_size(self.root, self.cameras)[1]
 
     @property
     def fps(self) -> float:
@@ -116,31 +121,34 @@ class Dataset:
     def depth_path(self, seq: str, cam: str, frame: int) -> Path:
         return self.root / seq / cam / f"{frame_stem(frame)}.depth.exr"
 
-    def _sized(self, arr: np.ndarray, path: Path, what: str) -> np.ndarray:
-        if arr.shape[:2] != (self.height, self.width):
-            raise DatasetError(f"{path}: {what} is {arr.shape[1]}x{arr.shape[0]}, the dataset's images are "
-                               f"{self.width}x{self.height}")
+    def _sized(self, arr: np.ndarray, path: Path, what: str, cam: str) -> np.ndarray:
+        if cam not in self._sizes:
+            raise DatasetError(f"{self.root}: no camera {str(cam)[:40]!r} (cameras {', '.join(self.camera_names)})")
+        w, h = self._sizes[cam]
+        if arr.shape[:2] != (h, w):
+            raise DatasetError(f"{path}: {what} is {arr.shape[1]}x{arr.shape[0]}, {cam}'s images are {w}x{h}")
         return arr
 
     def read_rgb(self, seq: str, cam: str, frame: int) -> np.ndarray:
-        """(H, W, 3) uint8 RGB."""
+        """(H, W, 3) uint8 RGB at the camera's size."""
         p = self.inside(self.rgb_path(seq, cam, frame))
-        return self._sized(read_png(p), p, "the image")
+        return self._sized(read_png(p), p, "the image", cam)
 
     def read_depth(self, seq: str, cam: str, frame: int) -> np.ndarray:
-        """(H, W) float32 z-depth in metres, 0 = no surface; finite and >= 0, else DatasetError."""
+        """(H, W) float32 z-depth in metres at the camera's size, 0 = no surface; finite and >= 0, else
+        DatasetError."""
         p = self.inside(self.depth_path(seq, cam, frame))
-        d = self._sized(read_depth_exr(p), p, "the depth map")
+        d = self._sized(read_depth_exr(p), p, "the depth map", cam)
         if not np.isfinite(d).all() or (d < 0).any():
             raise DatasetError(f"{p}: depth holds non-finite or negative values (the contract: finite, >= 0, "
                                "0 = no surface)")
         return d
 
     def mask(self, cam: str) -> np.ndarray:
-        """(H, W) bool, True = scene, False = ego body."""
+        """(H, W) bool at the camera's size, True = scene, False = ego body."""
         if cam not in self._mask_cache:
             p = self.inside(self.root / "masks" / f"{cam}.png")
-            self._mask_cache[cam] = self._sized(read_png(p, gray=True), p, "the mask") > 127
+            self._mask_cache[cam] = self._sized(read_png(p, gray=True), p, "the mask", cam) > 127
         return self._mask_cache[cam]
 
     @property
@@ -257,7 +265,8 @@ def integrity_problems(root: Path, manifest: dict) -> list[str]:
 
 _REQUIRED_KEYS = {"schema_version": int, "generator": str, "cameras": list, "image_size": dict, "fps": (int, float),
                   "splits": dict, "sequences": dict, "files": dict}
-_OPTIONAL_KEYS = {"generator_version", "code_version", "config", "config_hash", "seed", "has_depth", "families", "overlap", INTEGRITY}
+_OPTIONAL_KEYS = {"generator_version", "code_version", "config", "config_hash", "seed", "has_depth", "families",
+                  "overlap", "camera_sizes", INTEGRITY}
 
 
 def check_manifest_keys(manifest, mpath: Path) -> None:
@@ -278,6 +287,15 @@ def check_manifest_keys(manifest, mpath: Path) -> None:
         frames = info.get("frames") if isinstance(info, dict) else None
         if not isinstance(frames, int) or isinstance(frames, bool) or frames < 1:
             raise DatasetError(f"{mpath}: sequences.{str(seq)[:40]}.frames must be a positive integer")
+    if "camera_sizes" in manifest:
+        sizes = manifest["camera_sizes"]
+        if not isinstance(sizes, dict) or sorted(map(str, sizes)) != sorted(map(str, manifest["cameras"])):
+            raise DatasetError(f"{mpath}: camera_sizes must give [width, height] of every camera of 'cameras'")
+        for cam, wh in sizes.items():
+            if not (isinstance(wh, list) and len(wh) == 2
+                    and all(isinstance(v, int) and not isinstance(v, bool) and v > 0 for v in wh)):
+                raise DatasetError(f"{mpath}: camera_sizes.{str(cam)[:40]} must be [width, height], positive "
+                                   f"integers, got {str(wh)[:40]}")
 
 
 def _matrix(v, n: int) -> bool:
@@ -296,13 +314,15 @@ def check_rig(rig, manifest: dict, rpath: Path) -> None:
     if names != manifest["cameras"]:
         raise DatasetError(f"{rpath}: camera names {_short_list([str(n)[:20] for n in names])} differ from the "
                            f"manifest's cameras {_short_list(manifest['cameras'])}")
-    size = manifest["image_size"]
+    sizes, source = camera_sizes(manifest), "camera_sizes" if "camera_sizes" in manifest else "image_size"
     for c in rig["cameras"]:
         field = f"cameras[{c['name']}]"
-        for key in ("width", "height"):
-            if c.get(key) != size.get(key):
+        for k, key in enumerate(("width", "height")):
+            want = sizes[c["name"]][k]
+            if c.get(key) != want:
+                where = f"camera_sizes.{c['name']}" if source == "camera_sizes" else f"image_size.{key}"
                 raise DatasetError(f"{rpath}: {field}.{key} is {str(c.get(key))[:20]}, the manifest's "
-                                   f"image_size.{key} is {str(size.get(key))[:20]}")
+                                   f"{where} gives {str(want)[:20]}")
         if not _matrix(c.get("K"), 3):
             raise DatasetError(f"{rpath}: {field}.K must be a finite 3x3 matrix")
         if not _matrix(c.get("T_ego_cam"), 4):
@@ -364,6 +384,7 @@ def verify_dataset(root: str | Path, progress: bool = False) -> list[str]:
         from tqdm import tqdm
         items = tqdm(items, total=len(files), desc="verify", unit="file")
     base = root.resolve()
+    sizes = camera_sizes(manifest)
     for rel, digest in items:
         p = root / rel
         if not p.is_file():
@@ -372,6 +393,8 @@ def verify_dataset(root: str | Path, progress: bool = False) -> list[str]:
             problems.append(f"{p}: is a link to {p.resolve()}, outside the dataset root")
         elif sha256_file(p) != digest:
             problems.append(f"{p}: checksum mismatch (truncated or altered)")
+        else:
+            problems += size_problems(p, rel, sizes)
     # every expected frame file is listed
     cams = manifest.get("cameras", [])
     for seq, info in manifest.get("sequences", {}).items():

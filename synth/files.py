@@ -214,5 +214,27 @@ def read_depth_exr(path: str | Path) -> np.ndarray:
         raise DatasetError(f"{path}: missing or not a readable EXR depth map ({exc})") from None
 
 
+def stored_size(path: str | Path) -> tuple[int, int] | None:
+    """(width, height) of a PNG (its IHDR) or OpenEXR depth map (its data window) from the header alone;
+    None when the header cannot be read (`verify` reports such a file by its checksum)."""
+    path = Path(path)
+    try:
+        if path.suffix == ".png":
+            with open(regular_file(path), "rb") as f:
+                head = f.read(24)
+            if not head.startswith(PNG_SIGNATURE) or head[12:16] != b"IHDR":
+                return None
+            return int.from_bytes(head[16:20], "big"), int.from_bytes(head[20:24], "big")
+        if path.suffix == ".exr":
+            import OpenEXR
+
+            with OpenEXR.File(str(regular_file(path)), header_only=True) as f:
+                lo, hi = f.header()["dataWindow"]
+            return int(hi[0] - lo[0] + 1), int(hi[1] - lo[1] + 1)
+    except Exception:  # noqa: BLE001 - an unreadable header: no size, the checksum says what is wrong
+        return None
+    return None
+
+
 def frame_stem(frame: int) -> str:
     return f"{frame:06d}"

@@ -1,7 +1,8 @@
 """Off-screen OpenGL renderer (EGL, OSMesa fallback): RGB, exact z-depth and the ego mask.
 
 With `synth.gl_context` (EGL / OSMesa contexts) and `synth.shaders` (GLSL), the only code that imports OpenGL. It draws a `scenes.model.Scene` seen by
-one pinhole camera at a time and returns, for the stored image size:
+one pinhole camera at a time and returns, for the stored image size (the renderer's own, or the
+camera's ``size`` when cameras differ: one framebuffer per size):
 
 * ``rgb``   (H, W, 3) uint8 sRGB (exposure gain and white balance applied);
 * ``depth`` (H, W) float32 z-depth in metres at each pixel centre, 0 where no surface;
@@ -27,6 +28,7 @@ fallback. Example::
     r = Renderer(320, 192)          # picks EGL or OSMesa
     r.load_scene(scene, ego_mesh)
     out = r.render(K, T_world_cam, frame=0, light=light, gain=(1, 1, 1))
+    out = r.render(K_back, T_world_back, frame=0, light=light, size=(480, 192))  # a camera of its own size
 """
 from __future__ import annotations
 
@@ -110,7 +112,8 @@ class _GpuMesh:
 
 
 class Renderer:
-    """One OpenGL context and framebuffer of a fixed image size; renders scenes camera by camera.
+    """One OpenGL context and a framebuffer of its image size (one more per other size asked of `render`);
+    renders scenes camera by camera.
 
     Not thread-safe; use one per process (create it inside the worker process).
     """
@@ -166,25 +169,35 @@ class Renderer:
     def _set_vec3(self, prog: int, name: str, v) -> None:
         self.GL.glUniform3f(self._loc(prog, name), *[float(x) for x in v])
 
-    def _make_framebuffers(self) -> None:
+    def _main_framebuffer(self, W: int, H: int) -> int:
+        """The framebuffer of image size W x H (RGBA8 colour, RG32F depth value + ego flag, float32 z), made
+        on first use and kept."""
+        fbo = self._fbos.get((W, H))
+        if fbo is not None:
+            return fbo
         GL = self.GL
-        W, H = self.width, self.height
-        self._fbo = GL.glGenFramebuffers(1)
-        GL.glBindFramebuffer(GL.GL_FRAMEBUFFER, self._fbo)
-        self._rb_color, self._rb_depthval, self._rb_z = GL.glGenRenderbuffers(3)
-        GL.glBindRenderbuffer(GL.GL_RENDERBUFFER, self._rb_color)
+        fbo = GL.glGenFramebuffers(1)
+        GL.glBindFramebuffer(GL.GL_FRAMEBUFFER, fbo)
+        rb_color, rb_depthval, rb_z = GL.glGenRenderbuffers(3)
+        GL.glBindRenderbuffer(GL.GL_RENDERBUFFER, rb_color)
         GL.glRenderbufferStorage(GL.GL_RENDERBUFFER, GL.GL_RGBA8, W, H)
-        GL.glFramebufferRenderbuffer(GL.GL_FRAMEBUFFER, GL.GL_COLOR_ATTACHMENT0, GL.GL_RENDERBUFFER, self._rb_color)
-        GL.glBindRenderbuffer(GL.GL_RENDERBUFFER, self._rb_depthval)
+        GL.glFramebufferRenderbuffer(GL.GL_FRAMEBUFFER, GL.GL_COLOR_ATTACHMENT0, GL.GL_RENDERBUFFER, rb_color)
+        GL.glBindRenderbuffer(GL.GL_RENDERBUFFER, rb_depthval)
         GL.glRenderbufferStorage(GL.GL_RENDERBUFFER, GL.GL_RG32F, W, H)
-        GL.glFramebufferRenderbuffer(GL.GL_FRAMEBUFFER, GL.GL_COLOR_ATTACHMENT1, GL.GL_RENDERBUFFER,
-                                     self._rb_depthval)
-        GL.glBindRenderbuffer(GL.GL_RENDERBUFFER, self._rb_z)
+        GL.glFramebufferRenderbuffer(GL.GL_FRAMEBUFFER, GL.GL_COLOR_ATTACHMENT1, GL.GL_RENDERBUFFER, rb_depthval)
+        GL.glBindRenderbuffer(GL.GL_RENDERBUFFER, rb_z)
         GL.glRenderbufferStorage(GL.GL_RENDERBUFFER, GL.GL_DEPTH_COMPONENT32F, W, H)
-        GL.glFramebufferRenderbuffer(GL.GL_FRAMEBUFFER, GL.GL_DEPTH_ATTACHMENT, GL.GL_RENDERBUFFER, self._rb_z)
+        GL.glFramebufferRenderbuffer(GL.GL_FRAMEBUFFER, GL.GL_DEPTH_ATTACHMENT, GL.GL_RENDERBUFFER, rb_z)
         GL.glDrawBuffers(2, [GL.GL_COLOR_ATTACHMENT0, GL.GL_COLOR_ATTACHMENT1])
         if GL.glCheckFramebufferStatus(GL.GL_FRAMEBUFFER) != GL.GL_FRAMEBUFFER_COMPLETE:
-            raise RenderBackendError("main framebuffer incomplete")
+            raise RenderBackendError(f"main framebuffer {W}x{H} incomplete")
+        self._fbos[(W, H)] = fbo
+        return fbo
+
+    def _make_framebuffers(self) -> None:
+        GL = self.GL
+        self._fbos: dict[tuple[int, int], int] = {}
+        self._main_framebuffer(self.width, self.height)
         # shadow map
         S = self.shadow_size
         self._shadow_tex = GL.glGenTextures(1)
@@ -273,16 +286,17 @@ class Renderer:
         self._shadow_frame = frame
 
     def render(self, K: np.ndarray, T_world_cam: np.ndarray, frame: int, light: LightState,
-               gain=(1.0, 1.0, 1.0)) -> dict[str, np.ndarray]:
-        """Render one camera at one frame; see the module docstring for the outputs."""
+               gain=(1.0, 1.0, 1.0), size: tuple[int, int] | None = None) -> dict[str, np.ndarray]:
+        """Render one camera at one frame; see the module docstring for the outputs. ``size`` (width, height):
+        the camera's image size, K's pixels (None: the renderer's)."""
         if self._scene is None:
             raise RuntimeError("Renderer.render called before load_scene")
         GL = self.GL
         self._ctx.make_current()
         if light.shadows and self._shadow_frame != frame:
             self._render_shadow(frame, light)
-        W, H = self.width, self.height
-        GL.glBindFramebuffer(GL.GL_FRAMEBUFFER, self._fbo)
+        W, H = (self.width, self.height) if size is None else (int(size[0]), int(size[1]))
+        GL.glBindFramebuffer(GL.GL_FRAMEBUFFER, self._main_framebuffer(W, H))
         GL.glViewport(0, 0, W, H)
         GL.glClearBufferfv(GL.GL_COLOR, 1, np.zeros(4, np.float32))
         GL.glClear(GL.GL_DEPTH_BUFFER_BIT)

@@ -1,5 +1,5 @@
 """`synth info DATA`: what a dataset holds, read from its manifest (nothing decoded): sequences and frames,
-splits, scene families, cameras and image size, depth, the rig's measured overlap per camera pair, and
+splits, scene families, cameras and their image sizes, depth, the rig's measured overlap per camera pair, and
 its size on disk. Works for a rendered dataset and, through the same reader (`synth.open.open_dataset`),
 a nuScenes dataroot (no families or overlap record there).
 
@@ -39,12 +39,14 @@ def dataset_info(path: str | Path) -> dict:
     splits = {k: list(m.get("splits", {}).get(k, [])) for k in SPLITS}
     overlap = m.get("overlap") or {}
     size, n_files = disk_bytes(ds.root)
+    default = m.get("image_size") or {"width": ds.cameras[0].width, "height": ds.cameras[0].height}
     return {
         "path": str(ds.root), "format": m.get("format", "synth"), "version": m.get("version"),
         "sequences": frames, "frames": sum(frames.values()),
         "splits": {k: {"sequences": v, "frames": sum(frames.get(s, 0) for s in v)} for k, v in splits.items()},
         "families": dict(m.get("families") or {}),
-        "cameras": list(ds.camera_names), "image_size": [ds.width, ds.height], "fps": ds.fps,
+        "cameras": list(ds.camera_names), "image_size": [default["width"], default["height"]],  # the manifest's
+        "camera_sizes": {c.name: [c.width, c.height] for c in ds.cameras}, "fps": ds.fps,
         "has_depth": bool(ds.has_depth),
         "overlap": {"target": overlap.get("target"), "mode": overlap.get("mode"),
                     "per_pair": {p: {"target": d.get("target"), "measured": d.get("measured")}
@@ -62,11 +64,13 @@ def _size(n: int) -> str:
 
 def format_info(info: dict) -> str:
     """The summary as text, one fact a line."""
+    from synth.rig import sizes_text
+
     seqs = info["sequences"]
-    w, h = info["image_size"]
     lines = [f"{info['path']} ({info['format']}{' ' + info['version'] if info['version'] else ''})",
              f"sequences   {len(seqs)}, {info['frames']} rig-frames at {info['fps']:g} fps",
-             f"cameras     {len(info['cameras'])} ({', '.join(info['cameras'])}), {w}x{h}",
+             f"cameras     {len(info['cameras'])} ({', '.join(info['cameras'])}), "
+             + sizes_text({c: tuple(wh) for c, wh in info["camera_sizes"].items()}),
              f"depth       {'yes' if info['has_depth'] else 'no'}",
              f"disk        {_size(info['bytes'])} in {info['files']} files"]
     for k, v in info["splits"].items():

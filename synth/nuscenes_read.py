@@ -37,6 +37,7 @@ from synth.files import DatasetError, read_image, read_json, read_png, regular_f
 from synth.nuscenes_tables import (EXPORT_DIR, check_intrinsic, get_record, lidar_xyz, load_tables, pose_matrix,
                                    read_splits, resolve_version, view_points)
 from synth.rig import CameraSpec
+from synth.sizes import shared_size, size_keys
 
 RIG_ORDER = ("CAM_FRONT", "CAM_FRONT_RIGHT", "CAM_BACK_RIGHT", "CAM_BACK", "CAM_BACK_LEFT", "CAM_FRONT_LEFT")
 LIDAR = "LIDAR_TOP"
@@ -79,7 +80,8 @@ class NuScenesDataset:
         self._points_cache: tuple | None = None
         self.manifest = {
             "format": "nuscenes", "version": version, "dataroot": str(root), "fps": fps,
-            "cameras": list(self.camera_names), "image_size": {"width": self.width, "height": self.height},
+            "cameras": list(self.camera_names),
+            **size_keys((cameras[0].width, cameras[0].height), cameras),  # channels may differ in size
             "splits": {k: list(v) for k, v in splits.items()}, "split_source": split_source,
             "sequences": {s: {"frames": len(f), "scene_token": f[0]["scene_token"]} for s, f in frames.items()},
             "has_depth": has_depth, "ground_truth": self.ground_truth, "masks": mask_source,
@@ -89,11 +91,13 @@ class NuScenesDataset:
     # --------------------------------------------------------------- the DatasetReader interface
     @property
     def width(self) -> int:
-        return self.cameras[0].width
+        """The image width every channel shares; channels of several sizes have none (`synth.sizes.shared_size`)."""
+        return shared_size(self.root, self.cameras)[0]
 
     @property
     def height(self) -> int:
-        return self.cameras[0].height
+        """The image height every channel shares (`width`)."""
+        return shared_size(self.root, self.cameras)[1]
 
     @property
     def fps(self) -> float:

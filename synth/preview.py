@@ -106,7 +106,8 @@ def make_preview(ds: Dataset, out: str | Path, seq: str | None = None, frame: in
         tiles = [_label(rgb, cam.name), _label(colorize_depth(depths[cam.name]), "depth"),
                  _label(m3, f"mask ({(~mask).mean():.0%} ego)"), _label(ov.astype(np.uint8), f"overlap {frac:.0%}")]
         rows.append(np.concatenate(tiles, axis=1))
-    sheet = np.concatenate(rows, axis=0)
+    w = max(r.shape[1] for r in rows)  # cameras of different sizes: a narrower row padded black on the right
+    sheet = np.concatenate([np.pad(r, ((0, 0), (0, w - r.shape[1]), (0, 0))) for r in rows], axis=0)
     out.parent.mkdir(parents=True, exist_ok=True)
     atomic_write_bytes(out, encode_preview(sheet))
     return out

@@ -9,6 +9,11 @@ all three. A reader may have more (`Dataset.manifest`, `read_bytes`, `NuScenesDa
 
 Conventions (docs/INTERFACES.md): metres; OpenCV camera axes; ``T_a_b`` maps points of frame b into
 frame a; `K` in pixels of the stored image with pixel centres at +0.5; depth is z-depth, 0 = no value.
+
+Image size is per camera: `Camera.width` x `Camera.height`, which may differ between the cameras of one
+rig (``rig.cameras.<CAM>.width``; a nuScenes dataroot's channels); `read_rgb`, `read_depth` and `mask` of a
+camera are at its size. There is no dataset-wide size in the seam: a consumer that needs one checks that
+the cameras share it (`synth.sizes.shared_size`, a DatasetError naming the cameras otherwise).
 """
 from __future__ import annotations
 
@@ -28,14 +33,16 @@ class Camera(Protocol):
     def name(self) -> str: ...
 
     @property
-    def width(self) -> int: ...
+    def width(self) -> int:
+        """This camera's image width in pixels (cameras may differ)."""
 
     @property
-    def height(self) -> int: ...
+    def height(self) -> int:
+        """This camera's image height in pixels."""
 
     @property
     def K(self) -> np.ndarray:
-        """(3, 3) float64 pinhole matrix in pixels of the stored image."""
+        """(3, 3) float64 pinhole matrix in pixels of this camera's stored image."""
 
     @property
     def T_ego_cam(self) -> np.ndarray:
@@ -100,11 +107,11 @@ class DatasetReader(Protocol):
         """The file `read_depth` reads (a rendered depth map, or the LiDAR sweep it is projected from)."""
 
     def read_rgb(self, seq: str, cam: str, frame: int) -> np.ndarray:
-        """(H, W, 3) uint8 RGB at the camera's size."""
+        """(H, W, 3) uint8 RGB at the camera's size (its ``height``, ``width``)."""
 
     def read_depth(self, seq: str, cam: str, frame: int) -> np.ndarray:
-        """(H, W) float32 z-depth in metres, 0 = no value."""
+        """(H, W) float32 z-depth in metres at the camera's size, 0 = no value."""
 
     def mask(self, cam: str) -> np.ndarray:
-        """(H, W) bool, True = scene, False = ego body."""
+        """(H, W) bool at the camera's size, True = scene, False = ego body."""
 

@@ -39,6 +39,7 @@ from synth.files import OutputFolderError, frame_stem, read_json, write_depth_ex
 from synth.lighting import draw_sequence_lighting, frame_gains
 from synth.pipeline import FrameSink, ScenePrefetch, build_sequence_scene
 from synth.rig import Rig, build_rig, ego_body_mesh
+from synth.sizes import size_keys
 
 MARKER_DIR = ".synth"
 MAX_WORKERS = 256  # render processes on one machine (the sweep's `workers` has the same bound)
@@ -83,7 +84,8 @@ _RENDERER_KEY = None
 
 
 def renderer_for(cfg: DataConfig):
-    """This process's renderer for `cfg`'s image size and render settings (made once, remade when they change).
+    """This process's renderer for `cfg`'s image size and render settings (made once, remade when they change;
+    a camera of its own size, ``rig.cameras.<CAM>.width``, is rendered into its own framebuffer of it).
     It limits numpy's BLAS to one thread in this process: with two, each 4x4 pose inverse waited for a core
     that llvmpipe and the writer threads held (2.7 ms against 3 us; docs/results/render_throughput.md)."""
     global _RENDERER, _RENDERER_KEY
@@ -114,7 +116,7 @@ def render_masks(cfg: DataConfig, rig: Rig) -> dict[str, np.ndarray]:
     light = LightState((0, 0, 1), (1, 1, 1), (1, 1, 1), (1, 1, 1), (1, 1, 1), shadows=False)
     masks = {}
     for cam in rig.cameras:
-        out = r.render(cam.K, cam.T_ego_cam, 0, light)
+        out = r.render(cam.K, cam.T_ego_cam, 0, light, size=(cam.width, cam.height))
         masks[cam.name] = np.where(out["ego"], 0, 255).astype(np.uint8)
     return masks
 
@@ -151,7 +153,8 @@ def render_sequence(cfg_dict: dict, out_dir: str, index: int, progress_queue=Non
             T_world_ego = scene.T_world_ego[f]
             depths = {}
             for cam in rig.cameras:
-                res = r.render(cam.K, T_world_ego @ cam.T_ego_cam, f, seq_light.light, gains[cam.name])
+                res = r.render(cam.K, T_world_ego @ cam.T_ego_cam, f, seq_light.light, gains[cam.name],
+                               size=(cam.width, cam.height))
                 stem = frame_stem(f)
                 sink.png(f"{seq}/{cam.name}/{stem}.png", partial / cam.name / f"{stem}.png", res["rgb"],
                          cfg.render.png_compression)
@@ -269,7 +272,7 @@ def finalize(cfg: DataConfig, out: Path, rig: Rig) -> dict | None:
         "schema_version": SCHEMA_VERSION, "generator": GENERATOR, "generator_version": __version__,
         "code_version": began_with(out),
         "config": config_to_dict(cfg), "config_hash": config_hash(cfg), "seed": cfg.seed,
-        "cameras": rig.names, "image_size": {"width": cfg.camera.width, "height": cfg.camera.height},
+        "cameras": rig.names, **size_keys((cfg.camera.width, cfg.camera.height), rig.cameras),
         "fps": cfg.dataset.fps, "has_depth": True,
         "splits": assign_splits(cfg), "sequences": sequences, "families": families,
         "overlap": overlap_record(cfg, rig, totals),
@@ -327,7 +330,7 @@ def _render_into(cfg: DataConfig, out: Path, rig: Rig, backend: str, workers: in
     cfg_dict = config_to_dict(cfg)
     log(f"synth render: {len(todo)} sequence(s) to render, {skipped} already complete, shard {k}/{N}, "
         f"backend {backend}, " + ("Ray tasks" if engine == "ray" else f"{workers} worker(s)")
-        + f", {cfg.camera.width}x{cfg.camera.height}")
+        + f", {rig.size_text()}")
     frames_total = len(todo) * cfg.dataset.frames
     bar = None
     if progress and frames_total:

@@ -4,7 +4,7 @@ Conventions: ego frame x forward, y left, z up (origin on the road below the rea
 axle); camera frame OpenCV (x right, y down, z forward); `T_ego_cam` maps camera
 points into the ego frame; yaw is measured in the ego frame, counter-clockwise
 (to the left) from x; pitch is positive looking up. `K` is in pixels for the
-stored image size with pixel centres at +0.5.
+stored image size of each camera with pixel centres at +0.5.
 
 Overlap of adjacent cameras is the shared fraction of the horizontal field of
 view, ``o = (hfov - yaw_spacing) / hfov`` (DESIGN.md). Two ways to reach a target:
@@ -55,14 +55,18 @@ class CameraOverride(StrictModel):
     """One camera's own settings over the rig's (``rig.cameras.<CAM>.<key>``; null = the rig's).
 
     hfov_deg: its horizontal field of view (its K: square pixels, centred principal point).
+    width / height: its image size in pixels (bounded like ``camera.width`` / ``camera.height``), instead of
+        the dataset's ``camera.width`` x ``camera.height``; its K is made from its own size and hfov, and its
+        images, depth maps and mask are written at that size (the manifest's ``camera_sizes``).
     yaw_deg: its yaw in the ego frame (counter-clockwise from x, degrees), instead of the solved layout's.
     pitch_deg: its pitch (positive looks up).
     mount_m: its optical centre in the ego frame (x forward, y left, z up; metres above the road), instead
         of the roof mount at ``camera_height_m``.
-    Every camera keeps the dataset's image size (``camera.width`` x ``camera.height``).
     """
 
     hfov_deg: float | None = Field(None, gt=20.0, le=150.0)
+    width: int | None = added_key(None, ge=16, le=4096)  # added_key: a rig.cameras entry keeps its hash
+    height: int | None = added_key(None, ge=16, le=4096)
     yaw_deg: float | None = Field(None, ge=-180.0, le=180.0)
     pitch_deg: float | None = Field(None, ge=-45.0, le=45.0)
     mount_m: list[float] | None = None  # [x, y, z]
@@ -90,8 +94,9 @@ class RigConfig(StrictModel):
     ``overlap_target``: what ``overlap`` means: ``angle`` (the shared fraction of hfov, below) or
     ``pixels`` (the mean measured pixel overlap of the pairs at the target: the layout's angle is
     solved on a sample of the world's own scenes, `synth.calibrate`).
-    ``cameras``: per-camera overrides of hfov, yaw, pitch and mount (`CameraOverride`), applied over the
-    solved layout, e.g. ``rig.cameras.CAM_BACK.hfov_deg=110`` (real rigs: configs/data/nuscenes_like.yaml).
+    ``cameras``: per-camera overrides of hfov, yaw, pitch, mount and image size (`CameraOverride`), applied
+    over the solved layout, e.g. ``rig.cameras.CAM_BACK.hfov_deg=110`` or ``rig.cameras.CAM_BACK.width=480``
+    (real rigs: configs/data/nuscenes_like.yaml).
     """
 
     overlap: float = Field(0.25, ge=0.10, le=0.60)
@@ -160,8 +165,22 @@ class Rig:
             out[f"{a.name}-{b.name}"] = ((a.hfov_deg + b.hfov_deg) / 2 - d) / ((a.hfov_deg + b.hfov_deg) / 2)
         return out
 
+    def size_text(self) -> str:
+        """The cameras' image size, ``WxH``; where they differ, the most common one and the others by camera
+        (``320x192, CAM_BACK 480x192``)."""
+        return sizes_text({c.name: (c.width, c.height) for c in self.cameras})
+
     def to_json(self) -> dict:
         return {"cameras": [c.to_json() for c in self.cameras], "neighbours": [list(p) for p in self.neighbours]}
+
+
+def sizes_text(sizes: dict[str, tuple[int, int]]) -> str:
+    """`Rig.size_text` of {camera: (width, height)}."""
+    counts: dict[tuple[int, int], int] = {}
+    for wh in sizes.values():
+        counts[wh] = counts.get(wh, 0) + 1
+    common = max(counts, key=counts.get)
+    return ", ".join([f"{common[0]}x{common[1]}"] + [f"{n} {w}x{h}" for n, (w, h) in sizes.items() if (w, h) != common])
 
 
 def intrinsics_from_hfov(width: int, height: int, hfov_deg: float) -> np.ndarray:
@@ -204,6 +223,16 @@ _MOUNTS = {
 }
 
 
+def camera_sizes_of(rig: RigConfig, camera: CameraConfig) -> dict[str, tuple[int, int]]:
+    """{camera: (width, height)} in rig order: ``camera.width`` x ``camera.height``, or the camera's own
+    ``rig.cameras.<CAM>.width`` / ``.height``."""
+    out = {}
+    for name in CAMERA_NAMES:
+        o = rig.cameras.get(name) or CameraOverride()
+        out[name] = (camera.width if o.width is None else o.width, camera.height if o.height is None else o.height)
+    return out
+
+
 def build_rig(rig: RigConfig, camera: CameraConfig) -> Rig:
     """The six cameras for a rig config (see module docstring for the layout)."""
     hfov, s = solve_layout(rig.overlap, rig.overlap_mode, camera.hfov_deg)
@@ -217,7 +246,7 @@ def build_rig(rig: RigConfig, camera: CameraConfig) -> Rig:
                 "CAM_BACK_LEFT": 120.0, "CAM_FRONT_LEFT": 60.0}
     pitches = {n: 0.0 for n in CAMERA_NAMES}
     pitches["CAM_BACK_RIGHT"] = pitches["CAM_BACK_LEFT"] = rig.side_pitch_deg
-    cams = []
+    cams, sizes = [], camera_sizes_of(rig, camera)
     for name in CAMERA_NAMES:
         o = rig.cameras.get(name) or CameraOverride()
         yaw = yaws[name] if o.yaw_deg is None else o.yaw_deg
@@ -227,8 +256,9 @@ def build_rig(rig: RigConfig, camera: CameraConfig) -> Rig:
         T[:3, :3] = rotation_ego_cam(math.radians(yaw), math.radians(pitch))
         mx, my, mz = _MOUNTS[name]
         T[:3, 3] = (mx, my, rig.camera_height_m + mz) if o.mount_m is None else o.mount_m
-        K = intrinsics_from_hfov(camera.width, camera.height, h)
-        cams.append(CameraSpec(name, camera.width, camera.height, K, T, h, yaw, pitch))
+        w, ht = sizes[name]
+        K = intrinsics_from_hfov(w, ht, h)
+        cams.append(CameraSpec(name, w, ht, K, T, h, yaw, pitch))
     return Rig(tuple(cams), RING_PAIRS, rig.overlap, rig.overlap_mode, s)
 
 

@@ -34,10 +34,11 @@ class FakeDataset:
     The wall is fronto-parallel at z = 10 m for both cameras and the baseline gives an
     exact 3-pixel disparity, so the z-buffered splat of the true depth is exact.
     The bottom row of both cameras is ego body (mask False).
+    ``scale``: the cameras' image sizes, as multiples of W x H (the same field of view: K scaled with
+    them; a camera of twice the size sees the wall at a disparity of 6 of its pixels, as exact).
     """
 
-    def __init__(self, n_frames=4):
-        K = np.array([[F_PX, 0, W / 2], [0, F_PX, H / 2], [0, 0, 1.0]])
+    def __init__(self, n_frames=4, scale=(1, 1)):
         R = np.array([[0.0, 0, 1], [-1, 0, 0], [0, -1, 0]])  # OpenCV camera axes in the ego frame
         T0 = np.eye(4)
         T0[:3, :3] = R
@@ -45,9 +46,11 @@ class FakeDataset:
         T1 = T0.copy()
         T1[1, 3] = -SHIFT_PX * Z_WALL / F_PX  # to the right
         hfov = math.degrees(2 * math.atan(W / 2 / F_PX))
-        self.cameras = [FakeCamera("CAM_FRONT", W, H, K, T0, hfov, 0.0),
-                        FakeCamera("CAM_FRONT_RIGHT", W, H, K.copy(), T1, hfov, 0.0)]
+        self.cameras = [FakeCamera(n, W * s, H * s, np.array([[F_PX * s, 0, W * s / 2], [0, F_PX * s, H * s / 2],
+                                                              [0, 0, 1.0]]), T, hfov, 0.0)
+                        for n, T, s in zip(("CAM_FRONT", "CAM_FRONT_RIGHT"), (T0, T1), scale)]
         self.camera_names = [c.name for c in self.cameras]
+        self._hw = {c.name: (c.height, c.width) for c in self.cameras}  # each camera's images at its own size
         self.neighbours = [(0, 1)]
         self._n = n_frames
         self.depth_reads = []
@@ -79,14 +82,14 @@ class FakeDataset:
         return self.root / seq / cam_name / f"{frame:06d}.depth.exr"
 
     def read_rgb(self, seq, cam_name, frame):
-        return np.full((H, W, 3), 128, np.uint8)
+        return np.full((*self._hw[cam_name], 3), 128, np.uint8)
 
     def read_depth(self, seq, cam_name, frame):
         self.depth_reads.append((seq, cam_name, frame))
-        return np.full((H, W), Z_WALL, dtype=np.float32)
+        return np.full(self._hw[cam_name], Z_WALL, dtype=np.float32)
 
     def mask(self, cam_name):
-        m = np.ones((H, W), bool)
+        m = np.ones(self._hw[cam_name], bool)
         m[-1, :] = False
         return m
 
@@ -234,3 +237,28 @@ def test_constant_depth_reference_errors():
         E.constant_depth_predictor(RampDataset(), 0.0)
     with pytest.raises(ValueError, match="no ground-truth pixel"):
         E.median_gt_depth(RampDataset(), "train", E.EvalConfig(min_depth=50.0, max_depth=80.0))
+
+
+def test_cameras_of_different_sizes_are_scored_each_at_its_own_size():
+    """rig.cameras.<CAM>.width: CAM_FRONT_RIGHT at twice CAM_FRONT's size (the same field of view); the
+    prediction is a list of one depth map per camera, each at its camera's size."""
+    ds = FakeDataset(scale=(1, 2))
+    assert [(c.width, c.height) for c in ds.cameras] == [(W, H), (2 * W, 2 * H)]
+
+    def fn(seq, frame):
+        d = [np.full((c.height, c.width), Z_WALL, np.float32) for c in ds.cameras]
+        return {"init": [d[0], 2 * d[1]], "refine1": d}
+
+    m = run(ds, fn)
+    fin, init = m["stages"]["final"], m["stages"]["init"]
+    for sc in E.SCALINGS:
+        assert fin[sc]["mean"]["abs_rel"] == pytest.approx(0.0, abs=1e-7)
+    assert fin["dep_con"]["mean"] == pytest.approx(0.0, abs=1e-7)  # the splat between the two sizes is exact
+    assert init["none"]["per_camera"]["CAM_FRONT"]["abs_rel"] == pytest.approx(0.0, abs=1e-7)
+    assert init["none"]["per_camera"]["CAM_FRONT_RIGHT"]["abs_rel"] == pytest.approx(1.0)
+    assert init["none"]["overlap_per_camera"]["CAM_FRONT_RIGHT"]["abs_rel"] == pytest.approx(1.0)
+    for pair in ("CAM_FRONT->CAM_FRONT_RIGHT", "CAM_FRONT_RIGHT->CAM_FRONT"):  # |20 - 10| / 10 both ways
+        assert init["dep_con"]["per_pair"][pair] == pytest.approx(1.0)
+    with pytest.raises(ValueError, match=r"camera CAM_FRONT_RIGHT: depth must have the dataset resolution "
+                                         rf"\({2 * H}, {2 * W}\)"):
+        run(ds, lambda s, f: {"init": np.ones((2, H, W), np.float32)})  # one size for both: refused, named

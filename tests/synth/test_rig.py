@@ -76,6 +76,29 @@ def test_per_camera_overrides_reach_the_rig_and_widen_a_camera():
             load_config(DataConfig, None, o)
 
 
+def test_a_camera_of_its_own_size_has_its_K_from_that_size_and_its_hfov():
+    from corelib.configlib import config_hash, load_config
+    from synth.config import DataConfig, render_size
+    from synth.rig import build_rig, camera_sizes_of, intrinsics_from_hfov
+
+    base = load_config(DataConfig, None, ["rig.cameras.CAM_BACK.hfov_deg=110.0"])
+    cfg = load_config(DataConfig, None, ["rig.cameras.CAM_BACK.hfov_deg=110.0", "rig.cameras.CAM_BACK.width=480",
+                                         "rig.cameras.CAM_FRONT.height=240"])
+    r0, r1 = build_rig(base.rig, base.camera), build_rig(cfg.rig, cfg.camera)
+    back, front = r1.cameras[3], r1.cameras[0]
+    assert (back.width, back.height) == (480, 192) and (front.width, front.height) == (320, 240)
+    assert np.allclose(back.K, intrinsics_from_hfov(480, 192, 110.0)) and back.K[0, 2] == 240.0
+    assert back.K[0, 0] == pytest.approx(1.5 * r0.cameras[3].K[0, 0])  # the same hfov over 1.5x the pixels
+    assert front.K[1, 2] == 120.0 and front.K[0, 0] == r0.cameras[0].K[0, 0]  # taller: the same focal length
+    assert back.T_ego_cam.tolist() == r0.cameras[3].T_ego_cam.tolist() and back.hfov_deg == 110.0
+    assert [c.to_json() for c in r1.cameras[1:3]] == [c.to_json() for c in r0.cameras[1:3]]
+    assert camera_sizes_of(cfg.rig, cfg.camera)["CAM_BACK"] == (480, 192)
+    assert r1.size_text() == "320x192, CAM_FRONT 320x240, CAM_BACK 480x192" and r0.size_text() == "320x192"
+    extra = (480 * 192 - 320 * 192) + (320 * 240 - 320 * 192)
+    assert render_size(cfg)["max_bytes"] - render_size(base)["max_bytes"] == extra * 7 * render_size(cfg)["rig_frames"]
+    assert config_hash(cfg) != config_hash(base)
+
+
 def test_an_added_key_at_its_default_keeps_every_hash():
     """rig.cameras, rig.overlap_target and the sweep's worlds were added after datasets and runs were cached:
     at their defaults
@@ -92,6 +115,14 @@ def test_an_added_key_at_its_default_keeps_every_hash():
     d["scene"]["family_weights"] = [1.0, 1.0, 1.0]  # hashed in its positional form of old (SceneConfig.hashed_form)
     assert config_hash(cfg) == json_sha256(d)
     assert config_hash(load_config(DataConfig, None, ["rig.cameras.CAM_BACK.hfov_deg=110.0"])) != config_hash(cfg)
+    # a camera's width / height (added later still) at null: an entry of rig.cameras keeps its hash
+    back = load_config(DataConfig, None, ["rig.cameras.CAM_BACK.hfov_deg=110.0"])
+    bd = config_to_dict(back)
+    assert bd["rig"]["cameras"]["CAM_BACK"]["width"] is None and bd["rig"]["cameras"]["CAM_BACK"]["height"] is None
+    del bd["rig"]["cameras"]["CAM_BACK"]["width"], bd["rig"]["cameras"]["CAM_BACK"]["height"]
+    del bd["rig"]["overlap_target"]
+    bd["scene"]["family_weights"] = [1.0, 1.0, 1.0]
+    assert config_hash(back) == json_sha256(bd)
     assert config_hash(load_config(DataConfig, None, ["rig.overlap_target=pixels"])) != config_hash(cfg)
     from study.config import SweepConfig
 
