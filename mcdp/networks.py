@@ -188,7 +188,7 @@ class PoseNet(nn.Module):
     """Monodepth2 "separate_resnet" pose network: 2-image ResNet-18 + PoseDecoder.
 
     forward(img_a, img_b): (B, 3, H, W) each, in temporal order -> (axisangle, translation),
-    the motion from a to b as used by `mcdp.pose.pose_from_axisangle`.
+    the motion from a to b as used by `mcdp.rigid.pose_from_axisangle`.
     """
 
     def __init__(self, pretrained: str | None = None):

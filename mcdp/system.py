@@ -45,7 +45,8 @@ from mcdp.geometry import splat_depth, warp_by_depth
 from mcdp.losses import consistency_loss, photometric_error, reprojection_loss, smoothness_loss
 from mcdp.methods import method_of, method_params
 from mcdp.model import LossContext, is_refined, resize_mask_to
-from mcdp.pose import PoseModel, odometry_camera_motion
+from mcdp.pose import PoseModel
+from mcdp.rigid import odometry_camera_motion
 
 
 # --------------------------------------------------------------------------- augmentation

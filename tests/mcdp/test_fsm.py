@@ -14,7 +14,7 @@ from corelib.configlib import load_config
 from mcdp.config import RunConfig
 from mcdp.data import RigDataset, collate, directed_pairs
 from mcdp.fsm import FsmDepthModel, pose_consistency, spatial_photometric
-from mcdp.pose import odometry_camera_motion
+from mcdp.rigid import odometry_camera_motion
 
 ROOT = Path(__file__).resolve().parents[2]
 TINY = ROOT / "configs" / "train" / "tiny"

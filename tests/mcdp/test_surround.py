@@ -142,7 +142,7 @@ def test_joint_pose_is_one_rigid_rig_motion_and_keeps_one_that_already_is(seed, 
     pose-consistency error ~0); from predictions that already are one rig motion, it returns them."""
     from mcdp.data import RigDataset, collate
     from mcdp.fsm import pose_consistency
-    from mcdp.pose import odometry_camera_motion, pose_from_axisangle, rig_motion
+    from mcdp.rigid import odometry_camera_motion, pose_from_axisangle, rig_motion
 
     b = collate([RigDataset(ds, "train", 64, 96)[seed]])
     T = b["T_ego_cam"].float()
