@@ -1,4 +1,4 @@
-"""The method registry (mcdp/methods.py): every registered network keeps the contract, the built-in presets
+"""The method registry (mcdp/methods/__init__.py): every registered network keeps the contract, the built-in presets
 agree with their registry entries, a method's own weights live in its ``method_params`` section. (That a new
 method is one module plus one registry row: tests/mcdp/test_toy_method.py.)"""
 from __future__ import annotations

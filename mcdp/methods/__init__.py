@@ -157,7 +157,7 @@ def method_of(cfg: ModelConfig) -> Method:
             return m
     models = sorted({m.model for m in METHODS.values()})
     raise ConfigError(f"model.method {cfg.method!r} is not a registered method's model (registered: "
-                      f"{', '.join(models)}; see mcdp/methods.py)")
+                      f"{', '.join(models)}; see mcdp/methods/__init__.py)")
 
 
 def network_class(method: Method) -> type:
