@@ -30,7 +30,7 @@ class PoseModel(nn.Module):
         self.net = PoseNet(pretrained)
 
     def forward(self, rgb: torch.Tensor, T_ego_cam: torch.Tensor | None = None) -> dict[int, torch.Tensor]:
-        """``T_ego_cam`` (B, N, 4, 4) given: **joint** pose (SurroundDepth's scheme, `mcdp.surround`): the
+        """``T_ego_cam`` (B, N, 4, 4) given: **joint** pose (SurroundDepth's scheme, `mcdp.methods.surround`): the
         cameras' predictions are moved into the ego frame, averaged into one rigid motion of the rig and
         moved back through the extrinsics, so every camera moves as one rig."""
         B, N, _, C, H, W = rgb.shape

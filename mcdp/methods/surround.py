@@ -31,7 +31,7 @@ run): ``D_MODEL = 128`` token channels, ``HEADS = 4``, ``MLP_RATIO = 2``, ``MAX_
 
 Warm start (``model.init_from``): encoder and decoder from the shared pretraining exactly as for
 ``mono2``; the cross-view blocks (``cross_view.*``) start fresh and learn at ``train.weight_lr_mult``
-x the rate (`mcdp.model.DepthModel.fresh_parameters`).
+x the rate (`mcdp.methods.mcdp.DepthModel.fresh_parameters`).
 """
 from __future__ import annotations
 
@@ -42,7 +42,7 @@ import torch.nn as nn
 import torch.nn.functional as F
 
 from corelib.configlib import ConfigError
-from mcdp.model import MonoDepthModel
+from mcdp.methods.mcdp import MonoDepthModel
 from mcdp.networks import ResnetEncoder
 
 D_MODEL = 128
