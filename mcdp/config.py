@@ -62,10 +62,10 @@ class ModelConfig(StrictModel):
     refine_steps: m, refinement steps (0 = bases only, the "M0" row).
     neighbours: which ring neighbours feed the weight network: ``left`` (i-1),
         ``right`` (i+1) or ``both``. L_con always uses every adjacent pair in
-        both directions (see `mcdp.model`).
+        both directions (see `mcdp.methods.mcdp`).
     pretrained: path to a local torchvision ResNet-18 state dict (never downloaded), or null.
     min_depth, max_depth: metres; the sigmoid output maps to disparity in
-        [1/max_depth, 1/min_depth] (`mcdp.model.disp_to_depth`).
+        [1/max_depth, 1/min_depth] (`mcdp.methods.base.disp_to_depth`).
     init_depth: metres; the depth head's bias is initialised so that a fresh
         network predicts about this depth everywhere. Metric training (odometry
         or velocity scale, metres per frame of motion) needs a start near the
@@ -209,7 +209,7 @@ class TrainConfig(StrictModel):
         machine 1 avoids the heavy slow-down of oversubscribed OpenMP threads.
     grad_clip: max global grad norm (> 0, finite), or null.
     weight_lr_mult: the learning rate of the depth network's fresh layers (MCDP's weight networks,
-        `mcdp.surround`'s cross-view attention: ``DepthModel.fresh_parameters``) is ``lr *
+        `mcdp.methods.surround`'s cross-view attention: ``DepthModel.fresh_parameters``) is ``lr *
         weight_lr_mult`` (1 = one rate for every parameter). They start fresh while the encoder and decoder come from a
         pretraining, and at one small rate they did not move in a 100-step fine-tuning
         (docs/results/refinement.md).

@@ -11,7 +11,7 @@ order, frames in the order [-1, 0, +1], H x W = training size)::
     seq_index    (B,)               int64               index into `RigDataset.seqs`
     frame        (B,)               int64               frame t
     gt_median    (B, N)             float32             ONLY when oracle=True: median GT depth
-    overlap_truth (B, N, 1, H, W)   float32             ONLY for ORACLE-local (mcdp.oracle_local): GT depth
+    overlap_truth (B, N, 1, H, W)   float32             ONLY for ORACLE-local (mcdp.methods.oracle_local): GT depth
                                                         of the overlap pixels (nearest), 0 elsewhere
                                                         (metres) over scene pixels at dataset
                                                         resolution; the oracle scale mode.
@@ -174,7 +174,7 @@ class RigDataset(torch.utils.data.Dataset):
         }
         if self.oracle:
             item["gt_median"] = torch.from_numpy(r.gt_median(seq, t))
-        if self.overlap_truth:  # ORACLE-local's input (mcdp.oracle_local): reads ground truth
+        if self.overlap_truth:  # ORACLE-local's input (mcdp.methods.oracle_local): reads ground truth
             from mcdp.oracle import overlap_truth_at
 
             item["overlap_truth"] = overlap_truth_at(r.ds, r.mask_full, seq, t, (r.height, r.width))

@@ -97,7 +97,7 @@ class ResnetEncoder(nn.Module):
 
     def forward(self, x: torch.Tensor, extra: torch.Tensor | None = None) -> list[torch.Tensor]:
         """``extra`` (B, 64, H/2, W/2): added to the first convolution's output before its batch norm (an
-        extra input's own first layer, `mcdp.oracle_local`)."""
+        extra input's own first layer, `mcdp.methods.oracle_local`)."""
         x = (x - 0.45) / 0.225
         n = self.net
         y = n.conv1(x)
@@ -126,7 +126,7 @@ class DepthDecoder(nn.Module):
 
     forward(features) -> {s: (B, n_out, H/2^s, W/2^s) in (0, 1)} for s in range(scales).
     ``init_sigmoid``: initial output value (bias init), or None for PyTorch's default init.
-    The sigmoid values are mapped to depth only by `mcdp.model.disp_to_depth`.
+    The sigmoid values are mapped to depth only by `mcdp.methods.base.disp_to_depth`.
     """
 
     def __init__(self, num_ch_enc=ResnetEncoder.num_ch_enc, n_out: int = 1, scales: int = 4, init_sigmoid: float | None = None):
@@ -188,7 +188,7 @@ class PoseNet(nn.Module):
     """Monodepth2 "separate_resnet" pose network: 2-image ResNet-18 + PoseDecoder.
 
     forward(img_a, img_b): (B, 3, H, W) each, in temporal order -> (axisangle, translation),
-    the motion from a to b as used by `mcdp.pose.pose_from_axisangle`.
+    the motion from a to b as used by `mcdp.rigid.pose_from_axisangle`.
     """
 
     def __init__(self, pretrained: str | None = None):

@@ -1,6 +1,6 @@
 """ORACLE yardstick of MCDP's depth bases: the best depth a run's own bases can express.
 
-MCDP predicts depth as a softmax-weighted combination of n bases (`mcdp.model.combine_bases`);
+MCDP predicts depth as a softmax-weighted combination of n bases (`mcdp.methods.base.combine_bases`);
 its weight networks choose the n weights per image. How much could a perfect choice gain?
 `fit_oracle_weights` answers per image: it fits the n softmax logits to the GROUND TRUTH
 (Adam on the scale-invariant log error over valid pixels), with the bases fixed. The result is a
@@ -17,7 +17,7 @@ from __future__ import annotations
 import torch
 import torch.nn.functional as F
 
-from mcdp.model import combine_bases
+from mcdp.methods.base import combine_bases
 
 
 def si_log_error(pred: torch.Tensor, gt: torch.Tensor, valid: torch.Tensor) -> torch.Tensor:

@@ -1,11 +1,11 @@
-"""Pose maths and the pose network of the self-supervised system: axis-angle rotations, rigid transforms,
-camera motion from ego odometry, Monodepth2's pose network shared across cameras, and one rigid rig
-motion from every camera's prediction (SurroundDepth's joint pose).
+"""The pose network of the self-supervised system: Monodepth2's pose network shared across cameras (and
+frames), and the joint pose of a rig that moves as one (SurroundDepth's scheme). The maths it builds on
+(axis-angle rotations, rigid transforms, the rig motion) is `mcdp.rigid`.
 
 Example::
 
-    T = pose_from_axisangle(aa, t)                      # (B, 4, 4)
-    motion = odometry_camera_motion(T_world_ego, T_ego_cam, +1)   # (B, N, 4, 4) T_src_tgt
+    motions = PoseModel()(rgb)                          # {-1, +1: (B, N, 4, 4) T_src_tgt}
+    motions = PoseModel()(rgb, T_ego_cam)               # every camera moves with one rigid rig motion
 """
 from __future__ import annotations
 
@@ -13,59 +13,7 @@ import torch
 import torch.nn as nn
 
 from mcdp.networks import PoseNet
-
-
-def rotation_from_axisangle(axisangle: torch.Tensor) -> torch.Tensor:
-    """Rodrigues: (B, 3) axis * angle (radians) -> (B, 3, 3) rotation."""
-    angle = axisangle.norm(dim=1, keepdim=True).clamp(min=1e-7)  # (B, 1)
-    axis = axisangle / angle
-    x, y, z = axis[:, 0], axis[:, 1], axis[:, 2]
-    c, s = torch.cos(angle[:, 0]), torch.sin(angle[:, 0])
-    C = 1 - c
-    R = torch.stack(
-        [
-            c + x * x * C, x * y * C - z * s, x * z * C + y * s,
-            y * x * C + z * s, c + y * y * C, y * z * C - x * s,
-            z * x * C - y * s, z * y * C + x * s, c + z * z * C,
-        ],
-        dim=1,
-    ).view(-1, 3, 3)
-    return R
-
-
-def pose_from_axisangle(axisangle: torch.Tensor, translation: torch.Tensor, invert: bool = False) -> torch.Tensor:
-    """(B, 3), (B, 3) -> (B, 4, 4) rigid transform [R | t] (or its inverse)."""
-    R = rotation_from_axisangle(axisangle)
-    T = torch.zeros(axisangle.shape[0], 4, 4, dtype=axisangle.dtype, device=axisangle.device)
-    T[:, 3, 3] = 1.0
-    if invert:
-        Rt = R.transpose(1, 2)
-        T[:, :3, :3] = Rt
-        T[:, :3, 3] = -(Rt @ translation.unsqueeze(-1)).squeeze(-1)
-    else:
-        T[:, :3, :3] = R
-        T[:, :3, 3] = translation
-    return T
-
-
-def odometry_camera_motion(T_world_ego: torch.Tensor, T_ego_cam: torch.Tensor, offset: int) -> torch.Tensor:
-    """Camera motion from ego odometry: T_cam(t+n)_cam(t) for every camera.
-
-    T_cam(t+n)_cam(t) = inv(T_ego_cam) @ inv(T_world_ego[t+n]) @ T_world_ego[t] @ T_ego_cam
-    maps points in the camera frame at t into the same camera at t+n (the rig is rigid).
-
-    Args:
-        T_world_ego: (B, 3, 4, 4) ego poses at t-1, t, t+1.
-        T_ego_cam: (B, N, 4, 4).
-        offset: -1 or +1.
-    Returns:
-        (B, N, 4, 4) T_src_tgt with src = frame t+offset, tgt = frame t.
-    """
-    Tw = T_world_ego.double()
-    T_egon_ego0 = torch.linalg.inv(Tw[:, 1 + offset]) @ Tw[:, 1]  # (B, 4, 4)
-    Tc = T_ego_cam.double()
-    out = torch.linalg.inv(Tc) @ T_egon_ego0[:, None] @ Tc  # (B, N, 4, 4)
-    return out.to(T_ego_cam.dtype)
+from mcdp.rigid import pose_from_axisangle, rig_motion
 
 
 class PoseModel(nn.Module):
@@ -82,7 +30,7 @@ class PoseModel(nn.Module):
         self.net = PoseNet(pretrained)
 
     def forward(self, rgb: torch.Tensor, T_ego_cam: torch.Tensor | None = None) -> dict[int, torch.Tensor]:
-        """``T_ego_cam`` (B, N, 4, 4) given: **joint** pose (SurroundDepth's scheme, `mcdp.surround`): the
+        """``T_ego_cam`` (B, N, 4, 4) given: **joint** pose (SurroundDepth's scheme, `mcdp.methods.surround`): the
         cameras' predictions are moved into the ego frame, averaged into one rigid motion of the rig and
         moved back through the extrinsics, so every camera moves as one rig."""
         B, N, _, C, H, W = rgb.shape
@@ -97,19 +45,3 @@ class PoseModel(nn.Module):
                 1: pose_from_axisangle(aa_p, t_p, invert=False).view(B, N, 4, 4),
             }
         return {-1: rig_motion(aa_m, t_m, T_ego_cam, invert=True), 1: rig_motion(aa_p, t_p, T_ego_cam)}
-
-
-def rig_motion(aa: torch.Tensor, t: torch.Tensor, T_ego_cam: torch.Tensor, invert: bool = False) -> torch.Tensor:
-    """One rigid rig motion from every camera's predicted motion [R(aa) | t] (camera frames, (B*N, 3) each):
-    in the ego frame camera j's motion is R_ec R R_ec^T (axis-angle R_ec aa) with translation
-    R_ec t + t_ec - R_ego t_ec; the axis-angles and translations are averaged over the cameras and the
-    result is moved back into every camera, (B, N, 4, 4) (inverted, as the -1 motion, if ``invert``)."""
-    B, N = T_ego_cam.shape[:2]
-    X = T_ego_cam.float()
-    R_ec, t_ec = X[..., :3, :3], X[..., :3, 3]  # (B, N, 3, 3), (B, N, 3)
-    aa_e = (R_ec @ aa.view(B, N, 3, 1)).squeeze(-1)  # (B, N, 3)
-    R_e = rotation_from_axisangle(aa_e.reshape(B * N, 3)).view(B, N, 3, 3)
-    t_e = (R_ec @ t.view(B, N, 3, 1)).squeeze(-1) + t_ec - (R_e @ t_ec.unsqueeze(-1)).squeeze(-1)
-    M_ego = pose_from_axisangle(aa_e.mean(1), t_e.mean(1))  # (B, 4, 4)
-    M = torch.linalg.inv(X) @ M_ego[:, None] @ X  # (B, N, 4, 4)
-    return torch.linalg.inv(M) if invert else M

@@ -14,7 +14,7 @@ observe the outputs without the predictor knowing the experiment (the overlap ex
 ORACLE weights and refinement statistics: `study.probes`)::
 
     inp = pred.inputs(seq, frame)      # `Inputs`: what the network reads of one rig sample
-    out = pred.forward(inp)            # the network's outputs (`mcdp.model.DepthModel.forward`)
+    out = pred.forward(inp)            # the network's outputs (`mcdp.methods.mcdp.DepthModel.forward`)
     small = pred.stages_of(out)        # {stage: (N, 1, h, w) metres at training size}
     depth = pred.upsample(small)       # {stage: (N, H, W) float32 metres at the dataset size}
 
@@ -115,7 +115,7 @@ class Predictor:
 
     @torch.no_grad()
     def forward(self, inp: Inputs) -> dict:
-        """The network's outputs for ``inp`` at training size (`mcdp.model.DepthModel.forward`, scale 0 only)."""
+        """The network's outputs for ``inp`` at training size (`mcdp.methods.mcdp.DepthModel.forward`, scale 0 only)."""
         return self.model(inp.rgb, self.K, self.T_ego_cam, self.mask, inp.nbr, inp.gt_median, scales=1,
                           overlap_truth=inp.overlap_truth)
 

@@ -23,9 +23,9 @@ Loss (paper eq. 9), with masks excluded from every mean::
   z-buffer; L1 in metres on pixels both cameras see (outside both ego masks).
 - L_vel (PackNet): | ||t_pred|| - ||t_odom|| | per camera and source frame, with
   the ego odometry motion transformed into each camera.
-- a method's own terms (its network's `mcdp.model.DepthNetwork.loss_terms`, none for MCDP and
+- a method's own terms (its network's `mcdp.methods.base.DepthNetwork.loss_terms`, none for MCDP and
   Mono2), added weighted as the method returns them; what they read of the step besides the
-  outputs and the batch is a `mcdp.model.LossContext` (the poses, the camera pairs, the step, the
+  outputs and the batch is a `mcdp.methods.base.LossContext` (the poses, the camera pairs, the step, the
   method's own parameters), never an entry written into ``outputs``.
 
 Example::
@@ -44,8 +44,9 @@ from mcdp.data import directed_pairs, neighbour_table
 from mcdp.geometry import splat_depth, warp_by_depth
 from mcdp.losses import consistency_loss, photometric_error, reprojection_loss, smoothness_loss
 from mcdp.methods import method_of, method_params
-from mcdp.model import LossContext, is_refined, resize_mask_to
-from mcdp.pose import PoseModel, odometry_camera_motion
+from mcdp.methods.base import LossContext, is_refined, resize_mask_to
+from mcdp.pose import PoseModel
+from mcdp.rigid import odometry_camera_motion
 
 
 # --------------------------------------------------------------------------- augmentation
@@ -124,7 +125,7 @@ class SelfSupervisedSystem(torch.nn.Module):
             poses = odom
         else:
             with torch.autocast(self.device.type, dtype=self.amp_dtype, enabled=self.use_amp):
-                # a network that moves the rig as one (`joint_pose`: mcdp.surround) gets the extrinsics
+                # a network that moves the rig as one (`joint_pose`: mcdp.methods.surround) gets the extrinsics
                 joint = batch["T_ego_cam"] if self.depth.joint_pose else None
                 poses = self.pose(net_rgb, joint)
             t_pred = torch.stack([poses[o][..., :3, 3].norm(dim=-1) for o in (-1, 1)])  # (2, B, N)

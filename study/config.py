@@ -117,8 +117,8 @@ class SweepConfig(StrictModel):
             raise ValueError(f"methods must be distinct, got {v}")
         unknown = [m for m in v if m not in METHODS]
         if unknown:
-            raise ValueError(f"unknown method(s) {', '.join(map(str, unknown))[:200]}; registered (mcdp/methods.py): "
-                             f"{', '.join(METHODS)}")
+            raise ValueError(f"unknown method(s) {', '.join(map(str, unknown))[:200]}; registered "
+                             f"(mcdp/methods/__init__.py): {', '.join(METHODS)}")
         return [m for m in METHODS if m in v]  # canonical (table) order
 
     @field_validator("seeds")

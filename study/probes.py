@@ -117,7 +117,7 @@ class Probed:
         self._acc["images"] += int(out["depth", last, 0].shape[0])
         if w is None or last == "init" or "init" not in stages:
             return
-        n = w.shape[1]  # (B*N, n) or per pixel (B*N, n, h, w) (`mcdp.local`): the mean over all of them
+        n = w.shape[1]  # (B*N, n) or per pixel (B*N, n, h, w) (`mcdp.methods.local`): the mean over all of them
         self._acc["weight_move"] += float((w.float() - 1.0 / n).abs().flatten(1).mean(1).sum())
         self._acc["depth_change_m"] += self._masked_mean_abs(out["depth", last, 0], out["depth", "init", 0])
 
@@ -133,7 +133,7 @@ class Probed:
 
     def _oracle_depth(self, seq: str, frame: int, out: dict) -> tuple[torch.Tensor, torch.Tensor]:
         """(depth at the weights fitted on every valid pixel, at those fitted on the overlap pixels only)."""
-        from mcdp.model import combine_bases
+        from mcdp.methods.base import combine_bases
         from mcdp.oracle import fit_oracle_weights, ground_truth_at, overlap_at
 
         pred = self.pred

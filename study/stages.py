@@ -267,7 +267,7 @@ def _row_line(tag: str, row: dict) -> str:
 def evaluate_run(cfg: SweepConfig, run_dir: Path, ds, ecfg, progress: bool, log, tag: str):
     """Evaluate one run's checkpoint: as trained (+ the ORACLE-weights stages of a run with bases),
     and, for a network whose depth uses the neighbours at inference (``uses_neighbours``: MCDP's refinement,
-    the cross-view attention of `mcdp.surround`, ORACLE-local's input), a second time with its neighbours
+    the cross-view attention of `mcdp.methods.surround`, ORACLE-local's input), a second time with its neighbours
     cut at inference (`study.probes`).
 
     Returns (metrics, metrics_cut or None, the run's `mcdp.predict.Predictor`); ``metrics["refinement"]`` /

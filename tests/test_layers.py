@@ -101,6 +101,58 @@ def test_the_method_library_neither_renders_nor_reads_generator_configs():
     assert not bad, "\n".join(sorted(bad))
 
 
+def module_level_imports(name: str, path: Path) -> set[str]:
+    """What importing module `name` imports at once: the dotted names of its imports outside function bodies
+    and outside ``if TYPE_CHECKING:`` blocks (relative imports resolved)."""
+    pkg = name if path.name == "__init__.py" else name.rsplit(".", 1)[0]
+    found: set[str] = set()
+
+    def visit(stmts):
+        for node in stmts:
+            if isinstance(node, ast.Import):
+                found.update(a.name for a in node.names)
+            elif isinstance(node, ast.ImportFrom):
+                base = node.module or ""
+                if node.level:
+                    up = pkg.split(".")[: len(pkg.split(".")) - (node.level - 1)]
+                    base = ".".join(up + ([base] if base else []))
+                found.update([base] + [f"{base}.{a.name}" for a in node.names])
+            elif isinstance(node, ast.If):
+                if ast.unparse(node.test) not in ("TYPE_CHECKING", "typing.TYPE_CHECKING"):
+                    visit(node.body)
+                visit(node.orelse)
+            elif isinstance(node, (ast.Try, ast.With, ast.For, ast.While, ast.ClassDef)):
+                for field in ("body", "handlers", "orelse", "finalbody"):
+                    for part in getattr(node, field, []):
+                        visit(part.body if isinstance(part, ast.ExceptHandler) else [part])
+
+    visit(ast.parse(path.read_text()).body)
+    return found
+
+
+def test_the_method_registry_is_read_without_torch():
+    """``import mcdp.methods`` (the registry: a config is checked against it before torch is imported) reaches
+    no torch through the module-level imports of the project modules it loads: its rows name their networks
+    as "module:Class" strings, and what needs torch is imported inside functions."""
+    mods = modules()
+    seen, todo, torch_by = set(), ["mcdp.methods"], []
+    while todo:
+        m = todo.pop()
+        if m in seen:
+            continue
+        seen.add(m)
+        todo += [".".join(m.split(".")[:i]) for i in range(1, m.count(".") + 1)]  # its packages run first
+        for t in module_level_imports(m, mods[m]):
+            if t.split(".")[0] in ("torch", "torchvision"):
+                torch_by.append(f"{m} imports {t}")
+            while t and t not in mods:
+                t = t.rsplit(".", 1)[0] if "." in t else ""
+            if t:
+                todo.append(t)
+    assert "mcdp.config" in seen, sorted(seen)  # the walk reads what the registry imports
+    assert not torch_by, "\n".join(sorted(torch_by))
+
+
 def _private(name: str) -> bool:
     return name.startswith("_") and not name.startswith("__")
 

@@ -16,7 +16,7 @@ import torch
 
 from mcdp.geometry import warp_by_depth
 from mcdp.losses import photometric_error
-from mcdp.pose import odometry_camera_motion
+from mcdp.rigid import odometry_camera_motion
 
 
 def _yaw(T: np.ndarray, deg: float) -> np.ndarray:

@@ -1,4 +1,4 @@
-"""FSM (mcdp/fsm.py): its spatial term carries the depth signal on a rendered rig, its masks and
+"""FSM (mcdp/methods/fsm.py): its spatial term carries the depth signal on a rendered rig, its masks and
 per-pixel minimum do what they say, pose consistency is zero exactly for a rigid rig motion, the
 tiny preset trains, and cutting the neighbours at inference changes nothing."""
 from __future__ import annotations
@@ -13,8 +13,8 @@ import torch
 from corelib.configlib import load_config
 from mcdp.config import RunConfig
 from mcdp.data import RigDataset, collate, directed_pairs
-from mcdp.fsm import FsmDepthModel, pose_consistency, spatial_photometric
-from mcdp.pose import odometry_camera_motion
+from mcdp.methods.fsm import FsmDepthModel, pose_consistency, spatial_photometric
+from mcdp.rigid import odometry_camera_motion
 
 ROOT = Path(__file__).resolve().parents[2]
 TINY = ROOT / "configs" / "train" / "tiny"

@@ -174,7 +174,7 @@ def test_flat_road_depth_matches_the_ground_plane_analytically():
 
 # --------------------------------------------------------------------------- shared pretraining
 def _fake_pretraining(path: Path, bases: int = 8, mono_head: bool = True) -> dict:
-    from mcdp.model import DepthModel
+    from mcdp.methods.mcdp import DepthModel
     from mcdp.warmstart import FORMAT, VERSION
     from corelib.configlib import config_to_dict
 
@@ -188,7 +188,7 @@ def _fake_pretraining(path: Path, bases: int = 8, mono_head: bool = True) -> dic
 
 
 def test_warm_start_copies_the_trunk_and_the_matching_head(tmp_path):
-    from mcdp.model import DepthModel, MonoDepthModel
+    from mcdp.methods.mcdp import DepthModel, MonoDepthModel
     from corelib.hashing import sha256_file
     from mcdp.warmstart import warm_start
 
@@ -216,7 +216,7 @@ def test_warm_start_copies_the_trunk_and_the_matching_head(tmp_path):
     ("model.scales=2", None),
 ])
 def test_warm_start_refuses_another_architecture_naming_the_layer(tmp_path, override, needle):
-    from mcdp.model import DepthModel
+    from mcdp.methods.mcdp import DepthModel
     from mcdp.warmstart import WarmStartError, warm_start
 
     p = tmp_path / "pretrained.pt"
@@ -230,7 +230,7 @@ def test_warm_start_refuses_another_architecture_naming_the_layer(tmp_path, over
 
 
 def test_warm_start_refuses_files_that_are_not_a_pretraining(tmp_path):
-    from mcdp.model import MonoDepthModel
+    from mcdp.methods.mcdp import MonoDepthModel
     from mcdp.warmstart import WarmStartError, warm_start
 
     model = MonoDepthModel(cfg_of("mono2").model)

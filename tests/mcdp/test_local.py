@@ -1,11 +1,11 @@
-"""MCDP-local (`mcdp.local`): per-pixel basis weights, the neighbours' warped depth, and the contract."""
+"""MCDP-local (`mcdp.methods.local`): per-pixel basis weights, the neighbours' warped depth, and the contract."""
 import torch
 
 from corelib.configlib import load_config
 from mcdp.config import RunConfig
-from mcdp.local import LocalDepthModel, LocalWeightNet
 from mcdp.methods import METHODS, build_depth_model
-from mcdp.model import combine_bases
+from mcdp.methods.base import combine_bases
+from mcdp.methods.local import LocalDepthModel, LocalWeightNet
 from mcdp.networks import WeightNet
 
 from tests.mcdp.test_refinement import TINY

@@ -1,4 +1,4 @@
-"""The method registry (mcdp/methods.py): every registered network keeps the contract, the built-in presets
+"""The method registry (mcdp/methods/__init__.py): every registered network keeps the contract, the built-in presets
 agree with their registry entries, a method's own weights live in its ``method_params`` section. (That a new
 method is one module plus one registry row: tests/mcdp/test_toy_method.py.)"""
 from __future__ import annotations
@@ -47,7 +47,7 @@ def test_each_preset_agrees_with_its_registry_entry(folder, name):
 def test_every_registered_network_keeps_the_contract(name):
     """Conformance: each method's network (tiny preset) is a DepthNetwork whose declared members have the
     documented types, and whose forward returns every stage's depth at full resolution."""
-    from mcdp.model import DepthNetwork
+    from mcdp.methods.base import DepthNetwork
 
     cfg = load_config(RunConfig, ROOT / "configs" / "train" / "tiny" / f"{name}.yaml")
     net = methods.build_depth_model(cfg.model).eval()
@@ -114,7 +114,7 @@ def fsm_cfg(*overrides: str) -> RunConfig:
 def test_a_methods_own_weights_live_in_its_method_params_section():
     """FSM's weights come from ``method_params`` validated against its row's params model: today's values
     by default, a set key changes only that weight, and a wrong key or value is one ConfigError naming it."""
-    from mcdp.fsm import FsmParams
+    from mcdp.methods.fsm import FsmParams
 
     p = methods.method_params(fsm_cfg())
     assert isinstance(p, FsmParams) and (p.spatial_weight, p.pose_translation_weight, p.pose_rotation_weight) == (
@@ -150,8 +150,8 @@ def test_an_empty_method_params_section_leaves_the_run_hash_and_resume_as_they_w
 def test_fsm_reads_its_weights_from_the_loss_context():
     """The spatial term is its weight times the unweighted term: doubling method_params.spatial_weight doubles it."""
     from mcdp.data import directed_pairs
-    from mcdp.fsm import FsmDepthModel, FsmParams
-    from mcdp.model import LossContext
+    from mcdp.methods.base import LossContext
+    from mcdp.methods.fsm import FsmDepthModel, FsmParams
 
     torch.manual_seed(0)
     N, H, W = 2, 16, 24

@@ -10,8 +10,10 @@ import torch
 from mcdp.config import ModelConfig, RunConfig
 from mcdp.data import directed_pairs, neighbour_table
 from mcdp.losses import reprojection_loss
-from mcdp.model import DepthModel, MonoDepthModel, combine_bases, disp_to_depth
-from mcdp.pose import PoseModel, odometry_camera_motion, pose_from_axisangle, rotation_from_axisangle
+from mcdp.methods.base import combine_bases, disp_to_depth
+from mcdp.methods.mcdp import DepthModel, MonoDepthModel
+from mcdp.pose import PoseModel
+from mcdp.rigid import odometry_camera_motion, pose_from_axisangle, rotation_from_axisangle
 from mcdp.system import SelfSupervisedSystem
 from corelib.configlib import build_config
 

@@ -1,4 +1,4 @@
-"""ORACLE-local (`mcdp.oracle_local`): the overlap's ground truth as input, filled and emptied."""
+"""ORACLE-local (`mcdp.methods.oracle_local`): the overlap's ground truth as input, filled and emptied."""
 import numpy as np
 import torch
 

@@ -10,7 +10,7 @@ import torch
 
 from corelib.configlib import load_config
 from mcdp.config import LossConfig, RunConfig
-from mcdp.model import combine_bases, disp_to_depth
+from mcdp.methods.base import combine_bases, disp_to_depth
 from mcdp.oracle import fit_oracle_weights, si_log_error
 from mcdp.predict import Predictor
 from mcdp.trainer import Trainer

@@ -1,4 +1,4 @@
-"""The SurroundDepth-style network (mcdp/surround.py): its warm start is Monodepth2 exactly, it is
+"""The SurroundDepth-style network (mcdp/methods/surround.py): its warm start is Monodepth2 exactly, it is
 equivariant to a permutation of the cameras (with their embeddings), one camera's image changes
 another camera's depth (not for mono2, not with the neighbours cut), and the tiny preset trains two
 steps and evaluates, as trained and cut."""
@@ -11,8 +11,8 @@ import torch
 
 from corelib.configlib import load_config
 from mcdp.config import RunConfig
-from mcdp.model import MonoDepthModel
-from mcdp.surround import CrossViewBlock, SurroundDepthModel
+from mcdp.methods.mcdp import MonoDepthModel
+from mcdp.methods.surround import CrossViewBlock, SurroundDepthModel
 
 ROOT = Path(__file__).resolve().parents[2]
 TINY = ROOT / "configs" / "train" / "tiny"
@@ -141,8 +141,8 @@ def test_joint_pose_is_one_rigid_rig_motion_and_keeps_one_that_already_is(seed, 
     """rig_motion: from any per-camera predictions, every camera's motion is the same ego motion (FSM's
     pose-consistency error ~0); from predictions that already are one rig motion, it returns them."""
     from mcdp.data import RigDataset, collate
-    from mcdp.fsm import pose_consistency
-    from mcdp.pose import odometry_camera_motion, pose_from_axisangle, rig_motion
+    from mcdp.methods.fsm import pose_consistency
+    from mcdp.rigid import odometry_camera_motion, pose_from_axisangle, rig_motion
 
     b = collate([RigDataset(ds, "train", 64, 96)[seed]])
     T = b["T_ego_cam"].float()
@@ -166,7 +166,7 @@ def test_joint_pose_is_one_rigid_rig_motion_and_keeps_one_that_already_is(seed, 
 
 def test_the_system_feeds_the_extrinsics_to_the_pose_network_for_surround_only(ds):
     from mcdp.data import RigDataset, collate
-    from mcdp.fsm import pose_consistency
+    from mcdp.methods.fsm import pose_consistency
     from mcdp.system import SelfSupervisedSystem
 
     b = collate([RigDataset(ds, "train", 64, 96)[0]])

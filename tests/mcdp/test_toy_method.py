@@ -37,7 +37,7 @@ def toy_cfg(row, *overrides: str) -> RunConfig:
 
 def fake_pretraining(path: Path) -> dict:
     """A shared pretraining file as `study.pretrain` writes it (8 bases + the mono head), random weights."""
-    from mcdp.model import DepthModel
+    from mcdp.methods.mcdp import DepthModel
     from mcdp.warmstart import FORMAT, VERSION
 
     cfg = load_config(RunConfig, TINY / "mcdp_m0.yaml", ["model.bases=8", "model.mono_head=true"])

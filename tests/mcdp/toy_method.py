@@ -15,7 +15,8 @@ from pydantic import Field
 
 from corelib.configlib import StrictModel
 from mcdp.config import Float
-from mcdp.model import LossContext, MonoDepthModel
+from mcdp.methods.base import LossContext
+from mcdp.methods.mcdp import MonoDepthModel
 
 
 class ToyParams(StrictModel):

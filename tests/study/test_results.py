@@ -62,7 +62,7 @@ def test_the_setup_names_only_the_sweeps_methods_and_the_head_each_starts_from()
 def test_the_warm_start_line_reads_the_network_not_its_name():
     """A row named nothing like a built-in method gets the line its network's declared members give."""
     from mcdp import methods
-    from mcdp.surround import SurroundDepthModel
+    from mcdp.methods.surround import SurroundDepthModel
     from study.report import warm_start_line
 
     methods.register(methods.Method("xview", "X-View", {"model.method": "surround", "model.refine_steps": 0},

@@ -1,7 +1,7 @@
 """FSM: Full Surround Monodepth (Guizilini et al., "Full Surround Monodepth from Multiple Cameras",
 RA-L 2022), the method ``fsm``: the rig's overlap used in TRAINING only.
 
-Network and inference are Monodepth2's (`FsmDepthModel` is `mcdp.model.MonoDepthModel` under
+Network and inference are Monodepth2's (`FsmDepthModel` is `mcdp.methods.mcdp.MonoDepthModel` under
 its own name): one image in, one depth out, no neighbour at inference, so cutting the neighbours
 at inference changes nothing (``study.probes.Probed(pred, CUT)`` predicts the same depth; tested). What
 makes it FSM is its loss, on top of the system's temporal Monodepth2 term (`mcdp.system`: the
@@ -61,7 +61,8 @@ from corelib.configlib import StrictModel
 from mcdp.config import MAX_WEIGHT, Float
 from mcdp.geometry import warp_by_depth
 from mcdp.losses import min_reprojection, photometric_error
-from mcdp.model import LossContext, MonoDepthModel
+from mcdp.methods.base import LossContext
+from mcdp.methods.mcdp import MonoDepthModel
 
 SPATIAL_WEIGHT = 0.1
 POSE_TRANSLATION_WEIGHT = 1.0

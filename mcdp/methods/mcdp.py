@@ -1,29 +1,21 @@
-"""The MCDP depth model (depth bases + iterative weight refinement) and its Monodepth2 baseline.
+"""The MCDP depth model (depth bases + iterative weight refinement) and its Monodepth2 baseline, one family
+in one module: `MonoDepthModel` is `DepthModel` with one sigmoid channel (``has_bases = False``: the same
+code), and `DepthModel` is the class most other methods' networks subclass.
 
 One `DepthModel` serves every camera of the rig: the B x N images go through
 the encoder and decoder at once, and each refinement step's weight network is
 shared across cameras (and independent across steps, paper sec. 3.2).
 
-Output -> depth (the ONLY place): `disp_to_depth` maps a sigmoid value
-sig in (0, 1) to disparity disp = 1/max_depth + (1/min_depth - 1/max_depth) sig
-and depth = 1 / disp (metres), so depth lies in [min_depth, max_depth]
-(defaults 0.1 m and 100 m, `ModelConfig`).
+The bases are combined as `mcdp.methods.base` specifies (`combine_bases`: sigmoid space, softmax
+weights, w_init = 1/n; the output -> depth map `disp_to_depth`). Each refinement step k adds its
+weight network's output to the logits of step k-1 (residual refinement), so a fresh step starts
+from the previous weights.
 
-Bases are combined in sigmoid (i.e. affine-disparity) space with softmax
-weights: sig = sum_j w_j B_j, w = softmax(logits), initial logits 0 so
-w_init = 1/n (paper eq. 1). Why disparity and not depth: a convex combination
-of values in (0, 1) stays in (0, 1), so every weight vector gives a valid depth
-in [min_depth, max_depth] without clamping; the smoothness loss and Monodepth2
-already work on disparity; and far pixels (large depth) do not dominate the
-combination. Each refinement step k adds its weight network's output to the
-logits of step k-1 (residual refinement), so a fresh step starts from the
-previous weights.
-
-Stages are named "init", "refine1", ..., "refine{m}" (the evaluator adds
-"final" = the last one). Method ``mono2`` has one sigmoid channel and only
-"init" (`MonoDepthModel`). The shared pretraining (``model.mono_head``, `study.pretrain`) adds a
-one-channel Monodepth2 head as the decoder's last channel: stages "mono" (that
-head) and "init" (the n bases at weights 1/n), trained together on one trunk.
+Stages are named "init", "refine1", ..., "refine{m}" (`mcdp.methods.base.stage_names`). Method
+``mono2`` has one sigmoid channel and only "init" (`MonoDepthModel`). The shared pretraining
+(``model.mono_head``, `study.pretrain`) adds a one-channel Monodepth2 head as the decoder's last
+channel: stages "mono" (that head) and "init" (the n bases at weights 1/n), trained together on one
+trunk.
 
 Example::
 
@@ -33,9 +25,6 @@ Example::
 """
 from __future__ import annotations
 
-from dataclasses import dataclass
-from typing import Any
-
 import torch
 import torch.nn as nn
 import torch.nn.functional as F
@@ -43,46 +32,10 @@ import torch.nn.functional as F
 from corelib.configlib import ConfigError
 from mcdp.config import ModelConfig
 from mcdp.geometry import scale_intrinsics, warp_by_depth
+from mcdp.methods.base import DepthNetwork, combine_bases, disp_to_depth, is_refined, resize_mask_to, stage_names
 from mcdp.networks import DepthDecoder, ResnetEncoder, WeightNet
 
 SLOTS = {"left": (0,), "right": (1,), "both": (0, 1)}
-
-
-def disp_to_depth(sig: torch.Tensor, min_depth: float, max_depth: float) -> tuple[torch.Tensor, torch.Tensor]:
-    """Network sigmoid output -> (disparity, depth in metres); the one output-to-depth map.
-
-    Args:
-        sig: (...) values in [0, 1].
-        min_depth, max_depth: depth range in metres (sig=1 -> min_depth, sig=0 -> max_depth).
-    Returns:
-        disp (...) in [1/max_depth, 1/min_depth] and depth = 1/disp (...).
-    """
-    min_disp, max_disp = 1.0 / max_depth, 1.0 / min_depth
-    disp = min_disp + (max_disp - min_disp) * sig
-    return disp, 1.0 / disp
-
-
-def combine_bases(bases: torch.Tensor, weights: torch.Tensor) -> torch.Tensor:
-    """Linear combination of bases: (B, n, h, w), (B, n) -> (B, 1, h, w) (paper eq. 1).
-
-    Per-pixel weights (`mcdp.local`): ``weights`` (B, n, h', w'), each pixel's a convex combination,
-    upsampled bilinearly to (h, w) (a convex combination of convex weight vectors stays convex)."""
-    B, n, h, w = bases.shape
-    if weights.dim() == 4:
-        wts = weights.to(bases.dtype)
-        if wts.shape[-2:] != (h, w):
-            wts = F.interpolate(wts, size=(h, w), mode="bilinear", align_corners=False)
-        return (wts * bases).sum(1, keepdim=True)
-    return torch.bmm(weights.to(bases.dtype).unsqueeze(1), bases.reshape(B, n, h * w)).view(B, 1, h, w)
-
-
-def stage_names(refine_steps: int) -> list[str]:
-    return ["init"] + [f"refine{k}" for k in range(1, refine_steps + 1)]
-
-
-def is_refined(stage: str) -> bool:
-    """A refinement stage ("refine1", ...): its loss uses ``loss.refine_scales`` scales."""
-    return stage.startswith("refine")
 
 
 def masked_median(x: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
@@ -90,86 +43,6 @@ def masked_median(x: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
     v = torch.where(mask > 0, x, torch.full_like(x, float("nan"))).flatten(1)
     med = v.nanmedian(dim=1).values
     return torch.nan_to_num(med, nan=1.0)
-
-
-def resize_mask_to(mask: torch.Tensor, h: int, w: int) -> torch.Tensor:
-    """(B, 1, H, W) 0/1 -> (B, 1, h, w): 1 only where (almost) all covered pixels are scene."""
-    if mask.shape[-2:] == (h, w):
-        return mask
-    return (F.adaptive_avg_pool2d(mask, (h, w)) > 0.99).to(mask.dtype)
-
-
-@dataclass(frozen=True)
-class LossContext:
-    """What a method's own loss terms (`DepthNetwork.loss_terms`) read of the training step besides the
-    depth network's outputs and the batch; built by `mcdp.system.SelfSupervisedSystem` for every step.
-
-    - ``cfg``: the `mcdp.config.RunConfig`;
-    - ``params``: the method's own parameters (its registry row's ``params`` model validated from the run
-      config's ``method_params`` section, `mcdp.methods.method_params`), or None for a method without any;
-    - ``poses``: {-1, +1}: (B*N, 4, 4) T_src_tgt, the camera motions of the step's temporal warps
-      (predicted, or the odometry's under ``scale.source=odometry``);
-    - ``pairs``: ((P,), (P,)) int64, the directed adjacent camera pairs (tgt, src);
-    - ``step``: the optimiser step the batch trains (0-based).
-    """
-
-    cfg: Any
-    params: Any
-    poses: dict
-    pairs: tuple
-    step: int = 0
-
-
-class DepthNetwork(nn.Module):
-    """The contract of every method's depth network (`mcdp.methods`): what the trainer, the predictor, the
-    warm start and the report read of it, declared here with its defaults and never probed with getattr.
-
-    A method's network subclasses this (most subclass `DepthModel`) and overrides what differs:
-
-    - ``model``: the ``model.method`` it builds; ``check_config(cfg)`` refuses another (ConfigError);
-    - ``n_out``: decoder depth channels (instance attribute; 1 = one sigmoid channel);
-    - ``has_bases``: n bases combined by weights (the warm start copies the pretraining's basis channels;
-      False: its mono head); ``stages``: stage names, the last is evaluated;
-    - ``uses_neighbours``: the depth reads other cameras at inference (the sweep evaluates it cut too);
-    - ``joint_pose``: the pose network moves the rig as one (it is given the extrinsics);
-    - ``reads_overlap_truth``: an ORACLE whose input holds the overlap's ground truth (`mcdp.oracle_local`);
-    - ``fresh_parameters()``: the layers no pretraining initialises (they learn at ``train.weight_lr_mult``);
-      ``fresh_layers(cfg)`` (classmethod): what they are, in words, for reports ("" when there are none);
-    - ``loss_terms(outputs, batch, ctx)``: the method's own loss terms, ``{name: weighted scalar}`` added to
-      the step's loss and logged under their names (`LossContext`: what the step gives them; none by default);
-    - ``forward(rgb, K, T_ego_cam, mask, nbr, oracle_gt_median=None, scales=None, refine_scales=None,
-      overlap_truth=None)``: the outputs of `DepthModel.forward`.
-    """
-
-    model = ""
-    has_bases = False
-    joint_pose = False
-    reads_overlap_truth = False
-    n_out = 1
-
-    @classmethod
-    def check_config(cls, cfg: ModelConfig) -> None:
-        """ConfigError, naming the key, for a model config this network cannot be built from."""
-        if cfg.method != cls.model:
-            raise ConfigError(f"model.method={cfg.method}: {cls.__name__} builds model.method={cls.model}; build "
-                              "the network with mcdp.methods.build_depth_model")
-
-    @property
-    def uses_neighbours(self) -> bool:
-        return False
-
-    def fresh_parameters(self) -> list[nn.Parameter]:
-        return []
-
-    @classmethod
-    def fresh_layers(cls, cfg: ModelConfig) -> str:
-        """`fresh_parameters` of the network built from ``cfg``, named for a report ("weight networks");
-        "" when nothing starts fresh. A classmethod: the report reads it without building the network."""
-        return ""
-
-    def loss_terms(self, outputs: dict, batch: dict, ctx: LossContext) -> dict:
-        """This method's own loss terms for one step: {name: scalar, already weighted}; none by default."""
-        return {}
 
 
 class DepthModel(DepthNetwork):
@@ -185,7 +58,7 @@ class DepthModel(DepthNetwork):
     model = "mcdp"
     #: n depth bases combined by weights (MCDP); False: Monodepth2's one sigmoid channel
     has_bases = True
-    #: the weight network of each refinement step: one weight vector per image (`mcdp.local`: per pixel)
+    #: the weight network of each refinement step: one weight vector per image (`mcdp.methods.local`: per pixel)
     weight_net_class = WeightNet
 
     @classmethod
@@ -232,7 +105,8 @@ class DepthModel(DepthNetwork):
     @property
     def uses_neighbours(self) -> bool:
         """Whether a camera's depth depends on its neighbours' images at inference (then the sweep also
-        evaluates it with them cut: ``study.probes.Probed(pred, CUT)``): MCDP with refinement steps, `mcdp.surround`."""
+        evaluates it with them cut: ``study.probes.Probed(pred, CUT)``): MCDP with refinement steps,
+        `mcdp.methods.surround`."""
         return len(self.weight_nets) > 0
 
     def fresh_parameters(self) -> list[nn.Parameter]:
@@ -246,7 +120,7 @@ class DepthModel(DepthNetwork):
 
     def encode(self, x: torch.Tensor, B: int, N: int, nbr: torch.Tensor) -> list[torch.Tensor]:
         """Encoder features of the B*N images x (BN, 3, H, W); a method may mix the cameras here
-        (`mcdp.surround`). nbr: (N, 2) neighbour table, all -1 when the neighbours are cut."""
+        (`mcdp.methods.surround`). nbr: (N, 2) neighbour table, all -1 when the neighbours are cut."""
         return self.encoder(x)
 
     def to_depth(self, sig: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:

@@ -16,7 +16,7 @@ and stage. Here the weight network keeps its spatial map:
 - the three fully connected layers become 1x1 convolutions (the same layers applied at every cell,
   `LocalWeightNet.head`), so each cell of the map gets its own change of the n basis logits; the
   logits are soft-maxed per cell, and the weights are upsampled bilinearly to each depth scale
-  (`mcdp.model.combine_bases`).
+  (`mcdp.methods.base.combine_bases`).
 
 With a spatially constant feature map, the head gives every cell what MCDP's pooled head gives the
 image (tested): the only difference is that the map is not averaged away.
@@ -33,7 +33,7 @@ import torch
 import torch.nn as nn
 
 from mcdp.geometry import depth_to_points, transform_points, warp_by_depth
-from mcdp.model import DepthModel
+from mcdp.methods.mcdp import DepthModel
 from mcdp.networks import PyramidReduce, conv_bn_relu
 
 #: the warped-depth log ratio is clipped to this magnitude (a factor e^2 ~ 7.4 either way)

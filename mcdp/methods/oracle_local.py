@@ -2,7 +2,7 @@
 
 The yardstick of local propagation (docs/results/propagation.md): how much could the pixels outside
 the overlap gain if the overlap's depth were known exactly, and a network were free to carry it
-anywhere? The network is `mcdp.model.MonoDepthModel` (same encoder, decoder, training and losses as
+anywhere? The network is `mcdp.methods.mcdp.MonoDepthModel` (same encoder, decoder, training and losses as
 Mono2) with two more input channels at frame t:
 
 - ``1 / depth`` (1/m, clipped at 2) of every overlap pixel (`mcdp.oracle.overlap_truth`: the overlap as
@@ -26,7 +26,7 @@ from __future__ import annotations
 import torch
 import torch.nn as nn
 
-from mcdp.model import MonoDepthModel
+from mcdp.methods.mcdp import MonoDepthModel
 
 #: the inverse-depth channel is clipped here (1/m: nothing nearer than 0.5 m is told apart)
 MAX_INV_DEPTH = 2.0

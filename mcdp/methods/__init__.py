@@ -7,26 +7,33 @@ the preset and the user's overrides; the presets must agree with them, tested), 
 its depth network (which checks what it needs of ``ModelConfig``: ``check_config``, and holds the
 method's own loss terms: ``loss_terms``). Table order = report order.
 
-The depth network's contract is one class, `mcdp.model.DepthNetwork`: every method's network subclasses
-it (most through `mcdp.model.DepthModel`; `network_class` refuses anything else) and overrides what differs. Its declared members, read as
-attributes and never probed: ``__init__(ModelConfig)``, ``check_config(cfg)`` (classmethod: ConfigError
-naming the key), ``.cfg``, ``.stages`` (stage names, the last is evaluated), ``n_out`` (decoder depth
-channels), ``has_bases`` (n bases combined by weights), ``uses_neighbours`` (the depth reads other cameras
-at inference: the sweep also evaluates it cut), ``joint_pose`` (the pose network moves the rig as one),
-``reads_overlap_truth`` (an ORACLE whose input holds the overlap's ground truth), ``fresh_parameters()``
-(the layers no pretraining initialises: they learn at ``train.weight_lr_mult`` x the rate),
-``loss_terms(outputs, batch, ctx)`` (the method's own terms, below) and ``forward(rgb, K, T_ego_cam, mask, nbr, oracle_gt_median=None, scales=None, refine_scales=None,
-overlap_truth=None) -> {("disp" | "depth", stage, scale): (B*N, 1, h, w), "stages": [...], "scale":
-(B*N,)}``. tests/mcdp/test_methods.py checks every registered method against it.
+The package: this table (read before torch is imported: a row names its network and params model as
+"module:Class" strings, imported when first built or checked), the contract (`mcdp.methods.base`) and
+one module per network family (`mcdp.methods.mcdp`: MCDP and Mono2; `mcdp.methods.fsm`,
+`mcdp.methods.surround`, `mcdp.methods.local`, `mcdp.methods.oracle_local`).
+
+The depth network's contract is one class, `mcdp.methods.base.DepthNetwork`: every method's network
+subclasses it (most through `mcdp.methods.mcdp.DepthModel`; `network_class` refuses anything else) and
+overrides what differs. Its declared members, read as attributes and never probed:
+``__init__(ModelConfig)``, ``check_config(cfg)`` (classmethod: ConfigError naming the key), ``.cfg``,
+``.stages`` (stage names, the last is evaluated), ``n_out`` (decoder depth channels), ``has_bases`` (n
+bases combined by weights), ``uses_neighbours`` (the depth reads other cameras at inference: the sweep
+also evaluates it cut), ``joint_pose`` (the pose network moves the rig as one), ``reads_overlap_truth``
+(an ORACLE whose input holds the overlap's ground truth), ``fresh_parameters()`` (the layers no
+pretraining initialises: they learn at ``train.weight_lr_mult`` x the rate), ``loss_terms(outputs,
+batch, ctx)`` (the method's own terms, below) and ``forward(rgb, K, T_ego_cam, mask, nbr,
+oracle_gt_median=None, scales=None, refine_scales=None, overlap_truth=None) -> {("disp" | "depth",
+stage, scale): (B*N, 1, h, w), "stages": [...], "scale": (B*N,)}``. tests/mcdp/test_methods.py checks
+every registered method against it.
 
 A method's own loss terms: the network's ``loss_terms(outputs, batch, ctx) -> {name: scalar}``, each
 scalar already weighted; `mcdp.system.SelfSupervisedSystem` adds them to the step's loss and logs
 each under its name (the val loss that picks ``best.pt`` stays L_p + lambda L_con). ``outputs`` are
 the depth network's own; what the terms read of the step besides them is the frozen
-`mcdp.model.LossContext` ``ctx``: ``cfg``, ``poses`` ({-1, +1}: (B*N, 4, 4) T_src_tgt, the camera
+`mcdp.methods.base.LossContext` ``ctx``: ``cfg``, ``poses`` ({-1, +1}: (B*N, 4, 4) T_src_tgt, the camera
 motions of the temporal warps: predicted, or the odometry's under ``scale.source=odometry``),
 ``pairs`` ((P,), (P,) int64: the directed adjacent camera pairs (tgt, src)) and ``step``, e.g. for
-`mcdp.fsm`.
+`mcdp.methods.fsm`.
 
 A method's own parameters (e.g. FSM's loss weights): a pydantic model named in its row's ``params``;
 the run config's ``method_params:`` section holds the keys a run sets, validated against that model
@@ -64,7 +71,7 @@ class Method:
     label: str
     defaults: Mapping[str, Any] = field(default_factory=dict)
     #: the network's class (or any builder), or its "module:name", imported when first built or checked
-    build: Callable[[ModelConfig], nn.Module] | str = "mcdp.model:DepthModel"
+    build: Callable[[ModelConfig], nn.Module] | str = "mcdp.methods.mcdp:DepthModel"
     #: the pydantic model of the method's own parameters (the run config's ``method_params`` section), or its
     #: "module:name", or None (then ``method_params`` must stay empty)
     params: type[BaseModel] | str | None = None
@@ -112,11 +119,11 @@ def unregister(name: str) -> Method:
 
 for _m in (
     Method("mono2", "Mono2", {"model.method": "mono2", "model.refine_steps": 0, "loss.consistency_weight": 0.0},
-           "mcdp.model:MonoDepthModel"),
+           "mcdp.methods.mcdp:MonoDepthModel"),
     Method("fsm", "FSM", {"model.method": "fsm", "model.refine_steps": 0, "loss.consistency_weight": 0.0},
-           "mcdp.fsm:FsmDepthModel", params="mcdp.fsm:FsmParams"),
+           "mcdp.methods.fsm:FsmDepthModel", params="mcdp.methods.fsm:FsmParams"),
     Method("surround", "SurroundDepth", {"model.method": "surround", "model.refine_steps": 0,
-                                         "loss.consistency_weight": 0.0}, "mcdp.surround:SurroundDepthModel"),
+                                         "loss.consistency_weight": 0.0}, "mcdp.methods.surround:SurroundDepthModel"),
     Method("mcdp_m0", "MCDP (m = 0)", {"model.method": "mcdp", "model.refine_steps": 0,
                                        "loss.consistency_weight": PAPER_LAMBDA}),
     Method("mcdp_m1_nocon", "MCDP (w/o L_con, m = 1)", {"model.method": "mcdp", "model.refine_steps": 1,
@@ -130,11 +137,12 @@ for _m in (
                                                          "loss.consistency_weight": 0.0}),
     # per-pixel basis weights fed the neighbours' warped features and depth: built to propagate locally
     Method("mcdp_local", "MCDP-local (m = 2)", {"model.method": "mcdp_local", "model.refine_steps": 2,
-                                                "loss.consistency_weight": PAPER_LAMBDA}, "mcdp.local:LocalDepthModel"),
+                                                "loss.consistency_weight": PAPER_LAMBDA},
+           "mcdp.methods.local:LocalDepthModel"),
     # a yardstick, not a method: Mono2 + the ground-truth depth of the overlap pixels as input (filled / emptied)
     Method("oracle_local", "ORACLE-local (GT overlap input)", {"model.method": "oracle_local", "model.refine_steps": 0,
                                                               "loss.consistency_weight": 0.0},
-           "mcdp.oracle_local:OracleLocalModel"),
+           "mcdp.methods.oracle_local:OracleLocalModel"),
 ):
     register(_m)
 
@@ -157,20 +165,20 @@ def method_of(cfg: ModelConfig) -> Method:
             return m
     models = sorted({m.model for m in METHODS.values()})
     raise ConfigError(f"model.method {cfg.method!r} is not a registered method's model (registered: "
-                      f"{', '.join(models)}; see mcdp/methods.py)")
+                      f"{', '.join(models)}; see mcdp/methods/__init__.py)")
 
 
 def network_class(method: Method) -> type:
-    """The method's network class: a subclass of `mcdp.model.DepthNetwork`, the one contract (its declared
+    """The method's network class: a subclass of `mcdp.methods.base.DepthNetwork`, the one contract (its declared
     members: ``stages``, ``n_out``, ``has_bases``, ``uses_neighbours``, ``joint_pose``,
     ``reads_overlap_truth``, ``fresh_parameters()``, ``check_config(cfg)``, ``loss_terms``, ``forward``); TypeError
     otherwise."""
-    from mcdp.model import DepthNetwork
+    from mcdp.methods.base import DepthNetwork
 
     net = method.builder
     if not (isinstance(net, type) and issubclass(net, DepthNetwork)):
-        raise TypeError(f"method {method.name!r}: its network {net!r} must be a subclass of mcdp.model.DepthNetwork "
-                        "(the contract every trainer, predictor and report reads)")
+        raise TypeError(f"method {method.name!r}: its network {net!r} must be a subclass of "
+                        "mcdp.methods.base.DepthNetwork (the contract every trainer, predictor and report reads)")
     return net
 
 

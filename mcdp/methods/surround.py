@@ -20,7 +20,7 @@ itself (a block-diagonal mask), so as trained - cut is what the other cameras co
 
 Poses (SurroundDepth's joint pose): with ``scale.source=odometry`` (the sweep) the rig motion is given,
 one rigid motion of the rig by construction; with a pose network (``velocity``) the shared pose network
-predicts each camera's motion and `mcdp.pose.rig_motion` averages them in the ego frame into one rigid
+predicts each camera's motion and `mcdp.rigid.rig_motion` averages them in the ego frame into one rigid
 rig motion, moved back into every camera through the extrinsics (SurroundDepth fuses the cameras'
 features before one pose decoder; averaging the decoded motions is the same constraint with Monodepth2's
 pose network). SurroundDepth's SfM pseudo-depth pretraining is not built: the odometry / velocity scale
@@ -31,7 +31,7 @@ run): ``D_MODEL = 128`` token channels, ``HEADS = 4``, ``MLP_RATIO = 2``, ``MAX_
 
 Warm start (``model.init_from``): encoder and decoder from the shared pretraining exactly as for
 ``mono2``; the cross-view blocks (``cross_view.*``) start fresh and learn at ``train.weight_lr_mult``
-x the rate (`mcdp.model.DepthModel.fresh_parameters`).
+x the rate (`mcdp.methods.mcdp.DepthModel.fresh_parameters`).
 """
 from __future__ import annotations
 
@@ -42,7 +42,7 @@ import torch.nn as nn
 import torch.nn.functional as F
 
 from corelib.configlib import ConfigError
-from mcdp.model import MonoDepthModel
+from mcdp.methods.mcdp import MonoDepthModel
 from mcdp.networks import ResnetEncoder
 
 D_MODEL = 128
@@ -106,7 +106,7 @@ class SurroundDepthModel(MonoDepthModel):
     """Monodepth2's network with cross-view attention between the cameras' encoder features."""
 
     model = "surround"
-    #: with a pose network (scale.source velocity): one rigid rig motion (`mcdp.pose.rig_motion`)
+    #: with a pose network (scale.source velocity): one rigid rig motion (`mcdp.rigid.rig_motion`)
     joint_pose = True
 
     @classmethod

@@ -1,0 +1,158 @@
+"""The method contract: `DepthNetwork`, the one base class every method's depth network subclasses, the
+`LossContext` its own loss terms read, and the conventions every method's outputs share.
+
+`DepthNetwork` declares what the trainer, the predictor, the warm start and the report read of a network
+(its members are read as attributes, never probed; tests/mcdp/test_methods.py checks every registered
+network against it). The registry (`mcdp.methods`) names each method's network; one module per family
+holds the networks: `mcdp.methods.mcdp` (MCDP and its Monodepth2 baseline, the class most methods
+subclass), `mcdp.methods.fsm`, `mcdp.methods.surround`, `mcdp.methods.local`, `mcdp.methods.oracle_local`.
+
+Output -> depth (the ONLY place): `disp_to_depth` maps a sigmoid value
+sig in (0, 1) to disparity disp = 1/max_depth + (1/min_depth - 1/max_depth) sig
+and depth = 1 / disp (metres), so depth lies in [min_depth, max_depth]
+(defaults 0.1 m and 100 m, `ModelConfig`).
+
+Bases are combined in sigmoid (i.e. affine-disparity) space with softmax
+weights: sig = sum_j w_j B_j, w = softmax(logits), initial logits 0 so
+w_init = 1/n (paper eq. 1; `combine_bases`). Why disparity and not depth: a convex combination
+of values in (0, 1) stays in (0, 1), so every weight vector gives a valid depth
+in [min_depth, max_depth] without clamping; the smoothness loss and Monodepth2
+already work on disparity; and far pixels (large depth) do not dominate the
+combination.
+
+Stages are named "init", "refine1", ..., "refine{m}" (`stage_names`; the evaluator adds
+"final" = the last one); a refined stage (`is_refined`) is trained on ``loss.refine_scales`` scales.
+
+Why these helpers live here and not in a family's module: they are the conventions of every method's
+outputs, read also outside the networks (the training step's loss: `is_refined`, `resize_mask_to` for
+the scene mask at each decoder scale; the ORACLE of the bases and the study's probes: `combine_bases`).
+What one family alone uses stays in its module (`mcdp.methods.mcdp.masked_median`, ``SLOTS``).
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any
+
+import torch
+import torch.nn as nn
+import torch.nn.functional as F
+
+from corelib.configlib import ConfigError
+from mcdp.config import ModelConfig
+
+
+def disp_to_depth(sig: torch.Tensor, min_depth: float, max_depth: float) -> tuple[torch.Tensor, torch.Tensor]:
+    """Network sigmoid output -> (disparity, depth in metres); the one output-to-depth map.
+
+    Args:
+        sig: (...) values in [0, 1].
+        min_depth, max_depth: depth range in metres (sig=1 -> min_depth, sig=0 -> max_depth).
+    Returns:
+        disp (...) in [1/max_depth, 1/min_depth] and depth = 1/disp (...).
+    """
+    min_disp, max_disp = 1.0 / max_depth, 1.0 / min_depth
+    disp = min_disp + (max_disp - min_disp) * sig
+    return disp, 1.0 / disp
+
+
+def combine_bases(bases: torch.Tensor, weights: torch.Tensor) -> torch.Tensor:
+    """Linear combination of bases: (B, n, h, w), (B, n) -> (B, 1, h, w) (paper eq. 1).
+
+    Per-pixel weights (`mcdp.methods.local`): ``weights`` (B, n, h', w'), each pixel's a convex combination,
+    upsampled bilinearly to (h, w) (a convex combination of convex weight vectors stays convex)."""
+    B, n, h, w = bases.shape
+    if weights.dim() == 4:
+        wts = weights.to(bases.dtype)
+        if wts.shape[-2:] != (h, w):
+            wts = F.interpolate(wts, size=(h, w), mode="bilinear", align_corners=False)
+        return (wts * bases).sum(1, keepdim=True)
+    return torch.bmm(weights.to(bases.dtype).unsqueeze(1), bases.reshape(B, n, h * w)).view(B, 1, h, w)
+
+
+def stage_names(refine_steps: int) -> list[str]:
+    return ["init"] + [f"refine{k}" for k in range(1, refine_steps + 1)]
+
+
+def is_refined(stage: str) -> bool:
+    """A refinement stage ("refine1", ...): its loss uses ``loss.refine_scales`` scales."""
+    return stage.startswith("refine")
+
+
+def resize_mask_to(mask: torch.Tensor, h: int, w: int) -> torch.Tensor:
+    """(B, 1, H, W) 0/1 -> (B, 1, h, w): 1 only where (almost) all covered pixels are scene."""
+    if mask.shape[-2:] == (h, w):
+        return mask
+    return (F.adaptive_avg_pool2d(mask, (h, w)) > 0.99).to(mask.dtype)
+
+
+@dataclass(frozen=True)
+class LossContext:
+    """What a method's own loss terms (`DepthNetwork.loss_terms`) read of the training step besides the
+    depth network's outputs and the batch; built by `mcdp.system.SelfSupervisedSystem` for every step.
+
+    - ``cfg``: the `mcdp.config.RunConfig`;
+    - ``params``: the method's own parameters (its registry row's ``params`` model validated from the run
+      config's ``method_params`` section, `mcdp.methods.method_params`), or None for a method without any;
+    - ``poses``: {-1, +1}: (B*N, 4, 4) T_src_tgt, the camera motions of the step's temporal warps
+      (predicted, or the odometry's under ``scale.source=odometry``);
+    - ``pairs``: ((P,), (P,)) int64, the directed adjacent camera pairs (tgt, src);
+    - ``step``: the optimiser step the batch trains (0-based).
+    """
+
+    cfg: Any
+    params: Any
+    poses: dict
+    pairs: tuple
+    step: int = 0
+
+
+class DepthNetwork(nn.Module):
+    """The contract of every method's depth network (`mcdp.methods`): what the trainer, the predictor, the
+    warm start and the report read of it, declared here with its defaults and never probed with getattr.
+
+    A method's network subclasses this (most subclass `mcdp.methods.mcdp.DepthModel`) and overrides what differs:
+
+    - ``model``: the ``model.method`` it builds; ``check_config(cfg)`` refuses another (ConfigError);
+    - ``n_out``: decoder depth channels (instance attribute; 1 = one sigmoid channel);
+    - ``has_bases``: n bases combined by weights (the warm start copies the pretraining's basis channels;
+      False: its mono head); ``stages``: stage names, the last is evaluated;
+    - ``uses_neighbours``: the depth reads other cameras at inference (the sweep evaluates it cut too);
+    - ``joint_pose``: the pose network moves the rig as one (it is given the extrinsics);
+    - ``reads_overlap_truth``: an ORACLE whose input holds the overlap's ground truth (`mcdp.methods.oracle_local`);
+    - ``fresh_parameters()``: the layers no pretraining initialises (they learn at ``train.weight_lr_mult``);
+      ``fresh_layers(cfg)`` (classmethod): what they are, in words, for reports ("" when there are none);
+    - ``loss_terms(outputs, batch, ctx)``: the method's own loss terms, ``{name: weighted scalar}`` added to
+      the step's loss and logged under their names (`LossContext`: what the step gives them; none by default);
+    - ``forward(rgb, K, T_ego_cam, mask, nbr, oracle_gt_median=None, scales=None, refine_scales=None,
+      overlap_truth=None)``: the outputs of `mcdp.methods.mcdp.DepthModel.forward`.
+    """
+
+    model = ""
+    has_bases = False
+    joint_pose = False
+    reads_overlap_truth = False
+    n_out = 1
+
+    @classmethod
+    def check_config(cls, cfg: ModelConfig) -> None:
+        """ConfigError, naming the key, for a model config this network cannot be built from."""
+        if cfg.method != cls.model:
+            raise ConfigError(f"model.method={cfg.method}: {cls.__name__} builds model.method={cls.model}; build "
+                              "the network with mcdp.methods.build_depth_model")
+
+    @property
+    def uses_neighbours(self) -> bool:
+        return False
+
+    def fresh_parameters(self) -> list[nn.Parameter]:
+        return []
+
+    @classmethod
+    def fresh_layers(cls, cfg: ModelConfig) -> str:
+        """`fresh_parameters` of the network built from ``cfg``, named for a report ("weight networks");
+        "" when nothing starts fresh. A classmethod: the report reads it without building the network."""
+        return ""
+
+    def loss_terms(self, outputs: dict, batch: dict, ctx: LossContext) -> dict:
+        """This method's own loss terms for one step: {name: scalar, already weighted}; none by default."""
+        return {}
