@@ -16,8 +16,8 @@ def test_t_halfwidth_matches_the_t_table():
 
 
 def _results(a, b):
-    flat = [{"overlap": 0.3, "method": "mcdp_m2", "seed": s, "x": v} for s, v in enumerate(a)]
-    flat += [{"overlap": 0.3, "method": "mono2", "seed": s, "x": v} for s, v in enumerate(b)]
+    flat = [{"overlap": 0.3, "method": "mcdp_m2", "variant": "trained", "seed": s, "x": v} for s, v in enumerate(a)]
+    flat += [{"overlap": 0.3, "method": "mono2", "variant": "trained", "seed": s, "x": v} for s, v in enumerate(b)]
     return {"flat": flat}
 
 
