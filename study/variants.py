@@ -32,6 +32,9 @@ class Evaluation:
     def __post_init__(self):
         if self.variant not in VARIANTS:
             raise ValueError(f"variant {self.variant!r} is not one of {', '.join(VARIANTS)}")
+        if "@" in self.method:  # a name of results written before the variant field: study.results.read_results
+            raise ValueError(f"method {self.method!r}: the variant is a field (Evaluation(method, variant)), "
+                             "not a suffix of the method's name")
 
     @classmethod
     def of(cls, x: "str | Evaluation | Mapping") -> "Evaluation":

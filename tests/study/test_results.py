@@ -153,5 +153,7 @@ def test_a_legacy_name_with_an_unknown_variant_or_a_newer_schema_is_refused():
         upgrade_results({"flat": [{"overlap": 0.3, "method": "mcdp_m2@bogus", "seed": 0}]})
     with pytest.raises(ValueError, match="results schema 3"):
         upgrade_results({"schema": 3, "flat": []})
+    with pytest.raises(ValueError, match="the variant is a field"):
+        method_agg(read_results(DATA / "results_v1.json"), 0.3, "mcdp_m2@cut", "median.mean.abs_rel")
     assert Evaluation.of("mono2") == Evaluation("mono2", TRAINED)
     assert Evaluation.of({"method": "mcdp_m2", "variant": "cut"}) == Evaluation("mcdp_m2", CUT)
