@@ -32,7 +32,8 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from study.results import CUT, ORACLE, method_agg, paired_difference  # noqa: E402
+from study.results import evaluations, method_agg, paired_difference, read_results  # noqa: E402
+from study.variants import CUT, ORACLE, Evaluation  # noqa: E402
 
 
 def link_tree(src: Path, dst: Path) -> None:
@@ -109,11 +110,12 @@ def with_reference(res: dict, ref: dict | None) -> dict:
     so that a variant without Mono2 (e.g. a lambda that Mono2 does not have) is compared with it."""
     if ref is None or "mono2" in res["methods"]:
         return res
-    add = [f for f in ref["flat"] if f["method"] == "mono2" and f["overlap"] in res["overlaps"]
+    mono2 = Evaluation("mono2")
+    add = [f for f in ref["flat"] if mono2.matches(f) and f["overlap"] in res["overlaps"]
            and f["seed"] in res["seeds"]]
     if not add:
         return res
-    aggs = [a for a in ref["aggregate"] if a["method"] == "mono2" and a["overlap"] in res["overlaps"]]
+    aggs = [a for a in ref["aggregate"] if mono2.matches(a) and a["overlap"] in res["overlaps"]]
     return {**res, "flat": res["flat"] + add, "aggregate": res["aggregate"] + aggs,
             "methods": ["mono2"] + list(res["methods"])}
 
@@ -127,9 +129,10 @@ def table(rows: list[tuple[str, dict]]) -> str:
         for o in res["overlaps"]:
             for m in res["methods"]:
                 g = lambda k, d=3: _ms(method_agg(res, o, m, k), d)  # noqa: E731
-                has_cut = m + CUT in res.get("evaluations", [])
-                prop = _pd(paired_difference(res, o, m, m + CUT, "median.non_overlap.abs_rel")) if has_cut else "—"
-                direct = _pd(paired_difference(res, o, m, m + CUT, "median.overlap.abs_rel")) if has_cut else "—"
+                cut = Evaluation(m, CUT)
+                has_cut = cut in evaluations(res)
+                prop = _pd(paired_difference(res, o, m, cut, "median.non_overlap.abs_rel")) if has_cut else "—"
+                direct = _pd(paired_difference(res, o, m, cut, "median.overlap.abs_rel")) if has_cut else "—"
                 vs = lambda k: (_pd(paired_difference(res, o, m, "mono2", k))  # noqa: E731
                                 if m != "mono2" and "mono2" in res["methods"] else "—")
                 L.append(f"| {name} | {o:.2f} | {m} | {g('median.mean.abs_rel')} | {g('median.overlap.abs_rel')} | "
@@ -137,12 +140,11 @@ def table(rows: list[tuple[str, dict]]) -> str:
                          f"{g('refine.weight_move', 4)} | {g('refine.depth_change_m')} | {prop} | {direct} | "
                          f"{g('refine.headroom_closed', 2)} | {vs('median.mean.abs_rel')} | "
                          f"{vs('median.non_overlap.abs_rel')} |")
-            if any(m + ORACLE in res.get("evaluations", []) for m in res["methods"]):
-                for m in res["methods"]:
-                    if m + ORACLE in res.get("evaluations", []):
-                        L.append(f"| {name} | {o:.2f} | *{m} ORACLE weights* | "
-                                 f"{_ms(method_agg(res, o, m + ORACLE, 'median.mean.abs_rel'))}"
-                                 " | | | | | | | | | | | |")
+            for m in res["methods"]:
+                if Evaluation(m, ORACLE) in evaluations(res):
+                    L.append(f"| {name} | {o:.2f} | *{m} ORACLE weights* | "
+                             f"{_ms(method_agg(res, o, Evaluation(m, ORACLE), 'median.mean.abs_rel'))}"
+                             " | | | | | | | | | | | |")
     return "\n".join(L)
 
 
@@ -160,7 +162,6 @@ def main(argv=None) -> None:
                     "seeds) are the comparison for variants without Mono2")
     ap.add_argument("--out", type=Path, help="also write the table (markdown) here")
     args = ap.parse_args(argv)
-    import json
 
     rows = []
     for v in args.variant:
@@ -171,8 +172,8 @@ def main(argv=None) -> None:
             from study.config import load_sweep_config
 
             want = load_sweep_config(args.base, args.set)
-            src = json.loads((args.source / "results.json").read_text())
-            ref = json.loads(args.reference.read_text()) if args.reference else None
+            src = read_results(args.source / "results.json")
+            ref = read_results(args.reference) if args.reference else None
             sub = {**src, "overlaps": [o for o in src["overlaps"] if o in want.overlaps],
                    "methods": [m for m in src["methods"] if m in want.methods]}
             rows.append((name, with_reference(sub, ref)))
@@ -185,8 +186,8 @@ def main(argv=None) -> None:
             out = run_variant(args.base, args.root, args.source, name, rest.split(), args.set, link_methods)
         res_path = out / "results.json"
         if res_path.is_file():
-            ref = json.loads(args.reference.read_text()) if args.reference else None
-            rows.append((name, with_reference(json.loads(res_path.read_text()), ref)))
+            ref = read_results(args.reference) if args.reference else None
+            rows.append((name, with_reference(read_results(res_path), ref)))
     text = table(rows)
     print(text)
     if args.out:

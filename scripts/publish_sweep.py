@@ -12,11 +12,13 @@ pointing into docs/results/<name>/.
 A report committed with its results.csv only (docs/results/sweep_cpu, sweep_compare: their results.json was
 not kept) gets its plots rebuilt from the CSV (`study.results.results_from_csv`); its .md is left alone,
 since its tables need the full results.json.
+
+A results.json or results.csv written before the variant field (method names such as "mcdp_m2@cut") is read
+as it is (`study.results.read_results`); the results.csv written beside it has the current columns.
 """
 from __future__ import annotations
 
 import argparse
-import json
 import shutil
 import sys
 from pathlib import Path
@@ -32,6 +34,7 @@ def main(argv=None) -> int:
     args = ap.parse_args(argv)
     from study.report import format_report, write_csv
     from study.plots import distance_plot, make_plots
+    from study.results import read_results
 
     out = ROOT / "docs" / "results" / args.name
     out.mkdir(parents=True, exist_ok=True)
@@ -41,13 +44,11 @@ def main(argv=None) -> int:
         if not (out / "results.csv").is_file():
             print(f"error: {out / 'results.json'}: no such file (nor a results.csv beside it)", file=sys.stderr)
             return 2
-        from study.results import results_from_csv
-
-        plots = make_plots(results_from_csv(out / "results.csv"), out / "plots")
+        plots = make_plots(read_results(out / "results.csv"), out / "plots")
         print(f"wrote {len(plots)} plots from docs/results/{args.name}/results.csv (no results.json: "
               f"docs/results/{args.name}.md not rebuilt)")
         return 0
-    results = json.loads((out / "results.json").read_text())
+    results = read_results(out / "results.json")
     write_csv(results, out / "results.csv")
     plots = make_plots(results, out / "plots")
     extra = distance_plot(results, out / "plots")

@@ -16,8 +16,10 @@ from __future__ import annotations
 
 import math
 
-from study.results import BASELINE, CUT, INERT_M, USE_FLOOR, fmt_diff, method_agg, paired_difference, verdict_word
+from study.results import (BASELINE, INERT_M, USE_FLOOR, evaluations, fmt_diff, method_agg, paired_difference,
+                           verdict_word)
 from study.results import fmt_num as _num
+from study.variants import CUT, Evaluation
 
 #: (results key, column name) of the paired comparisons against Mono2
 KEYS = (("median.mean.abs_rel", "accuracy, all px"), ("median.overlap.abs_rel", "overlap px"),
@@ -56,7 +58,7 @@ def format_mechanisms(results: dict, label) -> str:
     methods = [m for m in results["methods"] if m != BASELINE]
     if BASELINE not in results["methods"] or not methods:
         return ""
-    evaluations = results.get("evaluations", [])
+    evs = evaluations(results)
     L: list[str] = []
     add = L.append
     add("## Which mechanism gains from the overlap? Each method − Mono2, paired over seeds\n")
@@ -69,7 +71,7 @@ def format_mechanisms(results: dict, label) -> str:
     if len(results["seeds"]) < 2:
         add("One seed only: no interval, no verdict.\n")
         return "\n".join(L)
-    diffs, cuts, change = _table(results, methods, evaluations, label, add)
+    diffs, cuts, change = _table(results, methods, evs, label, add)
     add("")
     add("### Verdicts: which mechanism gains from overlap, and from which overlap on\n")
     for m in methods:
@@ -93,7 +95,7 @@ def format_mechanisms(results: dict, label) -> str:
     return "\n".join(L)
 
 
-def _table(results: dict, methods: list[str], evaluations, label, add) -> tuple[dict, dict, dict]:
+def _table(results: dict, methods: list[str], evs: list[Evaluation], label, add) -> tuple[dict, dict, dict]:
     """The table (one row per overlap and method, through `add`); returns its paired differences vs Mono2
     ({method: {key: {overlap: pd}}}), as trained − cut ({method: {overlap: pd}}) and the mean depth change
     when cut ({method: {overlap: m}})."""
@@ -112,8 +114,8 @@ def _table(results: dict, methods: list[str], evaluations, label, add) -> tuple[
                 pd = paired_difference(results, o, m, BASELINE, key)
                 diffs[m][key][o] = pd
                 cells.append(_pd(pd))
-            if m + CUT in evaluations:
-                cuts[m][o] = paired_difference(results, o, m, m + CUT, "median.mean.abs_rel")
+            if Evaluation(m, CUT) in evs:
+                cuts[m][o] = paired_difference(results, o, m, Evaluation(m, CUT), "median.mean.abs_rel")
                 cut = _pd(cuts[m][o], 4, floor=USE_FLOOR)
                 ch = method_agg(results, o, m, "cut.depth_change_m")
                 change[m][o] = ch.get("mean", math.nan)

@@ -14,8 +14,9 @@ from pathlib import Path
 
 from mcdp.methods import label
 from study.mechanisms import KEYS
-from study.results import (BASELINE, CUT, PRIOR_LABEL, REF_LABEL, SCALE_LABEL, method_agg, paired_difference,
+from study.results import (BASELINE, PRIOR_LABEL, REF_LABEL, SCALE_LABEL, method_agg, paired_difference,
                            yardstick_agg)
+from study.variants import CUT, Evaluation
 
 XLABEL = "target overlap (fraction of hfov)"
 #: the paired figure's panels: (results key, title) of `study.mechanisms.KEYS`, in its order
@@ -212,12 +213,13 @@ def distance_plot(results: dict, plot_dir: Path) -> Path | None:
     from study.reach import LOCAL, band_names, paired
 
     bands = band_names(results)
-    have = {f["method"] for f in results["flat"]}
+    have = {Evaluation.of(f) for f in results["flat"]}
     lines = [(f"{label(m)} vs Mono2", ("mono2", m), "-") for m in ("fsm", "mcdp_m2", "mcdp_local")
-             if m in have and "mono2" in have]
-    lines += [(f"{label(m)}: cut - as trained", (m + CUT, m), "--") for m in ("mcdp_m2", "mcdp_local") if m + CUT in have]
-    if LOCAL + CUT in have:
-        lines.append(("ORACLE-local: emptied - filled", (LOCAL + CUT, LOCAL), ":"))
+             if Evaluation(m) in have and Evaluation("mono2") in have]
+    lines += [(f"{label(m)}: cut - as trained", (Evaluation(m, CUT), m), "--") for m in ("mcdp_m2", "mcdp_local")
+              if Evaluation(m, CUT) in have]
+    if Evaluation(LOCAL, CUT) in have:
+        lines.append(("ORACLE-local: emptied - filled", (Evaluation(LOCAL, CUT), LOCAL), ":"))
     if not bands or not lines:
         return None
     import matplotlib

@@ -30,8 +30,10 @@ import dataclasses
 import numpy as np
 import torch
 
-TRAINED, CUT = "trained", "cut"
-VARIANTS = (TRAINED, CUT)
+from study.variants import CUT, TRAINED
+
+#: the variants a probe runs (the ORACLE ones are extra stages of the as-trained probe)
+PROBED = (TRAINED, CUT)
 
 
 def cut_inputs(inp):
@@ -56,8 +58,8 @@ class Probed:
 
     def __init__(self, pred, variant: str = TRAINED, oracle_range: tuple[float, float] | None = None,
                  keep: bool = False, reference: "Probed | None" = None):
-        if variant not in VARIANTS:
-            raise ValueError(f"variant {variant!r} is not one of {', '.join(VARIANTS)}")
+        if variant not in PROBED:
+            raise ValueError(f"variant {variant!r} is not one of {', '.join(PROBED)}")
         self.pred = pred
         self.variant = variant
         self.oracle_weights = oracle_range is not None and pred.n_out > 1

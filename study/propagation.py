@@ -3,8 +3,8 @@ and carry what it sees in the overlap to the rest of the image?
 
 Read from `study.results` (nothing is computed from raw files here). Per MCDP run with refinement
 the sweep evaluates the same checkpoint twice (`study.stages.evaluate_run`): as trained, and with
-its neighbours cut at inference (``<method>@cut``); and it fits the ORACLE weights of the run's
-own bases to ground truth (``<method>@oracle``). Hence, per overlap and method, paired over seeds:
+its neighbours cut at inference (variant ``cut``, `study.variants`); and it fits the ORACLE weights of
+the run's own bases to ground truth (variant ``oracle``). Hence, per overlap and method, paired over seeds:
 
 - **propagation** = as trained - cut on NON-overlap pixels (median-scaled abs_rel; negative = the
   neighbours help where they are not seen), **direct use** = the same on overlap pixels;
@@ -18,13 +18,15 @@ from __future__ import annotations
 
 import math
 
-from study.results import CUT, INERT_M, ORACLE, USE_FLOOR, fmt_diff, method_agg, paired_difference, verdict_word
+from study.results import (INERT_M, USE_FLOOR, evaluations, flat_of, fmt_diff, method_agg, paired_difference,
+                           verdict_word)
 from study.results import fmt_num as _num
+from study.variants import CUT, ORACLE, Evaluation
 
 def refined_methods(results: dict) -> list[str]:
     """Methods of the sweep that were also evaluated with their neighbours cut."""
-    names = results.get("evaluations", [])
-    return [m for m in results["methods"] if m + CUT in names]
+    evs = evaluations(results)
+    return [m for m in results["methods"] if Evaluation(m, CUT) in evs]
 
 
 def _pd(pd: dict, digits: int = 3, floor: float = 0.0) -> str:
@@ -32,12 +34,12 @@ def _pd(pd: dict, digits: int = 3, floor: float = 0.0) -> str:
 
 
 def _cut_diff(results: dict, o: float, m: str, key: str) -> dict:
-    return paired_difference(results, o, m, m + CUT, key)
+    return paired_difference(results, o, m, Evaluation(m, CUT), key)
 
 
 def _self_diff(results: dict, o: float, m: str, a: str, b: str) -> dict:
     """Paired over seeds: column a - column b of the same run (e.g. final - init)."""
-    fr = [f for f in results["flat"] if f["overlap"] == o and f["method"] == m]
+    fr = flat_of(results, o, m)
     d = [f.get(a, math.nan) - f.get(b, math.nan) for f in fr]
     d = [x for x in d if isinstance(x, float) and math.isfinite(x)]
     from study.results import mean_std
@@ -77,11 +79,13 @@ def format_propagation(results: dict, label) -> str:
     for d in results["data"]:
         o = d["overlap"]
         for m in methods:
-            fr = [f for f in results["flat"] if f["overlap"] == o and f["method"] == m]
+            fr = flat_of(results, o, m)
             n_inert = sum(1 for f in fr if f.get("refine.inert") is True)
             add(f"| {o:.2f} | {label(m)} | {_a(results, o, m, 'init.median.mean.abs_rel')} | "
-                f"{_a(results, o, m, 'median.mean.abs_rel')} | {_a(results, o, m + CUT, 'median.mean.abs_rel')} | "
-                f"{_a(results, o, m + ORACLE, 'median.mean.abs_rel')} | {_a(results, o, m, 'refine.headroom_closed', 2)} | "
+                f"{_a(results, o, m, 'median.mean.abs_rel')} | "
+                f"{_a(results, o, Evaluation(m, CUT), 'median.mean.abs_rel')} | "
+                f"{_a(results, o, Evaluation(m, ORACLE), 'median.mean.abs_rel')} | "
+                f"{_a(results, o, m, 'refine.headroom_closed', 2)} | "
                 f"{_a(results, o, m, 'refine.weight_move', 4)} | {_a(results, o, m, 'refine.depth_change_m', 3)} | "
                 f"{n_inert}/{len(fr)} |")
     add("")
@@ -110,7 +114,7 @@ def format_propagation(results: dict, label) -> str:
     return "\n".join(L)
 
 
-def _a(results: dict, o: float, m: str, key: str, digits: int = 3) -> str:
+def _a(results: dict, o: float, m: str | Evaluation, key: str, digits: int = 3) -> str:
     a = method_agg(results, o, m, key)
     mu, hw = a.get("mean", math.nan), a.get("ci95", math.nan)
     if not (isinstance(mu, (int, float)) and math.isfinite(mu)):

@@ -5,9 +5,9 @@ against them, and all of it by distance from the overlap (docs/results/propagati
 Read from `study.results` (nothing is computed from raw files). Median-scaled abs_rel throughout;
 differences are paired over (world, seed) pairs (`study.results.paired_difference`), negative = better.
 
-- **Yardstick, global** (``<m>@oracle_overlap``): a run's own bases at per-image weights fitted to the
-  ground truth of the OVERLAP pixels only, scored on the non-overlap pixels: what MCDP's one weight
-  vector per image could carry from a perfect overlap. Its headroom = init - ORACLE-overlap.
+- **Yardstick, global** (variant ``oracle_overlap``, `study.variants`): a run's own bases at per-image
+  weights fitted to the ground truth of the OVERLAP pixels only, scored on the non-overlap pixels: what
+  MCDP's one weight vector per image could carry from a perfect overlap. Its headroom = init - ORACLE-overlap.
 - **Yardstick, local** (``oracle_local``): Mono2's network given the overlap's ground-truth depth as an
   input, evaluated filled and emptied (its cut); headroom = emptied - filled on non-overlap pixels: what
   a network free to carry it anywhere makes of a perfect overlap at this budget.
@@ -21,7 +21,8 @@ from __future__ import annotations
 
 import math
 
-from study.results import CUT, ORACLE, ORACLE_OVL, fmt_diff, mean_std, paired_columns
+from study.results import flat_of, fmt_diff, mean_std, paired_columns
+from study.variants import CUT, ORACLE, ORACLE_OVL, Evaluation
 
 NON = "median.non_overlap.abs_rel"
 #: mechanisms whose inference-time propagation is reported (as trained vs cut), in this order
@@ -39,35 +40,40 @@ def band_names(results: dict) -> list[str]:
     return []
 
 
-#: paired over (world, seed) pairs: column a[1] of method a[0] minus column b[1] of method b[0]
+#: paired over (world, seed) pairs: column a[1] of evaluation a[0] minus column b[1] of evaluation b[0]
 paired = paired_columns
 
 
-def _has(results: dict, method: str) -> bool:
-    return any(f["method"] == method for f in results["flat"])
+def _has(results: dict, ev: str | Evaluation) -> bool:
+    ev = Evaluation.of(ev)
+    return any(ev.matches(f) for f in results["flat"])
+
+
+def _cut(m: str) -> Evaluation:
+    return Evaluation(m, CUT)
 
 
 def quantities(results: dict, o: float, key: str = NON) -> dict[str, dict]:
     """Every paired quantity of the section at one overlap on one column (`key`), by name; a gain is positive
     when it helps (headrooms and gains are 'worse - better')."""
     q: dict[str, dict] = {}
-    if _has(results, GLOBAL_OF + ORACLE_OVL):
+    if _has(results, Evaluation(GLOBAL_OF, ORACLE_OVL)):
         init_key = "init." + key if key == NON else None
         if init_key:
             q["global headroom (init - ORACLE-overlap weights)"] = paired(results, o, (GLOBAL_OF, init_key),
-                                                                         (GLOBAL_OF + ORACLE_OVL, key))
+                                                                         (Evaluation(GLOBAL_OF, ORACLE_OVL), key))
             q["all-pixel headroom (init - ORACLE weights)"] = paired(results, o, (GLOBAL_OF, init_key),
-                                                                    (GLOBAL_OF + ORACLE, key))
+                                                                    (Evaluation(GLOBAL_OF, ORACLE), key))
             q["MCDP (m = 2) refinement gain (init - final)"] = paired(results, o, (GLOBAL_OF, init_key),
                                                                      (GLOBAL_OF, key))
-    if _has(results, LOCAL + CUT):
-        q["local headroom (ORACLE-local emptied - filled)"] = paired(results, o, (LOCAL + CUT, key), (LOCAL, key))
+    if _has(results, _cut(LOCAL)):
+        q["local headroom (ORACLE-local emptied - filled)"] = paired(results, o, (_cut(LOCAL), key), (LOCAL, key))
     for m in READERS:
-        if _has(results, m + CUT):
-            q[f"{m}: inference-time (cut - as trained)"] = paired(results, o, (m + CUT, key), (m, key))
-    if _has(results, "mcdp_m2" + CUT) and _has(results, "mcdp_m2_nocon" + CUT):
+        if _has(results, _cut(m)):
+            q[f"{m}: inference-time (cut - as trained)"] = paired(results, o, (_cut(m), key), (m, key))
+    if _has(results, _cut("mcdp_m2")) and _has(results, _cut("mcdp_m2_nocon")):
         q["L_con: training-time (w/o L_con cut - with L_con cut)"] = paired(
-            results, o, ("mcdp_m2_nocon" + CUT, key), ("mcdp_m2" + CUT, key))
+            results, o, (_cut("mcdp_m2_nocon"), key), (_cut("mcdp_m2"), key))
     for m in ("fsm", "mcdp_m2", "mcdp_local"):
         if _has(results, m) and _has(results, "mono2"):
             q[f"{m}: vs Mono2 (Mono2 - {m})"] = paired(results, o, ("mono2", key), (m, key))
@@ -95,7 +101,7 @@ def _propagation(name: str) -> bool:
 def format_reach(results: dict, label) -> str:
     """Markdown: yardsticks, both kinds of propagation, fraction recovered, the distance table; '' when the
     sweep has no run with the instruments (no ORACLE-overlap stage and no ORACLE-local run)."""
-    if not (_has(results, GLOBAL_OF + ORACLE_OVL) or _has(results, LOCAL)):
+    if not (_has(results, Evaluation(GLOBAL_OF, ORACLE_OVL)) or _has(results, LOCAL)):
         return ""
     L: list[str] = []
     add = L.append
@@ -128,18 +134,17 @@ def format_reach(results: dict, label) -> str:
                                      ("ORACLE-local emptied - filled", (LOCAL, "cut")),
                                      ("Mono2 - FSM", ("fsm", "mono2")), ("Mono2 - MCDP (m = 2)", ("mcdp_m2", "mono2")),
                                      ("Mono2 - MCDP-local", ("mcdp_local", "mono2")))
-                if _has(results, q[0] + (CUT if q[1] == "cut" else ""))]
+                if _has(results, _cut(q[0]) if q[1] == "cut" else q[0])]
         add("| overlap | band | Mono2 abs_rel | " + " | ".join(n for n, _ in cols) + " |")
         add("|---|---|---|" + "---|" * len(cols))
         for d in results["data"]:
             o = d["overlap"]
             for b in bands:
                 key = f"median.band.{b}.abs_rel"
-                mono = mean_std([f.get(key, math.nan) for f in results["flat"]
-                                 if f["overlap"] == o and f["method"] == "mono2"])
+                mono = mean_std([f.get(key, math.nan) for f in flat_of(results, o, "mono2")])
                 cells = []
                 for _, (m, kind) in cols:
-                    pd = (paired(results, o, (m + CUT, key), (m, key)) if kind == "cut"
+                    pd = (paired(results, o, (_cut(m), key), (m, key)) if kind == "cut"
                           else paired(results, o, ("mono2", key), (m, key)))
                     cells.append(_cell(pd))
                 add(f"| {o:.2f} | {b} | {mono['mean']:.4f} | " + " | ".join(cells) + " |")

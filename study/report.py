@@ -4,7 +4,8 @@
 `write_all` writes::
 
     SWEEP/results.json    build_results' dict
-    SWEEP/results.csv     one row per (overlap, method, seed), every metric flattened
+    SWEEP/results.csv     one row per (overlap, method, variant, seed), every metric flattened (variant:
+                          trained, cut, oracle, oracle_overlap: `study.variants`), then the yardsticks
     SWEEP/plots/paired_vs_mono2.png (each method − Mono2, paired), abs_rel_vs_overlap.png, dep_con_vs_overlap.png,
                 overlap_vs_non_overlap_abs_rel.png,
                 measured_overlap.png
@@ -17,7 +18,8 @@ reported as worse, NaN stays NaN.
 
 Example::
 
-    python -c "import json, study.report as r; r.write_all(json.load(open('SWEEP/results.json')), 'SWEEP')"
+    python -c "import study.report as r, study.results as s; r.write_all(s.read_results('SWEEP/results.json'), 'SWEEP')"
+    # (read_results: also a results.json written before the variant field; write_all writes it anew)
 """
 from __future__ import annotations
 
@@ -37,6 +39,7 @@ from study.reach import format_reach
 from study.results import (BASELINE, PRIOR_LABEL, REF_LABEL, SCALE_LABEL, YARDSTICKS, fmt_diff, method_agg,
                            paired_difference, verdict_word, yardstick_agg, yardstick_row)
 from study.results import fmt_num as _num
+from study.variants import Evaluation
 
 
 def write_all(results: dict, out: str | Path) -> None:
@@ -57,7 +60,8 @@ def write_csv(results: dict, path: Path) -> None:
         for k in f:
             if k not in keys:
                 keys.append(k)
-    keys = keys[:3] + ["target_overlap", "measured_overlap"] + keys[3:]
+    head = [k for k in ("overlap", "method", "variant", "seed") if k in keys]
+    keys = head + ["target_overlap", "measured_overlap"] + [k for k in keys if k not in head]
     fh = io.StringIO(newline="")
     with fh:
         w = csv.DictWriter(fh, fieldnames=keys, restval="")
@@ -198,7 +202,8 @@ def _setup_section(results: dict) -> list[str]:
                  and math.isfinite(f["spread.ratio"]) and f["spread.ratio"] < COLLAPSE_RATIO]
     if collapsed:
         add(f"- **COLLAPSED** ({len(collapsed)} run(s): test depth p90/p10 < {COLLAPSE_RATIO}, a near-constant map): "
-            + ", ".join(f"{f['overlap']:.2f} {f['method']} s{f['seed']} ({f['spread.ratio']:.2f})" for f in collapsed))
+            + ", ".join(f"{f['overlap']:.2f} {Evaluation.of(f)} s{f['seed']} ({f['spread.ratio']:.2f})"
+                        for f in collapsed))
     else:
         add(f"- no run ended collapsed (every run's test depth has p90/p10 >= {COLLAPSE_RATIO})")
     oracle = [r for r in results["rows"] if r.get("oracle")]

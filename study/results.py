@@ -3,6 +3,11 @@ intervals over seeds, paired differences between methods, and the yardsticks per
 
 `build_results` turns the per-run rows of `study.stages.run_stage` into that dict; `study.report`
 and `study.plots` only read it. Nothing here chooses or filters numbers: NaN stays NaN.
+
+Every flat row and aggregate entry is one evaluation of a run (`study.variants.Evaluation`): its
+``method`` (the registry name) and ``variant`` (as trained, cut, ORACLE weights, ...); a lookup takes
+either an Evaluation or a method name (that method as trained). `read_results` reads a results.json or
+results.csv, also one written before the variant field (`upgrade_results`).
 """
 from __future__ import annotations
 
@@ -11,6 +16,7 @@ import time
 from typing import Any
 
 from mcdp.metrics import METRIC_NAMES
+from study.variants import CUT, ORACLE, ORACLE_OVL, TRAINED, VARIANTS, Evaluation
 
 
 SCALE_LABEL = {"none": "metric", "median": "median", "rig_median": "rig median"}
@@ -55,16 +61,15 @@ def verdict_word(pd: dict, floor: float = 0.0) -> str:
 
 #: the method every other one is compared with (paired differences, the "vs Mono2" columns of the report)
 BASELINE = "mono2"
-CUT = "@cut"  # method suffix of a run evaluated with its neighbours cut at inference
-ORACLE = "@oracle"  # method suffix of the ORACLE-weights yardstick of a run's bases
-ORACLE_OVL = "@oracle_overlap"  # the same weights fitted on the overlap pixels only (the global channel's bound)
 INERT_M = 0.01  # a refinement whose refined depth differs from its init stage by < 1 cm on average is inert
 
 
 def flat_rows(row: dict) -> list[dict[str, Any]]:
-    """A run's CSV rows: as trained, and where evaluated, ``<method>@cut`` (neighbours cut at inference)
-    and ``<method>@oracle`` (ORACLE: its bases at weights fitted to ground truth)."""
+    """A run's CSV rows, one per evaluation (`study.variants`): as trained, and where evaluated, with its
+    neighbours cut at inference (variant ``cut``) and its bases at weights fitted to ground truth (``oracle``,
+    ``oracle_overlap``: ORACLE yardsticks)."""
     base = flat_row(row)
+    base["variant"] = TRAINED
     ref = row.get("refinement") or {}
     base["refine.weight_move"] = _f(ref.get("weight_move"))
     base["refine.depth_change_m"] = _f(ref.get("depth_change_m"))
@@ -96,20 +101,21 @@ def flat_rows(row: dict) -> list[dict[str, Any]]:
         cut["refine.depth_change_m"] = _f(rc.get("depth_change_m"))
         base["cut.depth_change_m"] = _f(rc.get("cut_change_m"))  # mean |as trained - cut| depth, metres
         extra[CUT] = cut
-    for suffix in (CUT, ORACLE, ORACLE_OVL):
-        if suffix in extra:
-            e = extra[suffix]
-            for k in ("overlap", "seed", "status", "steps", "checkpoint_step"):
+    for variant in (CUT, ORACLE, ORACLE_OVL):
+        if variant in extra:
+            e = extra[variant]
+            for k in ("overlap", "method", "seed", "status", "steps", "checkpoint_step"):
                 e[k] = base.get(k)
-            e["method"] = f"{base['method']}{suffix}"
+            e["variant"] = variant
             out.append(e)
     return out
 
 
 def flat_row(row: dict) -> dict[str, Any]:
-    """One run's numbers as a flat dict of scalars (the CSV row)."""
-    out: dict[str, Any] = {k: row.get(k) for k in ("overlap", "method", "seed", "status", "steps", "checkpoint_step",
-                                                     "train_s", "eval_s", "train_skipped", "eval_skipped")}
+    """One run's numbers as a flat dict of scalars (the CSV row; ``variant``: set by `flat_rows`)."""
+    out: dict[str, Any] = {k: row.get(k) for k in ("overlap", "method", "variant", "seed", "status", "steps",
+                                                     "checkpoint_step", "train_s", "eval_s", "train_skipped",
+                                                     "eval_skipped")}
     m = row.get("metrics")
     if not m:
         return out
@@ -161,18 +167,26 @@ def mean_std(values: list[float]) -> dict:
     return {"mean": mu, "std": sd, "ci95": t_halfwidth(sd, len(v)), "n": len(v), "n_nan": n_nan, "values": values}
 
 
-def paired_difference(results: dict, overlap: float, a: str, b: str, key: str) -> dict:
+def flat_of(results: dict, overlap: float, ev: str | Evaluation) -> list[dict]:
+    """The flat rows (one per seed) of one evaluation at one overlap; a method name: as trained."""
+    ev = Evaluation.of(ev)
+    return [f for f in results["flat"] if f["overlap"] == overlap and ev.matches(f)]
+
+
+def paired_difference(results: dict, overlap: float, a: str | Evaluation, b: str | Evaluation, key: str) -> dict:
     """Mean and 95 % t-interval over seeds of (a - b) for the same seed (seeds pair the runs:
     same data order and pretraining); {"mean", "ci95", "n", "differs", "sd"} where differs is
-    -1 (a lower), +1 (a higher) or 0 (the interval contains 0)."""
+    -1 (a lower), +1 (a higher) or 0 (the interval contains 0). a, b: evaluations (`Evaluation`, e.g.
+    ``Evaluation(m, CUT)``) or method names (as trained)."""
     return paired_columns(results, overlap, (a, key), (b, key))
 
 
-def paired_columns(results: dict, overlap: float, a: tuple[str, str], b: tuple[str, str]) -> dict:
-    """`paired_difference` of column a[1] of method a[0] minus column b[1] of method b[0] (e.g. a run's init
-    stage against its ORACLE-overlap row)."""
-    va = {f["seed"]: f.get(a[1]) for f in results["flat"] if f["overlap"] == overlap and f["method"] == a[0]}
-    vb = {f["seed"]: f.get(b[1]) for f in results["flat"] if f["overlap"] == overlap and f["method"] == b[0]}
+def paired_columns(results: dict, overlap: float, a: tuple[str | Evaluation, str],
+                   b: tuple[str | Evaluation, str]) -> dict:
+    """`paired_difference` of column a[1] of evaluation a[0] minus column b[1] of evaluation b[0] (e.g. a run's
+    init stage against its ORACLE-overlap row)."""
+    va = {f["seed"]: f.get(a[1]) for f in flat_of(results, overlap, a[0])}
+    vb = {f["seed"]: f.get(b[1]) for f in flat_of(results, overlap, b[0])}
     d = [va[s] - vb[s] for s in va if s in vb and all(isinstance(x, (int, float)) and math.isfinite(x)
                                                       for x in (va[s], vb[s]))]
     ms = mean_std(d)
@@ -189,8 +203,8 @@ def build_results(cfg, data: list[dict], rows: list[dict], counters: dict, total
     from corelib.configlib import config_hash, config_to_dict
 
     flats = [f for r in rows for f in flat_rows(r)]
-    names = evaluation_names(cfg.methods, flats)
-    aggregate = aggregate_flat(flats, [d["overlap"] for d in data], names)
+    evs = evaluations_of(cfg.methods, flats)
+    aggregate = aggregate_flat(flats, [d["overlap"] for d in data], evs)
     timing = {
         "render_s": sum(_nz(d["render_s"]) for d in data),
         "train_s": sum(_nz(r.get("train_s")) for r in rows),
@@ -200,13 +214,14 @@ def build_results(cfg, data: list[dict], rows: list[dict], counters: dict, total
                 "their recorded time); this_invocation_s is the wall time of the latest invocation",
     }
     return {
+        "schema": SCHEMA,
         "created": time.strftime("%Y-%m-%d %H:%M:%S"),
         "sweep_config": config_to_dict(cfg),
         "sweep_config_hash": config_hash(cfg),
         "split": "test",
         "overlaps": list(cfg.overlaps),
         "methods": list(cfg.methods),
-        "evaluations": names,
+        "evaluations": [e.record() for e in evs],
         "seeds": list(cfg.seeds),
         "counters": counters,
         "timing": timing,
@@ -218,20 +233,26 @@ def build_results(cfg, data: list[dict], rows: list[dict], counters: dict, total
     }
 
 
-def evaluation_names(methods, flats: list[dict]) -> list[str]:
-    """The sweep's methods, each followed by those of its evaluations (@cut, @oracle, ...) that have rows."""
-    return [m for base in methods for m in (base, base + CUT, base + ORACLE, base + ORACLE_OVL)
-            if any(f["method"] == m for f in flats) or m == base]
+def evaluations_of(methods, flats: list[dict]) -> list[Evaluation]:
+    """The sweep's methods as trained, each followed by those of its other evaluations (cut, ORACLE weights,
+    ...: `study.variants.VARIANTS` order) that have rows."""
+    return [e for m in methods for e in (Evaluation(m, v) for v in VARIANTS)
+            if e.variant == TRAINED or any(e.matches(f) for f in flats)]
 
 
-def aggregate_flat(flats: list[dict], overlaps, names: list[str]) -> list[dict]:
-    """Per (overlap, method): `mean_std` over seeds of every dotted column of its first row."""
+def evaluations(results: dict) -> list[Evaluation]:
+    """The results' evaluations (``results["evaluations"]``) as `Evaluation` keys."""
+    return [Evaluation.of(e) for e in results.get("evaluations", [])]
+
+
+def aggregate_flat(flats: list[dict], overlaps, evs: list[Evaluation]) -> list[dict]:
+    """Per (overlap, evaluation): `mean_std` over seeds of every dotted column of its first row."""
     aggregate = []
     for o in overlaps:
-        for method in names:
-            fr = [f for f in flats if f["overlap"] == o and f["method"] == method]
+        for ev in evs:
+            fr = [f for f in flats if f["overlap"] == o and ev.matches(f)]
             keys = [k for k in (fr[0] if fr else {}) if "." in k]
-            aggregate.append({"overlap": o, "method": method, "seeds": [f["seed"] for f in fr],
+            aggregate.append({"overlap": o, **ev.record(), "seeds": [f["seed"] for f in fr],
                               "status": sorted({f["status"] for f in fr}),
                               "metrics": {k: mean_std([f.get(k, float("nan")) for f in fr]) for k in keys}})
     return aggregate
@@ -246,20 +267,75 @@ def _cell(v: str):
         return v
 
 
+#: results.json's ``schema``. 2: every flat row and aggregate entry has ``method`` (the registry name) and
+#: ``variant`` (`study.variants`) fields, results.csv a ``variant`` column. A results.json without it, or a
+#: results.csv without that column (1), named an evaluation by a suffix on its method ("mcdp_m2@cut"):
+#: `upgrade_results` reads them.
+SCHEMA = 2
+
+
+def upgrade_results(results: dict) -> dict:
+    """``results`` in the current `SCHEMA` (the same dict if it is). Results written before the variant field
+    (no ``schema``: 1) named each evaluation by a suffix on its method ("mcdp_m2", "mcdp_m2@cut",
+    "mcdp_m2@oracle", "mcdp_m2@oracle_overlap"): their flat rows, aggregate and evaluations get the method's
+    registry name and a ``variant`` field instead. The one reader of such names; a results.csv's rows come
+    here as ``{"flat": rows}`` (`results_from_csv`)."""
+    schema = results.get("schema", 1)
+    if schema == SCHEMA:
+        return results
+    if schema != 1:
+        raise ValueError(f"results schema {schema!r}: this code reads schema {SCHEMA} and the legacy 1")
+
+    def split(rec: dict) -> dict:  # "mcdp_m2@cut" -> method "mcdp_m2", variant "cut", in the method's place
+        method, _, variant = rec["method"].partition("@")
+        ev = Evaluation(method, variant or TRAINED)
+        out: dict[str, Any] = {}
+        for k, v in rec.items():
+            out[k] = v
+            if k == "method":
+                out.update(ev.record())
+        return out
+
+    out = {"schema": SCHEMA, **results}
+    for part in ("flat", "aggregate"):
+        if part in results:
+            out[part] = [split(r) for r in results[part]]
+    if "evaluations" in results:
+        out["evaluations"] = [split({"method": name}) for name in results["evaluations"]]
+    return out
+
+
+def read_results(path) -> dict:
+    """A sweep's results.json, or its results.csv (`results_from_csv`), in the current `SCHEMA`: one written
+    before the variant field is upgraded on reading (`upgrade_results`)."""
+    import json
+    from pathlib import Path
+
+    path = Path(path)
+    if path.suffix == ".csv":
+        return results_from_csv(path)
+    return upgrade_results(json.loads(path.read_text()))
+
+
 def results_from_csv(path) -> dict:
     """The part of `build_results`' dict that the plots read (overlaps, methods, seeds, flat, aggregate, the
     measured overlap and the yardsticks' rows), rebuilt from a results.csv (`study.report.write_csv`) for a
-    sweep whose results.json was not kept. Empty cells are left out of the rows, as they were absent."""
+    sweep whose results.json was not kept. Empty cells are left out of the rows, as they were absent. A
+    results.csv without a ``variant`` column (written before it) is read through `upgrade_results`."""
     import csv
 
     with open(path, newline="") as fh:
-        table = [{k: _cell(v) for k, v in r.items() if v != ""} for r in csv.DictReader(fh)]
+        reader = csv.DictReader(fh)
+        table = [{k: _cell(v) for k, v in r.items() if v != ""} for r in reader]
+        legacy = "variant" not in (reader.fieldnames or [])
     if not table or "method" not in table[0]:
         raise ValueError(f"{path}: not a sweep's results.csv (no rows, or no 'method' column)")
     yard = {name: which for which, _, name in YARDSTICKS}
     flats = [r for r in table if r["method"] not in yard]
+    if legacy:
+        flats = upgrade_results({"flat": flats})["flat"]
     overlaps = sorted({r["overlap"] for r in table})
-    methods = list(dict.fromkeys(r["method"] for r in flats if "@" not in r["method"]))
+    methods = list(dict.fromkeys(r["method"] for r in flats))
     data = []
     for o in overlaps:
         rows = [r for r in table if r["overlap"] == o]
@@ -269,20 +345,22 @@ def results_from_csv(path) -> dict:
             if r["method"] in yard:
                 d[yard[r["method"]]] = {"row": {k: v for k, v in r.items() if "." in k}}
         data.append(d)
-    names = evaluation_names(methods, flats)
-    return {"overlaps": overlaps, "methods": methods, "evaluations": names,
+    evs = evaluations_of(methods, flats)
+    return {"schema": SCHEMA, "overlaps": overlaps, "methods": methods, "evaluations": [e.record() for e in evs],
             "seeds": sorted({r["seed"] for r in flats if "seed" in r}), "flat": flats, "data": data,
-            "aggregate": aggregate_flat(flats, overlaps, names)}
+            "aggregate": aggregate_flat(flats, overlaps, evs)}
 
 
 def _nz(x) -> float:
     return x if isinstance(x, (int, float)) and math.isfinite(x) else 0.0
 
 
-def method_agg(results: dict, overlap: float, method: str, key: str) -> dict:
-    """A method's aggregate over seeds of `key` at one overlap (``{"mean", "std", "n", ...}``; NaN if absent)."""
+def method_agg(results: dict, overlap: float, ev: str | Evaluation, key: str) -> dict:
+    """An evaluation's aggregate over seeds of `key` at one overlap (``{"mean", "std", "n", ...}``; NaN if
+    absent); ``ev``: an `Evaluation` (e.g. ``Evaluation(m, CUT)``) or a method name (as trained)."""
+    ev = Evaluation.of(ev)
     for a in results["aggregate"]:
-        if a["overlap"] == overlap and a["method"] == method:
+        if a["overlap"] == overlap and ev.matches(a):
             return a["metrics"].get(key, {"mean": float("nan"), "std": float("nan"), "n": 0})
     return {"mean": float("nan"), "std": float("nan"), "n": 0}
 

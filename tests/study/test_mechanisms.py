@@ -3,7 +3,7 @@ verdict and the table, on hand-made results whose answer is known."""
 from __future__ import annotations
 
 from study.mechanisms import format_mechanisms, from_which_overlap
-from study.results import CUT
+from study.variants import CUT, TRAINED
 
 D = {-1: {"differs": -1}, 0: {"differs": 0}, 1: {"differs": 1}}
 
@@ -25,15 +25,16 @@ def _results():
             base = 0.25 + noise
             gain = 0.02 if o >= 0.3 else 0.0
             cut_gain = 0.01 if o == 0.6 else 0.0
-            vals = {"mono2": base, "fsm": base - gain + 0.001 * s, "surround": base + 0.001 * s,
-                    "surround" + CUT: base + 0.001 * s + cut_gain + 0.0001 * s}
-            for m, v in vals.items():
-                flat.append({"overlap": o, "method": m, "seed": s, "median.mean.abs_rel": v,
+            vals = {("mono2", TRAINED): base, ("fsm", TRAINED): base - gain + 0.001 * s,
+                    ("surround", TRAINED): base + 0.001 * s,
+                    ("surround", CUT): base + 0.001 * s + cut_gain + 0.0001 * s}
+            for (m, variant), v in vals.items():
+                flat.append({"overlap": o, "method": m, "variant": variant, "seed": s, "median.mean.abs_rel": v,
                              "median.overlap.abs_rel": v, "median.non_overlap.abs_rel": v, "dep_con.mean": v / 5})
     return {"methods": ["mono2", "fsm", "surround"], "seeds": [0, 1, 2], "flat": flat,
-            "evaluations": ["mono2", "fsm", "surround", "surround" + CUT],
+            "evaluations": [{"method": m, "variant": v} for m, v in vals],
             "data": [{"overlap": o, "measured": {"measured_mean": o * 0.7}} for o in xs],
-            "aggregate": [{"overlap": o, "method": "surround",
+            "aggregate": [{"overlap": o, "method": "surround", "variant": TRAINED,
                            "metrics": {"cut.depth_change_m": {"mean": 0.05 * o, "ci95": 0.01, "n": 3}}} for o in xs]}
 
 

@@ -3,7 +3,6 @@ study.results' paired differences, a results.csv alone rebuilds the plots' numbe
 propagation report is what the code writes from its committed results.json."""
 from __future__ import annotations
 
-import json
 import math
 from pathlib import Path
 
@@ -11,7 +10,8 @@ import pytest
 
 from study.plots import PAIRED_KEYS, make_plots, paired_plot, paired_series
 from study.report import format_report
-from study.results import (BASELINE, method_agg, paired_difference, results_from_csv, yardstick_agg)
+from study.results import (BASELINE, method_agg, paired_difference, read_results, results_from_csv,
+                           yardstick_agg)
 
 ROOT = Path(__file__).resolve().parents[2]
 PROP = ROOT / "docs" / "results" / "propagation"
@@ -19,15 +19,16 @@ PROP = ROOT / "docs" / "results" / "propagation"
 
 @pytest.fixture(scope="module")
 def prop():
-    return json.loads((PROP / "results.json").read_text())
+    return read_results(PROP / "results.json")  # written before the variant field: read through upgrade_results
 
 
 def _small(res: dict, methods=("mono2", "mcdp_local")) -> dict:
-    """A small results dict: two methods of the committed propagation sweep (their rows, aggregate, data)."""
-    keep = set(methods)
-    return {**res, "methods": list(methods), "evaluations": list(methods),
-            "flat": [f for f in res["flat"] if f["method"] in keep],
-            "aggregate": [a for a in res["aggregate"] if a["method"] in keep]}
+    """A small results dict: two methods of the committed propagation sweep (their rows as trained, aggregate,
+    data)."""
+    keep = {(m, "trained") for m in methods}
+    return {**res, "methods": list(methods), "evaluations": [{"method": m, "variant": "trained"} for m in methods],
+            "flat": [f for f in res["flat"] if (f["method"], f["variant"]) in keep],
+            "aggregate": [a for a in res["aggregate"] if (a["method"], a["variant"]) in keep]}
 
 
 def _same(a: float, b: float) -> bool:

@@ -11,6 +11,8 @@ import pytest
 
 from study import cli as study_cli
 from study.reach import band_names, format_reach, paired, quantities
+from study.results import evaluations
+from study.variants import CUT, ORACLE_OVL, Evaluation
 
 ROOT = Path(__file__).resolve().parents[2]
 CI = ROOT / "configs" / "sweep" / "ci.yaml"
@@ -43,11 +45,11 @@ def test_worlds_are_paired_with_seeds(reach_sweep):
 
 def test_every_instrument_is_in_the_results(reach_sweep):
     out, res = reach_sweep
-    names = set(res["evaluations"])
-    for m in ("mcdp_m2@cut", "mcdp_m2_nocon@cut", "mcdp_local@cut", "oracle_local@cut", "mcdp_m2@oracle_overlap",
-              "mcdp_local@oracle_overlap"):
-        assert m in names, m
-    assert "mono2@cut" not in names and "fsm@cut" not in names  # they read no other camera
+    names = set(evaluations(res))
+    for m, v in (("mcdp_m2", CUT), ("mcdp_m2_nocon", CUT), ("mcdp_local", CUT), ("oracle_local", CUT),
+                 ("mcdp_m2", ORACLE_OVL), ("mcdp_local", ORACLE_OVL)):
+        assert Evaluation(m, v) in names, (m, v)
+    assert Evaluation("mono2", CUT) not in names and Evaluation("fsm", CUT) not in names  # they read no other camera
     bands = band_names(res)
     assert bands == ["overlap", "0-0.10", "0.10-0.20", "0.20-0.35", ">0.35"]
     with open(out / "results.csv") as f:
@@ -75,8 +77,9 @@ def test_report_has_the_reach_section_and_figure(reach_sweep):
 
 
 def test_paired_difference_over_columns():
-    res = {"flat": [{"overlap": 0.3, "method": "a", "seed": s, "x": 1.0 + s, "y": 0.5} for s in range(3)]
-           + [{"overlap": 0.3, "method": "b", "seed": s, "x": 0.5 + s} for s in range(3)]}
+    res = {"flat": [{"overlap": 0.3, "method": "a", "variant": "trained", "seed": s, "x": 1.0 + s, "y": 0.5}
+                    for s in range(3)]
+           + [{"overlap": 0.3, "method": "b", "variant": "trained", "seed": s, "x": 0.5 + s} for s in range(3)]}
     pd = paired(res, 0.3, ("a", "x"), ("b", "x"))
     assert pd["mean"] == pytest.approx(0.5) and pd["n"] == 3 and pd["ci95"] == pytest.approx(0.0)
     assert pd["differs"] == 1

@@ -1,11 +1,15 @@
 """The statistics of the sweep's results (study.results): Student-t intervals and paired differences."""
 from __future__ import annotations
 
+import json
 import math
+from pathlib import Path
 
 import pytest
 
-from study.results import paired_difference, t_halfwidth
+from study.results import (SCHEMA, aggregate_flat, evaluations, evaluations_of, flat_rows, method_agg,
+                           paired_difference, read_results, t_halfwidth, upgrade_results)
+from study.variants import CUT, TRAINED, Evaluation
 
 
 def test_t_halfwidth_matches_the_t_table():
@@ -16,8 +20,8 @@ def test_t_halfwidth_matches_the_t_table():
 
 
 def _results(a, b):
-    flat = [{"overlap": 0.3, "method": "mcdp_m2", "seed": s, "x": v} for s, v in enumerate(a)]
-    flat += [{"overlap": 0.3, "method": "mono2", "seed": s, "x": v} for s, v in enumerate(b)]
+    flat = [{"overlap": 0.3, "method": "mcdp_m2", "variant": "trained", "seed": s, "x": v} for s, v in enumerate(a)]
+    flat += [{"overlap": 0.3, "method": "mono2", "variant": "trained", "seed": s, "x": v} for s, v in enumerate(b)]
     return {"flat": flat}
 
 
@@ -82,3 +86,74 @@ def test_the_t_table_is_scipys_quantile_to_three_decimals():
     assert len(T975) == 30
     for df, t in enumerate(T975, start=1):
         assert t == pytest.approx(round(float(stats.t.ppf(0.975, df)), 3), abs=1e-9), df
+
+
+DATA = Path(__file__).resolve().parent / "data"
+
+
+def _json(x) -> str:
+    return json.dumps(x, sort_keys=True)  # NaN-safe equality (NaN != NaN in a plain ==)
+
+
+def _current(old: dict) -> dict:
+    """The results today's code makes of the legacy fixture's per-run rows (unchanged between the formats)."""
+    flats = [f for r in old["rows"] for f in flat_rows(r)]
+    evs = evaluations_of(old["methods"], flats)
+    return {**old, "schema": SCHEMA, "evaluations": [e.record() for e in evs], "flat": flats,
+            "aggregate": aggregate_flat(flats, old["overlaps"], evs)}
+
+
+def test_a_results_json_written_before_the_variant_field_reads_as_its_current_twin():
+    """results_v1.json (schema 1: "mcdp_m2@cut" method names; tests/study/data/make_results_v1.py) loads to the
+    flat rows, evaluations and aggregates that today's code makes of the same runs."""
+    raw = json.loads((DATA / "results_v1.json").read_text())
+    assert "schema" not in raw and "mcdp_m2@cut" in raw["evaluations"]  # the fixture is the old format
+    old, new = read_results(DATA / "results_v1.json"), _current(raw)
+    assert old["schema"] == SCHEMA
+    for part in ("evaluations", "flat", "aggregate"):
+        assert _json(old[part]) == _json(new[part]), part
+    assert Evaluation("mcdp_m2", CUT) in evaluations(old) and Evaluation("mono2", CUT) not in evaluations(old)
+    assert [str(e) for e in evaluations(old)][:3] == ["mono2", "mcdp_m2", "mcdp_m2 (cut)"]
+    for o in old["overlaps"]:
+        for ev in evaluations(new):
+            for key in ("median.mean.abs_rel", "dep_con.mean", "refine.headroom_closed"):
+                assert _json(method_agg(old, o, ev, key)) == _json(method_agg(new, o, ev, key)), (o, ev, key)
+        cut = Evaluation("surround", CUT)
+        assert paired_difference(old, o, "surround", cut, "median.mean.abs_rel")["n"] == 2
+    assert upgrade_results(new) is new  # the current schema passes as it is
+
+
+def test_a_results_csv_written_before_the_variant_field_reads_as_its_current_twin(tmp_path):
+    """results_v1.csv (no variant column) rebuilds the same numbers as the results.csv today's code writes of the
+    same runs; in that one a cut evaluation's row has the registry name as method and variant "cut"."""
+    import csv
+
+    from study.report import write_csv
+
+    new = _current(json.loads((DATA / "results_v1.json").read_text()))
+    write_csv(new, tmp_path / "results.csv")
+    rows = list(csv.DictReader((tmp_path / "results.csv").open()))
+    assert list(rows[0])[:6] == ["overlap", "method", "variant", "seed", "target_overlap", "measured_overlap"]
+    cut = [r for r in rows if r["variant"] == CUT]
+    assert {r["method"] for r in cut} == {"mcdp_m2", "surround"} and len(cut) == 8
+    assert not any("@" in r["method"] for r in rows)
+    assert {(r["method"], r["variant"]) for r in rows if r["status"] == "reference"} == {
+        ("constant_reference", ""), ("flat_road_prior", "")}
+    old, cur = read_results(DATA / "results_v1.csv"), read_results(tmp_path / "results.csv")
+    for part in ("overlaps", "methods", "seeds", "evaluations", "data", "flat", "aggregate"):
+        assert _json(old[part]) == _json(cur[part]), part
+    for o in new["overlaps"]:  # and the numbers of the results.json itself
+        for ev in evaluations(new):
+            a, b = (method_agg(r, o, ev, "median.non_overlap.abs_rel") for r in (old, new))
+            assert a["mean"] == pytest.approx(b["mean"], rel=1e-12) and a["n"] == b["n"] == 2, (o, ev)
+
+
+def test_a_legacy_name_with_an_unknown_variant_or_a_newer_schema_is_refused():
+    with pytest.raises(ValueError, match="variant 'bogus' is not one of trained, cut, oracle, oracle_overlap"):
+        upgrade_results({"flat": [{"overlap": 0.3, "method": "mcdp_m2@bogus", "seed": 0}]})
+    with pytest.raises(ValueError, match="results schema 3"):
+        upgrade_results({"schema": 3, "flat": []})
+    with pytest.raises(ValueError, match="the variant is a field"):
+        method_agg(read_results(DATA / "results_v1.json"), 0.3, "mcdp_m2@cut", "median.mean.abs_rel")
+    assert Evaluation.of("mono2") == Evaluation("mono2", TRAINED)
+    assert Evaluation.of({"method": "mcdp_m2", "variant": "cut"}) == Evaluation("mcdp_m2", CUT)

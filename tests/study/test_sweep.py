@@ -155,21 +155,21 @@ def test_ci_sweep_end_to_end_rerun_and_resume(tmp_path, capsys):
         assert rec["path"] == str(Path(pre["weights"]).resolve()) and rec["sha256"] == pre["sha256"]
 
     rows = list(csv.DictReader((out / "results.csv").open()))
-    # beside each run: <m>@oracle and <m>@oracle_overlap (the ORACLE weights fitted on all pixels and on the
-    # overlap only) for every method with bases, <m>@cut for every one whose network reads
+    # beside each run (variant trained): variants oracle and oracle_overlap (the ORACLE weights fitted on all
+    # pixels and on the overlap only) for every method with bases, cut for every one whose network reads
     # its neighbours at inference (MCDP with refinement, SurroundDepth; not FSM: nothing to cut)
     with_bases = [m for m in cfg.methods if m.startswith("mcdp")]
     refined = [m for m in with_bases if m != "mcdp_m0"]
     cut = refined + ["surround"]
     n_rows = n + len(cfg.overlaps) * len(cfg.seeds) * (2 * len(with_bases) + len(cut))
     assert len(rows) == n_rows + 2 * len(cfg.overlaps)
-    assert {r["method"] for r in rows[:n_rows]} == (set(cfg.methods) | {m + "@oracle" for m in with_bases}
-                                                   | {m + "@oracle_overlap" for m in with_bases}
-                                                   | {m + "@cut" for m in cut})
+    assert {(r["method"], r["variant"]) for r in rows[:n_rows]} == (
+        {(m, "trained") for m in cfg.methods} | {(m, "oracle") for m in with_bases}
+        | {(m, "oracle_overlap") for m in with_bases} | {(m, "cut") for m in cut})
     assert [r["method"] for r in rows[n_rows:]] == (["constant_reference"] * len(cfg.overlaps)
                                                      + ["flat_road_prior"] * len(cfg.overlaps))
     for row in rows[:n_rows]:  # every refined run records how much its refinement acted
-        if row["method"] in refined:
+        if row["method"] in refined and row["variant"] == "trained":
             assert float(row["refine.weight_move"]) >= 0 and float(row["refine.depth_change_m"]) >= 0
             assert row["refine.inert"] in ("True", "False")
     for row in rows:
