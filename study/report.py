@@ -176,6 +176,11 @@ def _setup_section(results: dict) -> list[str]:
     add(f"- training seeds: {seeds}" + (" (values are mean ± half-width of the 95 % Student-t interval of the "
                                         "mean over seeds)" if len(seeds) > 1 else
                                         " (one seed: no spread available; differences may be within seed noise)"))
+    add("- worlds: " + ("one per seed (`worlds: per_seed`): seed k trains and is tested on a world rendered from data "
+                        "seed k at every overlap, so every interval over seeds covers the scene sample too"
+                        if cfg.get("worlds") == "per_seed" else
+                        "one per overlap, shared by every seed: the intervals cover the training seed, not the scene "
+                        "sample"))
     pre = results.get("pretrain")
     if pre:
         add(f"- every run starts from one shared self-supervised pretraining (no ground truth; its own world: "

@@ -87,16 +87,22 @@ def test_results_csv_without_rows_is_one_line_naming_the_file(tmp_path):
         results_from_csv(bad)
 
 
-def test_committed_propagation_report_is_what_the_code_writes(prop):
-    """docs/results/propagation.md below its preface is format_report of the committed results.json: nothing
-    but the verdict section was reworded by the paired figures' change."""
-    text = (ROOT / "docs" / "results" / "propagation.md").read_text()
-    marker = "do not edit by hand.\n\n"
-    body = text[text.index(marker) + len(marker):]
-    plots = [f"propagation/plots/{n}.png" for n in ("paired_vs_mono2", "abs_rel_vs_overlap", "dep_con_vs_overlap",
-                                                    "overlap_vs_non_overlap_abs_rel", "measured_overlap",
-                                                    "propagation_by_distance")]
-    assert body == format_report(prop, plots)
+@pytest.mark.parametrize("name", ["propagation", "sweep_cpu"])
+def test_committed_sweep_reports_are_what_the_publishing_command_writes(name):
+    """docs/results/<name>.md is, byte for byte, what scripts/publish_sweep.py writes from the committed
+    docs/results/<name>/results.json and preface.md: no report is edited by hand."""
+    import importlib.util
+
+    spec = importlib.util.spec_from_file_location("publish_sweep", ROOT / "scripts" / "publish_sweep.py")
+    publish = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(publish)
+    results = read_results(ROOT / "docs" / "results" / name / "results.json")
+    plots = [f"{name}/plots/{n}.png" for n in ("paired_vs_mono2", "abs_rel_vs_overlap", "dep_con_vs_overlap",
+                                               "overlap_vs_non_overlap_abs_rel", "measured_overlap",
+                                               "propagation_by_distance")]
+    assert all((ROOT / "docs" / "results" / p).is_file() for p in plots)
+    text = (ROOT / "docs" / "results" / f"{name}.md").read_text()
+    assert text == publish.report_text(name, results, plots)
 
 
 def test_the_verdict_section_says_better_only_where_the_paired_interval_does(prop):
