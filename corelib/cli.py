@@ -37,6 +37,7 @@ def build_parser(prog: str, description: str, commands: Iterable[Command]) -> ar
     from corelib.version import package_version
 
     parser.add_argument("--version", action="version", version=f"{prog} {package_version()}")
+    parser.add_argument("--print-completion", action=_PrintCompletion)
     _verbosity(parser, "top_")
     common = argparse.ArgumentParser(add_help=False)
     _verbosity(common, "")
@@ -46,6 +47,35 @@ def build_parser(prog: str, description: str, commands: Iterable[Command]) -> ar
         c.add_arguments(p)
         p.set_defaults(_run=c.run)
     return parser
+
+
+#: the shells ``--print-completion`` writes a script for
+COMPLETION_SHELLS = ("bash", "zsh")
+
+#: the line when shtab is missing (it is a dependency: pyproject.toml)
+NO_SHTAB = "--print-completion needs shtab: bash scripts/setup.sh (or .venv/bin/pip install 'shtab>=1.10')"
+
+
+class _PrintCompletion(argparse.Action):
+    """``--print-completion SHELL``: print the shell's completion script for this parser, made by shtab (a
+    static script from the parser: subcommands, options, choices, preset names; nothing of ours runs when
+    the shell completes) and exit 0. Enable it with, e.g., ``eval "$(mcdp --print-completion bash)"``."""
+
+    def __init__(self, option_strings, dest, **kw):
+        kw.update(choices=COMPLETION_SHELLS, default=argparse.SUPPRESS, metavar="SHELL",
+                  help=f"print the {' / '.join(COMPLETION_SHELLS)} completion script and exit "
+                       '(e.g. eval "$(%(prog)s --print-completion bash)" in ~/.bashrc)')
+        super().__init__(option_strings, dest, **kw)
+
+    def __call__(self, parser, namespace, values, option_string=None):
+        try:
+            import shtab
+        except ImportError:
+            parser.exit(USAGE, f"{parser.prog}: error: {NO_SHTAB}\n")
+        from corelib.presets import completion_preamble
+
+        sys.stdout.write(shtab.complete(parser, values, preamble=completion_preamble()))
+        parser.exit(0)
 
 
 def _verbosity(p: argparse.ArgumentParser, prefix: str) -> None:

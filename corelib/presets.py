@@ -1,6 +1,9 @@
 """The presets that ship in ``configs/``, by kind: listed by ``mcdp presets`` / ``synth presets``, and named
 in the one-line error when a preset path does not exist.
 
+Shell completion (`corelib.cli`'s ``--print-completion``) completes a preset argument with the presets of
+its kind (`complete_presets`) and with file names.
+
 Example::
 
     preset_path("configs/train/mcdp_m3.yaml", "train")
@@ -49,3 +52,27 @@ def format_presets(kinds: list[str]) -> str:
         out.append(f"{KINDS[k][0]}s ({KINDS[k][1]}):")
         out += [f"  {p}" for p in list_presets(k)]
     return "\n".join(out)
+
+
+def _completer(kind: str) -> str:
+    """The name of the shell function that completes a preset of ``kind`` (`completion_preamble`)."""
+    return f"_mcdp_synth_presets_{kind}"
+
+
+def complete_presets(action, kind: str):
+    """Mark ``action`` (an argparse positional that takes a preset path) to complete with the presets of
+    ``kind`` and file names, in the scripts of ``--print-completion`` (shtab's ``.complete``); returns it."""
+    action.complete = {"bash": _completer(kind), "zsh": _completer(kind)}
+    return action
+
+
+def completion_preamble() -> dict[str, str]:
+    """{shell: the functions `complete_presets` names}: each offers the presets of its kind as they are
+    now (paths relative to the project root, which every preset argument also resolves against), then
+    file names."""
+    bash, zsh = [], []
+    for kind in KINDS:
+        names = " ".join(list_presets(kind))
+        bash.append(f'{_completer(kind)}() {{\n  compgen -W "{names}" -- "$1"\n  compgen -f -- "$1"\n}}')
+        zsh.append(f"{_completer(kind)}() {{\n  compadd -- {names}\n  _files\n}}")
+    return {"bash": "\n".join(bash), "zsh": "\n".join(zsh)}

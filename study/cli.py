@@ -16,15 +16,15 @@ import sys
 from corelib import exitcodes
 from corelib.cli import Command
 from study import method_commands as mcdp_cli
-from corelib.presets import preset_path
+from corelib.presets import complete_presets, preset_path
 
 # the study's modules (and torch, which they import) are imported by the command that runs, once its
 # config is checked: a wrong key fails in well under a second
 
 
 def _pretrain_args(p: argparse.ArgumentParser) -> None:
-    p.add_argument("config", help="pretraining config YAML, e.g. configs/pretrain/tiny.yaml (list: mcdp presets "
-                   "pretrain)")
+    complete_presets(p.add_argument("config", help="pretraining config YAML, e.g. configs/pretrain/tiny.yaml (list: "
+                                    "mcdp presets pretrain)"), "pretrain")
     p.add_argument("--out", help="pretraining folder (reused when its config hash matches); required unless "
                    "--print-config")
     mcdp_cli.add_print_config(p)
@@ -52,7 +52,8 @@ def run_pretrain_command(args: argparse.Namespace) -> int:
 
 
 def _sweep_args(p: argparse.ArgumentParser) -> None:
-    p.add_argument("preset", help="sweep preset YAML, e.g. configs/sweep/ci.yaml (list: mcdp presets sweep)")
+    complete_presets(p.add_argument("preset", help="sweep preset YAML, e.g. configs/sweep/ci.yaml (list: mcdp presets "
+                                    "sweep)"), "sweep")
     p.add_argument("--out", help="sweep folder; a rerun resumes and skips finished work; required unless "
                    "--print-config")
     mcdp_cli.add_print_config(p)

@@ -70,9 +70,20 @@ class SweepConfig(StrictModel):
         reused by its config hash; null = every run from scratch.
     keep_last: keep every run's ``checkpoints/last.pt`` (weights + Adam state: about three
         quarters of a run's disk). ``false`` removes it once the run is trained and its
-        ``best.pt`` has been evaluated (only then); the results, ``best.pt`` and rerun skipping
-        are unaffected, but such a run can no longer be resumed with more steps (the sweep
-        refuses, naming the run folder to delete).
+        ``best.pt`` has been evaluated (only then), and the pretraining's ``run/checkpoints/last.pt``
+        once the pretraining is finished (the runs start from its ``pretrained.pt``, which stays);
+        the results, ``best.pt`` and rerun skipping are unaffected, but such a run can no longer be
+        resumed with more steps (the sweep refuses, naming the run folder to delete).
+    keep_best: keep every run's evaluated checkpoint (``best.pt``: its networks, no optimiser).
+        ``false`` (needs ``keep_last: false``) removes it, and whatever checkpoint the run still has,
+        once its evaluation is recorded (``metrics_test.json`` + ``sweep_status.json``), and the
+        pretraining's ``run/checkpoints/best.pt`` (never read: the runs start from ``pretrained.pt``).
+        Each such folder says what it had: ``checkpoints/removed.json`` (file, step, size, why), and
+        a run's ``sweep_status.json`` ``best_removed``. A rerun still skips the run (from its recorded
+        metrics); one that would evaluate or train it again (other eval settings, ``checkpoint``, a
+        changed run config) is refused, naming the run folder to delete; ``mcdp eval`` / ``predict``
+        on it says the checkpoint was removed. For sweeps whose numbers are all that is kept (the
+        smoke sweep).
     """
 
     data: str = "configs/data/tiny.yaml"
@@ -93,7 +104,15 @@ class SweepConfig(StrictModel):
     device: Literal["auto", "cpu", "cuda"] = "auto"
     preview: bool = True
     keep_last: bool = True
+    keep_best: bool = added_key(True)
     pretrain: PretrainConfig | None = None
+
+    @model_validator(mode="after")
+    def _keep(self) -> "SweepConfig":
+        if not self.keep_best and self.keep_last:
+            raise ValueError("keep_best: false needs keep_last: false (a run kept to be resumed keeps the "
+                             "checkpoint it was evaluated with)")
+        return self
 
     @field_validator("overlaps")
     @classmethod

@@ -78,7 +78,10 @@ def _open_dataset(path: str):
 
 # --------------------------------------------------------------------------- train
 def _train_args(p: argparse.ArgumentParser) -> None:
-    p.add_argument("preset", help="training preset YAML, e.g. configs/train/mcdp_m1.yaml (list: mcdp presets train)")
+    from corelib.presets import complete_presets
+
+    complete_presets(p.add_argument("preset", help="training preset YAML, e.g. configs/train/mcdp_m1.yaml (list: mcdp "
+                                    "presets train)"), "train")
     p.add_argument("--data", help="dataset folder (synth render output); required unless --print-config")
     p.add_argument("--out", help="run folder; training resumes if it holds checkpoints/last.pt; required unless "
                    "--print-config")

@@ -73,6 +73,7 @@ def pretrain_stage(cfg: SweepConfig, sweep_dir: Path, progress: bool, log) -> di
     _, _, h = resolved_configs(cfg.pretrain)
     pdir = sweep_dir / "pretrain" / h[:12]
     rec = run_pretrain(cfg.pretrain, pdir, progress=progress, log=log)
+    _trim_pretraining(cfg, pdir / "run", int(rec["step"]), log)
     return {"weights": str(pdir / WEIGHTS), "config_hash": h, "sha256": rec["sha256"], "step": rec["step"],
             "render_s": rec.get("render_s"), "train_s": rec.get("train_s"), "depth_spread": rec.get("depth_spread")}
 
@@ -104,8 +105,14 @@ def run_stage(cfg: SweepConfig, overlap: float, data: dict, method: str, seed: i
     if not _train(run, row):
         return row  # diverged: the row says so
     metrics, metrics_cut, key = _evaluate(run, row)
+    removed = []
     if not cfg.keep_last:
-        run.status = _remove_last(run_dir, run.status, run.status_path)
+        run.status, removed = _remove_last(run_dir, run.status, run.status_path)
+    if not cfg.keep_best:
+        run.status, gone = _remove_best(run_dir, run.status, run.status_path, key)
+        removed += gone
+    if removed:
+        log(f"{run.tag}: {_removed_line(removed)}; its evaluation is in {run_dir / f'metrics_{SPLIT}.json'}")
     _fill_row(row, run.status, metrics, metrics_cut, key)
     log(_row_line(run.tag, row))
     return row
@@ -160,8 +167,9 @@ def _train(run: _Run, row: dict) -> bool:
         raise ConfigError(f"{run_dir} was trained on another dataset; delete it or use a new --out")
     if status.get("last_removed") and not (run_dir / "checkpoints" / "last.pt").exists():
         raise ConfigError(f"{run_dir}: the resolved config of {run.method} changed since this run was trained, and "
-                          "its checkpoints/last.pt was removed after evaluation (keep_last: false), so it "
-                          f"cannot resume; delete {run_dir} to retrain it, or use a new --out")
+                          "its checkpoints/last.pt was removed after evaluation (keep_last: false"
+                          + (", and best.pt by keep_best: false" if status.get("best_removed") else "")
+                          + f"), so it cannot resume; delete {run_dir} to retrain it, or use a new --out")
     t0 = time.perf_counter()
     try:
         trainer = Trainer(run.rcfg, run.ds, run_dir, progress=run.progress)
@@ -204,9 +212,11 @@ def _evaluate(run: _Run, row: dict) -> tuple[dict, dict | None, str]:
     metrics_path = run_dir / f"metrics_{SPLIT}.json"
     cut_path = run_dir / f"metrics_{SPLIT}_cut.json"
     ecfg = eval_config_for(cfg)
-    ckpt_path = find_checkpoint(run_dir, cfg.checkpoint)
+    # keep_best: false removed the evaluated checkpoint: its name is the recorded one (by name, as in _remove_last)
+    removed = bool(status.get("best_removed"))
+    ckpt_name = Path(status.get("checkpoint") or "").name if removed else find_checkpoint(run_dir, cfg.checkpoint).name
     key = _eval_key(run.rhash, int(status.get("steps", -1)), config_to_dict(cfg.eval), run.data["config_hash"],
-                    cfg.checkpoint, ckpt_path.name)
+                    cfg.checkpoint, ckpt_name)
     metrics = read_json(metrics_path)
     metrics_cut = read_json(cut_path)
     if metrics is not None and metrics.get("sweep", {}).get("eval_key") == key and status.get("eval_key") == key:
@@ -214,6 +224,11 @@ def _evaluate(run: _Run, row: dict) -> tuple[dict, dict | None, str]:
         row.update(eval_s=status.get("eval_s", float("nan")), eval_skipped=True)
         run.log(f"{run.tag}: evaluated already, skipped")
         return metrics, metrics_cut, key
+    if removed:
+        raise ConfigError(f"{run_dir}: its evaluation is out of date (the sweep's eval settings, checkpoint or this "
+                          f"code's evaluation changed) and its checkpoint checkpoints/{ckpt_name} was removed after "
+                          f"it was evaluated (keep_best: false), so it cannot be evaluated again; delete {run_dir} "
+                          "to retrain it, or use a new --out")
     t0 = time.perf_counter()
     metrics, metrics_cut, pred = evaluate_run(cfg, run_dir, run.ds, ecfg, run.progress, run.log, run.tag)
     metrics["run"] = run_record(pred, run_dir, run.data["path"], rig_differences(run_dir, run.ds))
@@ -312,8 +327,34 @@ def _evaluate_both(ds, ecfg, progress: bool, log, tag: str, pred):
     return metrics, metrics_cut
 
 
-def _remove_last(run_dir: Path, status: dict, status_path: Path) -> dict:
-    """keep_last=false: delete last.pt of a trained run whose evaluated checkpoint is best.pt."""
+#: why a checkpoint was removed (`mcdp.runs.record_removed`; `mcdp eval` on the run prints it)
+LAST_REASON = ("by the sweep's keep_last: false once the run's best.pt was evaluated (so the run cannot be "
+               "resumed; its numbers are in metrics_test.json)")
+BEST_REASON = ("by the sweep's keep_best: false once the run's evaluation of checkpoints/{evaluated} was recorded "
+               "(metrics_test.json); rerun the sweep with keep_best: true into a new --out to keep it")
+PRETRAIN_REASON = ("by the sweep's {key}: false once the pretraining was finished (the runs start from its "
+                   "pretrained.pt, kept)")
+
+
+def _removed_line(removed: list[tuple[str, int, str]]) -> str:
+    """The one log line of what a run's (or the pretraining's) clean-up removed."""
+    return "removed " + ", ".join(f"checkpoints/{name} ({n / 1e6:.0f} MB, {key}: false)" for name, n, key in removed)
+
+
+def _unlink_recorded(run_dir: Path, files: dict[str, dict], key: str | dict) -> list[tuple[str, int, str]]:
+    """Record ``files`` ({name: {"step", "reason"}}) in RUN/checkpoints/removed.json, then delete them;
+    [(name, bytes, the keep_* key that removed it)]."""
+    from mcdp.runs import record_removed
+
+    sizes = {n: (run_dir / "checkpoints" / n).stat().st_size for n in files}
+    record_removed(run_dir, files)  # first: then the files go
+    for n in files:
+        (run_dir / "checkpoints" / n).unlink()
+    return [(n, sizes[n], key if isinstance(key, str) else key[n]) for n in files]
+
+
+def _remove_last(run_dir: Path, status: dict, status_path: Path) -> tuple[dict, list[tuple[str, int, str]]]:
+    """keep_last=false: delete last.pt of a trained run whose evaluated checkpoint is best.pt; (status, removed)."""
     last, best = run_dir / "checkpoints" / "last.pt", run_dir / "checkpoints" / "best.pt"
     # by name: the recorded path is where the run was evaluated, which a moved sweep folder no longer is
     # (the sweep evaluates only checkpoints/best.pt or last.pt of the run's own folder)
@@ -321,5 +362,36 @@ def _remove_last(run_dir: Path, status: dict, status_path: Path) -> dict:
     if status.get("trained") and last.is_file() and best.is_file() and evaluated.name == best.name:
         status = {**status, "last_removed": True}
         write_json(status_path, status)  # first: an interruption between the two leaves a last.pt, not a lie
-        last.unlink()
-    return status
+        return status, _unlink_recorded(run_dir, {last.name: {"step": status.get("steps"), "reason": LAST_REASON}},
+                                        "keep_last")
+    return status, []
+
+
+def _remove_best(run_dir: Path, status: dict, status_path: Path, key: str) -> tuple[dict, list[tuple[str, int, str]]]:
+    """keep_best=false: delete every checkpoint left in a trained run whose evaluation of this key is recorded
+    (the evaluated one is recorded in its status as ``checkpoint`` / ``checkpoint_step``); (status, removed)."""
+    ck = run_dir / "checkpoints"
+    left = [n for n in ("best.pt", "last.pt") if (ck / n).is_file()]
+    if not (status.get("trained") and status.get("eval_key") == key and left):
+        return status, []
+    evaluated = Path(status.get("checkpoint") or "").name
+    reason = BEST_REASON.format(evaluated=evaluated)
+    files = {n: {"step": status.get("checkpoint_step") if n == evaluated else
+                 (status.get("steps") if n == "last.pt" else None), "reason": reason} for n in left}
+    status = {**status, "best_removed": True, **({"last_removed": True} if "last.pt" in left else {})}
+    write_json(status_path, status)  # first, as in _remove_last
+    return status, _unlink_recorded(run_dir, files, "keep_best")
+
+
+def _trim_pretraining(cfg: SweepConfig, run_dir: Path, step: int, log) -> None:
+    """keep_last / keep_best: false: delete the finished pretraining's last.pt / best.pt (never read again:
+    the runs start from its pretrained.pt), recorded in its run/checkpoints/removed.json."""
+    ck = run_dir / "checkpoints"
+    files = {n: k for n, k in (("last.pt", "keep_last"), ("best.pt", "keep_best"))
+             if not getattr(cfg, k) and (ck / n).is_file()}
+    if files:
+        removed = _unlink_recorded(run_dir, {n: {"step": step if n == "last.pt" else None,
+                                                 "reason": PRETRAIN_REASON.format(key=k)} for n, k in files.items()},
+                                   files)
+        log(f"[sweep] pretraining: {_removed_line(removed)}; the runs start from {run_dir.parent / 'pretrained.pt'}, "
+            "kept")

@@ -50,7 +50,7 @@ import yaml
 
 from corelib.atomic import atomic_write_text
 from corelib.logs import logger
-from corelib.configlib import config_hash, config_to_dict
+from corelib.configlib import ConfigError, config_hash, config_to_dict, read_yaml
 from study.config import SPLIT, SweepConfig, check_nested_configs, overlap_key, worlds_of
 from study.report import write_all
 from study.results import build_results
@@ -93,13 +93,7 @@ def run_sweep(cfg: SweepConfig, out: str | Path, progress: bool = True, log: Cal
 def _run_sweep(cfg: SweepConfig, out: Path, progress: bool, log, config_source: str | None) -> dict:
     resolved = config_to_dict(cfg)
     prev = out / "sweep_config.yaml"
-    if prev.is_file():
-        old = (yaml.safe_load(prev.read_text()) or {}).get("config")
-        if old is not None and old != resolved:
-            from corelib.configlib import diff_configs
-
-            log(f"[sweep] note: the sweep config differs from the saved one in: {', '.join(diff_configs(old, resolved))}; "
-                "datasets/runs are reused only where their own resolved config is unchanged")
+    _note_config_change(prev, resolved, log)
     atomic_write_text(prev, yaml.safe_dump({"config": resolved, "config_hash": config_hash(cfg),
                                             "source": config_source}, sort_keys=False))
     n_runs = len(cfg.overlaps) * len(cfg.methods) * len(cfg.seeds)
@@ -145,6 +139,24 @@ def _run_sweep(cfg: SweepConfig, out: Path, progress: bool, log, config_source: 
     log(f"[sweep] done in {total_s:.1f} s: " + ", ".join(f"{k}={v}" for k, v in counters.items()))
     log(f"[sweep] finished: {prog.done}/{n_runs} runs in {fmt_duration(total_s)} wall time; report: {out / 'report.md'}")
     return results
+
+
+def _note_config_change(prev: Path, resolved: dict, log) -> None:
+    """Log which keys of the resolved config differ from those saved in ``prev`` (an earlier run of the sweep);
+    the file is read with the project's loader (`corelib.configlib.read_yaml`: bounded in size, depth and
+    keys, no aliases), and one that is not read is a note, not an error (only the note is lost)."""
+    if not prev.is_file():
+        return
+    try:
+        old = read_yaml(prev).get("config")
+    except ConfigError as exc:
+        log(f"[sweep] note: the saved sweep config is not read ({exc}); it is rewritten")
+        return
+    if isinstance(old, dict) and old != resolved:
+        from corelib.configlib import diff_configs
+
+        log(f"[sweep] note: the sweep config differs from the saved one in: {', '.join(diff_configs(old, resolved))}; "
+            "datasets/runs are reused only where their own resolved config is unchanged")
 
 
 def _previews(data: list[dict], out: Path, log) -> list[str]:

@@ -22,11 +22,12 @@ import sys
 from pathlib import Path
 
 from corelib.cli import Command
+from corelib.presets import complete_presets
 
 
 def _render_args(r: argparse.ArgumentParser) -> None:
-    r.add_argument("config", help="preset YAML, e.g. configs/data/tiny.yaml (list: synth presets); then key=value "
-                   "overrides, e.g. rig.overlap=0.3 seed=2")
+    complete_presets(r.add_argument("config", help="preset YAML, e.g. configs/data/tiny.yaml (list: synth presets); "
+                                    "then key=value overrides, e.g. rig.overlap=0.3 seed=2"), "data")
     r.add_argument("--out", help="output dataset folder (new, empty, or a partial render to resume); required "
                    "unless --print-config")
     r.add_argument("--print-config", action="store_true", help="print the resolved config (YAML, overrides "

@@ -141,3 +141,27 @@ def test_every_numeric_key_has_a_finite_range(cls, name, ann, bad):
     with pytest.raises(ValidationError) as err:
         cls.model_validate({name: value}, strict=False)
     assert name in str(err.value), str(err.value)[:500]
+
+
+@pytest.mark.parametrize("text, said", [
+    ("a: &a [x, x, x, x, x, x, x, x, x]\nb: &b [*a, *a, *a, *a, *a, *a, *a, *a, *a]\nconfig: [*b, *b, *b, *b]\n",
+     "aliases"),                                                        # a billion laughs, shortened
+    ("config:\n" + "".join(" " * (2 * i + 2) + f"k{i}:\n" for i in range(1000)), "nested more than"),
+    ("config: [" + ", ".join(["1"] * 20_000) + "]\n", "more than 10000 keys"),
+    ("config: {a: 1\n", "not valid YAML"),
+])
+def test_a_sweep_reads_its_saved_config_with_the_bounds_and_only_notes_one_it_cannot(tmp_path, text, said):
+    """SWEEP/sweep_config.yaml (a rerun compares it with the resolved config, for a note) is read with the
+    project's loader, as every config is: one it cannot read is a note naming why, and the sweep goes on."""
+    from study.sweep import _note_config_change
+
+    prev = tmp_path / "sweep_config.yaml"
+    prev.write_text(text)
+    lines = []
+    _note_config_change(prev, {"data": "configs/data/tiny.yaml"}, lines.append)
+    assert len(lines) == 1 and lines[0].startswith("[sweep] note: the saved sweep config is not read (") \
+        and said in lines[0] and lines[0].endswith("; it is rewritten"), lines
+    prev.write_text("config: {data: configs/data/other.yaml}\n")
+    lines.clear()
+    _note_config_change(prev, {"data": "configs/data/tiny.yaml"}, lines.append)
+    assert len(lines) == 1 and "differs from the saved one in: data" in lines[0], lines

@@ -96,10 +96,10 @@ def _finite(x) -> bool:
 
 def test_ci_sweep_end_to_end_rerun_and_resume(tmp_path, capsys):
     out = tmp_path / "sweep"
-    keep = "keep_last=true"  # ci.yaml deletes last.pt after eval; this test resumes a run from it
-    cfg = sweep.load_sweep_config(CI, [keep])
+    keep = ["keep_last=true", "keep_best=true"]  # ci.yaml deletes the checkpoints after eval; this test resumes one
+    cfg = sweep.load_sweep_config(CI, keep)
     n = len(cfg.overlaps) * len(cfg.methods) * len(cfg.seeds)
-    assert sweep_main([str(CI), "--out", str(out), "--no-progress", keep]) == 0
+    assert sweep_main([str(CI), "--out", str(out), "--no-progress", *keep]) == 0
     # overall progress (study.progress; jobs=2: runs reported as they finish): one line per stage and per run
     err = capsys.readouterr().err.splitlines()
     prog = [ln for ln in err if ln.startswith("[sweep] progress: ")]
@@ -189,7 +189,7 @@ def test_ci_sweep_end_to_end_rerun_and_resume(tmp_path, capsys):
     assert "Does the refinement act, use the neighbours, and propagate?" in report and "Inert refinements" in report
 
     # rerun: a no-op that skips every stage and reports the same numbers
-    assert sweep_main([str(CI), "--out", str(out), "--no-progress", keep]) == 0
+    assert sweep_main([str(CI), "--out", str(out), "--no-progress", *keep]) == 0
     res2 = json.loads((out / "results.json").read_text())
     c2 = res2["counters"]
     assert (c2["rendered"], c2["trained"], c2["evaluated"]) == (0, 0, 0)
@@ -198,7 +198,7 @@ def test_ci_sweep_end_to_end_rerun_and_resume(tmp_path, capsys):
 
     # more steps for one run: training resumes from its checkpoint (step 2 -> 3), nothing is re-rendered
     steps3 = [s.replace("train.steps=2", "train.steps=3") for s in cfg.train_overrides]
-    assert sweep_main([str(CI), "--out", str(out), "--no-progress", "methods=[mono2]", "overlaps=[0.2]", keep,
+    assert sweep_main([str(CI), "--out", str(out), "--no-progress", "methods=[mono2]", "overlaps=[0.2]", *keep,
                        "train_overrides=[" + ",".join(steps3) + "]"]) == 0
     res3 = json.loads((out / "results.json").read_text())
     c3 = res3["counters"]
@@ -218,11 +218,13 @@ def test_parallel_jobs_give_the_same_numbers_as_sequential(tmp_path):
     for a, b in zip(seq["rows"], par["rows"]):
         assert a["method"] == b["method"]
         assert a["metrics"] == b["metrics"], a["method"]
-    # the smoke sweep stays under the size the README states (1.7 GB for its 14 runs: the 276 MB pretraining
-    # and one 103 MB best.pt per run, no last.pt): per run and in all, scaled to these two runs
+    # the smoke sweep stays under the size the README states (68 MB for its 14 runs: the pretraining's 57 MB
+    # pretrained.pt, and per run its numbers and logs, at most 0.53 MB, no checkpoint): per run and in all,
+    # scaled to these two runs (one 108 MB best.pt or 324 MB last.pt left behind fails both)
     runs = sorted((tmp_path / "par" / "runs").glob("*/*"))
-    assert len(runs) == 2 and all(_du(r) < 120e6 for r in runs), [(r.name, _du(r)) for r in runs]
-    assert _du(tmp_path / "par") < 300e6 + len(runs) * 120e6
+    assert len(runs) == 2 and all(_du(r) < 2e6 for r in runs), [(r.name, _du(r)) for r in runs]
+    assert [f.name for f in (tmp_path / "par").rglob("*.pt")] == ["pretrained.pt"]
+    assert _du(tmp_path / "par") < 70e6 + len(runs) * 2e6, _du(tmp_path / "par")
 
 
 def _du(path: Path) -> int:
@@ -230,16 +232,24 @@ def _du(path: Path) -> int:
     return sum(f.stat().st_size for f in path.rglob("*") if f.is_file() and not f.is_symlink())
 
 
-def test_the_smoke_sweep_keeps_no_last_pt():
-    """The README's smoke sweep deletes each run's last.pt once evaluated (its 14 runs kept 6.0 GB of them)."""
+def test_the_smoke_sweep_keeps_no_checkpoint():
+    """The README's smoke sweep deletes each run's last.pt (its 14 runs kept 6.0 GB of them) and best.pt (1.4 GB)
+    once evaluated; keep_best: false alone (a run kept to be resumed) is refused; the key is hashed only when set."""
+    from corelib.configlib import config_hash
+
     cfg = sweep.load_sweep_config(CI)
-    assert cfg.keep_last is False
-    assert sweep.load_sweep_config(CI, ["keep_last=true"]).keep_last is True
+    assert cfg.keep_last is False and cfg.keep_best is False
+    assert sweep.load_sweep_config(CI, ["keep_last=true", "keep_best=true"]).keep_last is True
+    with pytest.raises(ConfigError, match="keep_best: false needs keep_last: false"):
+        sweep.load_sweep_config(CI, ["keep_last=true"])
+    assert config_hash(sweep.SweepConfig()) == config_hash(sweep.SweepConfig(keep_best=True)) \
+        != config_hash(sweep.SweepConfig(keep_last=False, keep_best=False))
 
 
 def test_keep_last_false_removes_last_pt_after_eval_and_refuses_to_extend(tmp_path, capsys):
     out = tmp_path / "sweep"
-    common = ["--out", str(out), "--no-progress", "overlaps=[0.5]", "methods=[mono2]", "jobs=1", "keep_last=false"]
+    common = ["--out", str(out), "--no-progress", "overlaps=[0.5]", "methods=[mono2]", "jobs=1", "keep_last=false",
+              "keep_best=true"]
     assert sweep_main([str(CI), *common]) == 0
     run = out / "runs" / "overlap_0.50" / "mono2_s0"
     assert not (run / "checkpoints" / "last.pt").exists() and (run / "checkpoints" / "best.pt").is_file()
@@ -258,3 +268,57 @@ def test_keep_last_false_removes_last_pt_after_eval_and_refuses_to_extend(tmp_pa
     assert sweep_main([str(CI), *common, "train_overrides=[" + ",".join(steps3) + "]"]) == 2
     err = capsys.readouterr().err
     assert str(run) in err and "keep_last: false" in err and "cannot resume" in err
+
+
+def test_keep_best_false_removes_the_checkpoints_after_eval_and_a_rerun_skips_from_the_record(tmp_path, capsys):
+    """ci.yaml's keep_best: false: each run keeps its numbers and a record of the checkpoints it had, not the
+    checkpoints; the pretraining keeps pretrained.pt only; a rerun trains and evaluates nothing; `mcdp eval`
+    on such a run and a rerun that would evaluate it again each say why in one line."""
+    from mcdp.runs import REMOVED
+
+    out = tmp_path / "sweep"
+    common = ["--out", str(out), "--no-progress", "overlaps=[0.5]", "methods=[mono2]", "jobs=1", "workers=1",
+              "preview=false", "pretrain.workers=1"]
+    assert sweep_main([str(CI), *common]) == 0
+    err = capsys.readouterr().err
+    run = out / "runs" / "overlap_0.50" / "mono2_s0"
+    assert not list((run / "checkpoints").glob("*.pt")) and (run / "metrics_test.json").is_file()
+    status = json.loads((run / STATUS).read_text())
+    assert status["best_removed"] is True and status["last_removed"] is True and status["checkpoint_step"] == 2
+    assert Path(status["checkpoint"]).name == "best.pt"
+    files = json.loads((run / "checkpoints" / REMOVED).read_text())["files"]
+    assert set(files) == {"best.pt", "last.pt"} and files["best.pt"]["step"] == 2 and files["best.pt"]["bytes"] > 1e6
+    assert "keep_last: false" in files["last.pt"]["reason"] and "keep_best: false" in files["best.pt"]["reason"]
+    line = [ln for ln in err.splitlines() if "mono2 seed 0: removed " in ln]
+    assert len(line) == 1 and "checkpoints/last.pt (" in line[0] and "MB, keep_last: false)" in line[0] \
+        and "checkpoints/best.pt (" in line[0] and "MB, keep_best: false)" in line[0], line
+    pre = next((out / "pretrain").iterdir())
+    assert (pre / "pretrained.pt").is_file() and not list((pre / "run" / "checkpoints").glob("*.pt"))
+    assert set(json.loads((pre / "run" / "checkpoints" / REMOVED).read_text())["files"]) == {"best.pt", "last.pt"}
+    assert "[sweep] pretraining: removed checkpoints/last.pt (" in err
+    first = json.loads((out / "results.json").read_text())
+
+    assert sweep_main([str(CI), *common]) == 0  # rerun: nothing trained or evaluated, the recorded numbers
+    assert "removed" not in capsys.readouterr().err
+    again = json.loads((out / "results.json").read_text())
+    c = again["counters"]
+    assert (c["trained"], c["evaluated"], c["train_skipped"], c["eval_skipped"]) == (0, 0, 1, 1)
+    assert again["rows"][0]["metrics"] == first["rows"][0]["metrics"]
+    assert again["rows"][0]["checkpoint"] == first["rows"][0]["checkpoint"]
+
+    data = out / "data" / "overlap_0.50"
+    assert study_cli.main(["eval", str(run), "--data", str(data), "--out", str(tmp_path / "m.json"),
+                           "--no-progress"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith(f"mcdp eval: error: run folder {run}: its checkpoint "
+                                               "checkpoints/best.pt (step 2) was removed by the sweep's keep_best: "
+                                               "false"), err
+
+    # would train it again (the eval settings are in the run's config) or evaluate it again: refused, naming it
+    assert sweep_main([str(CI), *common, "eval.max_depth=60.0"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()[-1]
+    assert str(run) in err and "best.pt by keep_best: false" in err and "cannot resume" in err, err
+    assert sweep_main([str(CI), *common, "checkpoint=best"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()[-1]
+    assert str(run) in err and "(keep_best: false)" in err and "cannot be evaluated again" in err, err
+    assert not list((run / "checkpoints").glob("*.pt")) and (run / "metrics_test.json").is_file()
