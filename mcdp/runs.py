@@ -189,10 +189,11 @@ def removed_checkpoints(run_dir: str | Path) -> dict[str, dict]:
     return {k: v for k, v in files.items() if isinstance(v, dict)} if isinstance(files, dict) else {}
 
 
-def record_removed(run_dir: str | Path, files: dict[str, dict]) -> None:
+def record_removed(run_dir: str | Path, files: dict[str, dict]) -> dict[str, int | None]:
     """Add ``files`` ({name: {"step": int | None, "reason": the end of a sentence, "by ... once ..."}}) to
     RUN/checkpoints/removed.json, with their sizes, before the caller deletes them: an interruption between
-    the two leaves a file that is still there, never a folder that looks whole without it."""
+    the two leaves a file that is still there, never a folder that looks whole without it. Returns
+    {name: bytes} of ``files`` (None for one that is not there)."""
     ck = Path(run_dir) / "checkpoints"
     rec = removed_checkpoints(run_dir)
     for name, info in files.items():
@@ -200,6 +201,7 @@ def record_removed(run_dir: str | Path, files: dict[str, dict]) -> None:
         rec[name] = {"step": info.get("step"), "bytes": p.stat().st_size if p.is_file() else None,
                      "reason": info.get("reason")}
     atomic_write_json(ck / REMOVED, {"files": rec})
+    return {name: rec[name]["bytes"] for name in files}
 
 
 # --------------------------------------------------------------------------- the rig a run was trained on

@@ -346,8 +346,7 @@ def _unlink_recorded(run_dir: Path, files: dict[str, dict], key: str | dict) -> 
     [(name, bytes, the keep_* key that removed it)]."""
     from mcdp.runs import record_removed
 
-    sizes = {n: (run_dir / "checkpoints" / n).stat().st_size for n in files}
-    record_removed(run_dir, files)  # first: then the files go
+    sizes = record_removed(run_dir, files)  # first: then the files go
     for n in files:
         (run_dir / "checkpoints" / n).unlink()
     return [(n, sizes[n], key if isinstance(key, str) else key[n]) for n in files]
@@ -387,8 +386,8 @@ def _trim_pretraining(cfg: SweepConfig, run_dir: Path, step: int, log) -> None:
     """keep_last / keep_best: false: delete the finished pretraining's last.pt / best.pt (never read again:
     the runs start from its pretrained.pt), recorded in its run/checkpoints/removed.json."""
     ck = run_dir / "checkpoints"
-    files = {n: k for n, k in (("last.pt", "keep_last"), ("best.pt", "keep_best"))
-             if not getattr(cfg, k) and (ck / n).is_file()}
+    files = {n: k for n, k, keep in (("last.pt", "keep_last", cfg.keep_last), ("best.pt", "keep_best", cfg.keep_best))
+             if not keep and (ck / n).is_file()}
     if files:
         removed = _unlink_recorded(run_dir, {n: {"step": step if n == "last.pt" else None,
                                                  "reason": PRETRAIN_REASON.format(key=k)} for n, k in files.items()},
