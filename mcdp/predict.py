@@ -41,7 +41,7 @@ import torch.nn.functional as F
 from corelib.atomic import atomic_write_bytes
 from corelib.configlib import config_to_dict
 from mcdp.data import RigReader, neighbour_table
-from mcdp.methods import build_depth_model
+from mcdp.methods import build_depth_model, method_params
 from mcdp.runs import RunError, config_from_checkpoint, find_checkpoint, load_checkpoint, resolve_device
 from mcdp.visual import depth_grid
 from synth.protocol import DatasetReader
@@ -88,7 +88,7 @@ class Predictor:
             )
         self.ds = ds
         self.device = resolve_device(device)
-        self.model = build_depth_model(self.cfg.model).to(self.device)
+        self.model = build_depth_model(self.cfg.model, method_params(self.cfg)).to(self.device)
         self.model.load_state_dict(ckpt["depth_model"])
         self.model.eval()
         self.reader = RigReader(ds, self.cfg.train.height, self.cfg.train.width)

@@ -101,8 +101,8 @@ class SelfSupervisedSystem(torch.nn.Module):
         super().__init__()
         self.cfg = cfg
         method = method_of(cfg.model)
-        self.depth = method.builder(cfg.model)
         self.params = method_params(cfg)  # the method's own parameters (LossContext.params), or None
+        self.depth = method.builder(cfg.model, self.params)
         self.pose = PoseModel(cfg.model.pretrained) if cfg.scale.source != "odometry" else None
         self.register_buffer("nbr", neighbour_table(neighbours, n_cams), persistent=False)
         tgt, src = directed_pairs(neighbours)

@@ -15,7 +15,7 @@ one module per network family (`mcdp.methods.mcdp`: MCDP and Mono2; `mcdp.method
 The depth network's contract is one class, `mcdp.methods.base.DepthNetwork`: every method's network
 subclasses it (most through `mcdp.methods.mcdp.DepthModel`; `network_class` refuses anything else) and
 overrides what differs. Its declared members, read as attributes and never probed:
-``__init__(ModelConfig)``, ``check_config(cfg)`` (classmethod: ConfigError naming the key), ``.cfg``,
+``__init__(ModelConfig, params=None)`` (``params``: the validated ``method_params``), ``check_config(cfg)`` (classmethod: ConfigError naming the key), ``.cfg``,
 ``.stages`` (stage names, the last is evaluated), ``n_out`` (decoder depth channels), ``has_bases`` (n
 bases combined by weights), ``uses_neighbours`` (the depth reads other cameras at inference: the sweep
 also evaluates it cut), ``joint_pose`` (the pose network moves the rig as one), ``reads_overlap_truth``
@@ -39,7 +39,8 @@ A method's own parameters (e.g. FSM's loss weights): a pydantic model named in i
 the run config's ``method_params:`` section holds the keys a run sets, validated against that model
 (`method_params`, `check_run`: an unknown key or a bad value is one ConfigError naming
 ``method_params.<key>``; a method without a model refuses any key), and the validated model reaches the
-loss terms as ``ctx.params``. Left empty the section is not hashed, so runs that set nothing keep their
+loss terms as ``ctx.params`` and the network's constructor as ``params`` (what sizes its own layers:
+`mcdp.methods.surround.SurroundParams`). Left empty the section is not hashed, so runs that set nothing keep their
 hashes (`corelib.configlib.added_key`).
 
 A report reads a method through its row and network class, never its name: ``has_bases`` and
@@ -123,7 +124,8 @@ for _m in (
     Method("fsm", "FSM", {"model.method": "fsm", "model.refine_steps": 0, "loss.consistency_weight": 0.0},
            "mcdp.methods.fsm:FsmDepthModel", params="mcdp.methods.fsm:FsmParams"),
     Method("surround", "SurroundDepth", {"model.method": "surround", "model.refine_steps": 0,
-                                         "loss.consistency_weight": 0.0}, "mcdp.methods.surround:SurroundDepthModel"),
+                                         "loss.consistency_weight": 0.0}, "mcdp.methods.surround:SurroundDepthModel",
+           params="mcdp.methods.surround:SurroundParams"),
     Method("mcdp_m0", "MCDP (m = 0)", {"model.method": "mcdp", "model.refine_steps": 0,
                                        "loss.consistency_weight": PAPER_LAMBDA}),
     Method("mcdp_m1_nocon", "MCDP (w/o L_con, m = 1)", {"model.method": "mcdp", "model.refine_steps": 1,
@@ -213,8 +215,8 @@ def method_params(cfg: RunConfig) -> BaseModel | None:
         return model.model_validate(given)
     except ValidationError as err:
         e = err.errors()[0]
-        where = ".".join(str(p) for p in e["loc"])
-        raise ConfigError(f"method_params.{where}: {e['msg']} (got {str(e.get('input'))[:80]!r})") from None
+        where = "".join(f".{p}" for p in e["loc"])  # () for a check across keys (the section as a whole)
+        raise ConfigError(f"method_params{where}: {e['msg']} (got {str(e.get('input'))[:80]!r})") from None
 
 
 def check_run(cfg: RunConfig) -> None:
@@ -223,6 +225,7 @@ def check_run(cfg: RunConfig) -> None:
     method_params(cfg)
 
 
-def build_depth_model(cfg: ModelConfig) -> nn.Module:
-    """The depth network for ``cfg.method`` (the builder of the first method that trains it)."""
-    return network_class(method_of(cfg))(cfg)
+def build_depth_model(cfg: ModelConfig, params: BaseModel | None = None) -> nn.Module:
+    """The depth network for ``cfg.method`` (the builder of the first method that trains it), given the run's
+    `method_params` (None: the params model's defaults, for a method that has one)."""
+    return network_class(method_of(cfg))(cfg, params)

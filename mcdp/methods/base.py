@@ -112,6 +112,10 @@ class DepthNetwork(nn.Module):
 
     A method's network subclasses this (most subclass `mcdp.methods.mcdp.DepthModel`) and overrides what differs:
 
+    - ``__init__(cfg, params=None)``: ``cfg`` the `ModelConfig`, ``params`` the method's own parameters (its
+      registry row's params model validated from the run config's ``method_params``, `mcdp.methods.method_params`;
+      None for a method without any), kept as ``.params``: what sizes a network's own layers lives there
+      (`mcdp.methods.surround.SurroundParams`), so a checkpoint's config rebuilds the same network;
     - ``model``: the ``model.method`` it builds; ``check_config(cfg)`` refuses another (ConfigError);
     - ``n_out``: decoder depth channels (instance attribute; 1 = one sigmoid channel);
     - ``has_bases``: n bases combined by weights (the warm start copies the pretraining's basis channels;
@@ -128,6 +132,7 @@ class DepthNetwork(nn.Module):
     """
 
     model = ""
+    params = None
     has_bases = False
     joint_pose = False
     reads_overlap_truth = False

@@ -50,6 +50,7 @@ class DepthModel(DepthNetwork):
 
     Args:
         cfg: `ModelConfig`; refused (`check_config`) when this network cannot be built from it.
+        params: the method's own parameters (`mcdp.methods.method_params`), or None (MCDP and Mono2 have none).
 
     ``n_out``: the decoder's depth channels: ``model.bases`` (MCDP), 1 (`MonoDepthModel`).
     """
@@ -72,10 +73,11 @@ class DepthModel(DepthNetwork):
             raise ConfigError(f"model.mono_head (the shared pretraining's extra head) needs a model with depth "
                               f"bases, not model.method={cfg.method}")
 
-    def __init__(self, cfg: ModelConfig):
+    def __init__(self, cfg: ModelConfig, params=None):
         super().__init__()
         self.check_config(cfg)
         self.cfg = cfg
+        self.params = params
         self.n_out = cfg.bases if self.has_bases else 1
         self.stages = (["mono"] if cfg.mono_head else []) + stage_names(cfg.refine_steps)
         self.slots = SLOTS[cfg.neighbours]

@@ -45,8 +45,8 @@ class OracleLocalModel(MonoDepthModel):
     model = "oracle_local"
     reads_overlap_truth = True
 
-    def __init__(self, cfg):
-        super().__init__(cfg)
+    def __init__(self, cfg, params=None):
+        super().__init__(cfg, params)
         self.hint = nn.Conv2d(2, 64, kernel_size=7, stride=2, padding=3, bias=False)
         nn.init.zeros_(self.hint.weight)
 

@@ -26,8 +26,11 @@ features before one pose decoder; averaging the decoded motions is the same cons
 pose network). SurroundDepth's SfM pseudo-depth pretraining is not built: the odometry / velocity scale
 replaces what it is for (metric scale).
 
-Sizes (module constants, not config keys: a new key would change the config hash of every existing
-run): ``D_MODEL = 128`` token channels, ``HEADS = 4``, ``MLP_RATIO = 2``, ``MAX_CAMERAS = 16``.
+Sizes (`SurroundParams`, the run config's ``method_params`` section, e.g. ``method_params.d_model=256``;
+left unset, the defaults below, and the run's hash is what it was before the section existed):
+``d_model = 128`` token channels, ``heads = 4``, ``mlp_ratio = 2``, ``max_cameras = 16`` camera embeddings,
+cross-view blocks at encoder ``levels = [3, 4]``. A checkpoint records them (its config), so evaluation and
+prediction rebuild the network it trained.
 
 Warm start (``model.init_from``): encoder and decoder from the shared pretraining exactly as for
 ``mono2``; the cross-view blocks (``cross_view.*``) start fresh and learn at ``train.weight_lr_mult``
@@ -41,16 +44,31 @@ import torch
 import torch.nn as nn
 import torch.nn.functional as F
 
-from corelib.configlib import ConfigError
+from pydantic import Field, model_validator
+
+from corelib.configlib import ConfigError, StrictModel
 from mcdp.methods.mcdp import MonoDepthModel
 from mcdp.networks import ResnetEncoder
 
-D_MODEL = 128
-HEADS = 4
-MLP_RATIO = 2
-MAX_CAMERAS = 16
-#: encoder levels with a cross-view block (0 = 1/2 ... 4 = 1/32)
-LEVELS = (3, 4)
+
+class SurroundParams(StrictModel):
+    """SurroundDepth's sizes (``method_params``; module docstring). Bounded: a token is at most 1024 channels."""
+
+    d_model: int = Field(128, ge=8, le=1024)
+    heads: int = Field(4, ge=1, le=64)
+    mlp_ratio: int = Field(2, ge=1, le=8)
+    max_cameras: int = Field(16, ge=1, le=64)
+    #: encoder levels with a cross-view block (0 = 1/2 ... 4 = 1/32), increasing
+    levels: list[int] = Field(default_factory=lambda: [3, 4], min_length=1, max_length=5)
+
+    @model_validator(mode="after")
+    def _consistent(self):
+        if self.d_model % 4 or self.d_model % self.heads:
+            raise ValueError(f"d_model={self.d_model} must be a multiple of 4 (the position code) and of "
+                             f"heads={self.heads}")
+        if any(lv not in range(5) for lv in self.levels) or self.levels != sorted(set(self.levels)):
+            raise ValueError(f"levels={self.levels} must be increasing encoder levels among 0-4")
+        return self
 
 
 def sinusoid_2d(h: int, w: int, d: int, device=None) -> torch.Tensor:
@@ -70,32 +88,33 @@ class CrossViewBlock(nn.Module):
     forward(f (B*N, c, h, w), B, N, cut) -> (B*N, c, h, w): f + out(block(tokens)), ``out`` zero at init.
     """
 
-    def __init__(self, channels: int):
+    def __init__(self, channels: int, p: SurroundParams):
         super().__init__()
-        d = D_MODEL
+        d = self.d = p.d_model
+        self.heads = p.heads
         self.inp = nn.Conv2d(channels, d, 1)
-        self.camera = nn.Parameter(torch.randn(MAX_CAMERAS, d) * 0.02)
+        self.camera = nn.Parameter(torch.randn(p.max_cameras, d) * 0.02)
         self.norm1 = nn.LayerNorm(d)
         self.qkv = nn.Linear(d, 3 * d)
         self.proj = nn.Linear(d, d)
         self.norm2 = nn.LayerNorm(d)
-        self.mlp = nn.Sequential(nn.Linear(d, MLP_RATIO * d), nn.GELU(), nn.Linear(MLP_RATIO * d, d))
+        self.mlp = nn.Sequential(nn.Linear(d, p.mlp_ratio * d), nn.GELU(), nn.Linear(p.mlp_ratio * d, d))
         self.out = nn.Conv2d(d, channels, 1)
         nn.init.zeros_(self.out.weight)
         nn.init.zeros_(self.out.bias)
 
     def forward(self, f: torch.Tensor, B: int, N: int, cut: bool) -> torch.Tensor:
         BN, c, h, w = f.shape
-        d, T = D_MODEL, N * h * w
+        d, T = self.d, N * h * w
         x = self.inp(f).reshape(B, N, d, h * w).transpose(2, 3)  # (B, N, hw, d)
         x = x + self.camera[:N].view(1, N, 1, d).to(x.dtype) + sinusoid_2d(h, w, d, f.device).to(x.dtype)[None, None]
         x = x.reshape(B, T, d)
-        q, k, v = self.qkv(self.norm1(x)).view(B, T, 3, HEADS, d // HEADS).permute(2, 0, 3, 1, 4)
+        q, k, v = self.qkv(self.norm1(x)).view(B, T, 3, self.heads, d // self.heads).permute(2, 0, 3, 1, 4)
         allowed = None
         if cut:  # each camera attends to itself only
             cam = torch.arange(N, device=f.device).repeat_interleave(h * w)
             allowed = cam[:, None] == cam[None, :]
-        a = F.scaled_dot_product_attention(q, k, v, attn_mask=allowed)  # (B, HEADS, T, d / HEADS)
+        a = F.scaled_dot_product_attention(q, k, v, attn_mask=allowed)  # (B, heads, T, d / heads)
         x = x + self.proj(a.transpose(1, 2).reshape(B, T, d))
         x = x + self.mlp(self.norm2(x))
         x = x.view(B, N, h * w, d).transpose(2, 3).reshape(BN, d, h, w)
@@ -116,9 +135,10 @@ class SurroundDepthModel(MonoDepthModel):
             raise ConfigError(f"model.neighbours={cfg.neighbours}: model.method=surround attends to every camera; "
                               "leave model.neighbours at its default (both)")
 
-    def __init__(self, cfg):
-        super().__init__(cfg)
-        self.cross_view = nn.ModuleDict({str(lv): CrossViewBlock(ResnetEncoder.num_ch_enc[lv]) for lv in LEVELS})
+    def __init__(self, cfg, params: SurroundParams | None = None):
+        super().__init__(cfg, params if params is not None else SurroundParams())
+        self.cross_view = nn.ModuleDict({str(lv): CrossViewBlock(ResnetEncoder.num_ch_enc[lv], self.params)
+                                         for lv in self.params.levels})
 
     @property
     def uses_neighbours(self) -> bool:
@@ -129,9 +149,9 @@ class SurroundDepthModel(MonoDepthModel):
         return "cross-view blocks"
 
     def encode(self, x: torch.Tensor, B: int, N: int, nbr: torch.Tensor) -> list[torch.Tensor]:
-        if N > MAX_CAMERAS:
-            raise ValueError(f"model.method=surround has camera embeddings for at most {MAX_CAMERAS} cameras, "
-                             f"the rig has {N}")
+        if N > self.params.max_cameras:
+            raise ValueError(f"model.method=surround has camera embeddings for at most {self.params.max_cameras} "
+                             f"cameras (method_params.max_cameras), the rig has {N}")
         feats = self.encoder(x)
         cut = bool((nbr < 0).all())
         for lv, block in self.cross_view.items():

@@ -1,7 +1,8 @@
 """The SurroundDepth-style network (mcdp/methods/surround.py): its warm start is Monodepth2 exactly, it is
 equivariant to a permutation of the cameras (with their embeddings), one camera's image changes
 another camera's depth (not for mono2, not with the neighbours cut), and the tiny preset trains two
-steps and evaluates, as trained and cut."""
+steps and evaluates, as trained and cut; its sizes are its ``method_params`` (checked, and rebuilt from a
+checkpoint)."""
 from __future__ import annotations
 
 from pathlib import Path
@@ -12,7 +13,7 @@ import torch
 from corelib.configlib import load_config
 from mcdp.config import RunConfig
 from mcdp.methods.mcdp import MonoDepthModel
-from mcdp.methods.surround import CrossViewBlock, SurroundDepthModel
+from mcdp.methods.surround import CrossViewBlock, SurroundDepthModel, SurroundParams
 
 ROOT = Path(__file__).resolve().parents[2]
 TINY = ROOT / "configs" / "train" / "tiny"
@@ -96,7 +97,7 @@ def test_one_cameras_image_changes_another_cameras_depth_unless_cut(seed, one_th
 def test_the_cut_mask_is_block_diagonal():
     """Cut: a token attends to the tokens of its own camera only (queried through the attention itself)."""
     torch.manual_seed(0)
-    block = CrossViewBlock(8)
+    block = CrossViewBlock(8, SurroundParams())
     torch.nn.init.normal_(block.out.weight, std=0.1)
     f = torch.randn(3 * 4, 8, 2, 3)
     f2 = f.clone()
@@ -117,7 +118,7 @@ def test_the_tiny_surround_preset_trains_two_steps_and_evaluates_as_trained_and_
 
     run = tmp_path / "surround"
     rc = main(["train", str(TINY / "surround.yaml"), "--data", str(tiny_dataset), "--out", str(run), "--no-progress",
-               "train.steps=2", "scale.source=odometry"])
+               "train.steps=2", "scale.source=odometry", "method_params.d_model=64", "method_params.levels=[4]"])
     assert rc == 0 and (run / "checkpoints" / "last.pt").is_file()
     from study.probes import CUT, Probed
 
@@ -125,6 +126,8 @@ def test_the_tiny_surround_preset_trains_two_steps_and_evaluates_as_trained_and_
     pred = Probed(net, keep=True)
     cut = Probed(net, CUT, reference=pred)
     assert isinstance(net.model, SurroundDepthModel) and net.model.uses_neighbours
+    # the checkpoint's method_params rebuilt the network it trained (sizes not at their defaults)
+    assert list(net.model.cross_view) == ["4"] and net.model.cross_view["4"].camera.shape == (16, 64)
     # two steps moved the zero convolutions off zero: the fresh layers learn
     assert all(float(b.out.weight.detach().abs().max()) > 0 for b in net.model.cross_view.values())
     a = evaluate(ds, pred.predict, "test", EvalConfig(), progress=False)
@@ -179,3 +182,34 @@ def test_the_system_feeds_the_extrinsics_to_the_pose_network_for_surround_only(d
         n = len(ds.camera_names)
         tr, rot = pose_consistency({o: p.view(1, n, 4, 4) for o, p in poses.items()}, b["T_ego_cam"])
         assert (float(tr) + float(rot) < 1e-8) == rigid, (name, float(tr), float(rot))
+
+
+def test_its_sizes_are_its_method_params_checked_and_default_to_the_sizes_it_had():
+    """SurroundParams: unset, the sizes the network always had (the same state-dict shapes, and the run's hash
+    is untouched: tests/mcdp/test_methods.py); set, they size the blocks; a bad one is one ConfigError naming it."""
+    from corelib.configlib import ConfigError, config_hash
+    from mcdp import methods
+
+    cfg = load_config(RunConfig, TINY / "surround.yaml")
+    p = methods.method_params(cfg)
+    assert p == SurroundParams() and (p.d_model, p.heads, p.mlp_ratio, p.max_cameras, p.levels) == (128, 4, 2, 16, [3, 4])
+    net = methods.build_depth_model(cfg.model, p)
+    shapes = {k: tuple(v.shape) for k, v in net.state_dict().items() if k.startswith("cross_view.")}
+    assert shapes["cross_view.3.camera"] == (16, 128) and shapes["cross_view.4.qkv.weight"] == (384, 128)
+    assert shapes["cross_view.4.mlp.0.weight"] == (256, 128) and len({k.split(".")[1] for k in shapes}) == 2
+    assert {k: tuple(v.shape) for k, v in SurroundDepthModel(cfg.model).state_dict().items()} == {
+        k: tuple(v.shape) for k, v in net.state_dict().items()}  # params=None: the defaults
+    small = load_config(RunConfig, TINY / "surround.yaml", ["method_params.d_model=32", "method_params.heads=2",
+                                                             "method_params.levels=[2, 4]", "method_params.mlp_ratio=1"])
+    assert config_hash(small) != config_hash(cfg)
+    net = methods.build_depth_model(small.model, methods.method_params(small))
+    assert sorted(net.cross_view) == ["2", "4"] and net.cross_view["2"].camera.shape == (16, 32)
+    assert net.cross_view["2"].heads == 2 and net.cross_view["2"].mlp[0].weight.shape == (32, 32)
+    for override, msg in [("method_params.d_model=30", r"^method_params: .*d_model=30 must be a multiple of 4"),
+                          ("method_params.levels=[4, 3]", r"^method_params: .*levels=\[4, 3\] must be increasing"),
+                          ("method_params.levels=[5]", r"^method_params: .*among 0-4"),
+                          ("method_params.heads=0", r"^method_params\.heads: .*greater than or equal to 1"),
+                          ("method_params.d_model=100000", r"^method_params\.d_model: .*less than or equal to 1024"),
+                          ("method_params.width=3", r"^method_params\.width: unknown key for method 'surround'")]:
+        with pytest.raises(ConfigError, match=msg):
+            methods.check_run(load_config(RunConfig, TINY / "surround.yaml", [override]))

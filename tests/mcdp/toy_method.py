@@ -31,8 +31,8 @@ class ToyDepth(MonoDepthModel):
 
     model = "toy"
 
-    def __init__(self, cfg):
-        super().__init__(cfg)
+    def __init__(self, cfg, params=None):
+        super().__init__(cfg, params)
         self.toy_gain = nn.Parameter(torch.ones(1))
 
     @classmethod
