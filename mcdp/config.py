@@ -258,11 +258,16 @@ class TrainConfig(StrictModel):
         return self
 
 
+#: the evaluation's depth range in metres (Monodepth2's and the paper's: ground truth outside it is not scored,
+#: predictions are clamped to it); the one source of `EvalConfig`'s and the sweep's defaults and `mcdp.metrics`'
+EVAL_MIN_DEPTH, EVAL_MAX_DEPTH = 0.5, 80.0
+
+
 class EvalConfig(StrictModel):
     """Evaluation settings (depths in metres; `mcdp.evaluate` reads them)."""
 
-    min_depth: float = Field(0.5, le=1000.0, allow_inf_nan=False)
-    max_depth: float = Field(80.0, le=1000.0, allow_inf_nan=False)
+    min_depth: float = Field(EVAL_MIN_DEPTH, le=1000.0, allow_inf_nan=False)
+    max_depth: float = Field(EVAL_MAX_DEPTH, le=1000.0, allow_inf_nan=False)
     frame_stride: int = Field(1, le=10_000)  # evaluate every k-th frame
     skip_ends: bool = True  # skip first and last frame of each sequence (no temporal neighbours)
 

@@ -19,6 +19,8 @@ from typing import Sequence
 
 import numpy as np
 
+from mcdp.config import EVAL_MAX_DEPTH, EVAL_MIN_DEPTH
+
 __all__ = [
     "METRIC_NAMES",
     "depth_metrics",
@@ -112,7 +114,7 @@ def reduce_terms(terms: np.ndarray, sel: np.ndarray | None) -> dict:
     return {k: float(x) for k, x in zip(METRIC_NAMES, m)}
 
 
-def valid_gt_mask(gt, scene_mask, min_depth: float = 0.5, max_depth: float = 80.0) -> np.ndarray:
+def valid_gt_mask(gt, scene_mask, min_depth: float = EVAL_MIN_DEPTH, max_depth: float = EVAL_MAX_DEPTH) -> np.ndarray:
     """Pixels that count in the evaluation: min_depth <= gt <= max_depth and scene_mask.
 
     Args:
@@ -132,7 +134,7 @@ def valid_gt_mask(gt, scene_mask, min_depth: float = 0.5, max_depth: float = 80.
     return ok
 
 
-def clamp_depth(pred, min_depth: float = 0.5, max_depth: float = 80.0) -> np.ndarray:
+def clamp_depth(pred, min_depth: float = EVAL_MIN_DEPTH, max_depth: float = EVAL_MAX_DEPTH) -> np.ndarray:
     """Clamp (scaled) predictions to [min_depth, max_depth] (float64 numpy); NaN -> max_depth."""
     p = _np(pred, "pred")
     return np.clip(np.nan_to_num(p, nan=max_depth), min_depth, max_depth)

@@ -40,6 +40,7 @@ import torch.nn.functional as F
 
 from corelib.atomic import atomic_write_bytes
 from corelib.configlib import config_to_dict
+from mcdp.config import EVAL_MAX_DEPTH
 from mcdp.data import RigReader, neighbour_table
 from mcdp.methods import build_depth_model, method_params
 from mcdp.runs import RunError, config_from_checkpoint, find_checkpoint, load_checkpoint, resolve_device
@@ -150,7 +151,7 @@ class Predictor:
 
 # --------------------------------------------------------------------------- outputs
 def rig_point_cloud(
-    ds, depths: list[np.ndarray], rgbs: list[np.ndarray], stride: int = 2, max_depth: float = 80.0
+    ds, depths: list[np.ndarray], rgbs: list[np.ndarray], stride: int = 2, max_depth: float = EVAL_MAX_DEPTH
 ) -> tuple[np.ndarray, np.ndarray]:
     """Points of every camera in the ego frame: (M, 3) float32 metres, (M, 3) uint8 colours.
 

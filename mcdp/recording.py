@@ -21,9 +21,10 @@ from __future__ import annotations
 
 import numpy as np
 
+from mcdp.config import EVAL_MAX_DEPTH, EVAL_MIN_DEPTH
 from synth.view import RigRecorder, backproject, blueprint_of, import_rerun, recording
 
-GT_RANGE = (0.5, 80.0)  # the evaluator's default ground-truth range (mcdp.evaluate)
+GT_RANGE = (EVAL_MIN_DEPTH, EVAL_MAX_DEPTH)  # the evaluator's default ground-truth range (mcdp.config)
 
 
 def abs_rel_image(pred: np.ndarray, gt: np.ndarray, mask: np.ndarray, lo: float = GT_RANGE[0],

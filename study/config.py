@@ -14,6 +14,7 @@ from typing import Literal
 from pydantic import Field, field_validator, model_validator
 
 from corelib.configlib import ConfigError, StrictModel, added_key, config_to_dict, load_config, override_key, resolve_path
+from mcdp.config import EVAL_MAX_DEPTH, EVAL_MIN_DEPTH
 from mcdp.methods import METHODS, PAPER_METHODS, check_run
 from study.pretrain import PretrainConfig
 
@@ -25,8 +26,8 @@ SPLIT = "test"
 class SweepEvalConfig(StrictModel):
     """Evaluation settings applied to every run (see `mcdp.evaluate.EvalConfig`; depths in metres)."""
 
-    min_depth: float = Field(0.5, gt=0.0, le=1000.0, allow_inf_nan=False)
-    max_depth: float = Field(80.0, gt=0.0, le=1000.0, allow_inf_nan=False)
+    min_depth: float = Field(EVAL_MIN_DEPTH, gt=0.0, le=1000.0, allow_inf_nan=False)
+    max_depth: float = Field(EVAL_MAX_DEPTH, gt=0.0, le=1000.0, allow_inf_nan=False)
     frame_stride: int = Field(1, ge=1, le=10_000)
     skip_ends: bool = True
 

@@ -130,6 +130,13 @@ def _join(names: list[str]) -> str:
     return names[0] if len(names) == 1 else ", ".join(names[:-1]) + " and " + names[-1]
 
 
+def _in_sweep(path: str) -> str:
+    """A pretraining's weights file as a path inside its sweep folder (``pretrain/<hash>/pretrained.pt``): a report
+    names no machine's absolute path (results.json of older sweeps records the absolute one)."""
+    parts = Path(path).parts
+    return "/".join(parts[len(parts) - 1 - parts[::-1].index("pretrain"):]) if "pretrain" in parts else path
+
+
 def warm_start_line(methods: list[str]) -> str:
     """Which part of the shared pretraining each of the sweep's methods starts from (`mcdp.warmstart`: a
     network with bases takes the n basis channels, one without them the mono head) and which of their
@@ -184,7 +191,8 @@ def _setup_section(results: dict) -> list[str]:
     pre = results.get("pretrain")
     if pre:
         add(f"- every run starts from one shared self-supervised pretraining (no ground truth; its own world: "
-            f"`{' '.join(cfg['pretrain']['data_overrides'])}`): `{pre['weights']}`, config hash `{pre['config_hash'][:12]}`, "
+            f"`{' '.join(cfg['pretrain']['data_overrides'])}`): `{_in_sweep(pre['weights'])}` in the sweep folder, "
+            f"config hash `{pre['config_hash'][:12]}`, "
             f"{pre['step']} steps, render {_sec(pre.get('render_s'))} s + train {_sec(pre.get('train_s'))} s; "
             + warm_start_line(methods))
     else:

@@ -77,6 +77,15 @@ def test_the_warm_start_line_reads_the_network_not_its_name():
         methods.METHODS.pop("xview")
 
 
+def test_a_report_names_the_pretraining_inside_its_sweep_folder_not_by_a_machines_path():
+    from study.report import _in_sweep
+
+    assert _in_sweep("/work/sweeps/cpu/pretrain/d204638a9d4d/pretrained.pt") == "pretrain/d204638a9d4d/pretrained.pt"
+    assert _in_sweep("/x/pretrain/sweep/pretrain/abc/pretrained.pt") == "pretrain/abc/pretrained.pt"  # the last one
+    assert _in_sweep("pretrain/abc/pretrained.pt") == "pretrain/abc/pretrained.pt"
+    assert _in_sweep("/elsewhere/weights.pt") == "/elsewhere/weights.pt"  # not a sweep's: as recorded
+
+
 def test_the_t_table_is_scipys_quantile_to_three_decimals():
     """study.results keeps a 30-entry table instead of depending on scipy (its comment says why); where
     scipy is installed (the nuScenes devkit pulls it in), every entry is its t.ppf(0.975, df)."""
