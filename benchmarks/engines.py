@@ -1,6 +1,8 @@
 """The engines side by side: render rig-frames/s and the CI sweep's wall time, local vs Ray.
 
 Feeds: docs/results/scaling.md
+Record: ``--record PATH.csv`` also writes its tables' rows to PATH_render.csv and PATH_sweep.csv (the CSV
+`scripts/publish_bench.py` reads).
 
     OMP_NUM_THREADS=1 .venv/bin/python benchmarks/engines.py [--sequences 6 --frames 6] [--no-sweep]
 
@@ -26,6 +28,8 @@ from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
+
+from benchmarks._table import record_path, show  # noqa: E402
 
 QUIET = dict(progress=False, log=lambda *a: None)
 
@@ -74,12 +78,25 @@ def sweep_rows(ray_cpus: int, tmp: Path) -> list[tuple[str, float]]:
     return rows
 
 
+def show_render(rows: list[tuple[str, float, float]], record: Path | None = None) -> str:
+    """Print the render table of `rows` ((engine, rig-frames/s, wall s) each); recorded as PATH_render.csv."""
+    return show(["engine", "rig-frames/s", "wall s"], [[e, f"{rate:.2f}", f"{wall:.1f}"] for e, rate, wall in rows],
+                "lrr", record_path(record, "render"))
+
+
+def show_sweep(rows: list[tuple[str, float]], record: Path | None = None) -> str:
+    """Print the CI sweep table of `rows` ((engine, wall s) each); recorded as PATH_sweep.csv."""
+    return show(["engine", "wall s"], [[e, f"{wall:.1f}"] for e, wall in rows], "lr", record_path(record, "sweep"))
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser()
     ap.add_argument("--sequences", type=int, default=6)
     ap.add_argument("--frames", type=int, default=6)
     ap.add_argument("--ray-cpus", type=int, default=2)
     ap.add_argument("--no-sweep", action="store_true")
+    ap.add_argument("--record", type=Path, metavar="PATH", help="also write the tables' rows (CSV): PATH_render.csv, "
+                    "PATH_sweep.csv")
     args = ap.parse_args(argv)
     print(f"cores: {os.cpu_count()}, load average (1/5/15 min) before: {_load()}")
     with tempfile.TemporaryDirectory(prefix="bench_engines_") as d:
@@ -87,16 +104,12 @@ def main(argv=None) -> int:
         rows = render_rows(args.sequences, args.frames, args.ray_cpus, tmp)
         print(f"\nRender, configs/data/tiny.yaml 96x64, {args.sequences} sequences x {args.frames} frames "
               f"= {args.sequences * args.frames} rig-frames\n")
-        print("| engine | rig-frames/s | wall s |\n|---|---:|---:|")
-        for label, rate, wall in rows:
-            print(f"| {label} | {rate:.2f} | {wall:.1f} |")
+        show_render(rows, args.record)
         if not args.no_sweep:
             srows = sweep_rows(args.ray_cpus, tmp)
             print("\nCI sweep (configs/sweep/ci.yaml: pretraining, 2 overlaps x 5 methods x 1 seed, "
                   "2 training steps each), `mcdp sweep` wall time\n")
-            print("| engine | wall s |\n|---|---:|")
-            for label, wall in srows:
-                print(f"| {label} | {wall:.1f} |")
+            show_sweep(srows, args.record)
     print(f"\nload average after: {_load()}")
     return 0
 

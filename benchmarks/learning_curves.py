@@ -1,6 +1,7 @@
 """Learning curves: test-split depth accuracy of a training recipe against steps and CPU minutes.
 
 Feeds: docs/results/learning.md
+Record: ``--record PATH.csv`` also writes the table's rows to PATH (the CSV `scripts/publish_bench.py` reads).
 
 Trains one preset (self-supervised, no ground truth) and, optionally, the same
 depth network supervised with ground-truth depth (log-L1; the upper bound),
@@ -38,6 +39,7 @@ from mcdp.priors import flat_road_predictor  # noqa: E402
 from mcdp.trainer import Trainer  # noqa: E402
 from corelib.configlib import load_config  # noqa: E402
 from synth.open import open_dataset  # noqa: E402
+from benchmarks._table import show  # noqa: E402
 
 EVAL = EvalConfig(min_depth=0.5, max_depth=80.0, frame_stride=2, skip_ends=True)
 
@@ -159,6 +161,7 @@ def main(argv=None) -> int:
     ap.add_argument("--render-frames", type=int, default=10)
     ap.add_argument("--render-override", action="append", default=[])
     ap.add_argument("--json", type=Path, default=None, help="also write the rows as JSON")
+    ap.add_argument("--record", type=Path, metavar="PATH", help="also write the printed table's rows to PATH (CSV)")
     ap.add_argument("--label", default=None)
     ap.add_argument("--supervised", action="store_true",
                     help="the upper bound: train the same network with ground-truth depth (log-L1) instead")
@@ -209,14 +212,14 @@ def main(argv=None) -> int:
     hit = next((r for r in rows if r["med_abs_rel"] <= target), None)
     label = a.label or Path(a.preset).stem
     print(f"\n{label}{' (supervised upper bound)' if a.supervised else ''}: test split, {len(ds.split('test'))} sequences")
-    print("| steps | CPU min | median abs_rel | metric abs_rel | median a1 | metric a1 | Dep Con | depth p10 / p90 m |")
-    print("|---|---|---|---|---|---|---|---|")
-    for r in rows:
-        print(f"| {r['step']} | {r['cpu_min']:.1f} | {r['med_abs_rel']:.3f} | {r['abs_rel']:.3f} | {r['med_a1']:.3f} | "
-              f"{r['a1']:.3f} | {r['dep_con']:.2f} | {r['p10']:.1f} / {r['p90']:.1f} |")
-    for name, y in (("constant depth", ref), ("flat-road prior", prior)):
-        print(f"| {name} | 0 | {y['med_abs_rel']:.3f} | {y['abs_rel']:.3f} | {y['med_a1']:.3f} | {y['a1']:.3f} | "
-              f"{y['dep_con']:.2f} | |")
+    header = ["steps", "CPU min", "median abs_rel", "metric abs_rel", "median a1", "metric a1", "Dep Con",
+              "depth p10 / p90 m"]
+    table = [[str(r["step"]), f"{r['cpu_min']:.1f}", f"{r['med_abs_rel']:.3f}", f"{r['abs_rel']:.3f}",
+              f"{r['med_a1']:.3f}", f"{r['a1']:.3f}", f"{r['dep_con']:.2f}", f"{r['p10']:.1f} / {r['p90']:.1f}"]
+             for r in rows]
+    table += [[name, "0", f"{y['med_abs_rel']:.3f}", f"{y['abs_rel']:.3f}", f"{y['med_a1']:.3f}", f"{y['a1']:.3f}",
+               f"{y['dep_con']:.2f}", ""] for name, y in (("constant depth", ref), ("flat-road prior", prior))]
+    show(header, table, record=a.record)
     print(f"time to median abs_rel <= {a.threshold} x constant ({target:.3f}): "
           + (f"{hit['cpu_min']:.1f} CPU min (step {hit['step']})" if hit else f"not reached in {a.steps} steps"))
     if a.json:

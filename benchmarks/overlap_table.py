@@ -1,6 +1,8 @@
 """Target vs measured pixel overlap for rig.overlap in 0.1 .. 0.6, both overlap modes.
 
 Feeds: docs/results/overlap.md
+Record: ``--record PATH.txt`` also writes the tables it prints to PATH, as printed (the text a
+docs/results/<doc>/*.txt holds; `scripts/publish_bench.py` puts it in the doc).
 
     .venv/bin/python benchmarks/overlap_table.py [--sequences 2 --frames 3 --width 320 --height 192]
 
@@ -18,6 +20,8 @@ import tempfile
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+from benchmarks._table import tee  # noqa: E402
 
 
 def frustum_only(path: Path) -> dict[str, float]:
@@ -56,11 +60,18 @@ def main(argv=None) -> int:
                     "nuscenes_like,ddad_like (configs/data/<name>.yaml)")
     ap.add_argument("--knob", choices=["angle", "pixels"], default="angle",
                     help="pixels: the calibrated knob (synth.calibrate): target / solved angle / measured, and its cost")
+    ap.add_argument("--record", metavar="PATH", help="also write what it prints to PATH (text)")
     args = ap.parse_args(argv)
-    if args.presets:
-        return preset_table(args)
-    if args.knob == "pixels":
-        return calibrated_table(args)
+    with tee(args.record):
+        if args.presets:
+            return preset_table(args)
+        if args.knob == "pixels":
+            return calibrated_table(args)
+        return angle_table(args)
+
+
+def angle_table(args) -> int:
+    """Per mode, target / measured / frustum-only overlap of every pair at rig.overlap 0.1 .. 0.6."""
     from synth.config import load_data_config
     from synth.render import render_dataset
 

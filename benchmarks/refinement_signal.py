@@ -1,6 +1,7 @@
 """Does the training loss know which basis weights are better? The gradient that reaches MCDP's
 
 Feeds: docs/results/refinement.md
+Record: ``--record PATH.csv`` also writes the table's rows to PATH (the CSV `scripts/publish_bench.py` reads).
 refined weights, compared with the direction to the ORACLE weights of the same bases.
 
 For a trained MCDP run and rig samples of a split, per image (camera) i:
@@ -36,6 +37,7 @@ from mcdp.oracle import fit_oracle_weights, ground_truth_at  # noqa: E402
 from mcdp.runs import config_from_checkpoint, find_checkpoint, load_checkpoint  # noqa: E402
 from mcdp.system import SelfSupervisedSystem  # noqa: E402
 from synth.open import open_dataset  # noqa: E402
+from benchmarks._table import show  # noqa: E402
 
 
 def tangent(g: torch.Tensor) -> torch.Tensor:
@@ -58,6 +60,7 @@ def main(argv=None) -> None:
     ap.add_argument("--split", default="train")
     ap.add_argument("--samples", type=int, default=24)
     ap.add_argument("--checkpoint", default="auto")
+    ap.add_argument("--record", type=Path, metavar="PATH", help="also write the table's rows to PATH (CSV)")
     ap.add_argument("--lambda", dest="lam", type=float, default=None,
                     help="L_con weight for g_c (default: as trained, or the paper's 1e-3 for a run trained without)")
     args = ap.parse_args(argv)
@@ -102,8 +105,8 @@ def main(argv=None) -> None:
             grads[key].append(gt_)
     print(f"run {args.run} ({stage}, trained with lambda {cfg.loss.consistency_weight:g}), {len(idx)} {args.split} "
           f"rig samples x {n_cam} cameras")
-    print("| gradient | mean cos(-g, w_oracle - w) | share cos > 0 | mean norm | consistency across images |")
-    print("|---|---|---|---|---|")
+    header = ["gradient", "mean cos(-g, w_oracle - w)", "share cos > 0", "mean norm", "consistency across images"]
+    table = []
     for key, name in (("p", "photometric + smoothness"), ("c", f"L_con (lambda {lam:g})")):
         cos = np.array([r[0] for r in rows[key]])
         nrm = np.array([r[1] for r in rows[key]])
@@ -111,8 +114,9 @@ def main(argv=None) -> None:
         unit = G / G.norm(dim=1, keepdim=True).clamp(min=1e-20)
         cons = [float(unit[c::n_cam].mean(0).norm()) for c in range(n_cam)]
         hw = 1.96 * cos.std(ddof=1) / math.sqrt(len(cos)) if len(cos) > 1 else float("nan")
-        print(f"| {name} | {np.nanmean(cos):+.3f} ± {hw:.3f} | {np.mean(cos > 0):.2f} | {np.mean(nrm):.2e} | "
-              f"{np.mean(cons):.2f} (noise ~ {1 / math.sqrt(len(idx)):.2f}) |")
+        table.append([name, f"{np.nanmean(cos):+.3f} ± {hw:.3f}", f"{np.mean(cos > 0):.2f}", f"{np.mean(nrm):.2e}",
+                      f"{np.mean(cons):.2f} (noise ~ {1 / math.sqrt(len(idx)):.2f})"])
+    show(header, table, record=args.record)
 
 
 if __name__ == "__main__":

@@ -1,6 +1,8 @@
 """Render throughput and memory: rig-frames/s (six cameras, RGB + depth written) and RSS.
 
 Feeds: docs/results/render_throughput.md
+Record: ``--record PATH.txt`` also writes the table it prints to PATH, as printed (the text a
+docs/results/<doc>/*.txt holds; `scripts/publish_bench.py` puts it in the doc).
 
     .venv/bin/python benchmarks/render_throughput.py [--sequences 2 --frames 20 --renders 1000 --rounds 3]
 
@@ -26,6 +28,8 @@ import time
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+from benchmarks._table import tee  # noqa: E402
 
 
 def rss_mb() -> float:
@@ -85,6 +89,7 @@ def main(argv=None) -> int:
     ap.add_argument("--renders", type=int, default=1000)
     ap.add_argument("--sizes", default="320x192,640x384")
     ap.add_argument("--rounds", type=int, default=3)
+    ap.add_argument("--record", metavar="PATH", help="also write what it prints to PATH (text)")
     args = ap.parse_args(argv)
     import numpy as np
 
@@ -99,61 +104,62 @@ def main(argv=None) -> int:
             cpu = 1000 * (time.process_time() - c0) / s["rig_frames"]
         return s["rig_frames_per_s"], cpu, s["backend"]
 
-    rows = []
-    for size in args.sizes.split(","):
-        w, h = (int(x) for x in size.split("x"))
-        cfg = load_data_config("configs/data/default.yaml", [f"camera.width={w}", f"camera.height={h}",
-                                                             f"dataset.sequences={args.sequences}",
-                                                             f"dataset.frames={args.frames}"])
-        rig = make_rig(cfg)
-        e2es, ros, offs, cpus = [], [], [], []
-        for _ in range(args.rounds):  # end to end, render only and files off in turn
-            e2e, cpu_e2e, backend = e2e_rate(cfg)
-            ro, cpu_ro = render_only_rate(cfg, rig)
-            with files_off():
-                off, cpu_off, _ = e2e_rate(cfg)
-            e2es.append(e2e)
-            ros.append(ro)
-            offs.append(off)
-            cpus.append((cpu_e2e, cpu_ro, cpu_off))
-        e2es, ros, offs = np.asarray(e2es), np.asarray(ros), np.asarray(offs)
-        cpu_e2e, cpu_ro, cpu_off = np.median(np.asarray(cpus), axis=0)
-        # leak check on one scene
-        from synth.pipeline import build_sequence_scene
-        from synth.lighting import draw_sequence_lighting
+    with tee(args.record):
+        rows = []
+        for size in args.sizes.split(","):
+            w, h = (int(x) for x in size.split("x"))
+            cfg = load_data_config("configs/data/default.yaml", [f"camera.width={w}", f"camera.height={h}",
+                                                                 f"dataset.sequences={args.sequences}",
+                                                                 f"dataset.frames={args.frames}"])
+            rig = make_rig(cfg)
+            e2es, ros, offs, cpus = [], [], [], []
+            for _ in range(args.rounds):  # end to end, render only and files off in turn
+                e2e, cpu_e2e, backend = e2e_rate(cfg)
+                ro, cpu_ro = render_only_rate(cfg, rig)
+                with files_off():
+                    off, cpu_off, _ = e2e_rate(cfg)
+                e2es.append(e2e)
+                ros.append(ro)
+                offs.append(off)
+                cpus.append((cpu_e2e, cpu_ro, cpu_off))
+            e2es, ros, offs = np.asarray(e2es), np.asarray(ros), np.asarray(offs)
+            cpu_e2e, cpu_ro, cpu_off = np.median(np.asarray(cpus), axis=0)
+            # leak check on one scene
+            from synth.pipeline import build_sequence_scene
+            from synth.lighting import draw_sequence_lighting
 
-        r = renderer_for(cfg)
-        scene = build_sequence_scene(cfg, 0)
-        r.load_scene(scene, make_ego_mesh(cfg))
-        light = draw_sequence_lighting(cfg.lighting, rig.names, np.random.default_rng(2)).light
+            r = renderer_for(cfg)
+            scene = build_sequence_scene(cfg, 0)
+            r.load_scene(scene, make_ego_mesh(cfg))
+            light = draw_sequence_lighting(cfg.lighting, rig.names, np.random.default_rng(2)).light
 
-        def one(i):
-            cam = rig.cameras[i % 6]
-            r.render(cam.K, scene.T_world_ego[i % args.frames] @ cam.T_ego_cam, i % args.frames, light)
+            def one(i):
+                cam = rig.cameras[i % 6]
+                r.render(cam.K, scene.T_world_ego[i % args.frames] @ cam.T_ego_cam, i % args.frames, light)
 
-        for i in range(50):
-            one(i)
-        rss0 = rss_mb()
-        for i in range(args.renders):
-            one(i)
-        growth = rss_mb() - rss0
-        peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
-        rows.append((size, np.median(e2es), np.median(ros), np.median(e2es / ros), np.median(offs),
-                     np.median(offs / ros), cpu_e2e, cpu_ro, cpu_off, peak, growth, backend))
-        print(f"{size}: per round end to end {', '.join(f'{x:.2f}' for x in e2es)} rig-frames/s (the first "
-              f"includes the process's GL start-up), render only {', '.join(f'{x:.2f}' for x in ros)}, "
-              f"files off {', '.join(f'{x:.2f}' for x in offs)}", flush=True)
-    head = (f"{'size':>9} | {'end to end':>10} | {'render only':>11} | {'ratio':>6} | {'files off':>9} | "
-            f"{'ratio':>6} | {'CPU ms: e2e':>11} | {'render only':>11} | {'files off':>9} | {'peak RSS MB':>11} | "
-            f"{'RSS growth, ' + str(args.renders) + ' renders, MB':>30} | backend")
-    print("rig-frames/s; ratio = the column before / render only (medians of per-round ratios); CPU ms = the "
-          "process's CPU time (all threads) per rig frame")
-    print(head)
-    print("-" * len(head))
-    for size, e2e, ro, ratio, off, ratio_off, c_e2e, c_ro, c_off, peak, growth, be in rows:
-        print(f"{size:>9} | {e2e:10.2f} | {ro:11.2f} | {ratio:5.2f}x | {off:9.2f} | {ratio_off:5.2f}x | "
-              f"{c_e2e:11.0f} | {c_ro:11.0f} | {c_off:9.0f} | {peak:11.0f} | {growth:30.1f} | {be}")
-    print(f"({args.rounds} round(s) of {args.sequences} sequences x {args.frames} frames each; medians)")
+            for i in range(50):
+                one(i)
+            rss0 = rss_mb()
+            for i in range(args.renders):
+                one(i)
+            growth = rss_mb() - rss0
+            peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
+            rows.append((size, np.median(e2es), np.median(ros), np.median(e2es / ros), np.median(offs),
+                         np.median(offs / ros), cpu_e2e, cpu_ro, cpu_off, peak, growth, backend))
+            print(f"{size}: per round end to end {', '.join(f'{x:.2f}' for x in e2es)} rig-frames/s (the first "
+                  f"includes the process's GL start-up), render only {', '.join(f'{x:.2f}' for x in ros)}, "
+                  f"files off {', '.join(f'{x:.2f}' for x in offs)}", flush=True)
+        head = (f"{'size':>9} | {'end to end':>10} | {'render only':>11} | {'ratio':>6} | {'files off':>9} | "
+                f"{'ratio':>6} | {'CPU ms: e2e':>11} | {'render only':>11} | {'files off':>9} | {'peak RSS MB':>11} | "
+                f"{'RSS growth, ' + str(args.renders) + ' renders, MB':>30} | backend")
+        print("rig-frames/s; ratio = the column before / render only (medians of per-round ratios); CPU ms = the "
+              "process's CPU time (all threads) per rig frame")
+        print(head)
+        print("-" * len(head))
+        for size, e2e, ro, ratio, off, ratio_off, c_e2e, c_ro, c_off, peak, growth, be in rows:
+            print(f"{size:>9} | {e2e:10.2f} | {ro:11.2f} | {ratio:5.2f}x | {off:9.2f} | {ratio_off:5.2f}x | "
+                  f"{c_e2e:11.0f} | {c_ro:11.0f} | {c_off:9.0f} | {peak:11.0f} | {growth:30.1f} | {be}")
+        print(f"({args.rounds} round(s) of {args.sequences} sequences x {args.frames} frames each; medians)")
     return 0
 
 

@@ -1,7 +1,8 @@
 """Variants of one sweep recipe side by side: the consistency-weight table, the budget (learning-curve)
+table, and probes of the refinement's knobs, all from ONE shared pretraining and the same datasets.
 
 Feeds: docs/results/consistency_weight.md, docs/results/budget.md, docs/results/refinement.md
-table, and probes of the refinement's knobs, all from ONE shared pretraining and the same datasets.
+Record: ``--record PATH.csv`` also writes the table's rows to PATH (the CSV `scripts/publish_bench.py` reads).
 
 Each variant is the base sweep preset plus its own training overrides, run by `mcdp sweep` into
 ``ROOT/<variant>/`` (so every number comes from the sweep's own evaluation: as trained, cut, ORACLE
@@ -34,6 +35,7 @@ sys.path.insert(0, str(ROOT))
 
 from study.results import evaluations, method_agg, paired_difference, read_results  # noqa: E402
 from study.variants import CUT, ORACLE, Evaluation  # noqa: E402
+from benchmarks._table import markdown, show  # noqa: E402
 
 
 def link_tree(src: Path, dst: Path) -> None:
@@ -120,11 +122,14 @@ def with_reference(res: dict, ref: dict | None) -> dict:
             "methods": ["mono2"] + list(res["methods"])}
 
 
-def table(rows: list[tuple[str, dict]]) -> str:
-    head = ("| variant | overlap | method | abs_rel all | overlap px | non-overlap px | Dep Con | spread | "
-            "abs(w − 1/n) | abs(refined − init) m | propagation (trained − cut, non-overlap) | "
-            "direct use (trained − cut, overlap) | headroom closed | − Mono2 (all) | − Mono2 (non-overlap) |")
-    L = [head, "|" + "---|" * (head.count("|") - 1)]
+HEADER = ["variant", "overlap", "method", "abs_rel all", "overlap px", "non-overlap px", "Dep Con", "spread",
+          "abs(w − 1/n)", "abs(refined − init) m", "propagation (trained − cut, non-overlap)",
+          "direct use (trained − cut, overlap)", "headroom closed", "− Mono2 (all)", "− Mono2 (non-overlap)"]
+
+
+def table_rows(rows: list[tuple[str, dict]]) -> list[list[str]]:
+    """The table's rows (cells as printed) for the variants `rows` ((name, results) each), under HEADER."""
+    L = []
     for name, res in rows:
         for o in res["overlaps"]:
             for m in res["methods"]:
@@ -135,17 +140,20 @@ def table(rows: list[tuple[str, dict]]) -> str:
                 direct = _pd(paired_difference(res, o, m, cut, "median.overlap.abs_rel")) if has_cut else "—"
                 vs = lambda k: (_pd(paired_difference(res, o, m, "mono2", k))  # noqa: E731
                                 if m != "mono2" and "mono2" in res["methods"] else "—")
-                L.append(f"| {name} | {o:.2f} | {m} | {g('median.mean.abs_rel')} | {g('median.overlap.abs_rel')} | "
-                         f"{g('median.non_overlap.abs_rel')} | {g('dep_con.mean')} | {g('spread.ratio', 2)} | "
-                         f"{g('refine.weight_move', 4)} | {g('refine.depth_change_m')} | {prop} | {direct} | "
-                         f"{g('refine.headroom_closed', 2)} | {vs('median.mean.abs_rel')} | "
-                         f"{vs('median.non_overlap.abs_rel')} |")
+                L.append([name, f"{o:.2f}", m, g("median.mean.abs_rel"), g("median.overlap.abs_rel"),
+                          g("median.non_overlap.abs_rel"), g("dep_con.mean"), g("spread.ratio", 2),
+                          g("refine.weight_move", 4), g("refine.depth_change_m"), prop, direct,
+                          g("refine.headroom_closed", 2), vs("median.mean.abs_rel"), vs("median.non_overlap.abs_rel")])
             for m in res["methods"]:
                 if Evaluation(m, ORACLE) in evaluations(res):
-                    L.append(f"| {name} | {o:.2f} | *{m} ORACLE weights* | "
-                             f"{_ms(method_agg(res, o, Evaluation(m, ORACLE), 'median.mean.abs_rel'))}"
-                             " | | | | | | | | | | | |")
-    return "\n".join(L)
+                    oracle = _ms(method_agg(res, o, Evaluation(m, ORACLE), "median.mean.abs_rel"))
+                    L.append([name, f"{o:.2f}", f"*{m} ORACLE weights*", oracle] + [""] * (len(HEADER) - 4))
+    return L
+
+
+def table(rows: list[tuple[str, dict]]) -> str:
+    """The Markdown table of the variants `rows`."""
+    return markdown(HEADER, table_rows(rows))
 
 
 def main(argv=None) -> None:
@@ -161,6 +169,8 @@ def main(argv=None) -> None:
     ap.add_argument("--reference", type=Path, help="a sweep's results.json whose Mono2 runs (same overlap and "
                     "seeds) are the comparison for variants without Mono2")
     ap.add_argument("--out", type=Path, help="also write the table (markdown) here")
+    ap.add_argument("--record", type=Path, metavar="PATH",
+                    help="also write the table's rows to PATH (CSV, the data file of docs/results/<doc>/)")
     args = ap.parse_args(argv)
 
     rows = []
@@ -188,8 +198,7 @@ def main(argv=None) -> None:
         if res_path.is_file():
             ref = read_results(args.reference) if args.reference else None
             rows.append((name, with_reference(read_results(res_path), ref)))
-    text = table(rows)
-    print(text)
+    text = show(HEADER, table_rows(rows), record=args.record)
     if args.out:
         args.out.write_text(text + "\n")
 

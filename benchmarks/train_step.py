@@ -1,6 +1,8 @@
 """Seconds per training step and peak memory of every training preset, with the ratio to mono2.
 
 Feeds: docs/results/train_step.md
+Record: ``--record PATH.txt`` also writes the table it prints to PATH, as printed (the text a
+docs/results/<doc>/*.txt holds; `scripts/publish_bench.py` puts it in the doc).
 
 One rig sample per step (6 cameras x 3 frames), random images on a synthetic
 six-camera ring (no dataset needed), the presets' own settings otherwise.
@@ -40,6 +42,10 @@ import time
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+
+from benchmarks._table import tee  # noqa: E402
+
 PRESETS = ["mono2", "mcdp_m0", "mcdp_m1_nocon", "mcdp_m1", "mcdp_m2"]
 MODES = ["before", "fp32", "bf16", "cl"]
 
@@ -186,6 +192,7 @@ def main(argv=None) -> int:
     ap.add_argument("--device", default="cpu", choices=["cpu", "cuda"])
     ap.add_argument("--threads", type=int, default=0, help="torch CPU threads (0 = torch default)")
     ap.add_argument("--json", default=None, help="also write the results here")
+    ap.add_argument("--record", metavar="PATH", help="also write what it prints to PATH (text)")
     ap.add_argument("--modes", "--precision", dest="precision", nargs="+", default=["fp32"], choices=MODES,
                     help="one or more: each is a row set of the table (see the module docstring)")
     ap.add_argument("--tiny", action="store_true", help="the tiny presets (configs/train/tiny)")
@@ -217,34 +224,36 @@ def main(argv=None) -> int:
                     print(f"  round {r + 1}/{args.rounds} {prec} {p:14s} {H}x{W}: {res['step_s']:.3f} s/step",
                           file=sys.stderr)
 
-    rows = []
-    print(f"\ntrain step, 1 rig sample (6 cameras x 3 frames), device {args.device}, "
-          f"torch threads {next(iter(results.values()))[0]['threads']}, median of {args.rounds} rounds")
-    hdr = (f"{'preset':14s} {'mode':>6s} {'size':>8s} {'s/step':>8s} {'x mono2':>8s} {'L_con %':>8s} "
-           f"{'peak MiB':>9s} {'GFLOP':>7s} {'GFLOP/s':>8s} {'ceiling':>8s} {'% ceil':>7s} {'steps/CPU-min':>13s} "
-           f"{'x before':>8s}")
-    print(hdr + "\n" + "-" * len(hdr))
-    for size in args.sizes:
-        H, W = (int(x) for x in size.lower().split("x"))
-        for prec in args.precision:
-            base = statistics.median(r["step_s"] for r in results.get(("mono2", H, W, prec), [{"step_s": float("nan")}]))
-            for p in args.presets:
-                rs = results[(p, H, W, prec)]
-                t = statistics.median(r["step_s"] for r in rs)
-                con = statistics.median(r["con_s"] for r in rs)
-                peak = max(r["peak_mb"] for r in rs)
-                gflop = statistics.median(r["gflop"] for r in rs)
-                ceil = statistics.median(r["ceiling_gflops"] for r in rs)
-                thr = rs[0]["threads"]
-                before = results.get((p, H, W, "before"))
-                speedup = statistics.median(r["step_s"] for r in before) / t if before else float("nan")
-                rows.append({"preset": p, "precision": prec, "H": H, "W": W, "step_s": t, "ratio_mono2": t / base,
-                             "lcon_share": con / t, "peak_mb": peak, "gflop": gflop, "gflops": gflop / t,
-                             "ceiling_gflops": ceil, "steps_per_cpu_min": 60 / (t * thr),
-                             "x_before": speedup})
-                print(f"{p:14s} {prec:>6s} {size:>8s} {t:8.3f} {t / base:8.2f} {100 * con / t:8.1f} {peak:9.0f} "
-                      f"{gflop:7.1f} {gflop / t:8.1f} {ceil:8.1f} {100 * gflop / t / ceil:7.1f} {60 / (t * thr):13.1f} "
-                      f"{speedup:8.2f}")
+    with tee(args.record):
+        rows = []
+        print(f"\ntrain step, 1 rig sample (6 cameras x 3 frames), device {args.device}, "
+              f"torch threads {next(iter(results.values()))[0]['threads']}, median of {args.rounds} rounds")
+        hdr = (f"{'preset':14s} {'mode':>6s} {'size':>8s} {'s/step':>8s} {'x mono2':>8s} {'L_con %':>8s} "
+               f"{'peak MiB':>9s} {'GFLOP':>7s} {'GFLOP/s':>8s} {'ceiling':>8s} {'% ceil':>7s} {'steps/CPU-min':>13s} "
+               f"{'x before':>8s}")
+        print(hdr + "\n" + "-" * len(hdr))
+        for size in args.sizes:
+            H, W = (int(x) for x in size.lower().split("x"))
+            for prec in args.precision:
+                base = statistics.median(r["step_s"] for r in results.get(("mono2", H, W, prec),
+                                                                          [{"step_s": float("nan")}]))
+                for p in args.presets:
+                    rs = results[(p, H, W, prec)]
+                    t = statistics.median(r["step_s"] for r in rs)
+                    con = statistics.median(r["con_s"] for r in rs)
+                    peak = max(r["peak_mb"] for r in rs)
+                    gflop = statistics.median(r["gflop"] for r in rs)
+                    ceil = statistics.median(r["ceiling_gflops"] for r in rs)
+                    thr = rs[0]["threads"]
+                    before = results.get((p, H, W, "before"))
+                    speedup = statistics.median(r["step_s"] for r in before) / t if before else float("nan")
+                    rows.append({"preset": p, "precision": prec, "H": H, "W": W, "step_s": t, "ratio_mono2": t / base,
+                                 "lcon_share": con / t, "peak_mb": peak, "gflop": gflop, "gflops": gflop / t,
+                                 "ceiling_gflops": ceil, "steps_per_cpu_min": 60 / (t * thr),
+                                 "x_before": speedup})
+                    print(f"{p:14s} {prec:>6s} {size:>8s} {t:8.3f} {t / base:8.2f} {100 * con / t:8.1f} "
+                          f"{peak:9.0f} {gflop:7.1f} {gflop / t:8.1f} {ceil:8.1f} {100 * gflop / t / ceil:7.1f} "
+                          f"{60 / (t * thr):13.1f} {speedup:8.2f}")
     if args.json:
         Path(args.json).write_text(json.dumps(rows, indent=1))
     return 0
