@@ -9,9 +9,9 @@ committed preface docs/results/<name>/preface.md (what the numbers cannot say th
 the measured wall time, the machine), then the sweep's report (`study.report`) with its plot links
 pointing into docs/results/<name>/.
 
-A report committed with its results.csv only (docs/results/sweep_compare: its results.json was not
-kept) gets its plots rebuilt from the CSV (`study.results.read_results`); its .md is left alone, since
-its tables need the full results.json.
+A report committed with its results.csv only (none now: sweep_compare had only one until 2026-12-03)
+gets its plots rebuilt from the CSV (`study.results.read_results`); its .md is left alone, since its
+tables need the full results.json.
 """
 from __future__ import annotations
 

@@ -107,9 +107,9 @@ def format_propagation(results: dict, label) -> str:
             closed = method_agg(results, o, m, "refine.headroom_closed")
             refine = (f"; refinement final − init {_pd(gain, 4, USE_FLOOR)}; headroom closed {_num(closed['mean'], 2)}"
                       if math.isfinite(gain["mean"]) else "")  # a network without an init stage: no refinement
-            add(f"- overlap {o:.2f}, {label(m)}: propagation (as trained − cut, non-overlap px) {_pd(prop, 4, USE_FLOOR)}; "
-                f"direct use (overlap px) {_pd(direct, 4, USE_FLOOR)}; all px {_pd(allp, 4, USE_FLOOR)}; Dep Con (ratio) {_pd(dc, 4)}"
-                + refine)
+            add(f"- overlap {o:.2f}, {label(m)}: propagation (as trained − cut, non-overlap px) "
+                f"{_pd(prop, 4, USE_FLOOR)}; direct use (overlap px) {_pd(direct, 4, USE_FLOOR)}; all px "
+                f"{_pd(allp, 4, USE_FLOOR)}; Dep Con (ratio) {_pd(dc, 4, USE_FLOOR)}" + refine)
     add("")
     return "\n".join(L)
 

@@ -87,7 +87,7 @@ def test_results_csv_without_rows_is_one_line_naming_the_file(tmp_path):
         results_from_csv(bad)
 
 
-@pytest.mark.parametrize("name", ["propagation", "sweep_cpu"])
+@pytest.mark.parametrize("name", ["propagation", "sweep_cpu", "sweep_compare"])
 def test_committed_sweep_reports_are_what_the_publishing_command_writes(name):
     """docs/results/<name>.md is, byte for byte, what scripts/publish_sweep.py writes from the committed
     docs/results/<name>/results.json and preface.md: no report is edited by hand."""
@@ -103,6 +103,18 @@ def test_committed_sweep_reports_are_what_the_publishing_command_writes(name):
     assert all((ROOT / "docs" / "results" / p).is_file() for p in plots)
     text = (ROOT / "docs" / "results" / f"{name}.md").read_text()
     assert text == publish.report_text(name, results, plots)
+
+
+def test_a_cut_that_moves_the_depth_by_a_tenth_of_a_millimetre_is_negligible_not_worse():
+    """sweep_compare's SurroundDepth: cutting its other cameras changes Dep Con by ~1e-8, once beyond its interval;
+    the propagation verdict calls that negligible (USE_FLOOR), never better or worse."""
+    from mcdp.methods import label
+    from study.propagation import format_propagation
+
+    results = read_results(ROOT / "docs" / "results" / "sweep_compare" / "results.json")
+    lines = [ln for ln in format_propagation(results, label).splitlines() if ", SurroundDepth: propagation" in ln]
+    assert len(lines) == 4 and any("negligible" in ln for ln in lines), lines
+    assert not any("(worse)" in ln or "(better)" in ln for ln in lines), lines
 
 
 def test_the_verdict_section_says_better_only_where_the_paired_interval_does(prop):
