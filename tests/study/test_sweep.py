@@ -270,17 +270,20 @@ def test_keep_last_false_removes_last_pt_after_eval_and_refuses_to_extend(tmp_pa
     assert str(run) in err and "keep_last: false" in err and "cannot resume" in err
 
 
-def test_keep_best_false_removes_the_checkpoints_after_eval_and_a_rerun_skips_from_the_record(tmp_path, capsys):
+def test_keep_best_false_removes_the_checkpoints_after_eval_and_a_rerun_skips_from_the_record(mini_sweep, tmp_path,
+                                                                                            capsys):
     """ci.yaml's keep_best: false: each run keeps its numbers and a record of the checkpoints it had, not the
     checkpoints; the pretraining keeps pretrained.pt only; a rerun trains and evaluates nothing; `mcdp eval`
     on such a run and a rerun that would evaluate it again each say why in one line."""
     from mcdp.runs import REMOVED
 
-    out = tmp_path / "sweep"
-    common = ["--out", str(out), "--no-progress", "overlaps=[0.5]", "methods=[mono2]", "jobs=1", "workers=1",
-              "preview=false", "pretrain.workers=1"]
-    assert sweep_main([str(CI), *common]) == 0
-    err = capsys.readouterr().err
+    # ci.yaml at one overlap, one method, in process (tests/study/conftest.py), run once for the session from
+    # an empty folder: its copy, and what that sweep wrote to stderr
+    out = mini_sweep.copy_to(tmp_path / "sweep")
+    common = ["--out", str(out), *mini_sweep.args]
+    assert common[2:] == ["--no-progress", "overlaps=[0.5]", "methods=[mono2]", "jobs=1", "workers=1",
+                          "preview=false", "pretrain.workers=1"]
+    err = mini_sweep.err
     run = out / "runs" / "overlap_0.50" / "mono2_s0"
     assert not list((run / "checkpoints").glob("*.pt")) and (run / "metrics_test.json").is_file()
     status = json.loads((run / STATUS).read_text())
