@@ -206,15 +206,21 @@ def test_ci_sweep_end_to_end_rerun_and_resume(tmp_path, capsys):
     assert res3["rows"][0]["steps"] == 3
 
 
-def test_parallel_jobs_give_the_same_numbers_as_sequential(tmp_path):
+def test_parallel_jobs_give_the_same_numbers_as_sequential(mini_sweep, tmp_path):
     """jobs=2 (spawned processes) and jobs=1 (in process) train and evaluate identically."""
-    common = ["--no-progress", "overlaps=[0.3]", "methods=[mono2,mcdp_m1]"]
+    common = ["--no-progress", "overlaps=[0.5]", "methods=[mono2,mcdp_m1]"]
+    # both start from the session's rendered overlap 0.50 and pretraining (tests/study/conftest.py), reused
+    # (what a rerun does): the engines' jobs are the runs, which each sweep trains and evaluates itself
+    for name in ("seq", "par"):
+        mini_sweep.copy_to(tmp_path / name, "data", "pretrain")
     assert sweep_main([str(CI), "--out", str(tmp_path / "seq"), "jobs=1", *common]) == 0
     assert sweep_main([str(CI), "--out", str(tmp_path / "par"), "jobs=2", *common]) == 0
     seq = json.loads((tmp_path / "seq" / "results.json").read_text())
     par = json.loads((tmp_path / "par" / "results.json").read_text())
     assert [(r["method"], r["status"]) for r in par["rows"]] == [("mono2", "ok"), ("mcdp_m1", "ok")]
     assert par["counters"]["trained"] == 2 and par["counters"]["evaluated"] == 2
+    assert (par["counters"]["rendered"], par["counters"]["render_skipped"]) == (0, 1)
+    assert par["pretrain"]["sha256"] == seq["pretrain"]["sha256"] == mini_sweep.results["pretrain"]["sha256"]
     for a, b in zip(seq["rows"], par["rows"]):
         assert a["method"] == b["method"]
         assert a["metrics"] == b["metrics"], a["method"]
@@ -246,8 +252,9 @@ def test_the_smoke_sweep_keeps_no_checkpoint():
         != config_hash(sweep.SweepConfig(keep_last=False, keep_best=False))
 
 
-def test_keep_last_false_removes_last_pt_after_eval_and_refuses_to_extend(tmp_path, capsys):
+def test_keep_last_false_removes_last_pt_after_eval_and_refuses_to_extend(mini_sweep, tmp_path, capsys):
     out = tmp_path / "sweep"
+    mini_sweep.copy_to(out, "data", "pretrain")  # the session's rendered overlap 0.50 and pretraining, reused
     common = ["--out", str(out), "--no-progress", "overlaps=[0.5]", "methods=[mono2]", "jobs=1", "keep_last=false",
               "keep_best=true"]
     assert sweep_main([str(CI), *common]) == 0
