@@ -4,6 +4,7 @@ exact (and works with another number of processes)."""
 from __future__ import annotations
 
 import os
+import shutil
 import subprocess
 import sys
 from pathlib import Path
@@ -70,12 +71,15 @@ def test_resume_under_torchrun_is_exact_and_another_world_size_resumes(two_rank_
     part = tmp_path / "part"
     torchrun(2, tiny_dataset, part, "train.steps=2")
     assert load_checkpoint(part / "checkpoints" / "last.pt")["step"] == 2
+    # the same 2-rank run at step 2, to be continued by one process below: a copy of this one (a third
+    # torchrun launch would train the same two steps again)
+    other = tmp_path / "other"
+    shutil.copytree(part, other)
     torchrun(2, tiny_dataset, part, "train.steps=4")  # resumes at step 2
     a, b = weights(out / "checkpoints" / "last.pt"), weights(part / "checkpoints" / "last.pt")
     assert all(torch.equal(a[k], b[k]) for k in a), "2 + 2 steps under torchrun differ from 4 steps"
     # the 2-rank run at step 2 continued by one process: allowed, said once, and it trains on
-    other = tmp_path / "other"
-    torchrun(2, tiny_dataset, other, "train.steps=2")
+    assert load_checkpoint(other / "checkpoints" / "last.pt")["world_size"] == 2
     proc = subprocess.run([sys.executable, "-m", "mcdp", "train", PRESET, "--data", str(tiny_dataset), "--out",
                            str(other), *COMMON, "train.steps=4"], capture_output=True, text=True, timeout=600,
                           env={**os.environ, "OMP_NUM_THREADS": "1"})
