@@ -9,6 +9,7 @@ table: every worker is gone (or a zombie awaiting its reaper) within seconds.
 from __future__ import annotations
 
 import os
+import shutil
 import signal
 import subprocess
 import sys
@@ -91,10 +92,30 @@ def test_render_workers_die_with_the_render(tmp_path, sig):
     _kill_parent_and_check(argv, 3, sig, tmp_path)  # the progress queue's manager + 2 workers
 
 
+SWEEP = ["pretrain=null", "methods=[mono2]", "overlaps=[0.2]", "seeds=[0,1]", "jobs=2", "preview=false",
+         "train_overrides=[train.steps=100000,train.val_every=100000,train.ckpt_every=100000,model.min_depth=2.0]"]
+
+
+@pytest.fixture(scope="module")
+def sweep_data(tmp_path_factory):
+    """The sweep's dataset (overlap 0.20), rendered once in process as its render stage does: each test's
+    sweep reuses a copy of it and gets to its runs' workers without rendering it again."""
+    from corelib.rundir import claim
+    from study.config import load_sweep_config
+    from study.stages import Counters
+    from study.worlds import render_stage
+
+    sweep_dir = tmp_path_factory.mktemp("orphans") / "s"
+    claim(sweep_dir, "sweep").release()  # what the sweep writes first: the marker of a sweep folder
+    render_stage(load_sweep_config(ROOT / "configs" / "sweep" / "ci.yaml", SWEEP), 0.2, sweep_dir, Counters(),
+                 lambda *a: None, False)
+    return sweep_dir
+
+
 @pytest.mark.parametrize("sig", [signal.SIGKILL, signal.SIGTERM, signal.SIGHUP, signal.SIGINT])
-def test_sweep_run_workers_die_with_the_sweep(tmp_path, sig):
-    steps = "train_overrides=[train.steps=100000,train.val_every=100000,train.ckpt_every=100000,model.min_depth=2.0]"
+def test_sweep_run_workers_die_with_the_sweep(sweep_data, tmp_path, sig):
+    shutil.copytree(sweep_data, tmp_path / "s")
     argv = [sys.executable, "-m", "study.cli", "sweep", "configs/sweep/ci.yaml", "--out", str(tmp_path / "s"),
-            "--no-progress", "pretrain=null", "methods=[mono2]", "overlaps=[0.2]", "seeds=[0,1]", "jobs=2",
-            "preview=false", steps]
+            "--no-progress", *SWEEP]
     _kill_parent_and_check(argv, 2, sig, tmp_path, wait_s=600, ready="training 100000 steps")  # the runs' workers
+    assert "overlap_0.20: dataset" in (tmp_path / "err").read_text() and "reused" in (tmp_path / "err").read_text()

@@ -13,9 +13,6 @@ from study import config as sweep
 
 ROOT = Path(__file__).resolve().parents[2]
 CI = ROOT / "configs" / "sweep" / "ci.yaml"
-#: the smallest sweep with a pretraining: configs/sweep/ci.yaml at one overlap, one method, in process
-MINI = ["--no-progress", "overlaps=[0.5]", "methods=[mono2]", "jobs=1", "workers=1", "preview=false",
-        "pretrain.workers=1"]
 
 
 def test_the_run_hash_of_a_run_in_two_folders_is_equal(tmp_path):
@@ -35,14 +32,13 @@ def test_the_run_hash_of_a_run_in_two_folders_is_equal(tmp_path):
     assert run_hash(plain) == config_hash(plain)
 
 
-def test_a_copied_sweep_folder_resumes_without_redoing_anything(tmp_path, capsys):
-    src, dst = tmp_path / "here" / "sweep", tmp_path / "there" / "moved"
-    assert study_cli.main(["sweep", str(CI), "--out", str(src), *MINI]) == 0
+def test_a_copied_sweep_folder_resumes_without_redoing_anything(mini_sweep, tmp_path, capsys):
+    src, dst = mini_sweep.out, tmp_path / "there" / "moved"  # the smallest sweep with a pretraining (conftest)
     first = json.loads((src / "results.json").read_text())
     assert first["counters"]["trained"] == 1 and first["pretrain"] is not None
     shutil.copytree(src, dst)
     capsys.readouterr()
-    assert study_cli.main(["sweep", str(CI), "--out", str(dst), *MINI]) == 0
+    assert study_cli.main(["sweep", str(CI), "--out", str(dst), *mini_sweep.args]) == 0
     err = capsys.readouterr().err
     assert f"[pretrain] {dst / 'pretrain'}" in err and "reused" in err and "warning:" not in err  # same code
     res = json.loads((dst / "results.json").read_text())

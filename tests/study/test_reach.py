@@ -20,12 +20,15 @@ METHODS = "methods=[mono2,fsm,mcdp_m2_nocon,mcdp_m2,mcdp_local,oracle_local]"
 
 
 @pytest.fixture(scope="module")
-def reach_sweep(tmp_path_factory):
+def reach_sweep(tmp_path_factory, mini_sweep):
     out = tmp_path_factory.mktemp("reach") / "sw"
+    mini_sweep.copy_to(out, "pretrain")  # ci.yaml's pretraining, made once for the session (conftest), reused
     rc = study_cli.main(["sweep", str(CI), "--out", str(out), "--no-progress", METHODS, "overlaps=[0.5]",
                          "seeds=[0,1]", "worlds=per_seed", "jobs=1", "keep_last=false"])
     assert rc == 0
-    return out, json.loads((out / "results.json").read_text())
+    res = json.loads((out / "results.json").read_text())
+    assert res["pretrain"]["sha256"] == mini_sweep.results["pretrain"]["sha256"]
+    return out, res
 
 
 def test_worlds_are_paired_with_seeds(reach_sweep):

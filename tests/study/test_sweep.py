@@ -206,15 +206,21 @@ def test_ci_sweep_end_to_end_rerun_and_resume(tmp_path, capsys):
     assert res3["rows"][0]["steps"] == 3
 
 
-def test_parallel_jobs_give_the_same_numbers_as_sequential(tmp_path):
+def test_parallel_jobs_give_the_same_numbers_as_sequential(mini_sweep, tmp_path):
     """jobs=2 (spawned processes) and jobs=1 (in process) train and evaluate identically."""
-    common = ["--no-progress", "overlaps=[0.3]", "methods=[mono2,mcdp_m1]"]
+    common = ["--no-progress", "overlaps=[0.5]", "methods=[mono2,mcdp_m1]"]
+    # both start from the session's rendered overlap 0.50 and pretraining (tests/study/conftest.py), reused
+    # (what a rerun does): the engines' jobs are the runs, which each sweep trains and evaluates itself
+    for name in ("seq", "par"):
+        mini_sweep.copy_to(tmp_path / name, "data", "pretrain")
     assert sweep_main([str(CI), "--out", str(tmp_path / "seq"), "jobs=1", *common]) == 0
     assert sweep_main([str(CI), "--out", str(tmp_path / "par"), "jobs=2", *common]) == 0
     seq = json.loads((tmp_path / "seq" / "results.json").read_text())
     par = json.loads((tmp_path / "par" / "results.json").read_text())
     assert [(r["method"], r["status"]) for r in par["rows"]] == [("mono2", "ok"), ("mcdp_m1", "ok")]
     assert par["counters"]["trained"] == 2 and par["counters"]["evaluated"] == 2
+    assert (par["counters"]["rendered"], par["counters"]["render_skipped"]) == (0, 1)
+    assert par["pretrain"]["sha256"] == seq["pretrain"]["sha256"] == mini_sweep.results["pretrain"]["sha256"]
     for a, b in zip(seq["rows"], par["rows"]):
         assert a["method"] == b["method"]
         assert a["metrics"] == b["metrics"], a["method"]
@@ -246,8 +252,9 @@ def test_the_smoke_sweep_keeps_no_checkpoint():
         != config_hash(sweep.SweepConfig(keep_last=False, keep_best=False))
 
 
-def test_keep_last_false_removes_last_pt_after_eval_and_refuses_to_extend(tmp_path, capsys):
+def test_keep_last_false_removes_last_pt_after_eval_and_refuses_to_extend(mini_sweep, tmp_path, capsys):
     out = tmp_path / "sweep"
+    mini_sweep.copy_to(out, "data", "pretrain")  # the session's rendered overlap 0.50 and pretraining, reused
     common = ["--out", str(out), "--no-progress", "overlaps=[0.5]", "methods=[mono2]", "jobs=1", "keep_last=false",
               "keep_best=true"]
     assert sweep_main([str(CI), *common]) == 0
@@ -270,17 +277,20 @@ def test_keep_last_false_removes_last_pt_after_eval_and_refuses_to_extend(tmp_pa
     assert str(run) in err and "keep_last: false" in err and "cannot resume" in err
 
 
-def test_keep_best_false_removes_the_checkpoints_after_eval_and_a_rerun_skips_from_the_record(tmp_path, capsys):
+def test_keep_best_false_removes_the_checkpoints_after_eval_and_a_rerun_skips_from_the_record(mini_sweep, tmp_path,
+                                                                                            capsys):
     """ci.yaml's keep_best: false: each run keeps its numbers and a record of the checkpoints it had, not the
     checkpoints; the pretraining keeps pretrained.pt only; a rerun trains and evaluates nothing; `mcdp eval`
     on such a run and a rerun that would evaluate it again each say why in one line."""
     from mcdp.runs import REMOVED
 
-    out = tmp_path / "sweep"
-    common = ["--out", str(out), "--no-progress", "overlaps=[0.5]", "methods=[mono2]", "jobs=1", "workers=1",
-              "preview=false", "pretrain.workers=1"]
-    assert sweep_main([str(CI), *common]) == 0
-    err = capsys.readouterr().err
+    # ci.yaml at one overlap, one method, in process (tests/study/conftest.py), run once for the session from
+    # an empty folder: its copy, and what that sweep wrote to stderr
+    out = mini_sweep.copy_to(tmp_path / "sweep")
+    common = ["--out", str(out), *mini_sweep.args]
+    assert common[2:] == ["--no-progress", "overlaps=[0.5]", "methods=[mono2]", "jobs=1", "workers=1",
+                          "preview=false", "pretrain.workers=1"]
+    err = mini_sweep.err
     run = out / "runs" / "overlap_0.50" / "mono2_s0"
     assert not list((run / "checkpoints").glob("*.pt")) and (run / "metrics_test.json").is_file()
     status = json.loads((run / STATUS).read_text())
