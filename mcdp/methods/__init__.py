@@ -15,7 +15,8 @@ one module per network family (`mcdp.methods.mcdp`: MCDP and Mono2; `mcdp.method
 The depth network's contract is one class, `mcdp.methods.base.DepthNetwork`: every method's network
 subclasses it (most through `mcdp.methods.mcdp.DepthModel`; `network_class` refuses anything else) and
 overrides what differs. Its declared members, read as attributes and never probed:
-``__init__(ModelConfig, params=None)`` (``params``: the validated ``method_params``), ``check_config(cfg)`` (classmethod: ConfigError naming the key), ``.cfg``,
+``__init__(ModelConfig, params=None)`` (``params``: the validated ``method_params``), ``check_config(cfg)``
+(classmethod: ConfigError naming the key), ``.cfg``,
 ``.stages`` (stage names, the last is evaluated), ``n_out`` (decoder depth channels), ``has_bases`` (n
 bases combined by weights), ``uses_neighbours`` (the depth reads other cameras at inference: the sweep
 also evaluates it cut), ``joint_pose`` (the pose network moves the rig as one), ``reads_overlap_truth``
