@@ -43,10 +43,22 @@ def _init(parent_pid: int, then=None) -> None:
 def executor(ctx, processes: int, initializer=None):
     """``ProcessPoolExecutor(processes)`` whose workers die with this process (then run ``initializer``).
     Unlike ``multiprocessing.Pool``, it notices a worker that dies (kill -9, the OOM killer): every task
-    not yet returned raises ``BrokenProcessPool`` instead of waiting for ever (see `WorkerLost`)."""
+    not yet returned raises ``BrokenProcessPool`` instead of waiting for ever (see `WorkerLost`).
+    Left by Ctrl-C (KeyboardInterrupt) or SystemExit, its ``with`` block ends the workers at once instead of
+    waiting for their running tasks (a render's sequences: tens of seconds; what they write is a ``.partial``
+    that the rerun replaces)."""
     from concurrent.futures import ProcessPoolExecutor
 
-    return ProcessPoolExecutor(processes, mp_context=ctx, initializer=_init, initargs=(os.getpid(), initializer))
+    class _Executor(ProcessPoolExecutor):
+        def __exit__(self, exc_type, exc, tb):
+            if exc_type is not None and issubclass(exc_type, (KeyboardInterrupt, SystemExit)):
+                for proc in list((self._processes or {}).values()):  # CPython's pid -> Process of the pool
+                    proc.terminate()
+                self.shutdown(wait=True, cancel_futures=True)
+                return False
+            return super().__exit__(exc_type, exc, tb)
+
+    return _Executor(processes, mp_context=ctx, initializer=_init, initargs=(os.getpid(), initializer))
 
 
 class WorkerLost(RuntimeError):
