@@ -12,6 +12,8 @@ import io
 import sys
 from pathlib import Path
 
+from corelib.atomic import atomic_write_text
+
 MAX_BYTES = 1 << 20  # a data file is ours and small; a bigger one is a mistake
 
 
@@ -31,8 +33,9 @@ def markdown(header: list[str], rows: list[list[str]], align: str = "") -> str:
 
 def write_rows(path: Path | str, header: list[str], rows: list[list[str]]) -> None:
     """The table as CSV at `path` (UTF-8, header first)."""
-    with open(path, "w", newline="", encoding="utf-8") as f:
-        csv.writer(f, lineterminator="\n").writerows([list(header)] + [list(r) for r in rows])
+    buf = io.StringIO(newline="")
+    csv.writer(buf, lineterminator="\n").writerows([list(header)] + [list(r) for r in rows])
+    atomic_write_text(path, buf.getvalue(), fsync=False)  # whole or not at all
 
 
 def read_text(path: Path | str) -> str:
@@ -106,4 +109,4 @@ def tee(record: Path | str | None):
         yield
     finally:
         sys.stdout = out
-        Path(record).write_text(copy.getvalue(), encoding="utf-8")
+    atomic_write_text(record, copy.getvalue(), fsync=False)  # only a run that finished leaves a record

@@ -25,6 +25,7 @@ RESULTS = ROOT / "docs" / "results"
 sys.path.insert(0, str(ROOT))
 
 from benchmarks._table import TableError, markdown, read_rows, read_text  # noqa: E402
+from corelib.atomic import atomic_write_text  # noqa: E402
 
 _PLACEHOLDER = re.compile(r"\{\{(table|output) +([\w.-]+)(?: +([lr]+))? *\}\}")
 _NOTE = re.compile(r"^<!--.*?-->[ \t]*\n", re.S | re.M)
@@ -78,7 +79,7 @@ def main(argv=None) -> int:
         except TableError as exc:
             print(f"error: {exc}", file=sys.stderr)
             return 2
-        (RESULTS / f"{name}.md").write_text(text)
+        atomic_write_text(RESULTS / f"{name}.md", text, fsync=False)
         print(f"wrote docs/results/{name}.md")
     return 0
 
