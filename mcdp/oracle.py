@@ -115,3 +115,45 @@ def overlap_truth_at(ds, masks, seq: str, frame: int, size: tuple[int, int]) -> 
 def overlap_at(ds, masks, seq: str, frame: int, size: tuple[int, int]) -> torch.Tensor:
     """(N, 1, h, w) bool: each camera's overlap pixels at ``size`` (nearest). ORACLE input."""
     return overlap_truth_at(ds, masks, seq, frame, size) > 0
+
+
+#: the propagation ceiling's inverse-distance weights: w = 1 / (d^2 + EPS^2), d in image widths
+SPREAD_EPS = 0.01
+
+
+def spread_from_overlap(pred: torch.Tensor, known: torch.Tensor, chunk: int = 4096) -> torch.Tensor:
+    """ORACLE propagation ceiling: a prediction corrected from the ground truth of the overlap alone.
+
+    The per-pixel log ratio log(gt / pred) on the known (overlap) pixels is spread to every other pixel by
+    inverse-distance weighting (weights 1 / (d^2 + `SPREAD_EPS`^2), d the distance in image widths), and the
+    prediction is multiplied by exp of it; known pixels take their ground truth. A simple propagator that
+    needs no training: near the overlap it carries the overlap's local error, far from it the weighted mean
+    ratio (a scale correction). It reads ground truth: a yardstick.
+
+    Args:
+        pred: (B, 1, H, W) predicted depth, metres (> 0).
+        known: (B, 1, H, W) ground-truth depth of the known pixels, metres; 0 (or less) elsewhere.
+    Returns:
+        (B, 1, H, W): the corrected depth; an image without a known pixel is unchanged.
+    """
+    B, _, H, W = pred.shape
+    out = pred.clone().float()
+    yy, xx = torch.meshgrid(torch.arange(H, dtype=torch.float32), torch.arange(W, dtype=torch.float32),
+                            indexing="ij")
+    xy = torch.stack([xx.flatten(), yy.flatten()], 1).to(pred.device) / float(W)  # (HW, 2) in widths
+    for b in range(B):
+        p = pred[b, 0].float().flatten().clamp(min=1e-6)
+        g = known[b, 0].float().flatten()
+        k = g > 0
+        if not bool(k.any()):
+            continue
+        r = torch.log(g[k]) - torch.log(p[k])  # (K,)
+        src = xy[k]
+        spread = torch.empty_like(p)
+        for i in range(0, p.numel(), chunk):
+            d2 = torch.cdist(xy[i:i + chunk], src).square()
+            w = 1.0 / (d2 + SPREAD_EPS ** 2)
+            spread[i:i + chunk] = (w @ r) / w.sum(1)
+        corrected = p * torch.exp(spread)
+        out[b, 0] = torch.where(k, g, corrected).view(H, W)
+    return out.to(pred.dtype)

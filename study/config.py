@@ -53,6 +53,10 @@ class SweepConfig(StrictModel):
         ``per_seed``: seed k trains on a world of its own, rendered at every overlap from data seed
         (preset seed + k), so a (world, seed) pair is still one pair across overlaps and methods, and
         the report's paired intervals cover the scene sample as well as the training seed.
+    seeds_per_world: with ``worlds: per_seed``, how many training seeds share a world (crossed design:
+        the i-th seed of ``seeds`` trains on world i // seeds_per_world, rendered from data seed preset seed +
+        that world's index), so the report can split a paired difference's spread into a world part and a
+        seed part (`study.power`). 1 (default): seed k on world k, as above.
     eval: evaluation settings for every run.
     checkpoint: which checkpoint is evaluated: ``auto`` (best val loss, else last), ``best``, ``last``.
     workers: rendering processes (engine ``local``).
@@ -96,6 +100,7 @@ class SweepConfig(StrictModel):
     train_overrides: list[str] = Field(default_factory=list)
     seeds: list[int] = Field(default_factory=lambda: [0])
     worlds: Literal["shared", "per_seed"] = added_key("shared")
+    seeds_per_world: int = added_key(1, ge=1, le=16)
     eval: SweepEvalConfig = Field(default_factory=SweepEvalConfig)
     checkpoint: Literal["auto", "best", "last"] = "auto"
     workers: int = Field(2, ge=1, le=256)
@@ -113,6 +118,12 @@ class SweepConfig(StrictModel):
         if not self.keep_best and self.keep_last:
             raise ValueError("keep_best: false needs keep_last: false (a run kept to be resumed keeps the "
                              "checkpoint it was evaluated with)")
+        if self.seeds_per_world > 1:
+            if self.worlds != "per_seed":
+                raise ValueError("seeds_per_world > 1 needs worlds: per_seed")
+            if len(self.seeds) % self.seeds_per_world:
+                raise ValueError(f"seeds_per_world: {self.seeds_per_world} must divide the number of seeds "
+                                 f"({len(self.seeds)})")
         return self
 
     @field_validator("overlaps")
@@ -192,8 +203,22 @@ def data_config_for(cfg: SweepConfig, overlap: float, world: int | None = None):
 
 
 def worlds_of(cfg: SweepConfig) -> list[int | None]:
-    """The worlds rendered per overlap: [None] (one shared world) or one per seed."""
-    return list(cfg.seeds) if cfg.worlds == "per_seed" else [None]
+    """The worlds rendered per overlap: [None] (one shared world), one per seed (seed k: world k), or with
+    ``seeds_per_world`` S > 1 worlds 0 .. len(seeds) / S - 1."""
+    if cfg.worlds != "per_seed":
+        return [None]
+    if cfg.seeds_per_world == 1:
+        return list(cfg.seeds)
+    return list(range(len(cfg.seeds) // cfg.seeds_per_world))
+
+
+def world_of_seed(cfg: SweepConfig, seed: int) -> int | None:
+    """The world a training seed trains on (`worlds_of`): None (shared), the seed itself, or its block."""
+    if cfg.worlds != "per_seed":
+        return None
+    if cfg.seeds_per_world == 1:
+        return int(seed)
+    return list(cfg.seeds).index(seed) // cfg.seeds_per_world
 
 
 def world_key(overlap: float, world: int | None) -> str:

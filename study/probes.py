@@ -15,6 +15,10 @@ observes its outputs, so that the predictor knows nothing of the experiment.
   bases at weights fitted to the ground truth on every valid pixel, `mcdp.oracle`) and "oracle_overlap"
   (fitted on the overlap pixels only: what one global weight vector per image could carry from a perfectly
   known overlap to the rest), after "final". They read ground truth: yardsticks, not methods.
+- **propagation ceiling** (``oracle_range``, a network that reads no other camera only): the extra stage
+  "oracle_spread", the last stage's depth corrected from the overlap's ground truth alone
+  (`mcdp.oracle.spread_from_overlap`): how much the overlap could tell the rest of the image through a
+  simple propagator, whatever the training budget. A yardstick too.
 
 Example::
 
@@ -63,6 +67,8 @@ class Probed:
         self.pred = pred
         self.variant = variant
         self.oracle_weights = oracle_range is not None and pred.n_out > 1
+        self.oracle_spread = (oracle_range is not None and variant == TRAINED
+                              and not getattr(pred.model, "uses_neighbours", True))
         self.oracle_range = None if oracle_range is None else (float(oracle_range[0]), float(oracle_range[1]))
         self.kept: dict | None = {} if keep else None  # (seq, frame) -> last stage's depth at training size
         self._kept_bytes = 0
@@ -72,8 +78,11 @@ class Probed:
 
     @property
     def stages(self) -> list[str]:
-        """The stages `predict` answers: the network's, then "final", "oracle", "oracle_overlap" if ORACLE."""
-        return self.pred.stages + (["final", "oracle", "oracle_overlap"] if self.oracle_weights else [])
+        """The stages `predict` answers: the network's, then "final", "oracle", "oracle_overlap" if ORACLE
+        weights, "oracle_spread" if the propagation ceiling."""
+        return (self.pred.stages + (["final"] if self.oracle_weights or self.oracle_spread else [])
+                + (["oracle", "oracle_overlap"] if self.oracle_weights else [])
+                + (["oracle_spread"] if self.oracle_spread else []))
 
     @property
     def refinement(self) -> dict:
@@ -97,11 +106,14 @@ class Probed:
         small = self.pred.stages_of(out)
         self._record(out)
         self._compare(seq, frame, small[self.pred.stages[-1]])
-        if self.oracle_weights:  # "final" is named explicitly so that the yardstick stays apart from it
+        if self.oracle_weights or self.oracle_spread:  # "final" named explicitly: the yardsticks stay apart from it
             small["final"] = small[self.pred.stages[-1]]
+        if self.oracle_weights:
             d_all, d_ov = self._oracle_depth(seq, frame, out)
             small["oracle"] = d_all * out["scale"].view(-1, 1, 1, 1)
             small["oracle_overlap"] = d_ov * out["scale"].view(-1, 1, 1, 1)
+        if self.oracle_spread:
+            small["oracle_spread"] = self._spread_depth(seq, frame, small[self.pred.stages[-1]])
         return self.pred.upsample(small)
 
     __call__ = predict
@@ -132,6 +144,18 @@ class Probed:
         if ref is not None:
             self._acc["cut_change_m"] += self._masked_mean_abs(depth, ref)
             self._acc["cut_images"] += int(depth.shape[0])
+
+    def _spread_depth(self, seq: str, frame: int, depth: torch.Tensor) -> torch.Tensor:
+        """The propagation ceiling: `depth` (N, 1, h, w) corrected from the overlap's ground truth (within the
+        ORACLE depth range, scene pixels) by `mcdp.oracle.spread_from_overlap`."""
+        from mcdp.oracle import ground_truth_at, overlap_at, spread_from_overlap
+
+        pred = self.pred
+        size = tuple(depth.shape[-2:])
+        gt, valid = ground_truth_at(pred.ds, pred.reader.mask_full, seq, frame, size, self.oracle_range)
+        ov = overlap_at(pred.ds, pred.reader.mask_full, seq, frame, size)
+        known = torch.where(valid & ov, gt, torch.zeros_like(gt)).to(depth.device)
+        return spread_from_overlap(depth.float(), known)
 
     def _oracle_depth(self, seq: str, frame: int, out: dict) -> tuple[torch.Tensor, torch.Tensor]:
         """(depth at the weights fitted on every valid pixel, at those fitted on the overlap pixels only)."""

@@ -16,7 +16,7 @@ import time
 from typing import Any
 
 from mcdp.metrics import METRIC_NAMES
-from study.variants import CUT, ORACLE, ORACLE_OVL, TRAINED, VARIANTS, Evaluation
+from study.variants import CUT, ORACLE, ORACLE_OVL, SPREAD, TRAINED, VARIANTS, Evaluation
 
 
 SCALE_LABEL = {"none": "metric", "median": "median", "rig_median": "rig median"}
@@ -95,6 +95,8 @@ def flat_rows(row: dict) -> list[dict[str, Any]]:
         extra[ORACLE] = orc
     if row.get("metrics_oracle_overlap"):
         extra[ORACLE_OVL] = flat_row({"metrics": row["metrics_oracle_overlap"]})
+    if row.get("metrics_oracle_spread"):
+        extra[SPREAD] = flat_row({"metrics": row["metrics_oracle_spread"]})
     if row.get("metrics_cut"):
         cut = flat_row({"metrics": row["metrics_cut"]})
         rc = row.get("refinement_cut") or {}
@@ -102,7 +104,7 @@ def flat_rows(row: dict) -> list[dict[str, Any]]:
         cut["refine.depth_change_m"] = _f(rc.get("depth_change_m"))
         base["cut.depth_change_m"] = _f(rc.get("cut_change_m"))  # mean |as trained - cut| depth, metres
         extra[CUT] = cut
-    for variant in (CUT, ORACLE, ORACLE_OVL):
+    for variant in (CUT, ORACLE, ORACLE_OVL, SPREAD):
         if variant in extra:
             e = extra[variant]
             for k in ("overlap", "method", "seed", "status", "steps", "checkpoint_step"):

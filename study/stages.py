@@ -259,6 +259,8 @@ def _fill_row(row: dict, status: dict, metrics: dict, metrics_cut: dict | None, 
         row["metrics_oracle"] = summarize_metrics(metrics, "oracle")
     if "oracle_overlap" in metrics["stages"]:
         row["metrics_oracle_overlap"] = summarize_metrics(metrics, "oracle_overlap")
+    if "oracle_spread" in metrics["stages"]:
+        row["metrics_oracle_spread"] = summarize_metrics(metrics, "oracle_spread")
     if metrics_cut is not None and metrics_cut.get("sweep", {}).get("eval_key") == key:
         row["metrics_cut"] = summarize_metrics(metrics_cut)
         row["refinement_cut"] = metrics_cut.get("refinement")

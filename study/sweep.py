@@ -51,7 +51,7 @@ import yaml
 from corelib.atomic import atomic_write_text
 from corelib.logs import logger
 from corelib.configlib import ConfigError, config_hash, config_to_dict, read_yaml
-from study.config import SPLIT, SweepConfig, check_nested_configs, overlap_key, worlds_of
+from study.config import SPLIT, SweepConfig, check_nested_configs, overlap_key, world_of_seed, worlds_of
 from study.report import write_all
 from study.results import build_results
 from study.engines import run_all
@@ -120,8 +120,8 @@ def _run_sweep(cfg: SweepConfig, out: Path, progress: bool, log, config_source: 
             for r in recs:
                 r["reference"], r["prior"] = reference_stage(cfg, r, out, counters, log)
             data.append(recs[0] if len(recs) == 1 else combine_worlds(recs))
-            for k, seed in enumerate(cfg.seeds):
-                worlds[o, seed] = recs[0] if len(recs) == 1 else recs[k]
+            for seed in cfg.seeds:
+                worlds[o, seed] = recs[0] if len(recs) == 1 else recs[worlds_of(cfg).index(world_of_seed(cfg, seed))]
         todo = [(worlds[d["overlap"], seed], method, seed) for d in data for method in cfg.methods
                 for seed in cfg.seeds]
         prog.stage("runs")

@@ -6,7 +6,10 @@ A sweep evaluates each (overlap, method, seed) run's checkpoint
 - ``cut``: with its neighbours cut at inference (`study.probes`; only a network that reads them);
 - ``oracle``: its own bases at per-image weights fitted to the ground truth on every valid pixel
   (`mcdp.oracle`; only a network with bases): a yardstick, it reads ground truth;
-- ``oracle_overlap``: the same weights fitted on the overlap pixels only.
+- ``oracle_overlap``: the same weights fitted on the overlap pixels only;
+- ``oracle_spread``: the propagation ceiling (only a network that reads no other camera): its prediction
+  corrected from the overlap's ground truth alone, the log ratio spread by inverse-distance weighting
+  (`mcdp.oracle.spread_from_overlap`): a yardstick, it reads ground truth.
 
 A row of the results (`study.results`: results.json's ``flat`` and ``aggregate``, results.csv) is one
 `Evaluation`: the method's registry name (`mcdp.methods`) in ``method`` and one of `VARIANTS` in
@@ -17,9 +20,9 @@ from __future__ import annotations
 from collections.abc import Mapping
 from dataclasses import dataclass
 
-TRAINED, CUT, ORACLE, ORACLE_OVL = "trained", "cut", "oracle", "oracle_overlap"
+TRAINED, CUT, ORACLE, ORACLE_OVL, SPREAD = "trained", "cut", "oracle", "oracle_overlap", "oracle_spread"
 #: every variant, in the order a method's evaluations are listed (results.json's ``evaluations``)
-VARIANTS = (TRAINED, CUT, ORACLE, ORACLE_OVL)
+VARIANTS = (TRAINED, CUT, ORACLE, ORACLE_OVL, SPREAD)
 
 
 @dataclass(frozen=True)

@@ -9,8 +9,19 @@ Mono2) with two more input channels at frame t:
   the evaluation defines it, from the ground truth), 0 elsewhere;
 - the overlap's validity (1 on overlap pixels).
 
-They enter through a 7x7 stride-2 convolution of their own (``hint``, zero at start, so a warm start
-from the pretraining begins as Mono2), added to the encoder's first convolution before its batch norm.
+They enter at every scale, as depth completion networks take given depth (NLSPN, PromptDA-style prompts):
+
+- at the encoder: a 7x7 stride-2 convolution of their own (``hint``), added to the encoder's first
+  convolution before its batch norm;
+- at every decoder output scale, full resolution included: a 3x3 convolution per scale (``hint_heads``) of
+  the channels resized (nearest) to that scale, added to the output's logit;
+- and the given depth is kept where it is given (NLSPN's ``preserve_input``, CSPN's replacement step): at
+  every scale, a hinted pixel's output is the hint's own value, so the network reproduces the depth it is
+  handed exactly at full resolution (the copy test of docs/results/propagation.md holds by construction)
+  and learns only what the hint tells the pixels around it.
+
+Every new layer is zero at start and has no bias, so a warm start from the pretraining begins as Mono2, and
+an emptied input (all zeros) leaves Mono2's network: the hint layers add nothing and nothing is replaced.
 Evaluated **filled** (as trained) and **emptied** (the sweep's cut: both channels 0, as for a camera
 without neighbours); filled - emptied on non-overlap pixels is the most a perfect overlap delivers
 locally at this budget. It reads ground truth at inference: a yardstick, never a method; every row
@@ -25,6 +36,7 @@ from __future__ import annotations
 
 import torch
 import torch.nn as nn
+import torch.nn.functional as F
 
 from mcdp.methods.mcdp import MonoDepthModel
 
@@ -48,7 +60,10 @@ class OracleLocalModel(MonoDepthModel):
     def __init__(self, cfg, params=None):
         super().__init__(cfg, params)
         self.hint = nn.Conv2d(2, 64, kernel_size=7, stride=2, padding=3, bias=False)
-        nn.init.zeros_(self.hint.weight)
+        self.hint_heads = nn.ModuleList(nn.Conv2d(2, 1, kernel_size=3, padding=1, bias=False)
+                                        for _ in range(self.cfg.scales))
+        for conv in (self.hint, *self.hint_heads):
+            nn.init.zeros_(conv.weight)
 
     @property
     def uses_neighbours(self) -> bool:
@@ -58,10 +73,41 @@ class OracleLocalModel(MonoDepthModel):
 
     @classmethod
     def fresh_layers(cls, cfg) -> str:
-        return "overlap-input layer"
+        return "overlap-input layers"
+
+    @staticmethod
+    def _given(x: torch.Tensor, nbr: torch.Tensor, overlap_truth) -> torch.Tensor:
+        """(B*N, 1, H, W) the overlap's given depth, zeros when emptied (no input, or the neighbours cut)."""
+        if overlap_truth is None or bool((nbr < 0).all()):  # emptied: as a camera without neighbours
+            return torch.zeros(x.shape[0], 1, *x.shape[-2:], device=x.device, dtype=x.dtype)
+        return overlap_truth.reshape(x.shape[0], 1, *x.shape[-2:]).to(x.dtype)
 
     def encode(self, x: torch.Tensor, B: int, N: int, nbr: torch.Tensor, overlap_truth=None) -> list[torch.Tensor]:
-        if overlap_truth is None or bool((nbr < 0).all()):  # emptied: as a camera without neighbours
-            overlap_truth = torch.zeros(x.shape[0], 1, *x.shape[-2:], device=x.device, dtype=x.dtype)
-        h = hint_channels(overlap_truth.reshape(x.shape[0], 1, *x.shape[-2:]).to(x.dtype))
+        h = hint_channels(self._given(x, nbr, overlap_truth))
         return self.encoder(x, extra=self.hint(h))
+
+    def forward(self, rgb, K, T_ego_cam, mask, nbr, oracle_gt_median=None, scales=None, refine_scales=None,
+                overlap_truth=None) -> dict:
+        """`mcdp.methods.mcdp.DepthModel.forward`, then every output scale takes the hint (module docstring)."""
+        out = super().forward(rgb, K, T_ego_cam, mask, nbr, oracle_gt_median, scales, refine_scales, overlap_truth)
+        B, N, _, H, W = rgb.shape
+        given = self._given(rgb.reshape(B * N, 3, H, W), nbr, overlap_truth)
+        if not bool((given > 0).any()):
+            return out  # emptied: the hint layers would add zeros and nothing is replaced
+        scale = out["scale"].view(-1, 1, 1, 1)
+        min_disp, max_disp = 1.0 / self.cfg.max_depth, 1.0 / self.cfg.min_depth
+        for key in [k for k in out if isinstance(k, tuple) and k[0] == "sig"]:
+            _, stage, s = key
+            sig = out[key]
+            g = F.interpolate(given, size=sig.shape[-2:], mode="nearest")
+            logit = torch.logit(sig.float().clamp(1e-6, 1 - 1e-6))
+            new = torch.sigmoid(logit + self.hint_heads[s](hint_channels(g).to(sig.dtype)).float())
+            valid = g > 0
+            # the given depth (unscaled, as the network's own) as the output's value: its sigmoid-space inverse
+            target = ((1.0 / (g.float() / scale).clamp(min=1e-3) - min_disp) / (max_disp - min_disp)).clamp(0, 1)
+            new = torch.where(valid, target, new).to(sig.dtype)
+            out[key] = new
+            out["disp", stage, s] = self.to_depth(new)[0]
+            up = new if s == 0 else F.interpolate(new, size=(H, W), mode="bilinear", align_corners=False)
+            out["depth", stage, s] = self.to_depth(up)[1] * scale
+        return out
