@@ -117,18 +117,22 @@ def overlap_at(ds, masks, seq: str, frame: int, size: tuple[int, int]) -> torch.
     return overlap_truth_at(ds, masks, seq, frame, size) > 0
 
 
-#: the propagation ceiling's inverse-distance weights: w = 1 / (d^2 + EPS^2), d in image widths
-SPREAD_EPS = 0.01
+#: the hand-built propagator's length scale (image widths): how far an overlap pixel's own error is carried
+SPREAD_LENGTH = 0.05
+#: the propagator's prior weight of the global ratio, in overlap pixels at distance 0 (`spread_from_overlap`)
+SPREAD_PRIOR = 1.0
 
 
 def spread_from_overlap(pred: torch.Tensor, known: torch.Tensor, chunk: int = 4096) -> torch.Tensor:
-    """ORACLE propagation ceiling: a prediction corrected from the ground truth of the overlap alone.
+    """ORACLE hand-built propagator: a prediction corrected from the ground truth of the overlap alone.
 
-    The per-pixel log ratio log(gt / pred) on the known (overlap) pixels is spread to every other pixel by
-    inverse-distance weighting (weights 1 / (d^2 + `SPREAD_EPS`^2), d the distance in image widths), and the
-    prediction is multiplied by exp of it; known pixels take their ground truth. A simple propagator that
-    needs no training: near the overlap it carries the overlap's local error, far from it the weighted mean
-    ratio (a scale correction). It reads ground truth: a yardstick.
+    On the known (overlap) pixels i, r_i = log(gt_i / pred_i). Every other pixel x is multiplied by
+    exp(g + rho(x)): g = median_i r_i, the overlap's robust scale correction, carried to the whole image;
+    rho(x) = sum_i k_i (r_i - g) / (sum_i k_i + `SPREAD_PRIOR`), k_i = exp(-d_i^2 / (2 `SPREAD_LENGTH`^2)) with
+    d_i the distance to pixel i in image widths, the overlap's local errors carried a few percent of the width
+    and fading to the global correction beyond. Known pixels take their ground truth. A simple propagator that
+    needs no training (the overlap's scale everywhere, its local structure nearby); it reads ground truth: a
+    yardstick. Exact when pred = c * gt.
 
     Args:
         pred: (B, 1, H, W) predicted depth, metres (> 0).
@@ -148,12 +152,12 @@ def spread_from_overlap(pred: torch.Tensor, known: torch.Tensor, chunk: int = 40
         if not bool(k.any()):
             continue
         r = torch.log(g[k]) - torch.log(p[k])  # (K,)
-        src = xy[k]
-        spread = torch.empty_like(p)
+        glob = r.median()
+        res, src = r - glob, xy[k]
+        rho = torch.empty_like(p)
         for i in range(0, p.numel(), chunk):
-            d2 = torch.cdist(xy[i:i + chunk], src).square()
-            w = 1.0 / (d2 + SPREAD_EPS ** 2)
-            spread[i:i + chunk] = (w @ r) / w.sum(1)
-        corrected = p * torch.exp(spread)
+            w = torch.exp(-torch.cdist(xy[i:i + chunk], src).square() / (2 * SPREAD_LENGTH ** 2))
+            rho[i:i + chunk] = (w @ res) / (w.sum(1) + SPREAD_PRIOR)
+        corrected = p * torch.exp(glob + rho)
         out[b, 0] = torch.where(k, g, corrected).view(H, W)
     return out.to(pred.dtype)

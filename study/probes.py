@@ -15,10 +15,10 @@ observes its outputs, so that the predictor knows nothing of the experiment.
   bases at weights fitted to the ground truth on every valid pixel, `mcdp.oracle`) and "oracle_overlap"
   (fitted on the overlap pixels only: what one global weight vector per image could carry from a perfectly
   known overlap to the rest), after "final". They read ground truth: yardsticks, not methods.
-- **propagation ceiling** (``oracle_range``, a network that reads no other camera only): the extra stage
+- **hand-built propagator** (``oracle_range``, a network that reads no other camera only): the extra stage
   "oracle_spread", the last stage's depth corrected from the overlap's ground truth alone
   (`mcdp.oracle.spread_from_overlap`): how much the overlap could tell the rest of the image through a
-  simple propagator, whatever the training budget. A yardstick too.
+  simple propagator that needs no training, whatever the budget. A yardstick too.
 
 Example::
 
@@ -67,8 +67,7 @@ class Probed:
         self.pred = pred
         self.variant = variant
         self.oracle_weights = oracle_range is not None and pred.n_out > 1
-        self.oracle_spread = (oracle_range is not None and variant == TRAINED
-                              and not getattr(pred.model, "uses_neighbours", True))
+        self.oracle_spread = oracle_range is not None and variant == TRAINED and not pred.model.uses_neighbours
         self.oracle_range = None if oracle_range is None else (float(oracle_range[0]), float(oracle_range[1]))
         self.kept: dict | None = {} if keep else None  # (seq, frame) -> last stage's depth at training size
         self._kept_bytes = 0
@@ -79,7 +78,7 @@ class Probed:
     @property
     def stages(self) -> list[str]:
         """The stages `predict` answers: the network's, then "final", "oracle", "oracle_overlap" if ORACLE
-        weights, "oracle_spread" if the propagation ceiling."""
+        weights, "oracle_spread" if the hand-built propagator."""
         return (self.pred.stages + (["final"] if self.oracle_weights or self.oracle_spread else [])
                 + (["oracle", "oracle_overlap"] if self.oracle_weights else [])
                 + (["oracle_spread"] if self.oracle_spread else []))
@@ -146,7 +145,7 @@ class Probed:
             self._acc["cut_images"] += int(depth.shape[0])
 
     def _spread_depth(self, seq: str, frame: int, depth: torch.Tensor) -> torch.Tensor:
-        """The propagation ceiling: `depth` (N, 1, h, w) corrected from the overlap's ground truth (within the
+        """The hand-built propagator: `depth` (N, 1, h, w) corrected from the overlap's ground truth (within the
         ORACLE depth range, scene pixels) by `mcdp.oracle.spread_from_overlap`."""
         from mcdp.oracle import ground_truth_at, overlap_at, spread_from_overlap
 

@@ -22,7 +22,7 @@ from __future__ import annotations
 import math
 
 from study.results import flat_of, fmt_diff, mean_std, paired_columns
-from study.variants import CUT, ORACLE, ORACLE_OVL, Evaluation
+from study.variants import CUT, ORACLE, ORACLE_OVL, SPREAD, Evaluation
 
 NON = "median.non_overlap.abs_rel"
 #: mechanisms whose inference-time propagation is reported (as trained vs cut), in this order
@@ -66,6 +66,9 @@ def quantities(results: dict, o: float, key: str = NON) -> dict[str, dict]:
                                                                     (Evaluation(GLOBAL_OF, ORACLE), key))
             q["MCDP (m = 2) refinement gain (init - final)"] = paired(results, o, (GLOBAL_OF, init_key),
                                                                      (GLOBAL_OF, key))
+    if _has(results, Evaluation("mono2", SPREAD)):
+        q["hand-built propagator (Mono2 - Mono2 corrected from the overlap's ground truth)"] = paired(
+            results, o, ("mono2", key), (Evaluation("mono2", SPREAD), key))
     if _has(results, _cut(LOCAL)):
         q["local headroom (ORACLE-local emptied - filled)"] = paired(results, o, (_cut(LOCAL), key), (LOCAL, key))
     for m in READERS:
@@ -114,7 +117,12 @@ def format_reach(results: dict, label) -> str:
         "is positive beyond its interval.\n")
     seeds = results.get("seeds", [])
     worlds = results.get("sweep_config", {}).get("worlds", "shared")
-    add(f"Pairs: {len(seeds)} ({'world k trained with seed k: the intervals cover the scene sample and the seed together' if worlds == 'per_seed' else 'seeds on one shared world: the intervals cover the training seed only'}).\n")
+    per = int(results.get("sweep_config", {}).get("seeds_per_world", 1) or 1)
+    how = ("seeds on one shared world: the intervals cover the training seed only" if worlds != "per_seed" else
+           "world k trained with seed k: the intervals cover the scene sample and the seed together" if per == 1 else
+           f"{len(seeds) // per} worlds x {per} seeds; exploratory: the t-intervals here treat the pairs as "
+           "independent, the primary comparisons above cluster them by world")
+    add(f"Pairs: {len(seeds)} ({how}).\n")
     for d in results["data"]:
         o = d["overlap"]
         q = quantities(results, o)
@@ -132,9 +140,11 @@ def format_reach(results: dict, label) -> str:
         cols = [(n, q) for n, q in (("MCDP (m = 2) cut - trained", ("mcdp_m2", "cut")),
                                      ("MCDP-local cut - trained", ("mcdp_local", "cut")),
                                      ("ORACLE-local emptied - filled", (LOCAL, "cut")),
+                                     ("propagator: Mono2 - corrected", ("mono2", "spread")),
                                      ("Mono2 - FSM", ("fsm", "mono2")), ("Mono2 - MCDP (m = 2)", ("mcdp_m2", "mono2")),
                                      ("Mono2 - MCDP-local", ("mcdp_local", "mono2")))
-                if _has(results, _cut(q[0]) if q[1] == "cut" else q[0])]
+                if _has(results, _cut(q[0]) if q[1] == "cut" else
+                        Evaluation(q[0], SPREAD) if q[1] == "spread" else q[0])]
         add("| overlap | band | Mono2 abs_rel | " + " | ".join(n for n, _ in cols) + " |")
         add("|---|---|---|" + "---|" * len(cols))
         for d in results["data"]:
@@ -145,6 +155,7 @@ def format_reach(results: dict, label) -> str:
                 cells = []
                 for _, (m, kind) in cols:
                     pd = (paired(results, o, (_cut(m), key), (m, key)) if kind == "cut"
+                          else paired(results, o, (m, key), (Evaluation(m, SPREAD), key)) if kind == "spread"
                           else paired(results, o, ("mono2", key), (m, key)))
                     cells.append(_cell(pd))
                 add(f"| {o:.2f} | {b} | {mono['mean']:.4f} | " + " | ".join(cells) + " |")

@@ -34,6 +34,7 @@ from mcdp.methods import METHODS, label, model_config, network_class
 from mcdp.metrics import METRIC_NAMES
 from study.plots import distance_plot, make_plots
 from study.mechanisms import format_mechanisms
+from study.primary import format_primary
 from study.propagation import format_propagation
 from study.reach import format_reach
 from study.results import (BASELINE, PRIOR_LABEL, REF_LABEL, SCALE_LABEL, YARDSTICKS, fmt_diff, method_agg,
@@ -110,7 +111,11 @@ def format_report(results: dict, plots: list[str]) -> str:
         if r.get("metrics"):
             cams = list(r["metrics"]["dep_con"]["per_camera"])
             break
-    L = _setup_section(results) + _summary_section(results)
+    L = _setup_section(results)
+    primary = format_primary(results)
+    if primary:  # a sweep with named primary comparisons opens with them (the copy test first)
+        L += [primary, ""]
+    L += _summary_section(results)
     for d in results["data"]:
         L += _overlap_section(results, d, cams)
     L += _timing_section(results)
@@ -183,7 +188,13 @@ def _setup_section(results: dict) -> list[str]:
     add(f"- training seeds: {seeds}" + (" (values are mean ± half-width of the 95 % Student-t interval of the "
                                         "mean over seeds)" if len(seeds) > 1 else
                                         " (one seed: no spread available; differences may be within seed noise)"))
-    add("- worlds: " + ("one per seed (`worlds: per_seed`): seed k trains and is tested on a world rendered from data "
+    per = int(cfg.get("seeds_per_world", 1) or 1)
+    add("- worlds: " + (f"{len(seeds) // per} worlds x {per} training seeds each (`seeds_per_world: {per}`): the i-th "
+                        f"seed trains and is tested on world i // {per}, rendered from data seed preset seed + that "
+                        "index at every overlap; the tables' paired t-intervals treat the pairs as independent, the "
+                        "primary comparisons cluster them by world"
+                        if cfg.get("worlds") == "per_seed" and per > 1 else
+                        "one per seed (`worlds: per_seed`): seed k trains and is tested on a world rendered from data "
                         "seed k at every overlap, so every interval over seeds covers the scene sample too"
                         if cfg.get("worlds") == "per_seed" else
                         "one per overlap, shared by every seed: the intervals cover the training seed, not the scene "

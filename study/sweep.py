@@ -120,8 +120,9 @@ def _run_sweep(cfg: SweepConfig, out: Path, progress: bool, log, config_source: 
             for r in recs:
                 r["reference"], r["prior"] = reference_stage(cfg, r, out, counters, log)
             data.append(recs[0] if len(recs) == 1 else combine_worlds(recs))
+            ids = worlds_of(cfg)
             for seed in cfg.seeds:
-                worlds[o, seed] = recs[0] if len(recs) == 1 else recs[worlds_of(cfg).index(world_of_seed(cfg, seed))]
+                worlds[o, seed] = recs[0] if len(recs) == 1 else recs[ids.index(world_of_seed(cfg, seed))]
         todo = [(worlds[d["overlap"], seed], method, seed) for d in data for method in cfg.methods
                 for seed in cfg.seeds]
         prog.stage("runs")

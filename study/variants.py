@@ -7,9 +7,9 @@ A sweep evaluates each (overlap, method, seed) run's checkpoint
 - ``oracle``: its own bases at per-image weights fitted to the ground truth on every valid pixel
   (`mcdp.oracle`; only a network with bases): a yardstick, it reads ground truth;
 - ``oracle_overlap``: the same weights fitted on the overlap pixels only;
-- ``oracle_spread``: the propagation ceiling (only a network that reads no other camera): its prediction
-  corrected from the overlap's ground truth alone, the log ratio spread by inverse-distance weighting
-  (`mcdp.oracle.spread_from_overlap`): a yardstick, it reads ground truth.
+- ``oracle_spread``: the hand-built propagator (only a network that reads no other camera): its prediction
+  corrected from the overlap's ground truth alone, the overlap's median log ratio everywhere and its local
+  errors nearby (`mcdp.oracle.spread_from_overlap`): a yardstick, it reads ground truth.
 
 A row of the results (`study.results`: results.json's ``flat`` and ``aggregate``, results.csv) is one
 `Evaluation`: the method's registry name (`mcdp.methods`) in ``method`` and one of `VARIANTS` in

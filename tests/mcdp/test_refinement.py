@@ -30,6 +30,22 @@ def trained(ds, run: Path, preset: str, *overrides: str) -> Path:
     return run
 
 
+def untrained(ds, path: Path, preset: str, *overrides: str) -> Predictor:
+    """The predictor of a randomly initialised (seed 0) network of a tiny preset, from a checkpoint written at
+    ``path``: what a trained run's predictor is, without the training (the probe's plumbing, fast)."""
+    from corelib.configlib import config_to_dict
+    from mcdp.methods import build_depth_model, method_params
+    from mcdp.runs import CHECKPOINT_VERSION, atomic_torch_save
+
+    cfg = load_config(RunConfig, TINY / f"{preset}.yaml", list(overrides))
+    with torch.random.fork_rng():
+        torch.manual_seed(0)
+        net = build_depth_model(cfg.model, method_params(cfg))
+    atomic_torch_save({"version": CHECKPOINT_VERSION, "step": 0, "config": config_to_dict(cfg),
+                       "depth_model": net.state_dict(), "cameras": list(ds.camera_names)}, path)
+    return Predictor(None, ds, checkpoint=str(path), device="cpu")
+
+
 class NoNeighbours:
     """The dataset with an empty neighbour table (a rig whose cameras do not overlap)."""
 
@@ -125,6 +141,132 @@ def test_oracle_stage_is_extra_and_labelled(ds, tmp_path, one_thread):
     assert list(out) == ["init", "refine1", "final", "oracle", "oracle_overlap"]
     assert np.array_equal(out["final"], out["refine1"])
     assert p.refinement["oracle_weight_move"] > 0
+
+
+def test_the_propagator_is_an_extra_stage_of_a_network_that_reads_no_other_camera(ds, tmp_path, one_thread):
+    """oracle_spread (the hand-built propagator): after "final" (= the network's last stage, not the propagator)
+    in the as-trained probe of a network that reads no other camera, given an ORACLE range; the ground truth on
+    the overlap pixels, the prediction corrected from them elsewhere. Not in a cut probe, nor for a network that
+    reads its neighbours."""
+    from mcdp.oracle import ground_truth_at, overlap_at, spread_from_overlap
+
+    rng = (0.5, 80.0)
+    mono = untrained(ds, tmp_path / "mono2.pt", "mono2")
+    assert not mono.model.uses_neighbours
+    p = Probed(mono, oracle_range=rng)
+    assert p.stages == ["init", "final", "oracle_spread"]
+    seq, f = _frame(ds)
+    out = p.predict(seq, f)
+    assert list(out) == p.stages
+    plain = mono.predict(seq, f)["init"]
+    assert np.array_equal(out["init"], plain) and np.array_equal(out["final"], plain)
+    assert not np.allclose(out["final"], out["oracle_spread"], rtol=1e-2)
+    # the propagator itself: the network's depth corrected by spread_from_overlap from the overlap's ground truth
+    size = (mono.cfg.train.height, mono.cfg.train.width)
+    assert size == (ds.cameras[0].height, ds.cameras[0].width)  # training size = dataset size: no resampling
+    gt, valid = ground_truth_at(ds, mono.reader.mask_full, seq, f, size, rng)
+    known = valid & overlap_at(ds, mono.reader.mask_full, seq, f, size)
+    assert int(known.sum()) > 0
+    want = spread_from_overlap(torch.from_numpy(plain)[:, None], torch.where(known, gt, torch.zeros_like(gt)))
+    np.testing.assert_allclose(out["oracle_spread"], want[:, 0].numpy(), rtol=1e-5)
+    np.testing.assert_allclose(out["oracle_spread"][known[:, 0].numpy()], gt[known].numpy(), rtol=1e-6)
+    # no propagator: without an ORACLE range, in a cut probe, for networks that read their neighbours
+    assert Probed(mono).stages == ["init"] and Probed(mono, CUT, oracle_range=rng).stages == ["init"]
+    local = untrained(ds, tmp_path / "oracle_local.pt", "oracle_local")
+    assert local.model.uses_neighbours
+    lp = Probed(local, oracle_range=rng)
+    assert lp.stages == ["init"] and list(lp.predict(seq, f)) == ["init"]
+    m1 = untrained(ds, tmp_path / "m1.pt", "mcdp_m1")
+    assert Probed(m1, oracle_range=rng).stages == ["init", "refine1", "final", "oracle", "oracle_overlap"]
+    m0 = untrained(ds, tmp_path / "m0.pt", "mcdp_m0")  # bases without refinement: reads no other camera
+    assert Probed(m0, oracle_range=rng).stages == ["init", "final", "oracle", "oracle_overlap", "oracle_spread"]
+
+
+def _spread_reference(pred: torch.Tensor, known: torch.Tensor, length: float, prior: float) -> torch.Tensor:
+    """`spread_from_overlap` as its docstring writes it, in float64, every pixel against every known one: on the
+    known pixels r_i = log(gt_i / pred_i), g = median r_i; elsewhere pred * exp(g + rho), rho = sum_i k_i (r_i - g)
+    / (sum_i k_i + prior), k_i = exp(-d_i^2 / (2 length^2)), d_i in image widths; known pixels: their truth."""
+    out = pred.double().clone()
+    H, W = pred.shape[-2:]
+    yy, xx = np.mgrid[0:H, 0:W]
+    xy = np.stack([xx.ravel(), yy.ravel()], 1) / W
+    for b in range(pred.shape[0]):
+        p, g = pred[b, 0].double().numpy().ravel(), known[b, 0].double().numpy().ravel()
+        k = g > 0
+        if not k.any():
+            continue
+        r = np.log(g[k]) - np.log(p[k])
+        assert r.size % 2 == 1  # one middle value: the median is that of any convention
+        glob = float(np.median(r))
+        kern = np.exp(-((xy[:, None, :] - xy[None, k, :]) ** 2).sum(-1) / (2 * length ** 2))
+        rho = kern @ (r - glob) / (kern.sum(1) + prior)
+        out[b, 0] = torch.from_numpy(np.where(k, g, p * np.exp(glob + rho)).reshape(H, W))
+    return out
+
+
+@pytest.mark.parametrize("seed", [0, 1])
+def test_the_spread_correction_is_exact_for_a_scale_error_and_keeps_the_known_pixels(seed):
+    from mcdp.oracle import SPREAD_LENGTH, SPREAD_PRIOR, spread_from_overlap
+
+    g = torch.Generator().manual_seed(seed)
+    B, H, W = 3, 12, 20
+    gt = 1.0 + 50.0 * torch.rand(B, 1, H, W, generator=g)
+    where = torch.zeros(B, 1, H, W, dtype=torch.bool)
+    where[..., : W // 5] = True  # an overlap strip at the left edge...
+    where |= torch.rand(B, 1, H, W, generator=g) < 0.05  # ...and a few pixels elsewhere
+    for b in range(B):  # an odd number of known pixels per image (`_spread_reference`)
+        if int(where[b].sum()) % 2 == 0:
+            where[b, 0, 0, -1] = ~where[b, 0, 0, -1]
+    known = torch.where(where, gt, torch.zeros_like(gt))
+    # a pure scale error (log ratio constant): corrected exactly everywhere
+    for c in (0.3, 2.5):
+        torch.testing.assert_close(spread_from_overlap(c * gt, known), gt, rtol=1e-4, atol=0)
+    # any prediction: the known pixels take their ground truth exactly, the rest the documented correction,
+    # and the input is left as it was
+    pred = 1.0 + 50.0 * torch.rand(B, 1, H, W, generator=g)
+    before = pred.clone()
+    out = spread_from_overlap(pred, known)
+    assert out.dtype == pred.dtype and out.shape == pred.shape and torch.equal(pred, before)
+    assert torch.equal(out[where], gt[where])
+    torch.testing.assert_close(out.double(), _spread_reference(pred, known, SPREAD_LENGTH, SPREAD_PRIOR),
+                               rtol=1e-4, atol=0)
+    assert not torch.allclose(out[~where], pred[~where], rtol=1e-2)
+    torch.testing.assert_close(spread_from_overlap(pred, known, chunk=7), out, rtol=1e-5, atol=0)  # chunks
+
+
+def test_an_image_without_a_known_pixel_is_unchanged():
+    from mcdp.oracle import spread_from_overlap
+
+    g = torch.Generator().manual_seed(0)
+    pred = 1.0 + 50.0 * torch.rand(2, 1, 8, 10, generator=g)
+    known = torch.zeros_like(pred)
+    known[0, 0, 3, 4] = 7.0  # image 0 has one known pixel, image 1 none
+    out = spread_from_overlap(pred, known)
+    assert torch.equal(out[1], pred[1])
+    assert torch.equal(spread_from_overlap(pred, torch.zeros_like(pred)), pred)
+    # one known pixel: its ratio everywhere in its image
+    torch.testing.assert_close(out[0], pred[0] * 7.0 / pred[0, 0, 3, 4], rtol=1e-5, atol=0)
+
+
+def test_far_from_the_overlap_the_correction_is_its_median_ratio_and_near_it_its_local_error():
+    """An overlap strip (the left 8 columns of 64) whose upper 20 rows say x2 (and one pixel x100) and lower 12
+    rows x0.5: far from it every pixel takes the median ratio x2 (robust: neither the x0.5 rows nor the outlier
+    move it); beside the x0.5 rows a pixel takes about their ratio, and along its row the correction goes
+    monotonically from that local error to the global one."""
+    from mcdp.oracle import SPREAD_LENGTH, spread_from_overlap
+
+    pred = torch.full((1, 1, 32, 64), 10.0)
+    known = torch.zeros_like(pred)
+    known[0, 0, :20, :8] = 20.0
+    known[0, 0, 20:, :8] = 5.0
+    known[0, 0, 0, 0] = 1000.0
+    out = spread_from_overlap(pred, known)[0, 0]
+    assert (64 - 8) / 64 > 10 * SPREAD_LENGTH  # the far column: beyond the reach of the local errors
+    torch.testing.assert_close(out[:, -1], torch.full((32,), 20.0), rtol=1e-6, atol=0)
+    assert 0.5 * 0.9 < float(out[28, 8]) / 10.0 < 0.5 * 1.2  # the local x0.5, beside those rows
+    assert float(out[5, 8]) == pytest.approx(20.0, rel=1e-2)  # beside the x2 rows: x2
+    row = out[28, 8:]
+    assert bool((row[1:] >= row[:-1] - 1e-5).all()) and float(row[-1]) == pytest.approx(20.0, rel=1e-6)
 
 
 def test_lambda_default_is_the_papers_and_one_source():

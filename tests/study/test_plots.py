@@ -50,7 +50,7 @@ def test_paired_figure_from_a_small_results(prop, tmp_path):
         assert list(per_method) == ["mcdp_local"]
         for o, pd in zip(small["overlaps"], per_method["mcdp_local"]):
             assert pd == paired_difference(prop, o, "mcdp_local", BASELINE, key)  # the report's numbers
-            assert pd["n"] == 3
+            assert pd["n"] == len(prop["seeds"]) == 6  # 3 worlds x 2 seeds
 
 
 def test_no_paired_figure_without_mono2(prop, tmp_path):

@@ -83,8 +83,8 @@ def test_ray_sweep_gives_the_local_engines_results(local_ray, local_sweep, tmp_p
     assert ray["counters"] == loc["counters"]
     a, b = _csv(local_sweep), _csv(out)
     assert [(r["method"], r["variant"]) for r in a] == [(r["method"], r["variant"]) for r in b] == \
-        [("mono2", "trained"), ("mcdp_m1", "trained"), ("mcdp_m1", "cut"), ("mcdp_m1", "oracle"),
-         ("mcdp_m1", "oracle_overlap"), ("constant_reference", ""), ("flat_road_prior", "")]
+        [("mono2", "trained"), ("mono2", "oracle_spread"), ("mcdp_m1", "trained"), ("mcdp_m1", "cut"),
+         ("mcdp_m1", "oracle"), ("mcdp_m1", "oracle_overlap"), ("constant_reference", ""), ("flat_road_prior", "")]
     for ra, rb in zip(a, b):
         _same_cells(ra, rb)
 

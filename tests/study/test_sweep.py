@@ -65,6 +65,66 @@ def test_bad_config_names_key(override, key):
         sweep.load_sweep_config(CI, [override])
 
 
+def test_seeds_per_world_crosses_worlds_and_seeds():
+    """The i-th seed trains on world i // seeds_per_world (rendered from the data preset's seed + that world);
+    the default (1) keeps seed k on world k, and a shared world is None for every seed."""
+    per_seed = ["worlds=per_seed", "seeds=[0,1,2,3,4,5]"]
+    cfg = sweep.load_sweep_config(CI, [*per_seed, "seeds_per_world=2"])
+    assert sweep.worlds_of(cfg) == [0, 1, 2]
+    assert [sweep.world_of_seed(cfg, s) for s in cfg.seeds] == [0, 0, 1, 1, 2, 2]
+    assert sweep.world_of_seed(cfg, 3) == 1
+    base = sweep.data_config_for(cfg, 0.5).seed
+    assert sweep.data_config_for(cfg, 0.5, sweep.world_of_seed(cfg, 3)).seed == base + 1
+    three = sweep.load_sweep_config(CI, [*per_seed, "seeds_per_world=3"])
+    assert sweep.worlds_of(three) == [0, 1]
+    assert [sweep.world_of_seed(three, s) for s in three.seeds] == [0, 0, 0, 1, 1, 1]
+    # by position in seeds, not by the seed's value
+    odd = sweep.load_sweep_config(CI, ["worlds=per_seed", "seeds=[7,3,5,1]", "seeds_per_world=2"])
+    assert sweep.worlds_of(odd) == [0, 1] and [sweep.world_of_seed(odd, s) for s in odd.seeds] == [0, 0, 1, 1]
+    one = sweep.load_sweep_config(CI, per_seed)
+    assert one.seeds_per_world == 1
+    assert sweep.worlds_of(one) == [0, 1, 2, 3, 4, 5]
+    assert [sweep.world_of_seed(one, s) for s in one.seeds] == [0, 1, 2, 3, 4, 5]
+    shared = sweep.load_sweep_config(CI, ["seeds=[0,1]"])
+    assert sweep.worlds_of(shared) == [None] and sweep.world_of_seed(shared, 1) is None
+    # the preset that uses it: 3 worlds x 2 seeds
+    prop = sweep.load_sweep_config(ROOT / "configs" / "sweep" / "cpu_propagation.yaml")
+    assert prop.seeds_per_world == 2 and sweep.worlds_of(prop) == [0, 1, 2]
+    assert [sweep.world_of_seed(prop, s) for s in prop.seeds] == [0, 0, 1, 1, 2, 2]
+
+
+@pytest.mark.parametrize("overrides, said", [
+    (["seeds=[0,1]", "seeds_per_world=2"], "seeds_per_world > 1 needs worlds: per_seed"),
+    (["seeds=[0,1,2]", "worlds=per_seed", "seeds_per_world=2"],
+     "seeds_per_world: 2 must divide the number of seeds (3)"),
+    (["seeds=[0,1]", "worlds=per_seed", "seeds_per_world=0"],
+     "seeds_per_world: Input should be greater than or equal to 1"),
+])
+def test_a_bad_seeds_per_world_is_one_error_line_naming_the_key(overrides, said):
+    with pytest.raises(ConfigError) as e:
+        sweep.load_sweep_config(CI, overrides)
+    head, *errors = str(e.value).splitlines()
+    assert head.startswith("invalid config (") and len(errors) == 1 and said in errors[0], str(e.value)
+
+
+def test_seeds_per_world_at_its_default_keeps_the_sweep_hash():
+    """An `added_key`: at its default (1) a preset's config hash is the hash of its config without the key, as
+    before the key existed (every cached render and run kept); set, it changes it."""
+    from corelib.configlib import config_hash, config_to_dict
+    from corelib.hashing import json_sha256
+
+    for args in ([], ["worlds=per_seed", "seeds=[0,1]"]):  # worlds itself an added key, hashed when set
+        cfg = sweep.load_sweep_config(CI, [*args, "seeds_per_world=1"])
+        before = config_to_dict(cfg)
+        assert before.pop("seeds_per_world") == 1
+        if not args:
+            assert before.pop("worlds") == "shared"  # at its default: not hashed either
+        assert config_hash(cfg) == config_hash(sweep.load_sweep_config(CI, args)) == json_sha256(before)
+    crossed = ["worlds=per_seed", "seeds=[0,1]"]
+    assert config_hash(sweep.load_sweep_config(CI, [*crossed, "seeds_per_world=2"])) != \
+        config_hash(sweep.load_sweep_config(CI, crossed))
+
+
 def test_overlaps_sorted_and_run_config_gets_seed_and_eval():
     cfg = sweep.load_sweep_config(CI, ["overlaps=[0.5,0.2]", "seeds=[3]", "eval.max_depth=60.0"])
     assert cfg.overlaps == [0.2, 0.5]
@@ -157,15 +217,19 @@ def test_ci_sweep_end_to_end_rerun_and_resume(tmp_path, capsys):
     rows = list(csv.DictReader((out / "results.csv").open()))
     # beside each run (variant trained): variants oracle and oracle_overlap (the ORACLE weights fitted on all
     # pixels and on the overlap only) for every method with bases, cut for every one whose network reads
-    # its neighbours at inference (MCDP with refinement, SurroundDepth; not FSM: nothing to cut)
+    # its neighbours at inference (MCDP with refinement, SurroundDepth; not FSM: nothing to cut), and
+    # oracle_spread (the propagation ceiling) for every one that reads no other camera (Mono2, FSM, MCDP m0)
     with_bases = [m for m in cfg.methods if m.startswith("mcdp")]
     refined = [m for m in with_bases if m != "mcdp_m0"]
     cut = refined + ["surround"]
-    n_rows = n + len(cfg.overlaps) * len(cfg.seeds) * (2 * len(with_bases) + len(cut))
+    alone = [m for m in cfg.methods if m not in cut]
+    assert alone == ["mono2", "fsm", "mcdp_m0"]
+    n_rows = n + len(cfg.overlaps) * len(cfg.seeds) * (2 * len(with_bases) + len(cut) + len(alone))
     assert len(rows) == n_rows + 2 * len(cfg.overlaps)
     assert {(r["method"], r["variant"]) for r in rows[:n_rows]} == (
         {(m, "trained") for m in cfg.methods} | {(m, "oracle") for m in with_bases}
-        | {(m, "oracle_overlap") for m in with_bases} | {(m, "cut") for m in cut})
+        | {(m, "oracle_overlap") for m in with_bases} | {(m, "cut") for m in cut}
+        | {(m, "oracle_spread") for m in alone})
     assert [r["method"] for r in rows[n_rows:]] == (["constant_reference"] * len(cfg.overlaps)
                                                      + ["flat_road_prior"] * len(cfg.overlaps))
     for row in rows[:n_rows]:  # every refined run records how much its refinement acted

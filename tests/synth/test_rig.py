@@ -100,9 +100,9 @@ def test_a_camera_of_its_own_size_has_its_K_from_that_size_and_its_hfov():
 
 
 def test_an_added_key_at_its_default_keeps_every_hash():
-    """rig.cameras, rig.overlap_target and the sweep's worlds were added after datasets and runs were cached:
-    at their defaults
-    they leave the config hash as it was (the hash of the dict without them), set they change it."""
+    """rig.cameras, rig.overlap_target and the sweep's worlds and seeds_per_world were added after datasets and
+    runs were cached: at their defaults they leave the config hash as it was (the hash of the dict without
+    them), set they change it."""
     from corelib.configlib import config_hash, config_to_dict, load_config
     from corelib.hashing import json_sha256
     from synth.config import DataConfig
@@ -128,6 +128,8 @@ def test_an_added_key_at_its_default_keeps_every_hash():
 
     s = SweepConfig()
     sd = config_to_dict(s)
-    del sd["worlds"], sd["keep_best"]  # both added later, with defaults that change nothing
+    del sd["worlds"], sd["keep_best"], sd["seeds_per_world"]  # all added later, with defaults that change nothing
     assert config_hash(s) == json_sha256(sd) != config_hash(SweepConfig(worlds="per_seed"))
+    assert config_hash(SweepConfig(worlds="per_seed", seeds=[0, 1], seeds_per_world=2)) \
+        != config_hash(SweepConfig(worlds="per_seed", seeds=[0, 1]))
     assert config_hash(SweepConfig(keep_last=False)) != config_hash(SweepConfig(keep_best=False, keep_last=False))
