@@ -242,9 +242,12 @@ def format_primary(results: dict, o: float = PRIMARY_OVERLAP) -> str:
             f"{_pct(n.get('share_world', math.nan))} | {_cell(m['none'])} | {_cell(m['rig_median'])} | "
             f"{verdict(cid, m, control)} |")
     add("")
-    add("Spread split (one-way random effects, seeds nested in worlds; median scaling): "
-        + "; ".join(f"({cid}) {name.split(':')[0]}: world var {m['median'].get('var_world', math.nan):.2e}, "
-                    f"seed var {m['median'].get('var_seed', math.nan):.2e}" for cid, name, m in measured) + ".\n")
+    if any(math.isfinite(m["median"].get("var_seed", math.nan)) for _, _, m in measured):
+        add("Spread split (one-way random effects, seeds nested in worlds; median scaling): "
+            + "; ".join(f"({cid}) {name.split(':')[0]}: world var {m['median'].get('var_world', math.nan):.2e}, "
+                        f"seed var {m['median'].get('var_seed', math.nan):.2e}" for cid, name, m in measured) + ".\n")
+    else:
+        add("Spread split: not separable (one training seed per world: the intervals cover world and seed together).\n")
     add(_recovered(measured))
     add(f"**Headline** (control passed, every mechanism's null equivalent within ±{DELTA:g}, or what is not): "
         f"{headline(results, o)}.\n")

@@ -87,7 +87,7 @@ def test_results_csv_without_rows_is_one_line_naming_the_file(tmp_path):
         results_from_csv(bad)
 
 
-@pytest.mark.parametrize("name", ["propagation", "sweep_cpu", "sweep_compare"])
+@pytest.mark.parametrize("name", ["propagation", "propagation_budget", "sweep_cpu", "sweep_compare"])
 def test_committed_sweep_reports_are_what_the_publishing_command_writes(name):
     """docs/results/<name>.md is, byte for byte, what scripts/publish_sweep.py writes from the committed
     docs/results/<name>/results.json and preface.md: no report is edited by hand."""
