@@ -31,6 +31,7 @@ from __future__ import annotations
 import math
 
 from study.power import mde, nested, tost
+from study.reach import band_names
 from study.results import flat_of
 from study.variants import CUT, SPREAD, Evaluation
 
@@ -188,14 +189,6 @@ def _pct(x: float) -> str:
     return f"{100 * x:.0f} %" if math.isfinite(x) else "—"
 
 
-def band_regions(results: dict) -> list[str]:
-    for f in results["flat"]:
-        names = [k[len("median.band."):-len(".abs_rel")] for k in f if k.startswith("median.band.")]
-        if names:
-            return names
-    return []
-
-
 def format_primary(results: dict, o: float = PRIMARY_OVERLAP) -> str:
     """Markdown: the copy test, then the primary comparisons with power, bounds and scalings, the variance split,
     the control and the hand-built propagator by distance band, and how much of each yardstick the mechanisms
@@ -251,7 +244,7 @@ def format_primary(results: dict, o: float = PRIMARY_OVERLAP) -> str:
     add(_recovered(measured))
     add(f"**Headline** (control passed, every mechanism's null equivalent within ±{DELTA:g}, or what is not): "
         f"{headline(results, o)}.\n")
-    bands = band_regions(results)
+    bands = band_names(results)
     band_comps = [(cid, name, a, b) for cid, name, a, b, _ in comps if cid == "c"]
     if bands and band_comps:
         add(f"### (c) by distance from the overlap, overlap {o:.2f} (bands in fractions of the image width)\n")
