@@ -29,6 +29,7 @@ from scenes.textures import LAYER, uv_scale_for
 KEEPOUT_M = 3.0
 KEEPOUT_Z_M = 0.2
 MOVER_CLEARANCE_M = 5.0
+MAX_INSTANCES = 60000  # static objects of one scene; movers follow, all below 2^16 (16-bit instance maps)
 MARK_Z_M = 0.01
 KERB_H_M = 0.15
 
@@ -86,13 +87,19 @@ class CrossSection:
 
 
 class World:
-    """Accumulates static meshes, dropping objects that violate the keep-out rule or are far away."""
+    """Accumulates static meshes, dropping objects that violate the keep-out rule or are far away.
+
+    Every object added with the keep-out check is an instance of its own (ids 1, 2, ... in the order
+    they are kept, `scenes.labels`); ground cover added unchecked (road, markings, lawns) is "stuff", id 0.
+    """
 
     def __init__(self, ego_path_xy: np.ndarray, view_radius_m: float) -> None:
         self.ego_xy = np.asarray(ego_path_xy, dtype=np.float64)
         self.view_radius = float(view_radius_m)
         self.meshes: list[Mesh] = []
         self.n_dropped = 0
+        self.n_instances = 0
+        self.instance_class: dict[int, str] = {}
 
     def near(self, xy: np.ndarray, extra_m: float = 0.0) -> bool:
         """Whether the 2D point is within view radius (+ extra) of the ego path."""
@@ -110,11 +117,19 @@ class World:
             return True
         return bool(distance_to_polyline(p, self.ego_xy).min() > KEEPOUT_M + 0.05)
 
-    def add(self, mesh: Mesh, check: bool = True) -> bool:
-        """Add a static mesh (world frame); returns False (and drops it) if it violates keep-out."""
+    def add(self, mesh: Mesh, check: bool = True, label: str | None = None) -> bool:
+        """Add a static mesh (world frame); returns False (and drops it) if it violates keep-out. A checked
+        mesh is one object (its own instance id); `label` names its class where its materials do not."""
         if check and not self.clear_of_ego(mesh):
             self.n_dropped += 1
             return False
+        if check:
+            self.n_instances += 1
+            if self.n_instances > MAX_INSTANCES:
+                raise ValueError(f"a scene holds more than {MAX_INSTANCES} objects (instance maps are 16-bit)")
+            mesh = mesh.tagged(self.n_instances)
+            if label is not None:
+                self.instance_class[self.n_instances] = label
         self.meshes.append(mesh)
         return True
 

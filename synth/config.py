@@ -16,7 +16,7 @@ from typing import Iterable, Literal
 from pydantic import Field, model_validator
 
 from scenes.config import SceneConfig
-from corelib.configlib import ConfigError, StrictModel, load_config
+from corelib.configlib import ConfigError, StrictModel, added_key, load_config
 from synth.rig import CameraConfig, RigConfig
 
 
@@ -59,6 +59,16 @@ class RenderConfig(StrictModel):
     png_compression: int = Field(3, ge=0, le=9)
 
 
+class LabelsConfig(StrictModel):
+    """Which ground-truth labels a render writes besides RGB and depth (`synth.labels`; their cost per
+    rig-frame and per frame on disk: docs/results/render_throughput.md)."""
+
+    semantic: bool = Field(True, description="<frame>.semantic.png: a class index per pixel (manifest labels.classes)")
+    instance: bool = Field(True, description="<frame>.instance.png (16-bit object ids) and <seq>/instances.json")
+    flow: bool = Field(True, description="<frame>.flow.exr forward flow t -> t+1 in pixels, its validity and the "
+                       "moving-object mask")
+
+
 class DataConfig(StrictModel):
     """Everything that defines a dataset. Same config + seed -> same bytes on the same back end."""
 
@@ -69,6 +79,9 @@ class DataConfig(StrictModel):
     scene: SceneConfig = Field(default_factory=SceneConfig)
     lighting: LightingConfig = Field(default_factory=LightingConfig)
     render: RenderConfig = Field(default_factory=RenderConfig)
+    # an added key: images and depth are those rendered without it, so every dataset's hash stays (a dataset
+    # rendered before the labels says what it lacks when a command needs them)
+    labels: LabelsConfig = added_key(default_factory=LabelsConfig)
 
 
 def load_data_config(path=None, overrides: Iterable[str] = ()) -> DataConfig:

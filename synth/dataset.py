@@ -11,6 +11,8 @@ Layout (docs/DATASET.md)::
       <seq>/ego.json         per frame: timestamp_s, T_world_ego (4x4), lighting
       <seq>/<CAM>/<frame:06d>.png         RGB uint8 sRGB
       <seq>/<CAM>/<frame:06d>.depth.exr   float32 z-depth in metres (channel "Z"), 0 = no surface
+      labels (manifest ``labels.kinds``; `synth.label_reader`): <frame>.semantic.png, <frame>.instance.png,
+      <seq>/instances.json, <frame>.flow.exr + .flow_valid.png (frames 0..F-2), <frame>.movers.png
 
 A sequence is written into ``<seq>.partial/`` and renamed to ``<seq>/`` when complete,
 so a folder named like a sequence is always whole. A reader refuses a dataset without
@@ -32,6 +34,7 @@ import numpy as np
 
 from corelib.hashing import changed_sections, json_sha256, section_digests, sha256_file
 from synth.files import DatasetError, frame_stem, read_depth_exr, read_json, read_png, read_regular, within
+from synth.label_reader import LabelReader
 from synth.rig import CameraSpec
 from synth.sizes import camera_sizes, shared_size, size_problems
 
@@ -40,9 +43,10 @@ GENERATOR = "mcdp-synth"
 MANIFEST = "manifest.json"
 # ----------------------------------------------------------------------------- reader
 
-class Dataset:
-    """Read access to a finished dataset (see module docstring), a `synth.protocol.DatasetReader`; beyond it,
-    the generator's record: `manifest`, `config_hash`, `overlap`. Never reads depth unless asked."""
+class Dataset(LabelReader):
+    """Read access to a finished dataset (see module docstring), a `synth.protocol.DatasetReader` (its labels:
+    `synth.label_reader`); beyond it, the generator's record: `manifest`, `config_hash`, `overlap`. Never
+    reads depth unless asked."""
 
     def __init__(self, root: Path, manifest: dict, rig: dict) -> None:
         self.root = root
@@ -266,7 +270,7 @@ def integrity_problems(root: Path, manifest: dict) -> list[str]:
 _REQUIRED_KEYS = {"schema_version": int, "generator": str, "cameras": list, "image_size": dict, "fps": (int, float),
                   "splits": dict, "sequences": dict, "files": dict}
 _OPTIONAL_KEYS = {"generator_version", "code_version", "config", "config_hash", "seed", "has_depth", "families",
-                  "overlap", "camera_sizes", INTEGRITY}
+                  "overlap", "camera_sizes", "labels", INTEGRITY}
 
 
 def check_manifest_keys(manifest, mpath: Path) -> None:
@@ -397,10 +401,17 @@ def verify_dataset(root: str | Path, progress: bool = False) -> list[str]:
             problems += size_problems(p, rel, sizes)
     # every expected frame file is listed
     cams = manifest.get("cameras", [])
+    kinds = (manifest.get("labels") or {}).get("kinds") or []
+    every = [".png", ".depth.exr"] + [s for k, s in (("semantic", ".semantic.png"), ("instance", ".instance.png"),
+                                                     ("flow", ".movers.png")) if k in kinds]
     for seq, info in manifest.get("sequences", {}).items():
+        n = int(info["frames"])
+        if "instance" in kinds and f"{seq}/instances.json" not in files:
+            problems.append(f"{root / seq / 'instances.json'}: not listed in the manifest")
         for cam in cams:
-            for f in range(int(info["frames"])):
-                for suffix in (".png", ".depth.exr"):
+            for f in range(n):
+                flow = [".flow.exr", ".flow_valid.png"] if "flow" in kinds and f < n - 1 else []
+                for suffix in every + flow:
                     rel = f"{seq}/{cam}/{frame_stem(f)}{suffix}"
                     if rel not in files:
                         problems.append(f"{root / rel}: not listed in the manifest")

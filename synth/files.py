@@ -125,9 +125,9 @@ PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
 
 
 def encode_png(img: np.ndarray, compression: int = 3) -> bytes:
-    """uint8 RGB (H, W, 3) or gray (H, W) -> PNG file bytes."""
-    if img.dtype != np.uint8:
-        raise ValueError(f"write_png: expected uint8, got {img.dtype}")
+    """uint8 RGB (H, W, 3) or gray (H, W), or uint16 gray (H, W) (an instance map) -> PNG file bytes."""
+    if img.dtype != np.uint8 and not (img.dtype == np.uint16 and img.ndim == 2):
+        raise ValueError(f"write_png: expected uint8 (or uint16 gray), got {img.dtype}")
     arr = img[:, :, ::-1] if img.ndim == 3 else img
     ok, buf = cv2.imencode(".png", np.ascontiguousarray(arr), [cv2.IMWRITE_PNG_COMPRESSION, int(compression)])
     if not ok:
@@ -141,17 +141,23 @@ def write_png(path: str | Path, img: np.ndarray, compression: int = 3, fsync: bo
     atomic_write_bytes(path, encode_png(img, compression), fsync=fsync)
 
 
-def read_png(path: str | Path, gray: bool = False) -> np.ndarray:
-    """(H, W, 3) uint8 RGB or (H, W) gray of a PNG file; a file of any other format (a JPEG under a .png
-    name) is refused by its first bytes, naming the file."""
+def read_png(path: str | Path, gray: bool = False, depth16: bool = False) -> np.ndarray:
+    """(H, W, 3) uint8 RGB or (H, W) gray of a PNG file (``depth16``: (H, W) uint16, a 16-bit gray PNG such
+    as an instance map); a file of any other format (a JPEG under a .png name) is refused by its first
+    bytes, naming the file."""
     path = Path(path)
     data = read_regular(path)
     if not data.startswith(PNG_SIGNATURE):
         kind = "a JPEG file" if data.startswith(b"\xff\xd8\xff") else "another format"
         raise DatasetError(f"{path}: not a readable PNG ({kind}: its first bytes are not the PNG signature)")
-    img = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_GRAYSCALE if gray else cv2.IMREAD_COLOR)
+    flags = cv2.IMREAD_UNCHANGED if depth16 else cv2.IMREAD_GRAYSCALE if gray else cv2.IMREAD_COLOR
+    img = cv2.imdecode(np.frombuffer(data, np.uint8), flags)
     if img is None:
         raise DatasetError(f"{path}: not a readable PNG (truncated or corrupt)")
+    if depth16:
+        if img.dtype != np.uint16 or img.ndim != 2:
+            raise DatasetError(f"{path}: is {img.dtype} with shape {img.shape}; the contract is a 16-bit gray PNG")
+        return img
     return img if gray else np.ascontiguousarray(img[:, :, ::-1])
 
 
@@ -212,6 +218,48 @@ def read_depth_exr(path: str | Path) -> np.ndarray:
         raise
     except Exception as exc:
         raise DatasetError(f"{path}: missing or not a readable EXR depth map ({exc})") from None
+
+
+FLOW_CHANNELS = ("U", "V")
+
+
+def write_flow_exr(path: str | Path, flow: np.ndarray, fsync: bool = True) -> None:
+    """Write (H, W, 2) float32 optical flow in pixels as a two-channel ("U", "V") ZIP-compressed OpenEXR,
+    whole or not at all."""
+    import OpenEXR
+
+    if flow.ndim != 3 or flow.shape[2] != 2 or flow.dtype != np.float32:
+        raise ValueError(f"write_flow_exr: expected (H, W, 2) float32, got {flow.shape} {flow.dtype}")
+    header = {"compression": OpenEXR.ZIP_COMPRESSION, "type": OpenEXR.scanlineimage}
+    chans = {c: np.ascontiguousarray(flow[..., k]) for k, c in enumerate(FLOW_CHANNELS)}
+    with atomic_path(path, fsync=fsync) as tmp, OpenEXR.File(header, chans) as f:
+        try:
+            f.write(str(tmp))
+        except RuntimeError as exc:
+            if "No space left" in str(exc):
+                raise OSError(errno.ENOSPC, "no space left on device", str(tmp)) from None
+            raise
+
+
+def read_flow_exr(path: str | Path) -> np.ndarray:
+    """(H, W, 2) float32 optical flow in pixels (du, dv) of a `write_flow_exr` file."""
+    import OpenEXR
+
+    regular_file(path)
+    try:
+        with OpenEXR.File(str(path)) as f:
+            ch = f.channels()
+            missing = [c for c in FLOW_CHANNELS if c not in ch]
+            if missing:
+                raise DatasetError(f"{path}: no channel(s) {missing} (has {sorted(ch)[:8]}); a flow map has U and V")
+            px = [ch[c].pixels for c in FLOW_CHANNELS]
+            if any(p.dtype != np.float32 or p.ndim != 2 or p.shape != px[0].shape for p in px):
+                raise DatasetError(f"{path}: channels U, V must be float32 (H, W) of one shape")
+            return np.stack(px, -1)
+    except DatasetError:
+        raise
+    except Exception as exc:
+        raise DatasetError(f"{path}: missing or not a readable EXR flow map ({exc})") from None
 
 
 def stored_size(path: str | Path) -> tuple[int, int] | None:

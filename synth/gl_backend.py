@@ -6,7 +6,9 @@ camera's ``size`` when cameras differ: one framebuffer per size):
 
 * ``rgb``   (H, W, 3) uint8 sRGB (exposure gain and white balance applied);
 * ``depth`` (H, W) float32 z-depth in metres at each pixel centre, 0 where no surface;
-* ``ego``   (H, W) bool, True where the ego body is the nearest surface.
+* ``ego``   (H, W) bool, True where the ego body is the nearest surface;
+* with ``labels=True``: ``instance`` (H, W) int32, the object id of the nearest surface (`scenes.labels`;
+  0 = stuff, the ego body or no surface), and ``layer`` (H, W) int32, its material layer (-1 = no surface).
 
 Why not pyrender: the depth map is written by the fragment shader as the camera-frame
 z interpolated at the pixel centre into a float32 target, so it is exact to float
@@ -82,15 +84,15 @@ class _GpuMesh:
     def __init__(self, GL, mesh: Mesh) -> None:
         self.GL = GL
         data = np.concatenate([mesh.positions, mesh.normals, mesh.uvs, mesh.layers[:, None].astype(np.float32),
-                               mesh.tints], axis=1).astype(np.float32)
+                               mesh.tints, mesh.instances[:, None].astype(np.float32)], axis=1).astype(np.float32)
         data = np.ascontiguousarray(data)
         self.vao = GL.glGenVertexArrays(1)
         GL.glBindVertexArray(self.vao)
         self.vbo = GL.glGenBuffers(1)
         GL.glBindBuffer(GL.GL_ARRAY_BUFFER, self.vbo)
         GL.glBufferData(GL.GL_ARRAY_BUFFER, data.nbytes, data, GL.GL_STATIC_DRAW)
-        stride = 12 * 4
-        for loc, (size, off) in enumerate([(3, 0), (3, 3), (2, 6), (1, 8), (3, 9)]):
+        stride = 13 * 4
+        for loc, (size, off) in enumerate([(3, 0), (3, 3), (2, 6), (1, 8), (3, 9), (1, 12)]):
             GL.glEnableVertexAttribArray(loc)
             GL.glVertexAttribPointer(loc, size, GL.GL_FLOAT, GL.GL_FALSE, stride, ctypes.c_void_p(off * 4))
         self.ebo = GL.glGenBuffers(1)
@@ -170,7 +172,8 @@ class Renderer:
         self.GL.glUniform3f(self._loc(prog, name), *[float(x) for x in v])
 
     def _main_framebuffer(self, W: int, H: int) -> int:
-        """The framebuffer of image size W x H (RGBA8 colour, RG32F depth value + ego flag, float32 z), made
+        """The framebuffer of image size W x H (RGBA8 colour, RGBA32F depth value + ego flag + object id + material
+        layer, float32 z), made
         on first use and kept."""
         fbo = self._fbos.get((W, H))
         if fbo is not None:
@@ -183,7 +186,7 @@ class Renderer:
         GL.glRenderbufferStorage(GL.GL_RENDERBUFFER, GL.GL_RGBA8, W, H)
         GL.glFramebufferRenderbuffer(GL.GL_FRAMEBUFFER, GL.GL_COLOR_ATTACHMENT0, GL.GL_RENDERBUFFER, rb_color)
         GL.glBindRenderbuffer(GL.GL_RENDERBUFFER, rb_depthval)
-        GL.glRenderbufferStorage(GL.GL_RENDERBUFFER, GL.GL_RG32F, W, H)
+        GL.glRenderbufferStorage(GL.GL_RENDERBUFFER, GL.GL_RGBA32F, W, H)
         GL.glFramebufferRenderbuffer(GL.GL_FRAMEBUFFER, GL.GL_COLOR_ATTACHMENT1, GL.GL_RENDERBUFFER, rb_depthval)
         GL.glBindRenderbuffer(GL.GL_RENDERBUFFER, rb_z)
         GL.glRenderbufferStorage(GL.GL_RENDERBUFFER, GL.GL_DEPTH_COMPONENT32F, W, H)
@@ -286,9 +289,11 @@ class Renderer:
         self._shadow_frame = frame
 
     def render(self, K: np.ndarray, T_world_cam: np.ndarray, frame: int, light: LightState,
-               gain=(1.0, 1.0, 1.0), size: tuple[int, int] | None = None) -> dict[str, np.ndarray]:
+               gain=(1.0, 1.0, 1.0), size: tuple[int, int] | None = None,
+               labels: bool = False) -> dict[str, np.ndarray]:
         """Render one camera at one frame; see the module docstring for the outputs. ``size`` (width, height):
-        the camera's image size, K's pixels (None: the renderer's)."""
+        the camera's image size, K's pixels (None: the renderer's); ``labels``: read back object ids and layers
+        too. Mover k draws as object `Scene.mover_instance(k)`."""
         if self._scene is None:
             raise RuntimeError("Renderer.render called before load_scene")
         GL = self.GL
@@ -336,17 +341,18 @@ class Renderer:
         GL.glBindTexture(GL.GL_TEXTURE_2D, self._shadow_tex)
         GL.glUniform1i(self._loc(pm, "u_shadow"), 1)
 
-        def draw(gm: _GpuMesh, T_world_obj: np.ndarray, is_ego: float) -> None:
+        def draw(gm: _GpuMesh, T_world_obj: np.ndarray, is_ego: float, instance: float) -> None:
             self._set_mat4(pm, "u_model", T_world_obj)
             self._set_mat4(pm, "u_modelview", T_cam_world @ T_world_obj)
             GL.glUniform1f(self._loc(pm, "u_is_ego"), is_ego)
+            GL.glUniform1f(self._loc(pm, "u_instance"), instance)
             gm.draw()
 
-        draw(self._static, np.eye(4), 0.0)
-        for gm, T in zip(self._movers, self._object_poses(frame)):
-            draw(gm, T, 0.0)
+        draw(self._static, np.eye(4), 0.0, -1.0)
+        for k, (gm, T) in enumerate(zip(self._movers, self._object_poses(frame))):
+            draw(gm, T, 0.0, float(self._scene.mover_instance(k)))
         if self._ego is not None:
-            draw(self._ego, self._scene.T_world_ego[frame], 1.0)
+            draw(self._ego, self._scene.T_world_ego[frame], 1.0, 0.0)
         # read back (GL rows are bottom-up)
         GL.glPixelStorei(GL.GL_PACK_ALIGNMENT, 1)
         GL.glReadBuffer(GL.GL_COLOR_ATTACHMENT0)
@@ -354,12 +360,16 @@ class Renderer:
         GL.glReadPixels(0, 0, W, H, GL.GL_RGBA, GL.GL_UNSIGNED_BYTE, rgba)
         rgb = rgba[::-1, :, :3].copy()
         GL.glReadBuffer(GL.GL_COLOR_ATTACHMENT1)
-        dv = np.empty((H, W, 2), np.float32)
-        GL.glReadPixels(0, 0, W, H, GL.GL_RG, GL.GL_FLOAT, dv)
+        dv = np.empty((H, W, 4 if labels else 2), np.float32)
+        GL.glReadPixels(0, 0, W, H, GL.GL_RGBA if labels else GL.GL_RG, GL.GL_FLOAT, dv)
         dv = dv[::-1]
         depth = np.ascontiguousarray(dv[..., 0])
         ego = dv[..., 1] > 0.5
-        return {"rgb": rgb, "depth": depth, "ego": ego}
+        out = {"rgb": rgb, "depth": depth, "ego": ego}
+        if labels:
+            out["instance"] = np.rint(dv[..., 2]).astype(np.int32)
+            out["layer"] = np.rint(dv[..., 3]).astype(np.int32)
+        return out
 
     def close(self) -> None:
         """Free GL objects and the context (never the process-wide EGL display)."""

@@ -34,6 +34,7 @@ from pathlib import Path
 import numpy as np
 
 from synth.files import DatasetError, read_image, read_json, read_png, regular_file, within
+from synth.label_reader import NoLabels
 from synth.nuscenes_tables import (EXPORT_DIR, check_intrinsic, get_record, lidar_xyz, load_tables, pose_matrix,
                                    read_splits, resolve_version, view_points)
 from synth.rig import CameraSpec
@@ -57,7 +58,7 @@ def _angles(K: np.ndarray, T: np.ndarray, width: int) -> tuple[float, float, flo
     return hfov, float(np.degrees(np.arctan2(axis[1], axis[0]))), float(np.degrees(np.arcsin(np.clip(axis[2], -1, 1))))
 
 
-class NuScenesDataset:
+class NuScenesDataset(NoLabels):
     """A nuScenes dataroot as a `synth.protocol.DatasetReader` (module docstring). Holds plain
     records only (the devkit object is dropped after `open_nuscenes`), so it pickles cheaply."""
 

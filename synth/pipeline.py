@@ -29,7 +29,7 @@ from corelib.atomic import atomic_write_bytes
 from corelib.hashing import sha256_file
 from scenes.model import Scene
 from synth.config import DataConfig
-from synth.files import encode_png, write_depth_exr
+from synth.files import encode_png, frame_stem, write_depth_exr, write_flow_exr
 from synth.overlap import overlap_fraction_counts
 
 WRITE_THREADS = 2
@@ -48,6 +48,15 @@ def _exr_task(path: Path, depth: np.ndarray) -> str:
     return sha256_file(path)
 
 
+def _flow_task(keys: tuple[str, str], paths: tuple[Path, Path], compression: int, args: tuple) -> dict[str, str]:
+    from synth.labels import forward_flow
+
+    flow, valid = forward_flow(*args)
+    write_flow_exr(paths[0], flow, fsync=False)
+    return {keys[0]: sha256_file(paths[0]),
+            keys[1]: _png_task(paths[1], np.where(valid, 255, 0).astype(np.uint8), compression)}
+
+
 class FrameSink:
     """A bounded thread pool for one sequence's files and overlap counts, collected in order."""
 
@@ -55,7 +64,7 @@ class FrameSink:
         self._pool = ThreadPoolExecutor(max_workers=threads, thread_name_prefix="synth-write")
         self._max_pending = max_pending
         self._pending: deque[Future] = deque()
-        self._files: list[tuple[str, Future]] = []
+        self._files: list[tuple[str | None, Future]] = []  # key None: the task returns {key: sha256}
         self._counts: list[Future] = []
 
     def _submit(self, fn, *args) -> Future:
@@ -71,12 +80,18 @@ class FrameSink:
     def exr(self, key: str, path: Path, depth: np.ndarray) -> None:
         self._files.append((key, self._submit(_exr_task, path, depth)))
 
+    def flow(self, keys: tuple[str, str], paths: tuple[Path, Path], compression: int, args: tuple) -> None:
+        """Forward flow (`synth.labels.forward_flow(*args)`) and its validity, written to `paths`."""
+        self._files.append((None, self._submit(_flow_task, keys, paths, compression, args)))
+
     def overlap(self, depths: dict, masks: dict, cameras: list, neighbours) -> None:
         self._counts.append(self._submit(overlap_fraction_counts, dict(depths), masks, cameras, neighbours))
 
     def results(self) -> tuple[dict[str, str], dict[str, list[int]]]:
         """Wait for every task: ({key: sha256} in submission order, overlap counts summed over frames)."""
-        files = {key: fut.result() for key, fut in self._files}
+        files: dict[str, str] = {}
+        for key, fut in self._files:
+            files.update(fut.result() if key is None else {key: fut.result()})
         counts: dict[str, list[int]] = {}
         for fut in self._counts:
             for k, (n_valid, n_in) in fut.result().items():
@@ -93,6 +108,49 @@ class FrameSink:
 
     def __exit__(self, *exc) -> None:
         self.close()
+
+
+class LabelFrames:
+    """A sequence's label files (`synth.labels`), fed one rendered camera-frame at a time: the semantic and
+    instance maps and the mover mask at once, each camera's forward flow t -> t+1 once t+1 is rendered."""
+
+    def __init__(self, sink: FrameSink, scene: Scene, kinds: list[str], seq: str, folder: Path,
+                 compression: int) -> None:
+        from scenes.labels import instance_classes
+
+        self.sink, self.scene, self.kinds, self.seq, self.folder = sink, scene, kinds, seq, folder
+        self.compression = compression
+        self.classes = instance_classes(scene)
+        self.mover_T = {scene.mover_instance(k): m.T_world_obj for k, m in enumerate(scene.movers)}
+        self.mover_ids = np.array(sorted(self.mover_T), np.int32)
+        self._prev: dict[str, tuple] = {}
+
+    def _file(self, cam: str, frame: int, suffix: str) -> tuple[str, Path]:
+        name = f"{frame_stem(frame)}.{suffix}"
+        return f"{self.seq}/{cam}/{name}", self.folder / cam / name
+
+    def add(self, cam, frame: int, T_world_cam: np.ndarray, res: dict) -> None:
+        from synth.labels import instance_map, mover_motion, semantic_map
+
+        name, depth, ego = cam.name, res["depth"], res["ego"]
+        inst = instance_map(res["instance"], ego, depth)
+        if "semantic" in self.kinds:
+            self.sink.png(*self._file(name, frame, "semantic.png"),
+                          semantic_map(res["layer"], res["instance"], ego, depth, self.classes), self.compression)
+        if "instance" in self.kinds:
+            self.sink.png(*self._file(name, frame, "instance.png"), inst, self.compression)
+        if "flow" not in self.kinds:
+            return
+        movers = np.isin(inst, self.mover_ids)
+        self.sink.png(*self._file(name, frame, "movers.png"), np.where(movers, 255, 0).astype(np.uint8),
+                      self.compression)
+        prev = self._prev.get(name)
+        if prev is not None:
+            (d0, i0, e0, T0), f0 = prev, frame - 1
+            (k0, p0), (k1, p1) = self._file(name, f0, "flow.exr"), self._file(name, f0, "flow_valid.png")
+            args = (d0, i0, e0, cam.K, T0, T_world_cam, mover_motion(self.mover_T, f0), depth, inst)
+            self.sink.flow((k0, k1), (p0, p1), self.compression, args)
+        self._prev[name] = (depth, inst, ego, T_world_cam)
 
 
 def build_sequence_scene(cfg: DataConfig, index: int) -> Scene:

@@ -115,3 +115,26 @@ class DatasetReader(Protocol):
     def mask(self, cam: str) -> np.ndarray:
         """(H, W) bool at the camera's size, True = scene, False = ego body."""
 
+    @property
+    def label_kinds(self) -> tuple[str, ...]:
+        """The labels the dataset holds: some of ("semantic", "instance", "flow"); () for none (a dataset
+        rendered before labels, a nuScenes dataroot: `synth.label_reader.NoLabels`)."""
+
+    @property
+    def classes(self) -> list[dict]:
+        """The semantic class table: index, name, color (RGB), group (`scenes.labels`); [] without it."""
+
+    def read_semantic(self, seq: str, cam: str, frame: int) -> np.ndarray:
+        """(H, W) uint8 class index; DatasetError naming what is lacking when ``"semantic"`` is not held."""
+
+    def read_instance(self, seq: str, cam: str, frame: int) -> np.ndarray:
+        """(H, W) uint16 object id, 0 = none (``"instance"``)."""
+
+    def read_movers(self, seq: str, cam: str, frame: int) -> np.ndarray:
+        """(H, W) bool, True on moving objects (``"flow"``)."""
+
+    def read_flow(self, seq: str, cam: str, frame: int) -> tuple[np.ndarray, np.ndarray]:
+        """((H, W, 2) float32 forward flow to frame + 1 in pixels, (H, W) bool valid) (``"flow"``)."""
+
+    def instances(self, seq: str) -> list[dict]:
+        """The sequence's objects: id, class, moving, a mover's T_world_obj per frame (``"instance"``)."""

@@ -30,24 +30,17 @@ from corelib.rundir import lock_folder
 from corelib.version import code_version, warn_other_code
 from scenes.model import Mesh, Scene
 from scenes.textures import LAYER
-from synth import __version__
 from synth.config import DataConfig
 from corelib.configlib import build_config, config_hash, config_to_dict
 from corelib.hashing import sha256_file
-from synth.dataset import GENERATOR, INTEGRITY, MANIFEST, SCHEMA_VERSION, integrity_record
 from synth.files import OutputFolderError, frame_stem, read_json, write_depth_exr, write_json, write_png  # noqa: F401 (re-exported)
 from synth.lighting import draw_sequence_lighting, frame_gains
-from synth.pipeline import FrameSink, ScenePrefetch, build_sequence_scene
+from synth.manifest import (MARKER_DIR, RECORD, assign_splits, began_with, complete_sequences,  # noqa: F401
+                            finalize, label_kinds, sequence_id)
+from synth.pipeline import FrameSink, LabelFrames, ScenePrefetch, build_sequence_scene
 from synth.rig import Rig, build_rig, ego_body_mesh
-from synth.sizes import size_keys
 
-MARKER_DIR = ".synth"
 MAX_WORKERS = 256  # render processes on one machine (the sweep's `workers` has the same bound)
-RECORD = "record.json"
-
-
-def sequence_id(index: int) -> str:
-    return f"seq_{index:05d}"
 
 
 def make_rig(cfg: DataConfig) -> Rig:
@@ -58,23 +51,6 @@ def make_rig(cfg: DataConfig) -> Rig:
 
 def make_ego_mesh(cfg: DataConfig) -> Mesh:
     return ego_body_mesh(LAYER["car_paint"], LAYER["car_glass"], LAYER["tyre"], cfg.rig.camera_height_m)
-
-
-def assign_splits(cfg: DataConfig) -> dict[str, list[str]]:
-    """Deterministic split of sequence ids: a permutation drawn from the seed."""
-    n = cfg.dataset.sequences
-    rng = np.random.default_rng(np.random.SeedSequence([cfg.seed, 0x5EED]))
-    perm = rng.permutation(n)
-    n_test = int(round(n * cfg.dataset.test_fraction))
-    n_val = int(round(n * cfg.dataset.val_fraction))
-    if n >= 3:
-        n_test = max(n_test, 1 if cfg.dataset.test_fraction > 0 else 0)
-        n_val = max(n_val, 1 if cfg.dataset.val_fraction > 0 else 0)
-    n_test, n_val = min(n_test, max(n - 1, 0)), min(n_val, max(n - 1 - n_test, 0))
-    test = sorted(sequence_id(int(i)) for i in perm[:n_test])
-    val = sorted(sequence_id(int(i)) for i in perm[n_test:n_test + n_val])
-    train = sorted(sequence_id(int(i)) for i in perm[n_test + n_val:])
-    return {"train": train, "val": val, "test": test}
 
 
 # ----------------------------------------------------------------------------- worker side
@@ -147,20 +123,25 @@ def render_sequence(cfg_dict: dict, out_dir: str, index: int, progress_queue=Non
     for name in rig.names:
         (partial / name).mkdir()
     frames_json = []
+    kinds = label_kinds(cfg)
     with FrameSink() as sink:
+        labels = LabelFrames(sink, scene, kinds, seq, partial, cfg.render.png_compression) if kinds else None
         for f in range(cfg.dataset.frames):
             gains = frame_gains(seq_light, flicker_rng)
             T_world_ego = scene.T_world_ego[f]
             depths = {}
             for cam in rig.cameras:
-                res = r.render(cam.K, T_world_ego @ cam.T_ego_cam, f, seq_light.light, gains[cam.name],
-                               size=(cam.width, cam.height))
+                T_world_cam = T_world_ego @ cam.T_ego_cam
+                res = r.render(cam.K, T_world_cam, f, seq_light.light, gains[cam.name],
+                               size=(cam.width, cam.height), labels=bool(kinds))
                 stem = frame_stem(f)
                 sink.png(f"{seq}/{cam.name}/{stem}.png", partial / cam.name / f"{stem}.png", res["rgb"],
                          cfg.render.png_compression)
                 sink.exr(f"{seq}/{cam.name}/{stem}.depth.exr", partial / cam.name / f"{stem}.depth.exr",
                          res["depth"])
                 depths[cam.name] = res["depth"]
+                if labels is not None:
+                    labels.add(cam, f, T_world_cam, res)
             sink.overlap(depths, masks, rig.cameras, rig.neighbours)
             frames_json.append({"frame": f, "timestamp_s": f / cfg.dataset.fps, "T_world_ego": T_world_ego.tolist(),
                                 "lighting": {"camera_gain": {k: list(v) for k, v in gains.items()}}})
@@ -171,7 +152,11 @@ def render_sequence(cfg_dict: dict, out_dir: str, index: int, progress_queue=Non
            "lighting": seq_light.to_json(), "frames": frames_json}
     write_json(partial / "ego.json", ego)
     files[f"{seq}/ego.json"] = sha256_file(partial / "ego.json")
-    record = {"sequence": seq, "index": index, "frames": cfg.dataset.frames, "files": files,
+    if "instance" in kinds:
+        from scenes.labels import instance_table
+        write_json(partial / "instances.json", {"sequence": seq, "instances": instance_table(scene)})
+        files[f"{seq}/instances.json"] = sha256_file(partial / "instances.json")
+    record = {"sequence": seq, "index": index, "frames": cfg.dataset.frames, "files": files, "labels": kinds,
               "overlap_counts": counts, "scene": scene.info, "time_of_day": seq_light.time_of_day,
               "seconds": time.perf_counter() - t0, "scene_seconds": t_scene}
     write_json(partial / RECORD, record)
@@ -224,63 +209,12 @@ def prepare_output(cfg: DataConfig, out: Path) -> None:
                         "code_version": code})
 
 
-def began_with(out: Path) -> str | None:
-    """The code version that began the render into `out` (`corelib.version.code_version`, in its marker),
-    None when the marker does not record one."""
-    marker = out / MARKER_DIR / "config.json"
-    v = read_json(marker).get("code_version") if marker.is_file() else None
-    return v if isinstance(v, str) else None
-
-
 def _write_static(cfg: DataConfig, out: Path, rig: Rig) -> None:
     write_json(out / "rig.json", rig.to_json())
     (out / "masks").mkdir(exist_ok=True)
     masks = render_masks(cfg, rig)
     for name, m in masks.items():
         write_png(out / "masks" / f"{name}.png", m, cfg.render.png_compression)
-
-
-def complete_sequences(out: Path, n: int) -> list[int]:
-    return [i for i in range(n) if (out / sequence_id(i) / RECORD).is_file()]
-
-
-def finalize(cfg: DataConfig, out: Path, rig: Rig) -> dict | None:
-    """Write manifest.json if every sequence is complete; returns the manifest (or None)."""
-    from synth.calibrate import overlap_record
-
-    n = cfg.dataset.sequences
-    if len(complete_sequences(out, n)) != n:
-        return None
-    files: dict[str, str] = {"rig.json": sha256_file(out / "rig.json")}
-    for name in rig.names:
-        files[f"masks/{name}.png"] = sha256_file(out / "masks" / f"{name}.png")
-    totals: dict[str, list[int]] = {}
-    sequences = {}
-    families: dict[str, int] = {}
-    for i in range(n):
-        rec = read_json(out / sequence_id(i) / RECORD)
-        files.update(rec["files"])
-        sequences[rec["sequence"]] = {"frames": rec["frames"], "scene": rec["scene"],
-                                      "time_of_day": rec["time_of_day"]}
-        fam = rec["scene"].get("family", "?")
-        families[fam] = families.get(fam, 0) + 1
-        for k, (a, b) in rec["overlap_counts"].items():
-            t = totals.setdefault(k, [0, 0])
-            t[0] += a
-            t[1] += b
-    manifest = {
-        "schema_version": SCHEMA_VERSION, "generator": GENERATOR, "generator_version": __version__,
-        "code_version": began_with(out),
-        "config": config_to_dict(cfg), "config_hash": config_hash(cfg), "seed": cfg.seed,
-        "cameras": rig.names, **size_keys((cfg.camera.width, cfg.camera.height), rig.cameras),
-        "fps": cfg.dataset.fps, "has_depth": True,
-        "splits": assign_splits(cfg), "sequences": sequences, "families": families,
-        "overlap": overlap_record(cfg, rig, totals),
-        "files": files,
-    }
-    manifest[INTEGRITY] = integrity_record(manifest, read_json(out / "rig.json"))
-    write_json(out / MANIFEST, manifest)
-    return manifest
 
 
 def render_dataset(cfg: DataConfig, out: str | Path, workers: int = 1, shard: tuple[int, int] = (0, 1),

@@ -1,5 +1,5 @@
 """GLSL 330 sources of the renderer (`synth.gl_backend`): the main pass (RGB, camera-frame z, ego
-flag), the shadow-map pass and the sky.
+flag, object id and material layer), the shadow-map pass and the sky.
 """
 from __future__ import annotations
 
@@ -18,6 +18,8 @@ layout(location=1) in vec3 a_nrm;
 layout(location=2) in vec2 a_uv;
 layout(location=3) in float a_layer;
 layout(location=4) in vec3 a_tint;
+layout(location=5) in float a_instance;
+uniform float u_instance;  // >= 0: the object id of the whole draw (a mover), else the vertices' own
 uniform mat4 u_model;      // world <- object
 uniform mat4 u_modelview;  // camera (OpenCV) <- object, composed in float64
 uniform mat4 u_proj;
@@ -29,7 +31,9 @@ out vec3 v_tint;
 out float v_zcam;
 out float v_dist;
 out vec4 v_light;
+flat out float v_instance;
 void main() {
+    v_instance = u_instance >= 0.0 ? u_instance : a_instance;
     vec4 pc = u_modelview * vec4(a_pos, 1.0);
     vec4 pw = u_model * vec4(a_pos, 1.0);
     v_zcam = pc.z;
@@ -52,6 +56,7 @@ in vec3 v_tint;
 in float v_zcam;
 in float v_dist;
 in vec4 v_light;
+flat in float v_instance;
 uniform sampler2DArray u_tex;
 uniform sampler2DShadow u_shadow;
 uniform int u_use_shadow;
@@ -64,7 +69,7 @@ uniform float u_fog_dist;
 uniform float u_is_ego;
 uniform float u_zfar;        // the depth test compares camera-frame z / zfar (see gl_backend)
 layout(location=0) out vec4 o_color;
-layout(location=1) out vec2 o_depth;
+layout(location=1) out vec4 o_depth;
 %(to_srgb)svoid main() {
     vec3 n = normalize(v_nrm_w);
     if (!gl_FrontFacing) n = -n;
@@ -83,7 +88,7 @@ layout(location=1) out vec2 o_depth;
     float f = 1.0 - exp(-v_dist / u_fog_dist);
     c = mix(c, u_fog_rgb, f);
     o_color = vec4(to_srgb(c * u_gain), 1.0);
-    o_depth = vec2(v_zcam, u_is_ego);
+    o_depth = vec4(v_zcam, u_is_ego, v_instance, v_layer);
     gl_FragDepth = v_zcam / u_zfar;
 }
 """
@@ -119,7 +124,7 @@ uniform vec3 u_sun_dir;
 uniform vec3 u_sun_rgb;
 uniform vec3 u_gain;
 layout(location=0) out vec4 o_color;
-layout(location=1) out vec2 o_depth;
+layout(location=1) out vec4 o_depth;
 %(to_srgb)svoid main() {
     vec2 uv = vec2(gl_FragCoord.x, u_height - gl_FragCoord.y);   // OpenCV pixel coordinates
     vec3 d = normalize(u_R_world_cam * (u_K_inv * vec3(uv, 1.0)));
@@ -129,7 +134,7 @@ layout(location=1) out vec2 o_depth;
     float s = max(dot(d, u_sun_dir), 0.0);
     c += u_sun_rgb * (0.25 * pow(s, 64.0) + 2.0 * pow(s, 2000.0));
     o_color = vec4(to_srgb(c * u_gain), 1.0);
-    o_depth = vec2(0.0, 0.0);
+    o_depth = vec4(0.0, 0.0, 0.0, -1.0);
 }
 """
 

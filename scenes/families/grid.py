@@ -92,7 +92,8 @@ def build_grid(kind: str, cfg: SceneConfig, n_frames: int, fps: float, rng: np.r
             "turn": route.turn, "lanes_per_dir": int(xs.lanes_per_dir), "lane_w_m": float(xs.lane_w),
             "parking": bool(xs.parking_w > 0), "turn_radius_m": float(route.R_turn) if route.turn else None,
             "n_dropped_objects": int(world.n_dropped)}
-    return Scene(static, movers, textures, materials, route.T_world_ego, kind, info)
+    return Scene(static, movers, textures, materials, route.T_world_ego, kind, info,
+                 instance_class=world.instance_class)
 
 
 def _cross_section(urban: bool, cfg: SceneConfig, rng: np.random.Generator) -> tuple[CrossSection, float, float]:

@@ -76,7 +76,8 @@ def build_highway(cfg: SceneConfig, n_frames: int, fps: float, rng: np.random.Ge
     textures, materials = make_textures(rng, cfg.texture_size)
     info = {"family": "highway", "speed_mps": speed, "n_movers": len(movers), "n_triangles": int(static.n_triangles),
             "turn": turn, "lanes_per_dir": int(n), "lane_w_m": float(lane_w), "n_dropped_objects": int(world.n_dropped)}
-    return Scene(static, movers, textures, materials, T_world_ego, "highway", info)
+    return Scene(static, movers, textures, materials, T_world_ego, "highway", info,
+                 instance_class=world.instance_class)
 
 
 def _carriageway(world: World, road: np.ndarray, xs: CrossSection, R_view: float, rng: np.random.Generator) -> None:
@@ -164,7 +165,7 @@ def _roadside(world: World, road: np.ndarray, yaw: np.ndarray, xs: CrossSection,
             facade = ["facade_glass", "barrier_concrete", "brick", "facade_windows_b"][rng.integers(4)]
             world.add(building(rng.uniform(20, 50), rng.uniform(15, 30), rng.uniform(6, 16), facade,
                                tuple(rng.uniform(0.85, 1.1, 3))).transformed(
-                pose_2d(q[0], q[1], yaw[i] + (0.0 if side > 0 else np.pi))))
+                pose_2d(q[0], q[1], yaw[i] + (0.0 if side > 0 else np.pi))), label="building")
 
 
 def _posts(world: World, road: np.ndarray, d: float, w: float, h: float, spacing: float) -> None:

@@ -9,6 +9,7 @@ import pytest
 
 from mcdp import evaluate as E
 from mcdp.metrics import METRIC_NAMES
+from synth.label_reader import NoLabels
 
 H, W, F_PX, Z_WALL, SHIFT_PX = 12, 16, 20.0, 10.0, 3
 
@@ -27,7 +28,7 @@ class FakeCamera:
         return {k: v.tolist() if isinstance(v, np.ndarray) else v for k, v in asdict(self).items()}
 
 
-class FakeDataset:
+class FakeDataset(NoLabels):
     """A `synth.protocol.DatasetReader` (tests/synth/test_protocol.py checks it): two forward cameras,
     j = i shifted right.
 

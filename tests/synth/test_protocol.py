@@ -67,7 +67,8 @@ def test_the_protocol_lists_what_the_interfaces_page_lists():
     members = {n for n in vars(DatasetReader) if not n.startswith("_")}
     assert members == {"root", "cameras", "camera_names", "neighbours", "sequences", "fps", "has_depth",
                        "ground_truth", "split", "n_frames", "ego", "T_world_ego", "rgb_path", "depth_path",
-                       "read_rgb", "read_depth", "mask"}
+                       "read_rgb", "read_depth", "mask", "label_kinds", "classes", "read_semantic", "read_instance",
+                       "read_movers", "read_flow", "instances"}
     doc = (Path(__file__).resolve().parents[2] / "docs" / "INTERFACES.md").read_text()
     block = doc.split("## The dataset seam", 1)[1].split("```", 2)[1]
     assert set(re.findall(r"^ds\.(\w+)", block, re.M)) == members

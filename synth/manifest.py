@@ -1,0 +1,125 @@
+"""The dataset's record of itself, written last: which sequences are complete, how they are split, and
+`manifest.json` (schema: `synth.dataset`; layout: docs/DATASET.md), with the labels every sequence holds.
+
+Example::
+
+    manifest = finalize(cfg, Path("data/tiny"), make_rig(cfg))   # None while a sequence is missing
+"""
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from corelib.configlib import config_hash, config_to_dict
+from corelib.hashing import sha256_file
+from synth import __version__
+from synth.config import DataConfig
+from synth.dataset import GENERATOR, INTEGRITY, MANIFEST, SCHEMA_VERSION, integrity_record
+from synth.files import read_json, write_json
+from synth.rig import Rig
+from synth.sizes import size_keys
+
+MARKER_DIR = ".synth"
+RECORD = "record.json"
+LABEL_KINDS = ("semantic", "instance", "flow")
+
+
+def sequence_id(index: int) -> str:
+    return f"seq_{index:05d}"
+
+
+def label_kinds(cfg: DataConfig) -> list[str]:
+    """The labels a render of `cfg` writes (`labels.*`), in `LABEL_KINDS` order."""
+    return [k for k in LABEL_KINDS if getattr(cfg.labels, k)]
+
+
+def labels_record(kinds: list[str]) -> dict:
+    """The manifest's ``labels``: the kinds every sequence holds, the class table, the file conventions."""
+    from scenes.labels import class_table
+
+    rec: dict = {"kinds": kinds}
+    if "semantic" in kinds:
+        rec["classes"] = class_table()
+        rec["semantic"] = "<seq>/<CAM>/<frame>.semantic.png: uint8 class index (classes[].index)"
+    if "instance" in kinds:
+        rec["instance"] = ("<seq>/<CAM>/<frame>.instance.png: uint16 object id, 0 = none; <seq>/instances.json: "
+                           "id, class, moving, a mover's T_world_obj per frame")
+    if "flow" in kinds:
+        rec["flow"] = ("<seq>/<CAM>/<frame>.flow.exr: forward flow t -> t+1 in pixels (channels U, V; frames "
+                       "0..F-2), <frame>.flow_valid.png: 255 = valid; <frame>.movers.png: 255 = a moving object "
+                       "(every frame)")
+    return rec
+
+
+def assign_splits(cfg: DataConfig) -> dict[str, list[str]]:
+    """Deterministic split of sequence ids: a permutation drawn from the seed."""
+    n = cfg.dataset.sequences
+    rng = np.random.default_rng(np.random.SeedSequence([cfg.seed, 0x5EED]))
+    perm = rng.permutation(n)
+    n_test = int(round(n * cfg.dataset.test_fraction))
+    n_val = int(round(n * cfg.dataset.val_fraction))
+    if n >= 3:
+        n_test = max(n_test, 1 if cfg.dataset.test_fraction > 0 else 0)
+        n_val = max(n_val, 1 if cfg.dataset.val_fraction > 0 else 0)
+    n_test, n_val = min(n_test, max(n - 1, 0)), min(n_val, max(n - 1 - n_test, 0))
+    test = sorted(sequence_id(int(i)) for i in perm[:n_test])
+    val = sorted(sequence_id(int(i)) for i in perm[n_test:n_test + n_val])
+    train = sorted(sequence_id(int(i)) for i in perm[n_test + n_val:])
+    return {"train": train, "val": val, "test": test}
+
+
+def began_with(out: Path) -> str | None:
+    """The code version that began the render into `out` (`corelib.version.code_version`, in its marker),
+    None when the marker does not record one."""
+    marker = out / MARKER_DIR / "config.json"
+    v = read_json(marker).get("code_version") if marker.is_file() else None
+    return v if isinstance(v, str) else None
+
+
+def complete_sequences(out: Path, n: int) -> list[int]:
+    return [i for i in range(n) if (out / sequence_id(i) / RECORD).is_file()]
+
+
+def finalize(cfg: DataConfig, out: Path, rig: Rig) -> dict | None:
+    """Write manifest.json if every sequence is complete; returns the manifest (or None)."""
+    from synth.calibrate import overlap_record
+
+    n = cfg.dataset.sequences
+    if len(complete_sequences(out, n)) != n:
+        return None
+    files: dict[str, str] = {"rig.json": sha256_file(out / "rig.json")}
+    for name in rig.names:
+        files[f"masks/{name}.png"] = sha256_file(out / "masks" / f"{name}.png")
+    totals: dict[str, list[int]] = {}
+    sequences = {}
+    families: dict[str, int] = {}
+    kinds = list(LABEL_KINDS)
+    for i in range(n):
+        rec = read_json(out / sequence_id(i) / RECORD)
+        kinds = [k for k in kinds if k in rec.get("labels", [])]  # a render resumed by older code: the common kinds
+        files.update(rec["files"])
+        sequences[rec["sequence"]] = {"frames": rec["frames"], "scene": rec["scene"],
+                                      "time_of_day": rec["time_of_day"]}
+        fam = rec["scene"].get("family", "?")
+        families[fam] = families.get(fam, 0) + 1
+        for k, (a, b) in rec["overlap_counts"].items():
+            t = totals.setdefault(k, [0, 0])
+            t[0] += a
+            t[1] += b
+    manifest = {
+        "schema_version": SCHEMA_VERSION, "generator": GENERATOR, "generator_version": __version__,
+        "code_version": began_with(out),
+        "config": config_to_dict(cfg), "config_hash": config_hash(cfg), "seed": cfg.seed,
+        "cameras": rig.names, **size_keys((cfg.camera.width, cfg.camera.height), rig.cameras),
+        "fps": cfg.dataset.fps, "has_depth": True,
+        "splits": assign_splits(cfg), "sequences": sequences, "families": families,
+        "overlap": overlap_record(cfg, rig, totals),
+        "labels": labels_record(kinds),
+        "files": files,
+    }
+    manifest[INTEGRITY] = integrity_record(manifest, read_json(out / "rig.json"))
+    write_json(out / MANIFEST, manifest)
+    return manifest
+
+
