@@ -37,7 +37,8 @@ def main(argv=None) -> int:
     torch.set_num_threads(1)
     from corelib.configlib import load_config
     from mcdp.config import RunConfig
-    from mcdp.evaluate import EvalConfig, constant_depth_predictor, evaluate, median_gt_depth
+    from mcdp.evaluate import EvalConfig, evaluate
+    from mcdp.priors import constant_depth_predictor, median_gt_depth
     from mcdp.predict import Predictor
     from mcdp.trainer import Trainer
     from synth.config import load_data_config

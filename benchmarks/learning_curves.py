@@ -33,7 +33,8 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from mcdp.config import RunConfig  # noqa: E402
-from mcdp.evaluate import EvalConfig, constant_depth_predictor, evaluate, median_gt_depth  # noqa: E402
+from mcdp.evaluate import EvalConfig, evaluate  # noqa: E402
+from mcdp.priors import constant_depth_predictor, median_gt_depth  # noqa: E402
 from mcdp.predict import Predictor  # noqa: E402
 from mcdp.priors import flat_road_predictor  # noqa: E402
 from mcdp.trainer import Trainer  # noqa: E402

@@ -25,6 +25,10 @@ Protocol (DESIGN.md, "Evaluation protocol"):
   pixel of the same image, in fractions of the image width (``synth.overlap.distance_bands``:
   the overlap itself, then 0-0.10, 0.10-0.20, 0.20-0.35, > 0.35; an image without overlap pixel
   falls in the last band). How far information from the overlap travels, per band.
+- Class groups and motion (a dataset with semantic labels only, `mcdp.label_regions`): the valid pixels of
+  each class group (road, building, vehicle, parked / moving vehicle, vegetation, other) and of static /
+  moving objects, as regions like the bands; and the share of moving (and, as their yardstick, parked)
+  vehicles' pixels predicted beyond twice their depth (the "infinite depth" hole), pooled over images.
 - Dep Con (paper): for every adjacent pair, both directions, the neighbour's
   prediction is splatted with the z-buffer (``geometry.splat_depth``, source
   pixels outside the neighbour's ego mask dropped) into the target camera, and
@@ -46,6 +50,11 @@ valid, e.g. a camera without neighbours has NaN overlap metrics)::
             "per_camera": {cam: {7 metrics}},
             "overlap": {7 metrics}, "non_overlap": {7 metrics},         # mean over cameras
             "bands": {band name: {7 metrics}},     # by distance to the overlap (synth.overlap.BAND_NAMES)
+            "classes": {group: {7 metrics}},       # with semantic labels: road, building, vehicle,
+                                                   # vehicle_parked, vehicle_moving, vegetation, other
+            "motion": {"static" | "moving": {7 metrics}},
+            "holes": {"ratio": 2.0, "moving": float, "parked": float, "moving_pixels": int, ...},
+            "road_bands": {band name: {7 metrics}},  # the road class alone, by distance to the overlap
             "overlap_per_camera": {cam: {7 metrics}},                   # extra detail
             "non_overlap_per_camera": {cam: {7 metrics}}},
         "dep_con": {"mean": float,
@@ -58,7 +67,9 @@ Example::
 
     ds = synth.open.open_dataset("data/tiny")
     m = evaluate(ds, lambda seq, f: {"init": model_depth(seq, f)}, "test", EvalConfig())
-    print(format_tables(m))
+    print(mcdp.tables.format_tables(m))
+
+The yardsticks' predictors (a constant depth, a flat road): `mcdp.priors`; labels' regions: `mcdp.label_regions`.
 """
 from __future__ import annotations
 
@@ -72,6 +83,7 @@ from synth.overlap import BAND_NAMES, distance_bands, overlap_union
 from synth.protocol import DatasetReader
 
 from . import geometry
+from . import label_regions as LR
 from .metrics import (
     METRIC_NAMES,
     metric_terms,
@@ -83,7 +95,7 @@ from .metrics import (
     valid_gt_mask,
 )
 
-__all__ = ["EvalConfig", "SCALINGS", "constant_depth_predictor", "evaluate", "format_tables", "median_gt_depth"]
+__all__ = ["EvalConfig", "SCALINGS", "evaluate"]
 
 SCALINGS = ("none", "median", "rig_median")
 #: band regions: pixels binned by their distance to the nearest overlap pixel of the same image
@@ -183,6 +195,7 @@ class _Rig:
         self.nbrs = {i: sorted({j for j, t in self.pairs if t == i}) for i in range(len(self.names))}
         self.T_c_c = {(i, j): np.linalg.inv(self.Ts[i]) @ self.Ts[j] for j, i in self.pairs}  # T_ci_cj
         self.pair_key = {(j, i): f"{self.names[j]}->{self.names[i]}" for j, i in self.pairs}
+        self.labels = LR.LabelIndex.of(ds)  # None: no semantic labels, no class / motion regions
 
 
 class _Truth:
@@ -205,11 +218,20 @@ class _Truth:
         for k, name in enumerate(BANDS):
             self.region_sel[name] = [b == k for b in bands_v]
         self.overlaps = overlaps  # (H, W) bool per camera: the ORACLE of the overlap reads it
+        if rig.labels is not None:  # class groups and motion, on the valid pixels
+            sels = [rig.labels.selectors(np.asarray(ds.read_semantic(seq, n, f))[v])
+                    for n, v in zip(rig.names, self.valids)]
+            for r in LR.REGIONS:
+                self.region_sel[r] = [s[r] for s in sels]
+            for b in BANDS:  # the road alone by distance to the overlap: what the neighbours share most
+                self.region_sel[f"road_{b}"] = [bd & s["class_road"] for bd, s in zip(self.region_sel[b], sels)]
+            self.label_sel = sels
 
 
-def _score(preds: list, truth: _Truth, rig: _Rig, cfg: EvalConfig, acc: dict, dc_acc: dict, spreads: list) -> None:
+def _score(preds: list, truth: _Truth, rig: _Rig, cfg: EvalConfig, acc: dict, dc_acc: dict, spreads: list,
+           holes: dict) -> None:
     """Append one stage's per-image metrics of one sample (per scaling, region, camera) to `acc`, its Dep Con
-    per pair to `dc_acc` and its prediction spreads to `spreads`."""
+    per pair to `dc_acc`, its prediction spreads to `spreads` and its hole counts (with labels) to `holes`."""
     n_cam = len(rig.names)
     p_v = [p[v] for p, v in zip(preds, truth.valids)]
     for p in p_v:  # collapse diagnostic (mcdp.diagnostics): p90/p10 of the prediction
@@ -230,9 +252,15 @@ def _score(preds: list, truth: _Truth, rig: _Rig, cfg: EvalConfig, acc: dict, dc
                 for r in truth.region_sel:
                     acc[sc][r][c].append(nan_metrics())
                 continue
-            terms = metric_terms(g_v[c], clamp_depth(p_v[c] * s_c, cfg.min_depth, cfg.max_depth), truth.lg_v[c])
+            p_sc = clamp_depth(p_v[c] * s_c, cfg.min_depth, cfg.max_depth)
+            terms = metric_terms(g_v[c], p_sc, truth.lg_v[c])
             for r, sel in truth.region_sel.items():
                 acc[sc][r][c].append(reduce_terms(terms, sel[c]))
+            if rig.labels is not None:
+                for kind, (n_far, n) in LR.hole_counts(p_sc, g_v[c], truth.label_sel[c]).items():
+                    h = holes.setdefault(sc, {}).setdefault(kind, [0, 0])
+                    h[0] += n_far
+                    h[1] += n
     # Dep Con: unscaled (metric) predictions, clamped like the "none" metrics
     metric_preds = [clamp_depth(p, cfg.min_depth, cfg.max_depth) for p in preds]
     d_hats, hits = _splat_pairs(metric_preds, rig.pairs, rig.Ks, rig.T_c_c, rig.shapes, rig.masks)
@@ -240,11 +268,11 @@ def _score(preds: list, truth: _Truth, rig: _Rig, cfg: EvalConfig, acc: dict, dc
         dc_acc[(j, i)].append(dep_con(metric_preds[i], d_hat, truth.gts[i], truth.valids[i] & hit))
 
 
-def _summary(rig: _Rig, acc: dict, dc_acc: dict, spreads: list) -> dict:
+def _summary(rig: _Rig, acc: dict, dc_acc: dict, spreads: list, holes: dict) -> dict:
     """One stage's entry of metrics.json from its per-image values (means over images, then cameras)."""
     names, st = rig.names, {}
     for sc in SCALINGS:
-        per = {r: {names[c]: _mean_dicts(acc[sc][r][c]) for c in range(len(names))} for r in REGIONS}
+        per = {r: {names[c]: _mean_dicts(acc[sc][r][c]) for c in range(len(names))} for r in acc[sc]}
         st[sc] = {
             "mean": _mean_dicts(per["all"].values()),
             "per_camera": per["all"],
@@ -254,6 +282,11 @@ def _summary(rig: _Rig, acc: dict, dc_acc: dict, spreads: list) -> dict:
             "non_overlap_per_camera": per["non_overlap"],
             "bands": {name: _mean_dicts(per[b].values()) for b, name in zip(BANDS, BAND_NAMES)},
         }
+        if rig.labels is not None:
+            st[sc]["classes"] = {g: _mean_dicts(per[f"class_{g}"].values()) for g in LR.GROUPS}
+            st[sc]["motion"] = {m: _mean_dicts(per[m].values()) for m in LR.MOTIONS}
+            st[sc]["holes"] = LR.hole_summary(holes.get(sc, {}))
+            st[sc]["road_bands"] = {name: _mean_dicts(per[f"road_{b}"].values()) for b, name in zip(BANDS, BAND_NAMES)}
     per_pair = {rig.pair_key[p]: _nanmean(v) for p, v in dc_acc.items()}
     per_cam = {names[i]: _nanmean(per_pair[rig.pair_key[(j, i)]] for j in rig.nbrs[i]) for i in range(len(names))}
     st["dep_con"] = {"mean": _nanmean(per_pair.values()), "per_pair": per_pair, "per_camera": per_cam}
@@ -299,6 +332,7 @@ def evaluate(
     # acc[stage][scaling][region][cam] -> list of per-image metric dicts
     acc: dict = {}
     dc_acc: dict = {}
+    regions = REGIONS + ((LR.REGIONS + tuple(f"road_{b}" for b in BANDS)) if rig.labels is not None else ())
     it = samples
     if progress:
         from tqdm import tqdm
@@ -316,26 +350,29 @@ def evaluate(
             keys.append("final")
         if stages is None:
             stages = keys
-            acc = {s: {sc: {r: [[] for _ in rig.names] for r in REGIONS} for sc in SCALINGS} for s in stages}
+            acc = {s: {sc: {r: [[] for _ in rig.names] for r in regions} for sc in SCALINGS} for s in stages}
             dc_acc = {s: {p: [] for p in rig.pairs} for s in stages}
             spread_acc = {s: [] for s in stages}
+            hole_acc: dict = {s: {} for s in stages}
         elif keys != stages:
             raise ValueError(f"predict_fn({seq!r}, {f}) returned stages {keys}, earlier samples {stages}")
 
         for stage in stages:
             if stage == "final" and alias is not None:
                 for sc in SCALINGS:
-                    for r in REGIONS:
+                    for r in regions:
                         for c in range(len(rig.names)):
                             acc[stage][sc][r][c].append(acc[alias][sc][r][c][-1])
                 for p in rig.pairs:
                     dc_acc[stage][p].append(dc_acc[alias][p][-1])
                 spread_acc[stage] = spread_acc[alias]
+                hole_acc[stage] = hole_acc[alias]
                 continue
             preds = _as_stack(raw[stage], rig.names, rig.shapes, stage)
-            _score(preds, truth, rig, cfg, acc[stage], dc_acc[stage], spread_acc[stage])
+            _score(preds, truth, rig, cfg, acc[stage], dc_acc[stage], spread_acc[stage], hole_acc[stage])
 
-    out_stages = {stage: _summary(rig, acc[stage], dc_acc[stage], spread_acc[stage]) for stage in stages}
+    out_stages = {stage: _summary(rig, acc[stage], dc_acc[stage], spread_acc[stage], hole_acc[stage])
+                  for stage in stages}
     return {
         "split": split,
         "n_samples": len(samples),
@@ -347,92 +384,3 @@ def evaluate(
         "ground_truth": dict(ds.ground_truth or {"kind": "unknown"}),  # read_depth's provenance
         "stages": out_stages,
     }
-
-
-# --------------------------------------------------------------------------- reference predictor
-def median_gt_depth(ds: DatasetReader, split: str = "train", cfg: EvalConfig | None = None) -> float:
-    """Median ground-truth depth over a split's evaluable pixels (the constant of the reference predictor).
-
-    Uses the same pixels as `evaluate` (depth range, self-occlusion masks, frame stride,
-    skip_ends). It reads ground truth, so the constant-depth predictor built on it is a
-    *reference* for reading tables (what a depth map without any structure scores), never a
-    method; `study.stages` takes it from the train split and evaluates it on the test split.
-
-    Raises:
-        ValueError: the split has no evaluable pixel.
-    """
-    cfg = cfg if cfg is not None else EvalConfig()
-    names = list(ds.camera_names)
-    masks = [np.asarray(ds.mask(n), dtype=bool) for n in names]
-    vals = []
-    for seq in ds.split(split):
-        for f in _frames(ds.n_frames(seq), cfg):
-            for n, m in zip(names, masks):
-                g = np.asarray(ds.read_depth(seq, n, f), dtype=np.float64)
-                vals.append(g[valid_gt_mask(g, m, cfg.min_depth, cfg.max_depth)])
-    v = np.concatenate(vals) if vals else np.zeros(0)
-    if v.size == 0:
-        raise ValueError(f"split {split!r} has no ground-truth pixel in [{cfg.min_depth}, {cfg.max_depth}] m")
-    return float(np.median(v))
-
-
-def constant_depth_predictor(ds: DatasetReader, depth_m: float) -> Callable[[str, int], Mapping[str, np.ndarray]]:
-    """A `predict_fn` for `evaluate` that predicts `depth_m` metres at every pixel of every camera."""
-    if not (np.isfinite(depth_m) and depth_m > 0):
-        raise ValueError(f"depth_m must be a positive finite depth in metres, got {depth_m}")
-    maps = [np.full((int(c.height), int(c.width)), depth_m, dtype=np.float32) for c in ds.cameras]
-    return lambda seq, frame: {"constant": maps}
-
-
-# --------------------------------------------------------------------------- tables
-def _fmt(x: float) -> str:
-    return "   nan" if x is None or (isinstance(x, float) and np.isnan(x)) else f"{x:6.3f}"
-
-
-def format_tables(metrics: dict, stage: str = "final") -> str:
-    """Human-readable per-camera tables (like the paper's Tables 1/2) for one stage.
-
-    One table per scaling (none, median, rig_median): a row per camera, then
-    the camera mean and the overlap / non-overlap means; then Dep Con per camera
-    and per ordered pair (unscaled predictions).
-
-    Args:
-        metrics: the dict returned by :func:`evaluate` (or loaded from metrics.json).
-        stage: which stage to print.
-
-    Returns:
-        multi-line string.
-    """
-    if stage not in metrics.get("stages", {}):
-        raise ValueError(f"stage {stage!r} not in metrics (have {list(metrics.get('stages', {}))})")
-    st = metrics["stages"][stage]
-    cams = list(metrics["cameras"])
-    w = max([len(c) for c in cams] + [len("non_overlap"), 8])
-    header = f"{'camera':<{w}} " + " ".join(f"{k:>8}" for k in METRIC_NAMES)
-    lines = [
-        f"split={metrics['split']} samples={metrics['n_samples']} stage={stage} "
-        f"depth range [{metrics['min_depth']}, {metrics['max_depth']}] m"
-        + (f" ground truth: {metrics['ground_truth'].get('kind')}" if "ground_truth" in metrics else "")
-    ]
-    for sc in SCALINGS:
-        if sc not in st:
-            continue
-        s = st[sc]
-        lines += ["", f"scaling: {sc}", header, "-" * len(header)]
-        for c in cams:
-            lines.append(f"{c:<{w}} " + " ".join(f"  {_fmt(s['per_camera'][c][k])}" for k in METRIC_NAMES))
-        lines.append("-" * len(header))
-        for row in ("mean", "overlap", "non_overlap"):
-            lines.append(f"{row:<{w}} " + " ".join(f"  {_fmt(s[row][k])}" for k in METRIC_NAMES))
-    dc = st.get("dep_con")
-    if dc is not None:
-        lines += ["", "Dep Con (unscaled predictions; lower is better)", f"{'camera':<{w}}   dep_con"]
-        for c in cams:
-            lines.append(f"{c:<{w}}   {_fmt(dc['per_camera'].get(c, float('nan')))}")
-        lines.append(f"{'mean':<{w}}   {_fmt(dc['mean'])}")
-        if dc["per_pair"]:
-            lines.append("per pair (source -> target):")
-            pw = max(len(p) for p in dc["per_pair"])
-            for p, v in dc["per_pair"].items():
-                lines.append(f"  {p:<{pw}}   {_fmt(v)}")
-    return "\n".join(lines)

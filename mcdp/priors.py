@@ -3,7 +3,7 @@
 A number without a yardstick says nothing: every learning table and the sweep
 report print these next to the trained methods.
 
-- constant: `mcdp.evaluate.constant_depth_predictor` with the train split's median
+- constant: `constant_depth_predictor` with the train split's median
   ground-truth depth (what a depth map without any structure scores).
 - flat road: `flat_road_depth` knows the rig (intrinsics, extrinsics, so camera
   height and pitch) and that the road is the plane z = 0 of the ego frame, nothing
@@ -22,6 +22,9 @@ from __future__ import annotations
 from typing import Callable, Mapping
 
 import numpy as np
+
+from mcdp.config import EvalConfig
+from mcdp.metrics import valid_gt_mask
 
 
 def flat_road_depth(K: np.ndarray, T_ego_cam: np.ndarray, height: int, width: int, far: float) -> np.ndarray:
@@ -48,3 +51,39 @@ def flat_road_predictor(ds, far: float) -> Callable[[str, int], Mapping[str, lis
     """A `predict_fn` for `mcdp.evaluate.evaluate`: the flat-road depth of every camera, every frame."""
     maps = [flat_road_depth(c.K, c.T_ego_cam, int(c.height), int(c.width), far) for c in ds.cameras]
     return lambda seq, frame: {"flat_road": maps}
+
+
+def median_gt_depth(ds: "DatasetReader", split: str = "train", cfg: EvalConfig | None = None) -> float:
+    """Median ground-truth depth over a split's evaluable pixels (the constant of the reference predictor).
+
+    Uses the same pixels as `evaluate` (depth range, self-occlusion masks, frame stride,
+    skip_ends). It reads ground truth, so the constant-depth predictor built on it is a
+    *reference* for reading tables (what a depth map without any structure scores), never a
+    method; `study.stages` takes it from the train split and evaluates it on the test split.
+
+    Raises:
+        ValueError: the split has no evaluable pixel.
+    """
+    from mcdp.evaluate import _frames
+
+    cfg = cfg if cfg is not None else EvalConfig()
+    names = list(ds.camera_names)
+    masks = [np.asarray(ds.mask(n), dtype=bool) for n in names]
+    vals = []
+    for seq in ds.split(split):
+        for f in _frames(ds.n_frames(seq), cfg):
+            for n, m in zip(names, masks):
+                g = np.asarray(ds.read_depth(seq, n, f), dtype=np.float64)
+                vals.append(g[valid_gt_mask(g, m, cfg.min_depth, cfg.max_depth)])
+    v = np.concatenate(vals) if vals else np.zeros(0)
+    if v.size == 0:
+        raise ValueError(f"split {split!r} has no ground-truth pixel in [{cfg.min_depth}, {cfg.max_depth}] m")
+    return float(np.median(v))
+
+
+def constant_depth_predictor(ds: "DatasetReader", depth_m: float) -> Callable[[str, int], Mapping[str, np.ndarray]]:
+    """A `predict_fn` for `evaluate` that predicts `depth_m` metres at every pixel of every camera."""
+    if not (np.isfinite(depth_m) and depth_m > 0):
+        raise ValueError(f"depth_m must be a positive finite depth in metres, got {depth_m}")
+    maps = [np.full((int(c.height), int(c.width)), depth_m, dtype=np.float32) for c in ds.cameras]
+    return lambda seq, frame: {"constant": maps}

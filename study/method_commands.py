@@ -209,7 +209,8 @@ def _eval(args: argparse.Namespace) -> int:
     out = Path(args.out) if args.out else Path(args.run) / f"metrics_{args.split}.json"
     _check_metrics_target(out)  # before the (long) evaluation: ours or new, in a folder that can be written
     outside_datasets(out)
-    from mcdp.evaluate import evaluate, format_tables
+    from mcdp.evaluate import evaluate
+    from mcdp.tables import format_tables
     from mcdp.predict import Predictor, run_record
     from mcdp.runs import RunError, rig_differences
 

@@ -137,31 +137,38 @@ def format_reach(results: dict, label) -> str:
     bands = band_names(results)
     if bands:
         add("### By distance from the overlap (bands in fractions of the image width)\n")
-        cols = [(n, q) for n, q in (("MCDP (m = 2) cut - trained", ("mcdp_m2", "cut")),
-                                     ("MCDP-local cut - trained", ("mcdp_local", "cut")),
-                                     ("ORACLE-local emptied - filled", (LOCAL, "cut")),
-                                     ("propagator: Mono2 - corrected", ("mono2", "spread")),
-                                     ("Mono2 - FSM", ("fsm", "mono2")), ("Mono2 - MCDP (m = 2)", ("mcdp_m2", "mono2")),
-                                     ("Mono2 - MCDP-local", ("mcdp_local", "mono2")))
-                if _has(results, _cut(q[0]) if q[1] == "cut" else
-                        Evaluation(q[0], SPREAD) if q[1] == "spread" else q[0])]
-        add("| overlap | band | Mono2 abs_rel | " + " | ".join(n for n, _ in cols) + " |")
-        add("|---|---|---|" + "---|" * len(cols))
-        for d in results["data"]:
-            o = d["overlap"]
-            for b in bands:
-                key = f"median.band.{b}.abs_rel"
-                mono = mean_std([f.get(key, math.nan) for f in flat_of(results, o, "mono2")])
-                cells = []
-                for _, (m, kind) in cols:
-                    pd = (paired(results, o, (_cut(m), key), (m, key)) if kind == "cut"
-                          else paired(results, o, (m, key), (Evaluation(m, SPREAD), key)) if kind == "spread"
-                          else paired(results, o, ("mono2", key), (m, key)))
-                    cells.append(_cell(pd))
-                add(f"| {o:.2f} | {b} | {mono['mean']:.4f} | " + " | ".join(cells) + " |")
-        add("")
+        L += _band_table(results, bands, "median.band.{b}.abs_rel")
+    if bands and any(k.startswith("median.road_band.") for f in results["flat"] for k in f):
+        add("### The road alone, by distance from the overlap (the surface the neighbours share most)\n")
+        L += _band_table(results, bands, "median.road_band.{b}.abs_rel")
     add(format_verdicts(results))
     return "\n".join(L)
+
+
+def _band_table(results: dict, bands: list[str], key_of: str) -> list[str]:
+    """The band table of column `key_of` (``{b}``: the band): Mono2's value and each mechanism's gain."""
+    cols = [(n, q) for n, q in (("MCDP (m = 2) cut - trained", ("mcdp_m2", "cut")),
+                                 ("MCDP-local cut - trained", ("mcdp_local", "cut")),
+                                 ("ORACLE-local emptied - filled", (LOCAL, "cut")),
+                                 ("propagator: Mono2 - corrected", ("mono2", "spread")),
+                                 ("Mono2 - FSM", ("fsm", "mono2")), ("Mono2 - MCDP (m = 2)", ("mcdp_m2", "mono2")),
+                                 ("Mono2 - MCDP-local", ("mcdp_local", "mono2")))
+            if _has(results, _cut(q[0]) if q[1] == "cut" else Evaluation(q[0], SPREAD) if q[1] == "spread" else q[0])]
+    L = ["| overlap | band | Mono2 abs_rel | " + " | ".join(n for n, _ in cols) + " |",
+         "|---|---|---|" + "---|" * len(cols)]
+    for d in results["data"]:
+        o = d["overlap"]
+        for b in bands:
+            key = key_of.format(b=b)
+            mono = mean_std([f.get(key, math.nan) for f in flat_of(results, o, "mono2")])
+            cells = []
+            for _, (m, kind) in cols:
+                pd = (paired(results, o, (_cut(m), key), (m, key)) if kind == "cut"
+                      else paired(results, o, (m, key), (Evaluation(m, SPREAD), key)) if kind == "spread"
+                      else paired(results, o, ("mono2", key), (m, key)))
+                cells.append(_cell(pd))
+            L.append(f"| {o:.2f} | {b} | {mono['mean']:.4f} | " + " | ".join(cells) + " |")
+    return L + [""]
 
 
 def _word(pd: dict) -> str:

@@ -36,6 +36,7 @@ from study.plots import distance_plot, make_plots
 from study.mechanisms import format_mechanisms
 from study.primary import format_primary
 from study.propagation import format_propagation
+from study.classes import format_classes
 from study.reach import format_reach
 from study.results import (BASELINE, PRIOR_LABEL, REF_LABEL, SCALE_LABEL, YARDSTICKS, fmt_diff, method_agg,
                            paired_difference, verdict_word, yardstick_agg, yardstick_row)
@@ -279,6 +280,9 @@ def _summary_section(results: dict) -> list[str]:
     add("")
     add(format_reach(results, label))
     add("")
+    classes = format_classes(results, label)
+    if classes:
+        L += [classes, ""]
     add("### Verdicts: against the yardsticks (abs_rel, mean over seeds) and Mono2 (paired over seeds)\n")
     add(_verdicts(results))
     add("")

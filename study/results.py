@@ -132,6 +132,11 @@ def flat_row(row: dict) -> dict[str, Any]:
             out[f"{sc}.camera.{cam}.abs_rel"] = _f(v)
         for band, v in m[sc].get("bands", {}).items():  # distance to the overlap (mcdp.evaluate)
             out[f"{sc}.band.{band}.abs_rel"] = _f(v.get("abs_rel"))
+        for key, name in (("classes", "class"), ("motion", "motion"), ("road_bands", "road_band")):  # labels
+            for region, v in m[sc].get(key, {}).items():
+                out[f"{sc}.{name}.{region}.abs_rel"] = _f(v.get("abs_rel"))
+        for kind, v in m[sc].get("holes", {}).items():
+            out[f"{sc}.holes.{kind}"] = _f(v)
     out["dep_con.mean"] = _f(m["dep_con"]["mean"])
     out["spread.ratio"] = _f(m.get("spread", {}).get("ratio"))
     for cam, v in m["dep_con"]["per_camera"].items():

@@ -51,6 +51,9 @@ def summarize_metrics(metrics: dict, stage: str = "final") -> dict:
         }
         if "bands" in st[sc]:  # metrics written before the distance bands have none
             out[sc]["bands"] = {b: dict(v) for b, v in st[sc]["bands"].items()}
+        for key in ("classes", "motion", "road_bands", "holes"):  # a dataset with semantic labels only
+            if key in st[sc]:
+                out[sc][key] = {k: (dict(v) if isinstance(v, dict) else v) for k, v in st[sc][key].items()}
     dc = st["dep_con"]
     out["dep_con"] = {"mean": dc["mean"], "per_camera": dict(dc["per_camera"]), "per_pair": dict(dc["per_pair"])}
     out["spread"] = dict(st.get("spread", {}))
@@ -78,9 +81,13 @@ def pretrain_stage(cfg: SweepConfig, sweep_dir: Path, progress: bool, log) -> di
             "render_s": rec.get("render_s"), "train_s": rec.get("train_s"), "depth_spread": rec.get("depth_spread")}
 
 
+#: what an evaluation measures; a change re-evaluates every cached run (labels: by class group and motion)
+EVAL_PROTOCOL = "as-trained+cut+cut-change+oracle-weights+oracle-overlap+bands+labels"
+
+
 def _eval_key(run_hash: str, step: int, eval_cfg: dict, data_hash: str, checkpoint: str, ckpt_name: str) -> str:
     return config_hash({"run": run_hash, "step": step, "eval": eval_cfg, "data": data_hash, "checkpoint": checkpoint,
-                        "file": ckpt_name, "protocol": "as-trained+cut+cut-change+oracle-weights+oracle-overlap+bands"})
+                        "file": ckpt_name, "protocol": EVAL_PROTOCOL})
 
 
 def run_dir_for(sweep_dir: Path, overlap: float, method: str, seed: int) -> Path:

@@ -135,19 +135,18 @@ def reference_stage(cfg: SweepConfig, d: dict, sweep_dir: Path, counters: Counte
     """Evaluate the constant-depth reference on one overlap's test split (cached beside the dataset).
 
     The constant is the median ground-truth depth of the train split
-    (`mcdp.evaluate.median_gt_depth`): a depth map with no structure at all. With median
+    (`mcdp.priors.median_gt_depth`): a depth map with no structure at all. With median
     scaling its value does not matter (every image is scaled to its ground-truth median).
     A method worse than this reference has learnt no usable depth structure.
     """
-    from mcdp.evaluate import constant_depth_predictor, evaluate, median_gt_depth
+    from mcdp.evaluate import evaluate
+    from mcdp.priors import constant_depth_predictor, flat_road_predictor, median_gt_depth
     from synth.open import open_dataset
-
-    from mcdp.priors import flat_road_predictor
 
     o = d["overlap"]
     path = sweep_dir / "data" / f"{world_key(o, d.get('world'))}.reference.json"
     key = config_hash({"data": d["config_hash"], "eval": config_to_dict(cfg.eval),
-                       "reference": "constant_train_median+flat_road"})
+                       "reference": "constant_train_median+flat_road+labels"})
     cached = read_json(path)
     if cached is not None and cached.get("key") == key:
         counters.bump("reference_skipped")

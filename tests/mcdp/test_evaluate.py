@@ -8,6 +8,8 @@ import numpy as np
 import pytest
 
 from mcdp import evaluate as E
+from mcdp import priors as P
+from mcdp import tables as T
 from mcdp.metrics import METRIC_NAMES
 from synth.label_reader import NoLabels
 
@@ -202,12 +204,12 @@ def test_errors():
 
 def test_format_tables():
     m = run(FakeDataset(), perfect)
-    txt = E.format_tables(m)
+    txt = T.format_tables(m)
     for s in ("scaling: none", "scaling: median", "scaling: rig_median", "CAM_FRONT_RIGHT", "abs_rel",
               "non_overlap", "Dep Con", "CAM_FRONT->CAM_FRONT_RIGHT"):
         assert s in txt
     with pytest.raises(ValueError, match="stage 'nope'"):
-        E.format_tables(m, "nope")
+        T.format_tables(m, "nope")
 
 
 class RampDataset(FakeDataset):
@@ -221,23 +223,23 @@ def test_constant_depth_reference_hand_values():
     ds = RampDataset()
     g = np.linspace(5.0, 16.0, H)[:-1]  # the bottom row is ego body: never counted
     g = np.repeat(g[:, None], W, axis=1).ravel()
-    c = E.median_gt_depth(ds, "train")
+    c = P.median_gt_depth(ds, "train")
     assert c == pytest.approx(np.median(g))
-    m = run(ds, E.constant_depth_predictor(ds, c))
+    m = run(ds, P.constant_depth_predictor(ds, c))
     fin = m["stages"]["final"]
     assert list(m["stages"]) == ["constant", "final"]
     assert fin["none"]["mean"]["abs_rel"] == pytest.approx(np.mean(np.abs(c - g) / g))
     # median scaling: the constant becomes each image's gt median, whatever its value
-    m2 = run(ds, E.constant_depth_predictor(ds, 3.0 * c))
+    m2 = run(ds, P.constant_depth_predictor(ds, 3.0 * c))
     assert m2["stages"]["final"]["median"]["mean"]["abs_rel"] == pytest.approx(fin["median"]["mean"]["abs_rel"])
     assert m2["stages"]["final"]["none"]["mean"]["abs_rel"] == pytest.approx(np.mean(np.abs(3 * c - g) / g))
 
 
 def test_constant_depth_reference_errors():
     with pytest.raises(ValueError, match="depth_m"):
-        E.constant_depth_predictor(RampDataset(), 0.0)
+        P.constant_depth_predictor(RampDataset(), 0.0)
     with pytest.raises(ValueError, match="no ground-truth pixel"):
-        E.median_gt_depth(RampDataset(), "train", E.EvalConfig(min_depth=50.0, max_depth=80.0))
+        P.median_gt_depth(RampDataset(), "train", E.EvalConfig(min_depth=50.0, max_depth=80.0))
 
 
 def test_cameras_of_different_sizes_are_scored_each_at_its_own_size():

@@ -121,6 +121,7 @@ def test_training_evaluation_prediction_and_preview_read_each_camera_at_its_size
     import torch
 
     from mcdp import evaluate as E
+    from mcdp.priors import constant_depth_predictor
     from mcdp.data import RigDataset, scaled_K
     from mcdp.predict import Predictor
     from mcdp.visual import depth_grid
@@ -134,7 +135,7 @@ def test_training_evaluation_prediction_and_preview_read_each_camera_at_its_size
     for c, cam in enumerate(ds.cameras):
         assert np.allclose(item["K"][c].numpy(), scaled_K(cam.K, (cam.height, cam.width), (32, 48)), atol=1e-5)
     assert item["K"][back][0, 0] == pytest.approx(0.5 * 48 / math.tan(math.radians(55)), rel=1e-6)
-    m = E.evaluate(ds, E.constant_depth_predictor(ds, 10.0), "test", progress=False)
+    m = E.evaluate(ds, constant_depth_predictor(ds, 10.0), "test", progress=False)
     per = m["stages"]["final"]["none"]["per_camera"]
     assert set(per) == set(ds.camera_names) and all(math.isfinite(v["abs_rel"]) for v in per.values())
     small = {"init": torch.full((6, 1, 8, 12), 5.0)}

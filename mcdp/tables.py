@@ -1,0 +1,65 @@
+"""Human-readable tables of a metrics.json (`mcdp.evaluate.evaluate`): per camera, per region, per class
+group and motion, and Dep Con (`mcdp eval` prints them).
+
+Example::
+
+    print(format_tables(json.load(open("runs/m2/eval/metrics.json"))))
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from mcdp.evaluate import SCALINGS
+from mcdp.metrics import METRIC_NAMES
+
+def _fmt(x: float) -> str:
+    return "   nan" if x is None or (isinstance(x, float) and np.isnan(x)) else f"{x:6.3f}"
+
+
+def format_tables(metrics: dict, stage: str = "final") -> str:
+    """Human-readable per-camera tables (like the paper's Tables 1/2) for one stage.
+
+    One table per scaling (none, median, rig_median): a row per camera, then
+    the camera mean and the overlap / non-overlap means; then Dep Con per camera
+    and per ordered pair (unscaled predictions).
+
+    Args:
+        metrics: the dict returned by :func:`evaluate` (or loaded from metrics.json).
+        stage: which stage to print.
+
+    Returns:
+        multi-line string.
+    """
+    if stage not in metrics.get("stages", {}):
+        raise ValueError(f"stage {stage!r} not in metrics (have {list(metrics.get('stages', {}))})")
+    st = metrics["stages"][stage]
+    cams = list(metrics["cameras"])
+    w = max([len(c) for c in cams] + [len("non_overlap"), 8])
+    header = f"{'camera':<{w}} " + " ".join(f"{k:>8}" for k in METRIC_NAMES)
+    lines = [
+        f"split={metrics['split']} samples={metrics['n_samples']} stage={stage} "
+        f"depth range [{metrics['min_depth']}, {metrics['max_depth']}] m"
+        + (f" ground truth: {metrics['ground_truth'].get('kind')}" if "ground_truth" in metrics else "")
+    ]
+    for sc in SCALINGS:
+        if sc not in st:
+            continue
+        s = st[sc]
+        lines += ["", f"scaling: {sc}", header, "-" * len(header)]
+        for c in cams:
+            lines.append(f"{c:<{w}} " + " ".join(f"  {_fmt(s['per_camera'][c][k])}" for k in METRIC_NAMES))
+        lines.append("-" * len(header))
+        for row in ("mean", "overlap", "non_overlap"):
+            lines.append(f"{row:<{w}} " + " ".join(f"  {_fmt(s[row][k])}" for k in METRIC_NAMES))
+    dc = st.get("dep_con")
+    if dc is not None:
+        lines += ["", "Dep Con (unscaled predictions; lower is better)", f"{'camera':<{w}}   dep_con"]
+        for c in cams:
+            lines.append(f"{c:<{w}}   {_fmt(dc['per_camera'].get(c, float('nan')))}")
+        lines.append(f"{'mean':<{w}}   {_fmt(dc['mean'])}")
+        if dc["per_pair"]:
+            lines.append("per pair (source -> target):")
+            pw = max(len(p) for p in dc["per_pair"])
+            for p, v in dc["per_pair"].items():
+                lines.append(f"  {p:<{pw}}   {_fmt(v)}")
+    return "\n".join(lines)
