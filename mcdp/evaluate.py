@@ -117,7 +117,8 @@ def _mean_dicts(dicts) -> dict:
     return {k: _nanmean(d[k] for d in dicts) for k in METRIC_NAMES} if dicts else nan_metrics()
 
 
-def _frames(n_frames: int, cfg: EvalConfig) -> range:
+def eval_frames(n_frames: int, cfg: EvalConfig) -> range:
+    """The frames of a sequence the evaluation scores (every `frame_stride`-th, without the ends if `skip_ends`)."""
     if cfg.skip_ends:
         return range(1, n_frames - 1, cfg.frame_stride)
     return range(0, n_frames, cfg.frame_stride)
@@ -324,7 +325,7 @@ def evaluate(
     """
     cfg = cfg if cfg is not None else EvalConfig()
     rig = _Rig(ds)
-    samples = [(seq, f) for seq in ds.split(split) for f in _frames(ds.n_frames(seq), cfg)]
+    samples = [(seq, f) for seq in ds.split(split) for f in eval_frames(ds.n_frames(seq), cfg)]
     if not samples:
         raise ValueError(f"split {split!r} has no frame to evaluate (skip_ends={cfg.skip_ends})")
 

@@ -64,14 +64,14 @@ def median_gt_depth(ds: "DatasetReader", split: str = "train", cfg: EvalConfig |
     Raises:
         ValueError: the split has no evaluable pixel.
     """
-    from mcdp.evaluate import _frames
+    from mcdp.evaluate import eval_frames
 
     cfg = cfg if cfg is not None else EvalConfig()
     names = list(ds.camera_names)
     masks = [np.asarray(ds.mask(n), dtype=bool) for n in names]
     vals = []
     for seq in ds.split(split):
-        for f in _frames(ds.n_frames(seq), cfg):
+        for f in eval_frames(ds.n_frames(seq), cfg):
             for n, m in zip(names, masks):
                 g = np.asarray(ds.read_depth(seq, n, f), dtype=np.float64)
                 vals.append(g[valid_gt_mask(g, m, cfg.min_depth, cfg.max_depth)])

@@ -60,13 +60,15 @@ class RenderConfig(StrictModel):
 
 
 class LabelsConfig(StrictModel):
-    """Which ground-truth labels a render writes besides RGB and depth (`synth.labels`; their cost per
-    rig-frame and per frame on disk: docs/results/render_throughput.md)."""
+    """Which ground-truth labels a render writes besides RGB and depth (`synth.labels`). Defaults by cost
+    (docs/results/render_throughput.md, 320x192): semantic and instance maps add about 8 % render time each
+    and 12-18 KB a rig-frame; forward flow adds about 40 % time and about 0.8 MB a rig-frame (two float32
+    channels), so it is off unless asked for (``labels.flow=true``)."""
 
     semantic: bool = Field(True, description="<frame>.semantic.png: a class index per pixel (manifest labels.classes)")
     instance: bool = Field(True, description="<frame>.instance.png (16-bit object ids) and <seq>/instances.json")
-    flow: bool = Field(True, description="<frame>.flow.exr forward flow t -> t+1 in pixels, its validity and the "
-                       "moving-object mask")
+    flow: bool = Field(False, description="<frame>.flow.exr forward flow t -> t+1 in pixels, its validity and "
+                       "the moving-object mask")
 
 
 class DataConfig(StrictModel):
@@ -92,6 +94,14 @@ def load_data_config(path=None, overrides: Iterable[str] = ()) -> DataConfig:
 #: without ``--yes`` (bytes, the upper bound of `render_size`)
 MAX_RENDER_BYTES = 500 * 10**9
 _BYTES_PER_PIXEL = 3 + 4  # RGB uint8 + float32 z-depth, before PNG / EXR compression (about 2 measured)
+#: each label's bytes per pixel before compression: class uint8; object id uint16; flow 2 x float32 + validity
+#: and mover masks uint8
+LABEL_BYTES_PER_PIXEL = {"semantic": 1, "instance": 2, "flow": 10}
+
+
+def bytes_per_pixel(cfg: DataConfig) -> int:
+    """Uncompressed bytes a render of `cfg` writes per pixel: RGB, depth and the labels it asks for."""
+    return _BYTES_PER_PIXEL + sum(n for k, n in LABEL_BYTES_PER_PIXEL.items() if getattr(cfg.labels, k))
 
 
 def render_size(cfg: DataConfig, shard_of: int = 1) -> dict:
@@ -104,7 +114,7 @@ def render_size(cfg: DataConfig, shard_of: int = 1) -> dict:
     rig_frames = -(-cfg.dataset.sequences // shard_of) * cfg.dataset.frames
     images = rig_frames * len(sizes)
     pixels = sum(w * h for w, h in sizes.values())  # of one rig frame
-    return {"rig_frames": rig_frames, "images": images, "max_bytes": rig_frames * pixels * _BYTES_PER_PIXEL}
+    return {"rig_frames": rig_frames, "images": images, "max_bytes": rig_frames * pixels * bytes_per_pixel(cfg)}
 
 
 def total_render_size(sizes) -> dict:
@@ -115,7 +125,7 @@ def total_render_size(sizes) -> dict:
 
 def size_statement(size: dict, what: str = "") -> str:
     """One line: the rig-frames, images and bytes of a render (`render_size`), said before it starts."""
-    return (f"{size['rig_frames']} rig-frames, {size['images']} images{what} (RGB + depth): "
+    return (f"{size['rig_frames']} rig-frames, {size['images']} images{what} (RGB, depth and labels): "
             f"{size['max_bytes'] / 1e9:.3g} GB before compression, about a third of that on disk")
 
 

@@ -157,7 +157,7 @@ def test_the_copy_test_scores_exactly_the_hinted_pixels(ds):
     scene mask) is the set of pixels where `overlap_truth` is > 0 and in that range, on every test image; a
     predictor that is the ground truth there and wrong elsewhere scores 0 on the overlap (scaling none)."""
     from mcdp.config import EVAL_MAX_DEPTH, EVAL_MIN_DEPTH, EvalConfig
-    from mcdp.evaluate import _frames, _Rig, _Truth, evaluate
+    from mcdp.evaluate import eval_frames, _Rig, _Truth, evaluate
 
     cfg = EvalConfig()
     assert (cfg.min_depth, cfg.max_depth) == (EVAL_MIN_DEPTH, EVAL_MAX_DEPTH)
@@ -165,7 +165,7 @@ def test_the_copy_test_scores_exactly_the_hinted_pixels(ds):
     rig = _Rig(ds)
     n_hinted = n_images = 0
     for seq in ds.split("test"):
-        for f in _frames(ds.n_frames(seq), cfg):
+        for f in eval_frames(ds.n_frames(seq), cfg):
             truth = _Truth(ds, rig, seq, f, cfg)
             for c, m in enumerate(overlap_truth(ds, masks, seq, f)):
                 hinted = (m > 0) & (m >= EVAL_MIN_DEPTH) & (m <= EVAL_MAX_DEPTH) & masks[c]

@@ -17,10 +17,32 @@ from synth.files import DatasetError
 from synth.labels import forward_flow, instance_map, semantic_map
 from synth.open import open_dataset
 
+from tests.conftest import TINY
+
 
 @pytest.fixture(scope="module")
-def ds(tiny_dataset):
-    return open_dataset(tiny_dataset)
+def flow_dataset(tmp_path_factory):
+    """The tiny preset with every label, forward flow included (off by default: its cost)."""
+    from synth.config import load_data_config
+    from synth.render import render_dataset
+
+    out = tmp_path_factory.mktemp("labels") / "data"
+    cfg = load_data_config(TINY, ["labels.flow=true"])
+    render_dataset(cfg, out, workers=1, progress=False, log=lambda *a: None)
+    return out
+
+
+@pytest.fixture(scope="module")
+def ds(flow_dataset):
+    return open_dataset(flow_dataset)
+
+
+def test_the_defaults_write_semantic_and_instance_maps_but_no_flow(tiny_dataset):
+    d = open_dataset(tiny_dataset)
+    assert d.label_kinds == ("semantic", "instance")
+    assert not list(tiny_dataset.rglob("*.flow.exr")) and len(list(tiny_dataset.rglob("*.instance.png"))) == 108
+    with pytest.raises(DatasetError, match=r"has no flow labels .*labels\.flow=true"):
+        d.read_movers(d.sequences[0], "CAM_FRONT", 0)
 
 
 def test_every_material_has_a_class_and_the_table_is_in_the_manifest(ds):
@@ -162,9 +184,9 @@ def test_warping_the_next_frame_by_the_flow_reproduces_this_one(ds):
     assert e["mover"][0] > 1.5 * r["mover"][0]  # ego motion alone fails on movers
 
 
-def test_verify_checks_the_label_files(tiny_dataset, tmp_path):
+def test_verify_checks_the_label_files(flow_dataset, tmp_path):
     data = tmp_path / "data"
-    shutil.copytree(tiny_dataset, data)
+    shutil.copytree(flow_dataset, data)
     assert verify_dataset(data) == []
     seq = sorted(p.name for p in data.glob("seq_*"))[0]
     (data / seq / "CAM_FRONT" / "000001.flow.exr").write_bytes(b"not an exr")
@@ -191,14 +213,14 @@ def _strip_labels(src, dst) -> None:
     (dst / "manifest.json").write_text(json.dumps(m))
 
 
-def test_a_dataset_rendered_before_labels_reads_trains_and_evaluates(tiny_dataset, tmp_path, capsys):
+def test_a_dataset_rendered_before_labels_reads_trains_and_evaluates(flow_dataset, tmp_path, capsys):
     import mcdp.trainer  # noqa: F401  torch before any in-process GL (tests/mcdp/test_cli.py)
     from mcdp.evaluate import evaluate
     from mcdp.priors import constant_depth_predictor
     from study.method_commands import main
 
     old = tmp_path / "old"
-    _strip_labels(tiny_dataset, old)
+    _strip_labels(flow_dataset, old)
     assert verify_dataset(old) == []
     ds = open_dataset(old)
     assert ds.label_kinds == () and ds.classes == []
