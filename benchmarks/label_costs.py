@@ -50,11 +50,17 @@ def render_once(overrides: list[str], out: Path) -> float:
 
 
 def label_bytes(out: Path) -> dict[str, int]:
+    """Bytes on disk by label kind, and of the RGB images and depth maps (``"rgb+depth"``, the yardstick)."""
     sizes = {k: 0 for k in KINDS}
+    sizes["rgb+depth"] = 0
     for p in out.rglob("*"):
-        for k, suffixes in KINDS.items():
-            if p.is_file() and p.name.endswith(suffixes):
-                sizes[k] += p.stat().st_size
+        if not p.is_file():
+            continue
+        kind = next((k for k, suffixes in KINDS.items() if p.name.endswith(suffixes)), None)
+        if kind is None and p.parent.parent.name.startswith("seq_") and p.name.endswith((".depth.exr", ".png")):
+            kind = "rgb+depth"
+        if kind is not None:
+            sizes[kind] += p.stat().st_size
     return sizes
 
 
@@ -86,12 +92,15 @@ def main(argv=None) -> int:
     with tee(a.record):
         print(f"{a.size}, {a.sequences} sequences x {a.frames} frames, one worker, {a.rounds} rounds in turn "
               "(median s per rig-frame; ratio: median of the per-round ratios to no labels)")
-        print(f"{'labels':>14} | {'s / rig-frame':>13} | {'x no labels':>11} | {'label KB / rig-frame':>20}")
-        print("-" * 68)
+        rgbd = sizes["none"]["rgb+depth"] / rig_frames / 1024
+        print(f"(RGB images and depth maps alone: {rgbd:.1f} KB a rig-frame on disk)")
+        print(f"{'labels':>14} | {'s / rig-frame':>13} | {'x no labels':>11} | {'label KB / rig-frame':>20} | "
+              f"{'x RGB + depth bytes':>19}")
+        print("-" * 90)
         for name in SETTINGS:
-            kb = sum(sizes[name].values()) / rig_frames / 1024
+            kb = sum(v for k, v in sizes[name].items() if k != "rgb+depth") / rig_frames / 1024
             print(f"{name:>14} | {statistics.median(secs[name]):13.3f} | {statistics.median(ratios[name]):11.2f} | "
-                  f"{kb:20.1f}")
+                  f"{kb:20.1f} | {kb / rgbd:19.2f}")
     return 0
 
 

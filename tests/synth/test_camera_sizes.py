@@ -69,7 +69,7 @@ def test_the_other_cameras_render_exactly_as_without_it(renders):
     """CAM_BACK's own framebuffer changes no byte of the other cameras (nor their masks)."""
     plain, mixed = (read_json(renders[k] / "manifest.json")["files"] for k in ("plain", "mixed"))
     others = [k for k in plain if any(f"/{c}" in f"/{k}" for c in OTHERS)]
-    assert len(others) == 5 + 2 * 3 * 5 * 2  # masks + 2 sequences x 3 frames x 5 cameras x (png, exr)
+    assert len(others) == 5 + 2 * 3 * 5 * 4  # masks + 2 sequences x 3 frames x 5 cameras x (png, exr, semantic, instance)
     assert {k: mixed[k] for k in others} == {k: plain[k] for k in others}
     assert all(mixed[k] != plain[k] for k in plain if "CAM_BACK/" in k or k.endswith("/CAM_BACK.png"))
 
