@@ -1,6 +1,6 @@
 """What the labels cost a render: seconds per rig-frame and bytes per rig-frame on disk, per label kind.
 
-Feeds: docs/results/render_throughput.md (the labels section)
+Feeds: docs/results/render_throughput.md
 Record: ``--record PATH.txt`` also writes the table it prints to PATH (`scripts/publish_bench.py`).
 
     .venv/bin/python benchmarks/label_costs.py [--size 320x192 --sequences 2 --frames 10 --rounds 3]
