@@ -20,7 +20,8 @@ def format_tables(metrics: dict, stage: str = "final") -> str:
     """Human-readable per-camera tables (like the paper's Tables 1/2) for one stage.
 
     One table per scaling (none, median, rig_median): a row per camera, then
-    the camera mean and the overlap / non-overlap means; then Dep Con per camera
+    the camera mean and the overlap / non-overlap means (with semantic labels: a row per class group
+    and per static / moving pixels, and the movers' hole); then Dep Con per camera
     and per ordered pair (unscaled predictions).
 
     Args:
@@ -51,6 +52,15 @@ def format_tables(metrics: dict, stage: str = "final") -> str:
         lines.append("-" * len(header))
         for row in ("mean", "overlap", "non_overlap"):
             lines.append(f"{row:<{w}} " + " ".join(f"  {_fmt(s[row][k])}" for k in METRIC_NAMES))
+        if "classes" in s:  # a dataset with semantic labels (mcdp.label_regions)
+            lines.append("-" * len(header))
+            rows = [(g, s["classes"][g]) for g in s["classes"]] + [(m, s["motion"][m]) for m in s["motion"]]
+            for name, v in rows:
+                lines.append(f"{name[:w]:<{w}} " + " ".join(f"  {_fmt(v[k])}" for k in METRIC_NAMES))
+            h = s.get("holes", {})
+            lines.append(f"movers beyond {h.get('ratio', 2.0):g}x their depth: {_fmt(h.get('moving'))} of "
+                         f"{h.get('moving_pixels', 0)} moving-vehicle pixels (parked: {_fmt(h.get('parked'))} of "
+                         f"{h.get('parked_pixels', 0)})")
     dc = st.get("dep_con")
     if dc is not None:
         lines += ["", "Dep Con (unscaled predictions; lower is better)", f"{'camera':<{w}}   dep_con"]

@@ -253,7 +253,12 @@ def test_eval_by_class_and_motion_and_the_hole_on_movers(ds):
             out.append(d)
         return {"init": np.stack(out)}
 
-    m = evaluate(ds, predict, "test", progress=False)["stages"]["final"]["none"]
+    full = evaluate(ds, predict, "test", progress=False)
+    m = full["stages"]["final"]["none"]
+    from mcdp.tables import format_tables
+
+    text = format_tables(full)
+    assert "\nroad " in text and "\nmoving " in text and "movers beyond 2x their depth:" in text
     assert set(m["classes"]) == {"road", "building", "vehicle", "vehicle_parked", "vehicle_moving", "vegetation",
                                  "other"}
     assert m["motion"]["static"]["abs_rel"] == pytest.approx(0.0, abs=1e-6)
