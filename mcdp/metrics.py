@@ -15,14 +15,17 @@ Example::
 """
 from __future__ import annotations
 
-from typing import Sequence
+from dataclasses import dataclass
+from typing import Callable, Sequence
 
 import numpy as np
 
 from mcdp.config import EVAL_MAX_DEPTH, EVAL_MIN_DEPTH
 
 __all__ = [
+    "METRICS",
     "METRIC_NAMES",
+    "Metric",
     "depth_metrics",
     "nan_metrics",
     "valid_gt_mask",
@@ -32,8 +35,41 @@ __all__ = [
     "dep_con",
 ]
 
+class Pixels:
+    """What the metrics' per-pixel terms read, computed once: 1-D float64 ground truth `g` and prediction `p`
+    (> 0), ``log_g``, the error ``d = g - p``, ``d2 = d * d`` and ``thresh = max(g / p, p / g)``."""
+
+    def __init__(self, g: np.ndarray, p: np.ndarray, log_g: np.ndarray | None = None) -> None:
+        self.g, self.p = g, p
+        self.log_g = np.log(g) if log_g is None else log_g
+        self.d = g - p
+        self.d2 = self.d * self.d
+        self.thresh = np.maximum(g / p, p / g)
+
+
+@dataclass(frozen=True)
+class Metric:
+    """One depth metric: its per-pixel term (averaged over the pixels of a region), and whether the metric
+    is the square root of that mean. The evaluator (`mcdp.evaluate`, per region and image) and the trainer's
+    validation (`mcdp.validation`, pooled sums) both read `METRICS`, so a metric is one entry there."""
+
+    name: str
+    term: Callable[[Pixels], np.ndarray]
+    root_after_mean: bool = False
+
+
+#: every metric, in table order (Monodepth2's definitions)
+METRICS: tuple[Metric, ...] = (
+    Metric("abs_rel", lambda x: np.abs(x.d) / x.g),
+    Metric("sq_rel", lambda x: x.d2 / x.g),
+    Metric("rmse", lambda x: x.d2, root_after_mean=True),
+    Metric("rmse_log", lambda x: (x.log_g - np.log(x.p)) ** 2, root_after_mean=True),
+    Metric("a1", lambda x: x.thresh < 1.25),
+    Metric("a2", lambda x: x.thresh < 1.25 ** 2),
+    Metric("a3", lambda x: x.thresh < 1.25 ** 3),
+)
 #: keys of every metrics dict, in table order
-METRIC_NAMES = ("abs_rel", "sq_rel", "rmse", "rmse_log", "a1", "a2", "a3")
+METRIC_NAMES = tuple(m.name for m in METRICS)
 
 
 def _np(x, name: str, dtype=np.float64) -> np.ndarray:
@@ -89,29 +125,22 @@ def depth_metrics(gt, pred, valid) -> dict:
 
 
 def metric_terms(g: np.ndarray, p: np.ndarray, log_g: np.ndarray | None = None) -> np.ndarray:
-    """Per-pixel terms (7, N) of every metric (``METRIC_NAMES`` order) for 1-D float64 g, p > 0."""
-    d = g - p
-    d2 = d * d
-    lg = np.log(g) if log_g is None else log_g
-    thresh = np.maximum(g / p, p / g)
-    return np.stack([
-        np.abs(d) / g,  # abs_rel
-        d2 / g,  # sq_rel
-        d2,  # rmse: sqrt after the mean
-        (lg - np.log(p)) ** 2,  # rmse_log: sqrt after the mean
-        thresh < 1.25,
-        thresh < 1.25 ** 2,
-        thresh < 1.25 ** 3,
-    ])
+    """Per-pixel terms (len(METRICS), N) of every metric (`METRICS` order) for 1-D float64 g, p > 0."""
+    x = Pixels(g, p, log_g)
+    return np.stack([m.term(x) for m in METRICS])
+
+
+def metrics_from_means(means: np.ndarray) -> dict:
+    """The metrics dict from the per-metric means of their terms (the root taken where a metric asks)."""
+    return {m.name: float(np.sqrt(v) if m.root_after_mean else v) for m, v in zip(METRICS, means)}
 
 
 def reduce_terms(terms: np.ndarray, sel: np.ndarray | None) -> dict:
-    """Metrics dict from per-pixel terms (7, N) over the pixels selected by bool ``sel`` (None = all)."""
+    """Metrics dict from per-pixel terms (len(METRICS), N) over the pixels selected by bool ``sel`` (None =
+    all)."""
     if terms.shape[1] == 0 or (sel is not None and not sel.any()):
         return nan_metrics()
-    m = (terms if sel is None else terms[:, sel]).mean(axis=1)
-    m[2:4] = np.sqrt(m[2:4])
-    return {k: float(x) for k, x in zip(METRIC_NAMES, m)}
+    return metrics_from_means((terms if sel is None else terms[:, sel]).mean(axis=1))
 
 
 def valid_gt_mask(gt, scene_mask, min_depth: float = EVAL_MIN_DEPTH, max_depth: float = EVAL_MAX_DEPTH) -> np.ndarray:

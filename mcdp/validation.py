@@ -24,7 +24,7 @@ import numpy as np
 import torch
 
 from mcdp.data import collate
-from mcdp.metrics import METRIC_NAMES, clamp_depth, metric_terms, nan_metrics, valid_gt_mask
+from mcdp.metrics import METRIC_NAMES, clamp_depth, metric_terms, metrics_from_means, nan_metrics, valid_gt_mask
 
 
 @torch.no_grad()
@@ -78,6 +78,4 @@ class DepthAccumulator:
         sums = np.asarray(sums, dtype=np.float64)
         if not sums[-1] > 0:
             return nan_metrics()
-        m = sums[:-1] / sums[-1]
-        m[2:4] = np.sqrt(m[2:4])
-        return {k: float(x) for k, x in zip(METRIC_NAMES, m)}
+        return metrics_from_means(sums[:-1] / sums[-1])

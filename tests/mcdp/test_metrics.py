@@ -119,3 +119,19 @@ def test_dep_con_hand_value():
     dh = np.array([[3.0, 0.0]])
     g = np.array([[4.0, 4.0]])
     assert M.dep_con(d, dh, g, np.array([[True, False]])) == pytest.approx(0.25)
+
+
+def test_one_metric_table_serves_the_evaluator_and_the_validation():
+    """`METRICS` is the one definition: the per-image reduction (`reduce_terms`) and the pooled sums of the
+    trainer's validation (`DepthAccumulator.metrics`) give the same numbers from it, roots included."""
+    from mcdp.validation import DepthAccumulator
+
+    rng = np.random.default_rng(0)
+    g, p = rng.uniform(1, 80, 500), rng.uniform(1, 80, 500)
+    terms = M.metric_terms(g, p)
+    assert terms.shape == (len(M.METRICS), 500) and M.METRIC_NAMES == tuple(m.name for m in M.METRICS)
+    a = M.reduce_terms(terms, None)
+    b = DepthAccumulator.metrics(np.append(terms.sum(axis=1), 500))
+    assert a == pytest.approx(b, rel=1e-12)
+    assert a["rmse"] == pytest.approx(np.sqrt(np.mean((g - p) ** 2)))
+    assert [m.name for m in M.METRICS if m.root_after_mean] == ["rmse", "rmse_log"]
