@@ -94,8 +94,9 @@ def run_sweep_command(args: argparse.Namespace) -> int:
     from study.sweep import run_sweep
 
     source = str(preset) + (" + " + " ".join(args.overrides) if args.overrides else "")
-    results = run_sweep(cfg, args.out, progress=not args.no_progress,
-                        config_source=source + (f" + --engine {engine}" if engine else ""), yes=args.yes)
+    results = run_sweep(cfg, args.out, progress=not args.no_progress,  # checked above: resolved once
+                        config_source=source + (f" + --engine {engine}" if engine else ""), yes=args.yes,
+                        checked=True)
     if results["counters"].get("failed"):
         return EXIT_RUN_FAILED
     return exitcodes.DIVERGED if results["counters"].get("diverged") else exitcodes.OK

@@ -61,20 +61,23 @@ from study.worlds import combine_worlds, reference_stage, render_stage
 
 
 def run_sweep(cfg: SweepConfig, out: str | Path, progress: bool = True, log: Callable[[str], None] | None = None,
-              config_source: str | None = None, yes: bool = False) -> dict:
+              config_source: str | None = None, yes: bool = False, checked: bool = False) -> dict:
     """Run (or resume) a whole sweep into `out`; writes the report; returns the results dict.
 
     The returned dict (also ``out/results.json``) holds ``counters`` (rendered,
     render_skipped, trained, train_skipped, train_resumed, evaluated, eval_skipped,
     diverged, failed), ``data`` (per overlap), ``rows`` (per overlap x method x seed),
     ``aggregate`` (mean/std over seeds) and ``timing``. Its renders together above
-    `synth.config.MAX_RENDER_BYTES` are refused (ConfigError) unless `yes`.
+    `synth.config.MAX_RENDER_BYTES` are refused (ConfigError) unless `yes`. ``checked``: the caller has
+    resolved and size-checked every nested config already (`study.config.check_nested_configs`, as the
+    command line does before it says the size), so they are not resolved a second time.
     """
     from corelib.rundir import claim
 
     log = log or logger("sweep").info  # stderr (-q hides it) and, during a run, its train.log
     out = Path(out)
-    check_nested_configs(cfg, yes)  # a typo in an override, a huge render: refused before anything is written
+    if not checked:  # a typo in an override, a huge render: refused before anything is written
+        check_nested_configs(cfg, yes)
     if cfg.engine == "ray":
         from corelib.cluster import import_ray
         import_ray()  # Ray missing: one line, before anything is written

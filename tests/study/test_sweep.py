@@ -140,6 +140,20 @@ def test_cli_usage_error_returns_2(tmp_path, capsys):
     assert "overlaps must be in [0.10, 0.60]" in err and "unrecognized" not in err
 
 
+def test_the_command_line_resolves_the_nested_configs_once(tmp_path, monkeypatch):
+    """study/cli.py checks (resolves and sizes) every nested config before it says the size; run_sweep is told
+    so and does not resolve them again (issue 42, item 7); called alone, run_sweep checks them itself."""
+    import study.sweep as sw
+
+    calls, seen = [], {}
+    real = sweep.check_nested_configs
+    monkeypatch.setattr(sweep, "check_nested_configs", lambda *a, **k: calls.append(1) or real(*a, **k))
+    monkeypatch.setattr(sw, "check_nested_configs", sweep.check_nested_configs)
+    monkeypatch.setattr(sw, "run_sweep", lambda cfg, out, **kw: seen.update(kw) or {"counters": {}, "rows": []})
+    sweep_main([str(CI), "--out", str(tmp_path / "s"), "--no-progress"])
+    assert calls == [1] and seen["checked"] is True
+
+
 def test_overrides_may_follow_options():
     from corelib.cli import build_parser, parse_command_line
 
