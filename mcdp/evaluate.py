@@ -301,9 +301,9 @@ def evaluate(
     dc_acc: dict = {}
     it = samples
     if progress:
-        from tqdm import tqdm
+        from corelib.progress import progress_bar
 
-        it = tqdm(samples, desc=f"eval {split}", unit="sample")
+        it = progress_bar(samples, desc=f"eval {split}", unit="sample")
     for seq, f in it:
         truth = _Truth(ds, rig, seq, f, cfg)
         raw = dict(predict_fn(seq, f))

@@ -327,9 +327,9 @@ class Trainer:
             self.pose.train()
         bar = None
         if self.progress and self.dist.is_main:
-            from tqdm import tqdm
+            from corelib.progress import progress_bar
 
-            bar = tqdm(total=tc.steps, initial=start, desc="train", unit="step", dynamic_ncols=True)
+            bar = progress_bar(total=tc.steps, initial=start, desc="train", unit="step")
         history = []
         t_last, n_last = time.perf_counter(), 0
         ema = None
