@@ -38,25 +38,22 @@ def write_rows(path: Path | str, header: list[str], rows: list[list[str]]) -> No
     atomic_write_text(path, buf.getvalue(), fsync=False)  # whole or not at all
 
 
-def read_text(path: Path | str) -> str:
-    """A data file's text, bounded; any failure is a TableError naming the file."""
+def read_text(path: Path | str, root: Path | str | None = None) -> str:
+    """A data file's text, bounded; with ``root``, only a regular file inside it (`corelib.readfile`: a link out
+    of it, a FIFO, a device are refused unread); any failure is a TableError naming the file."""
+    from corelib.readfile import ReadRefused, read_text_inside
+
     path = Path(path)
     try:
-        with open(path, "rb") as f:
-            data = f.read(MAX_BYTES + 1)
-        if len(data) > MAX_BYTES:
-            raise TableError(f"{path}: larger than {MAX_BYTES} bytes")
-        return data.decode("utf-8")
-    except OSError as exc:
-        raise TableError(f"{path}: {exc.strerror or exc}") from None
-    except UnicodeDecodeError as exc:
-        raise TableError(f"{path}: not UTF-8 ({exc.reason} at byte {exc.start})") from None
+        return read_text_inside(path, path.parent if root is None else root, MAX_BYTES)
+    except ReadRefused as exc:
+        raise TableError(str(exc)) from None
 
 
-def read_rows(path: Path | str) -> tuple[list[str], list[list[str]]]:
+def read_rows(path: Path | str, root: Path | str | None = None) -> tuple[list[str], list[list[str]]]:
     """(header, rows) of a CSV written by `write_rows`; every row as wide as the header."""
     try:
-        table = list(csv.reader(io.StringIO(read_text(path), newline=""), strict=True))
+        table = list(csv.reader(io.StringIO(read_text(path, root), newline=""), strict=True))
     except csv.Error as exc:
         raise TableError(f"{path}: not CSV ({exc})") from None
     if not table or not table[0]:

@@ -1,7 +1,10 @@
 """Files that are whole or absent: write to a temporary name beside the target, flush, fsync, rename.
 
 A reader never sees a half-written file under the final name, whatever stops the writer (a
-crash, Ctrl-C, a full disk). A full disk is reported as `DiskFullError`: one line that names
+crash, Ctrl-C, a full disk). A writer never writes through a link: a symbolic link at the final name is
+replaced by the file (the rename is onto the link itself, never onto what it points to), and a folder a
+writer makes for its files (`make_folder`) is refused, in one line naming it, when it is a link
+(`LinkRefused`). A full disk is reported as `DiskFullError`: one line that names
 the file and says how to resume. Any other error of the operating system names the final file,
 never the temporary one; `file_error_message` says it in one line (permission denied, read-only
 file system, a name too long, ...). A name that is legal but too long for its temporary name
@@ -78,6 +81,32 @@ def naming(path: str | Path) -> Iterator[None]:
         raise OSError(exc.errno, exc.strerror, str(path)) from None
 
 
+class LinkRefused(OSError):
+    """A folder a writer would write into is a symbolic link: nothing is written through it."""
+
+    def __init__(self, path: str | Path):
+        super().__init__(errno.ELOOP, "is a symbolic link", str(path))
+
+    def __reduce__(self):
+        return (LinkRefused, (self.filename,))
+
+    def __str__(self) -> str:
+        return (f"{self.filename} is a symbolic link; nothing is written through a link: remove the link (or "
+                "use another output folder) and run the command again")
+
+
+def make_folder(folder: str | Path) -> Path:
+    """Create ``folder`` (and its parents) for a writer's files; `LinkRefused` when ``folder`` itself is a
+    symbolic link (to a folder or not), so its files never land where the link points."""
+    folder = Path(folder)
+    if folder.is_symlink():
+        raise LinkRefused(folder)
+    folder.mkdir(parents=True, exist_ok=True)
+    if folder.is_symlink():  # made a link between the two
+        raise LinkRefused(folder)
+    return folder
+
+
 def is_user_file_error(exc: BaseException) -> bool:
     """An OSError a user can cause (`USER_ERRNOS`): permissions, a read-only mount, a name too long, ..."""
     return isinstance(exc, OSError) and not is_disk_full(exc) and exc.errno in USER_ERRNOS
@@ -85,6 +114,8 @@ def is_user_file_error(exc: BaseException) -> bool:
 
 def file_error_message(exc: OSError) -> str:
     """One line for a `is_user_file_error` error: the file (both, for a rename) and what the OS said."""
+    if isinstance(exc, LinkRefused):
+        return str(exc)
     what = USER_ERRNOS.get(exc.errno, exc.strerror or type(exc).__name__)
     names = [str(n) for n in (exc.filename, exc.filename2) if n is not None]
     where = " -> ".join(names) if names else "(the operating system named no file)"
@@ -195,8 +226,9 @@ def _fsync(path: Path) -> None:
 
 @contextmanager
 def atomic_path(path: str | Path, fsync: bool = True) -> Iterator[Path]:
-    """Yield a temporary path beside `path`; on success it is fsynced and renamed onto `path`,
-    on any error it is removed (ENOSPC raised as `DiskFullError` naming `path`)."""
+    """Yield a temporary path beside `path`; on success it is fsynced and renamed onto `path` (a symbolic link
+    there is replaced, never written through), on any error it is removed (ENOSPC raised as `DiskFullError`
+    naming `path`)."""
     path = Path(path)
     tmp = _tmp_name(path)
     try:

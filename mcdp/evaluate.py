@@ -336,9 +336,9 @@ def evaluate(
     regions = REGIONS + ((LR.REGIONS + tuple(f"road_{b}" for b in BANDS)) if rig.labels is not None else ())
     it = samples
     if progress:
-        from tqdm import tqdm
+        from corelib.progress import progress_bar
 
-        it = tqdm(samples, desc=f"eval {split}", unit="sample")
+        it = progress_bar(samples, desc=f"eval {split}", unit="sample")
     for seq, f in it:
         truth = _Truth(ds, rig, seq, f, cfg)
         raw = dict(predict_fn(seq, f))

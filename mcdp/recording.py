@@ -58,8 +58,8 @@ def record_predictions(pred, samples: list[tuple[str, int]], out, point_stride: 
     offsets = sequence_offsets(ds, samples)
     items = samples
     if progress:
-        from tqdm import tqdm
-        items = tqdm(samples, desc="rrd", unit="sample")
+        from corelib.progress import progress_bar
+        items = progress_bar(samples, desc="rrd", unit="sample")
     with recording(out, f"predict_{out.stem}", blueprint_of(ds, samples[0][0], pred.stages)) as rec:
         rec.log("run", rr.TextDocument(f"checkpoint {pred.ckpt_path} (step {pred.step}); stages "
                                        f"{', '.join(pred.stages)}; dataset {ds.root}"), static=True)

@@ -6,6 +6,7 @@ Run folder::
     RUN/run.json               dataset path, cameras, neighbours, warm start
     RUN/checkpoints/last.pt    model, optimiser, step, config, RNG (written whole: corelib.atomic)
     RUN/checkpoints/best.pt    lowest val loss: networks, step, config (no optimiser state)
+    RUN/checkpoints/written.json  the checkpoints the trainer wrote, each with its sha256 (`mcdp.checkpoint_files`)
     RUN/checkpoints/removed.json  the checkpoints deleted after use, each with its step, size and why
                                (a sweep's keep_last / keep_best: false); `find_checkpoint` then says so
     RUN/tensorboard/           scalars and six-camera image grids (mcdp.logger)
@@ -26,8 +27,9 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from corelib.atomic import atomic_write_bytes, atomic_write_json
+from corelib.atomic import atomic_write_bytes
 from corelib.configlib import build_config, config_hash, config_to_dict, hashed_dict
+from mcdp.checkpoint_files import REMOVED, removed_checkpoints  # noqa: F401 (REMOVED: the name callers use)
 from mcdp.config import RunConfig, resume_conflicts, upgrade_config_dict
 
 CHECKPOINT_VERSION = 1
@@ -67,13 +69,18 @@ def _digest(path: str, size: int, mtime_ns: int) -> str:
 
 
 # --------------------------------------------------------------------------- checkpoints
-def atomic_torch_save(obj, path: Path) -> None:
-    """torch.save to ``path.tmp`` then os.replace: a crash never leaves a half-written checkpoint."""
+def atomic_torch_save(obj, path: Path) -> tuple[str, int]:
+    """torch.save to ``path.tmp`` then os.replace: a crash never leaves a half-written checkpoint.
+    Returns (sha256, bytes) of what was written (`mcdp.checkpoint_files.record_written`)."""
+    import hashlib
+
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     buf = io.BytesIO()  # serialised in memory: a full disk then fails in one plain write, not inside torch
     torch.save(obj, buf)
-    atomic_write_bytes(path, buf.getbuffer())
+    data = buf.getbuffer()
+    atomic_write_bytes(path, data)
+    return hashlib.sha256(data).hexdigest(), len(data)
 
 
 def load_checkpoint(path: Path) -> dict:
@@ -166,42 +173,6 @@ def find_checkpoint(run_dir: str | Path, which: str = "auto") -> Path:
                            + (f" (step {r['step']})" if isinstance(r.get("step"), int) else "")
                            + f" was removed {str(r.get('reason') or '')[:300]}")
     raise RunError(f"run folder {run_dir} has no checkpoint {' or '.join(names)} in {ck}")
-
-
-#: the record, in RUN/checkpoints/, of the checkpoints deleted after use (`record_removed`)
-REMOVED = "removed.json"
-
-#: the largest removed.json read (bytes); it names a few files
-_MAX_REMOVED_BYTES = 1 << 16
-
-
-def removed_checkpoints(run_dir: str | Path) -> dict[str, dict]:
-    """{file name: {"step", "bytes", "reason"}} of the checkpoints recorded as removed from ``run_dir``
-    (`record_removed`); {} when none is (or the record is unreadable, or larger than a record is)."""
-    path = Path(run_dir) / "checkpoints" / REMOVED
-    try:
-        if not path.is_file() or path.stat().st_size > _MAX_REMOVED_BYTES:
-            return {}
-        rec = json.loads(path.read_text())
-    except (OSError, ValueError, RecursionError):
-        return {}
-    files = rec.get("files") if isinstance(rec, dict) else None
-    return {k: v for k, v in files.items() if isinstance(v, dict)} if isinstance(files, dict) else {}
-
-
-def record_removed(run_dir: str | Path, files: dict[str, dict]) -> dict[str, int | None]:
-    """Add ``files`` ({name: {"step": int | None, "reason": the end of a sentence, "by ... once ..."}}) to
-    RUN/checkpoints/removed.json, with their sizes, before the caller deletes them: an interruption between
-    the two leaves a file that is still there, never a folder that looks whole without it. Returns
-    {name: bytes} of ``files`` (None for one that is not there)."""
-    ck = Path(run_dir) / "checkpoints"
-    rec = removed_checkpoints(run_dir)
-    for name, info in files.items():
-        p = ck / name
-        rec[name] = {"step": info.get("step"), "bytes": p.stat().st_size if p.is_file() else None,
-                     "reason": info.get("reason")}
-    atomic_write_json(ck / REMOVED, {"files": rec})
-    return {name: rec[name]["bytes"] for name in files}
 
 
 # --------------------------------------------------------------------------- the rig a run was trained on

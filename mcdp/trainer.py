@@ -51,6 +51,7 @@ from mcdp.data import RigDataset, StepBatchSampler, collate
 from mcdp.diagnostics import collapse_reason, depth_spread
 from mcdp.distributed import Dist
 from mcdp.logger import TrainLogger
+from mcdp.checkpoint_files import record_written
 from mcdp.runs import CHECKPOINT_VERSION, RunError, atomic_torch_save, check_resume, resolve_device, resolve_precision
 from mcdp.system import SelfSupervisedSystem
 from mcdp.validation import validation_loss
@@ -208,7 +209,8 @@ class Trainer:
         }
 
     def save_checkpoint(self, name: str = "last.pt", weights_only: bool = False) -> Path:
-        """Atomically write ``checkpoints/<name>``; `weights_only` drops optimiser/scaler/RNG state.
+        """Atomically write ``checkpoints/<name>``, its sha256 recorded (`mcdp.checkpoint_files`: a clean-up
+        deletes only such files); `weights_only` drops optimiser/scaler/RNG state.
         Under torchrun only rank 0 writes (every rank holds the same weights)."""
         path = self.run_dir / "checkpoints" / name
         if not self.dist.is_main:
@@ -217,7 +219,7 @@ class Trainer:
         if weights_only:
             for k in ("optimizer", "scaler", "torch_rng"):
                 state.pop(k)
-        atomic_torch_save(state, path)
+        record_written(self.run_dir, name, *atomic_torch_save(state, path), self.step)
         return path
 
     def _restore(self, ckpt: dict) -> None:
@@ -325,9 +327,9 @@ class Trainer:
             self.pose.train()
         bar = None
         if self.progress and self.dist.is_main:
-            from tqdm import tqdm
+            from corelib.progress import progress_bar
 
-            bar = tqdm(total=tc.steps, initial=start, desc="train", unit="step", dynamic_ncols=True)
+            bar = progress_bar(total=tc.steps, initial=start, desc="train", unit="step")
         history = []
         t_last, n_last = time.perf_counter(), 0
         ema = None

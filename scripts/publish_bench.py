@@ -11,7 +11,8 @@ docs/results/<name>/page.md is the hand-written page (the prose). A line of its 
 
 is replaced by what it names; a whole-line HTML comment (<!-- ... -->) is a note for the page's editors
 and is left out. The data files are what the benchmarks write with ``--record PATH``
-(`benchmarks/_table.py`). The generated page carries, right after its title, the line naming this command.
+(`benchmarks/_table.py`). The generated page carries, right after its title, the line naming this command. Only regular files inside
+docs/results/ are read (a link out of it, a FIFO, a device or a file over 1 MiB: one line naming it, exit 2).
 """
 from __future__ import annotations
 
@@ -28,6 +29,7 @@ from benchmarks._table import TableError, markdown, read_rows, read_text  # noqa
 from corelib.atomic import atomic_write_text  # noqa: E402
 
 _PLACEHOLDER = re.compile(r"\{\{(table|output) +([\w.-]+)(?: +([lr]+))? *\}\}")
+_NAME = re.compile(r"[\w-][\w.-]*")
 _NOTE = re.compile(r"^<!--.*?-->[ \t]*\n", re.S | re.M)
 
 
@@ -37,11 +39,14 @@ def generated_line(name: str) -> str:
 
 
 def page_text(name: str, results: Path = RESULTS) -> str:
-    """docs/results/<name>.md as built from docs/results/<name>/page.md and its data files."""
+    """docs/results/<name>.md as built from docs/results/<name>/page.md and its data files: regular files inside
+    docs/results/ only (`benchmarks._table.read_text`: a link out of it, a FIFO, a huge file are refused unread)."""
+    if not _NAME.fullmatch(name):
+        raise TableError(f"--name {name[:80]!r}: not a report name (letters, digits, _ . -, not starting with a dot)")
     folder = results / name
     page = folder / "page.md"
     out = []
-    for n, line in enumerate(_NOTE.sub("", read_text(page)).split("\n"), start=1):
+    for n, line in enumerate(_NOTE.sub("", read_text(page, results)).split("\n"), start=1):
         if "{{" not in line:
             out.append(line)
             continue
@@ -51,10 +56,10 @@ def page_text(name: str, results: Path = RESULTS) -> str:
                              f"{{{{output FILE.txt}}}}): {line.strip()[:80]}")
         kind, file, align = m.groups()
         if kind == "table":
-            header, rows = read_rows(folder / file)
+            header, rows = read_rows(folder / file, results)
             out.append(markdown(header, rows, align or ""))
         else:
-            out.append(read_text(folder / file).strip("\n"))
+            out.append(read_text(folder / file, results).strip("\n"))
     text = "\n".join(out)
     title, sep, rest = text.partition("\n")
     if title.startswith("# ") and sep:
@@ -73,9 +78,9 @@ def main(argv=None) -> int:
     which.add_argument("--name", help="docs/results/<name>.md from docs/results/<name>/")
     which.add_argument("--all", action="store_true", help="every docs/results/<name>/page.md")
     args = ap.parse_args(argv)
-    for name in bench_names() if args.all else [args.name]:
+    for name in bench_names(RESULTS) if args.all else [args.name]:
         try:
-            text = page_text(name)
+            text = page_text(name, RESULTS)
         except TableError as exc:
             print(f"error: {exc}", file=sys.stderr)
             return 2

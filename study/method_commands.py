@@ -287,24 +287,28 @@ def _predict(args: argparse.Namespace) -> int:
     label = " [ORACLE]" if pred.oracle else ""
     print(f"mcdp predict: {pred.ckpt_path} (step {pred.step}), {len(samples)} rig samples -> "
           f"{' + '.join(str(x) for x in (args.out, args.rrd) if x is not None)}{label}", file=sys.stderr)
-    if args.rrd is not None:
-        from mcdp.recording import record_predictions
-
-        r = record_predictions(pred, samples, args.rrd, progress=not args.no_progress and sys.stderr.isatty())
-        print(f"mcdp predict: wrote {args.rrd} ({r['bytes'] / 1e6:.2f} MB, {r['bytes_per_rig_frame'] / 1e6:.3f} MB "
-              f"per rig-frame); open it with `rerun {args.rrd}`", file=sys.stderr)
-    if args.out is None:
-        return 0
     from corelib.rundir import claim
 
-    lock = claim(args.out, "predict")  # a folder of the user's own files is refused, nothing written
+    lock = None
+    if args.out is not None:  # every output claimed first: a refused --out leaves no recording behind
+        lock = claim(args.out, "predict")  # a folder of the user's own files is refused, nothing written
     n = 0
     try:
-        _record_source(Path(args.out), args.run, pred, args.data)
+        if lock is not None:
+            _record_source(Path(args.out), args.run, pred, args.data)
+        if args.rrd is not None:
+            from mcdp.recording import record_predictions
+
+            r = record_predictions(pred, samples, args.rrd, progress=not args.no_progress and sys.stderr.isatty())
+            print(f"mcdp predict: wrote {args.rrd} ({r['bytes'] / 1e6:.2f} MB, {r['bytes_per_rig_frame'] / 1e6:.3f} "
+                  f"MB per rig-frame); open it with `rerun {args.rrd}`", file=sys.stderr)
+        if lock is None:
+            return 0
         for seq, f in samples:
             n += len(write_prediction(pred, seq, f, args.out, ply=args.ply))
     finally:
-        lock.release()
+        if lock is not None:
+            lock.release()
     print(f"mcdp predict: wrote {n} files", file=sys.stderr)
     return 0
 

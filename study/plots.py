@@ -33,11 +33,19 @@ def _plt():
     return plt
 
 
-def _save(plt, fig, path: Path) -> Path:
-    """Save with the figure-level legend (if any) kept inside the canvas (bbox_inches='tight')."""
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, dpi=110, bbox_inches="tight")
+def _save(plt, fig, path: Path, **kw) -> Path:
+    """Save with the figure-level legend (if any) kept inside the canvas (bbox_inches='tight', unless given),
+    whole or not at all and never through a link (`corelib.atomic`: a linked plot file is replaced, a linked
+    plots folder refused)."""
+    import io
+
+    from corelib.atomic import atomic_write_bytes, make_folder
+
+    make_folder(path.parent)
+    buf = io.BytesIO()
+    fig.savefig(buf, format=path.suffix.lstrip(".") or "png", dpi=110, **({"bbox_inches": "tight"} | kw))
     plt.close(fig)
+    atomic_write_bytes(path, buf.getvalue(), fsync=False)
     return path
 
 
@@ -256,8 +264,4 @@ def distance_plot(results: dict, plot_dir: Path) -> Path | None:
     handles, names = axes[0][0].get_legend_handles_labels()
     fig.legend(handles, names, loc="center right", fontsize=8)
     fig.tight_layout(rect=(0, 0, 0.78, 1))
-    plot_dir.mkdir(parents=True, exist_ok=True)
-    path = plot_dir / "propagation_by_distance.png"
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
-    return path
+    return _save(plt, fig, plot_dir / "propagation_by_distance.png", bbox_inches=None)

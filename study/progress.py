@@ -53,8 +53,8 @@ class SweepProgress:
         self._last_line = float("-inf")
         self._bar = None
         if bar:
-            from tqdm import tqdm
-            self._bar = tqdm(total=self.total, desc="sweep", unit="run", dynamic_ncols=True)
+            from corelib.progress import progress_bar
+            self._bar = progress_bar(total=self.total, desc="sweep", unit="run")
 
     # ------------------------------------------------------------------ state
     def eta_s(self) -> float | None:

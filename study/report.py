@@ -225,8 +225,11 @@ def _setup_section(results: dict) -> list[str]:
             "has learnt less than the ground plane")
     collapsed = [f for f in results["flat"] if isinstance(f.get("spread.ratio"), (int, float))
                  and math.isfinite(f["spread.ratio"]) and f["spread.ratio"] < COLLAPSE_RATIO]
+    runs = {(f["overlap"], f["method"], f.get("seed")) for f in collapsed}  # a run's variants are not runs
     if collapsed:
-        add(f"- **COLLAPSED** ({len(collapsed)} run(s): test depth p90/p10 < {COLLAPSE_RATIO}, a near-constant map): "
+        add(f"- **COLLAPSED** ({len(runs)} run(s)" + (f", {len(collapsed)} evaluations of them" if len(collapsed)
+                                                     != len(runs) else "")
+            + f": test depth p90/p10 < {COLLAPSE_RATIO}, a near-constant map): "
             + ", ".join(f"{f['overlap']:.2f} {Evaluation.of(f)} s{f['seed']} ({f['spread.ratio']:.2f})"
                         for f in collapsed))
     else:

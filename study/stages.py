@@ -114,9 +114,11 @@ def run_stage(cfg: SweepConfig, overlap: float, data: dict, method: str, seed: i
     metrics, metrics_cut, key = _evaluate(run, row)
     removed = []
     if not cfg.keep_last:
-        run.status, removed = _remove_last(run_dir, run.status, run.status_path)
+        # (its log line of a kept file only when _remove_best, which says it too, does not run)
+        run.status, removed = _remove_last(run_dir, run.status, run.status_path,
+                                           log if cfg.keep_best else (lambda _: None), run.tag)
     if not cfg.keep_best:
-        run.status, gone = _remove_best(run_dir, run.status, run.status_path, key)
+        run.status, gone = _remove_best(run_dir, run.status, run.status_path, key, log, run.tag)
         removed += gone
     if removed:
         log(f"{run.tag}: {_removed_line(removed)}; its evaluation is in {run_dir / f'metrics_{SPLIT}.json'}")
@@ -336,7 +338,7 @@ def _evaluate_both(ds, ecfg, progress: bool, log, tag: str, pred):
     return metrics, metrics_cut
 
 
-#: why a checkpoint was removed (`mcdp.runs.record_removed`; `mcdp eval` on the run prints it)
+#: why a checkpoint was removed (`mcdp.checkpoint_files.record_removed`; `mcdp eval` on the run prints it)
 LAST_REASON = ("by the sweep's keep_last: false once the run's best.pt was evaluated (so the run cannot be "
                "resumed; its numbers are in metrics_test.json)")
 BEST_REASON = ("by the sweep's keep_best: false once the run's evaluation of checkpoints/{evaluated} was recorded "
@@ -350,56 +352,72 @@ def _removed_line(removed: list[tuple[str, int, str]]) -> str:
     return "removed " + ", ".join(f"checkpoints/{name} ({n / 1e6:.0f} MB, {key}: false)" for name, n, key in removed)
 
 
-def _unlink_recorded(run_dir: Path, files: dict[str, dict], key: str | dict) -> list[tuple[str, int, str]]:
-    """Record ``files`` ({name: {"step", "reason"}}) in RUN/checkpoints/removed.json, then delete them;
-    [(name, bytes, the keep_* key that removed it)]."""
-    from mcdp.runs import record_removed
+def _unlink_recorded(run_dir: Path, files: dict[str, dict], key: str | dict,
+                     sizes: dict[str, int]) -> list[tuple[str, int, str]]:
+    """Record ``files`` ({name: {"step", "reason"}}, each checked by `mcdp.checkpoint_files.removable`: ``sizes``)
+    in RUN/checkpoints/removed.json (appended), then delete them; [(name, bytes, the keep_* key that removed it)]."""
+    from mcdp.checkpoint_files import record_removed, unlink_checkpoints
 
-    sizes = record_removed(run_dir, files)  # first: then the files go
-    for n in files:
-        (run_dir / "checkpoints" / n).unlink()
+    record_removed(run_dir, files, sizes)  # first: then the files go
+    unlink_checkpoints(run_dir, files)
     return [(n, sizes[n], key if isinstance(key, str) else key[n]) for n in files]
 
 
-def _remove_last(run_dir: Path, status: dict, status_path: Path) -> tuple[dict, list[tuple[str, int, str]]]:
+def _removable(run_dir: Path, names, log, tag: str) -> dict[str, int]:
+    """{name: bytes} of the checkpoints ``names`` the run wrote itself (`mcdp.checkpoint_files.removable`);
+    one log line names each file that is kept (a user's file under that name, a link, an unreadable record)."""
+    from mcdp.checkpoint_files import kept_line, removable
+
+    ok, kept = removable(run_dir, names)
+    if kept:
+        log(f"{tag}: {kept_line(kept)}")
+    return ok
+
+
+def _remove_last(run_dir: Path, status: dict, status_path: Path, log, tag: str
+                 ) -> tuple[dict, list[tuple[str, int, str]]]:
     """keep_last=false: delete last.pt of a trained run whose evaluated checkpoint is best.pt; (status, removed)."""
-    last, best = run_dir / "checkpoints" / "last.pt", run_dir / "checkpoints" / "best.pt"
     # by name: the recorded path is where the run was evaluated, which a moved sweep folder no longer is
     # (the sweep evaluates only checkpoints/best.pt or last.pt of the run's own folder)
     evaluated = Path(status.get("checkpoint") or "")
-    if status.get("trained") and last.is_file() and best.is_file() and evaluated.name == best.name:
+    if not (status.get("trained") and evaluated.name == "best.pt"):
+        return status, []
+    ok = _removable(run_dir, ["last.pt", "best.pt"], log, tag)  # best.pt: the run's own, evaluated
+    if "last.pt" in ok and "best.pt" in ok:
         status = {**status, "last_removed": True}
         write_json(status_path, status)  # first: an interruption between the two leaves a last.pt, not a lie
-        return status, _unlink_recorded(run_dir, {last.name: {"step": status.get("steps"), "reason": LAST_REASON}},
-                                        "keep_last")
+        return status, _unlink_recorded(run_dir, {"last.pt": {"step": status.get("steps"), "reason": LAST_REASON}},
+                                        "keep_last", ok)
     return status, []
 
 
-def _remove_best(run_dir: Path, status: dict, status_path: Path, key: str) -> tuple[dict, list[tuple[str, int, str]]]:
-    """keep_best=false: delete every checkpoint left in a trained run whose evaluation of this key is recorded
-    (the evaluated one is recorded in its status as ``checkpoint`` / ``checkpoint_step``); (status, removed)."""
-    ck = run_dir / "checkpoints"
-    left = [n for n in ("best.pt", "last.pt") if (ck / n).is_file()]
-    if not (status.get("trained") and status.get("eval_key") == key and left):
+def _remove_best(run_dir: Path, status: dict, status_path: Path, key: str, log, tag: str
+                 ) -> tuple[dict, list[tuple[str, int, str]]]:
+    """keep_best=false: delete every checkpoint the run wrote and still has once its evaluation of this key is
+    recorded (the evaluated one is recorded in its status as ``checkpoint`` / ``checkpoint_step``); (status, removed)."""
+    if not (status.get("trained") and status.get("eval_key") == key):
+        return status, []
+    ok = _removable(run_dir, ["best.pt", "last.pt"], log, tag)
+    if not ok:
         return status, []
     evaluated = Path(status.get("checkpoint") or "").name
     reason = BEST_REASON.format(evaluated=evaluated)
     files = {n: {"step": status.get("checkpoint_step") if n == evaluated else
-                 (status.get("steps") if n == "last.pt" else None), "reason": reason} for n in left}
-    status = {**status, "best_removed": True, **({"last_removed": True} if "last.pt" in left else {})}
+                 (status.get("steps") if n == "last.pt" else None), "reason": reason} for n in ok}
+    status = {**status, "best_removed": True, **({"last_removed": True} if "last.pt" in ok else {})}
     write_json(status_path, status)  # first, as in _remove_last
-    return status, _unlink_recorded(run_dir, files, "keep_best")
+    return status, _unlink_recorded(run_dir, files, "keep_best", ok)
 
 
 def _trim_pretraining(cfg: SweepConfig, run_dir: Path, step: int, log) -> None:
     """keep_last / keep_best: false: delete the finished pretraining's last.pt / best.pt (never read again:
-    the runs start from its pretrained.pt), recorded in its run/checkpoints/removed.json."""
-    ck = run_dir / "checkpoints"
-    files = {n: k for n, k, keep in (("last.pt", "keep_last", cfg.keep_last), ("best.pt", "keep_best", cfg.keep_best))
-             if not keep and (ck / n).is_file()}
-    if files:
+    the runs start from its pretrained.pt) that it wrote itself, recorded in its run/checkpoints/removed.json."""
+    keys = {n: k for n, k, keep in (("last.pt", "keep_last", cfg.keep_last), ("best.pt", "keep_best", cfg.keep_best))
+            if not keep}
+    ok = _removable(run_dir, list(keys), log, "[sweep] pretraining") if keys else {}
+    if ok:
         removed = _unlink_recorded(run_dir, {n: {"step": step if n == "last.pt" else None,
-                                                 "reason": PRETRAIN_REASON.format(key=k)} for n, k in files.items()},
-                                   files)
+                                                 "reason": PRETRAIN_REASON.format(key=keys[n])} for n in ok},
+                                   keys, ok)
         log(f"[sweep] pretraining: {_removed_line(removed)}; the runs start from {run_dir.parent / 'pretrained.pt'}, "
             "kept")

@@ -385,8 +385,8 @@ def verify_dataset(root: str | Path, progress: bool = False) -> list[str]:
     files: dict[str, str] = manifest.get("files", {})
     items: Iterable = files.items()
     if progress:
-        from tqdm import tqdm
-        items = tqdm(items, total=len(files), desc="verify", unit="file")
+        from corelib.progress import progress_bar
+        items = progress_bar(items, total=len(files), desc="verify", unit="file")
     base = root.resolve()
     sizes = camera_sizes(manifest)
     for rel, digest in items:

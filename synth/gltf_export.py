@@ -185,8 +185,8 @@ def export_gltf(dataset: str | Path, out: str | Path, progress: bool = False) ->
         t0 = time.perf_counter()
         seqs = ds.sequences
         if progress:
-            from tqdm import tqdm
-            seqs = tqdm(seqs, desc="gltf", unit="seq")
+            from corelib.progress import progress_bar
+            seqs = progress_bar(seqs, desc="gltf", unit="seq")
         total = {"vertices": 0, "bytes": 0}
         for seq in seqs:
             s = export_sequence(trimesh, ds, seq, out / seq)

@@ -244,8 +244,8 @@ class _Export:
                 (out / EXPORT_DIR / "depth" / ch).mkdir(parents=True, exist_ok=True)
         frames_total, bar = sum(ds.n_frames(q) for q in self.seqs), None
         if progress:
-            from tqdm import tqdm
-            bar = tqdm(total=frames_total, desc="export", unit="frame")
+            from corelib.progress import progress_bar
+            bar = progress_bar(total=frames_total, desc="export", unit="frame")
         for si, seq in enumerate(self.seqs):
             self._sequence(si, seq, bar)
         if bar is not None:

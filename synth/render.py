@@ -268,8 +268,8 @@ def _render_into(cfg: DataConfig, out: Path, rig: Rig, backend: str, workers: in
     frames_total = len(todo) * cfg.dataset.frames
     bar = None
     if progress and frames_total:
-        from tqdm import tqdm
-        bar = tqdm(total=frames_total, unit="rig-frame", desc="render", file=sys.stderr, dynamic_ncols=True)
+        from corelib.progress import progress_bar
+        bar = progress_bar(total=frames_total, unit="rig-frame", desc="render", file=sys.stderr)
     records = []
     if engine == "ray":
         records = _render_ray(cfg_dict, out, todo, bar) if todo else []

@@ -47,7 +47,7 @@ def test_two_ranks_train_and_rank_0_writes_a_checkpoint_eval_reads(two_rank_run,
     ckpt = load_checkpoint(out / "checkpoints" / "last.pt")
     assert ckpt["step"] == 4 and ckpt["world_size"] == 2
     assert proc.stderr.count("mcdp train: step 4") == 1  # rank 0 alone reports
-    assert sorted(p.name for p in (out / "checkpoints").iterdir()) == ["best.pt", "last.pt"]
+    assert sorted(p.name for p in (out / "checkpoints").iterdir()) == ["best.pt", "last.pt", "written.json"]
     assert main(["eval", str(out), "--data", str(tiny_dataset), "--no-progress", "--checkpoint", "last"]) == 0
     assert (out / "metrics_test.json").is_file()
 
