@@ -79,16 +79,19 @@ def test_a_sweep_refuses_a_bad_nested_override_before_it_renders(tmp_path, capsy
 # --------------------------------------------------------------------------- every numeric key, every config
 def _numeric_fields():
     """(model class, field name, its annotation) of every int / float / tuple-of-float key of every config
-    section (every `StrictModel` subclass of the five packages)."""
+    section (every `StrictModel` subclass of the five packages). Every module of the five is imported first,
+    so the set is the same whether this file is collected alone or after others (issue 42, item 8)."""
+    import importlib
+    import pkgutil
     import typing
 
-    import mcdp.config  # noqa: F401  (each module defines its sections)
-    import scenes.config  # noqa: F401
-    import study.config  # noqa: F401
-    import study.pretrain  # noqa: F401
-    import synth.config  # noqa: F401
-    import synth.lidar  # noqa: F401
     from corelib.configlib import StrictModel
+
+    for pkg in ("corelib", "scenes", "synth", "mcdp", "study"):
+        root = importlib.import_module(pkg)
+        for info in pkgutil.walk_packages(root.__path__, f"{pkg}."):
+            if not info.name.endswith("__main__"):
+                importlib.import_module(info.name)
 
     def numeric(ann) -> bool:
         return ann in (int, float) or any(numeric(a) for a in typing.get_args(ann))
@@ -115,6 +118,19 @@ def test_the_walk_finds_the_numeric_keys():
     assert len(NUMERIC) >= 70 and {"TrainConfig.lr", "DatasetConfig.sequences", "SweepEvalConfig.max_depth",
                                     "SceneConfig.family_weights", "LidarConfig.mount_xyz_m",
                                     "SweepConfig.seeds"} <= names
+
+
+def test_the_walk_is_the_same_alone_and_in_the_suite():
+    """A fresh interpreter that imports only this file finds the same keys as this process, whatever the suite
+    imported before it."""
+    import subprocess
+    import sys
+
+    code = ("import sys; sys.path.insert(0, 'tests'); import test_config_bounds as t; "
+            "print(sorted(f'{c.__module__}.{c.__name__}.{n}' for c, n, _ in t.NUMERIC))")
+    out = subprocess.run([sys.executable, "-c", code], cwd=ROOT, capture_output=True, text=True, timeout=300)
+    assert out.returncode == 0, out.stderr[-2000:]
+    assert out.stdout.strip() == str(sorted(f"{c.__module__}.{c.__name__}.{n}" for c, n, _ in NUMERIC))
 
 
 def _is_int(ann) -> bool:
