@@ -4,67 +4,19 @@ The worlds (render, measured overlap, yardsticks) are `study.worlds`.
 """
 from __future__ import annotations
 
-import json
-import math
 import time
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from corelib.atomic import atomic_write_json
 from corelib.configlib import ConfigError, config_hash, config_to_dict
 from corelib.version import code_version, warn_other_code
+from study.cleanup import remove_best, remove_last, trim_pretraining
 from study.config import SPLIT, SweepConfig, eval_config_for, overlap_key, run_config_for
+from study.records import Counters, finite, read_json, summarize_metrics, write_json  # noqa: F401 (re-exported)
 
 
 STATUS = "sweep_status.json"
-
-
-def read_json(path: Path) -> dict | None:
-    try:
-        return json.loads(path.read_text())
-    except (OSError, ValueError):
-        return None
-
-
-def write_json(path: Path, obj) -> None:
-    path.parent.mkdir(parents=True, exist_ok=True)
-    atomic_write_json(path, obj, allow_nan=True)
-
-
-def finite(x) -> bool:
-    return isinstance(x, (int, float)) and math.isfinite(x)
-
-
-def summarize_metrics(metrics: dict, stage: str = "final") -> dict:
-    """The numbers the report uses, from one metrics.json (`mcdp.evaluate` layout)."""
-    st = metrics["stages"][stage]
-    out: dict[str, Any] = {}
-    for sc in ("none", "median", "rig_median"):
-        if sc not in st:
-            continue
-        out[sc] = {
-            "mean": dict(st[sc]["mean"]),
-            "overlap": dict(st[sc]["overlap"]),
-            "non_overlap": dict(st[sc]["non_overlap"]),
-            "per_camera_abs_rel": {c: v["abs_rel"] for c, v in st[sc]["per_camera"].items()},
-        }
-        if "bands" in st[sc]:  # metrics written before the distance bands have none
-            out[sc]["bands"] = {b: dict(v) for b, v in st[sc]["bands"].items()}
-        for key in ("classes", "motion", "road_bands", "holes"):  # a dataset with semantic labels only
-            if key in st[sc]:
-                out[sc][key] = {k: (dict(v) if isinstance(v, dict) else v) for k, v in st[sc][key].items()}
-    dc = st["dep_con"]
-    out["dep_con"] = {"mean": dc["mean"], "per_camera": dict(dc["per_camera"]), "per_pair": dict(dc["per_pair"])}
-    out["spread"] = dict(st.get("spread", {}))
-    out["n_samples"] = metrics.get("n_samples")
-    out["stages"] = list(metrics["stages"])
-    return out
-
-
-class Counters(dict):
-    def bump(self, key: str) -> None:
-        self[key] = self.get(key, 0) + 1
 
 
 def pretrain_stage(cfg: SweepConfig, sweep_dir: Path, progress: bool, log) -> dict | None:
@@ -76,7 +28,7 @@ def pretrain_stage(cfg: SweepConfig, sweep_dir: Path, progress: bool, log) -> di
     _, _, h = resolved_configs(cfg.pretrain)
     pdir = sweep_dir / "pretrain" / h[:12]
     rec = run_pretrain(cfg.pretrain, pdir, progress=progress, log=log)
-    _trim_pretraining(cfg, pdir / "run", int(rec["step"]), log)
+    trim_pretraining(cfg, pdir / "run", int(rec["step"]), log)
     return {"weights": str(pdir / WEIGHTS), "config_hash": h, "sha256": rec["sha256"], "step": rec["step"],
             "render_s": rec.get("render_s"), "train_s": rec.get("train_s"), "depth_spread": rec.get("depth_spread")}
 
@@ -114,11 +66,11 @@ def run_stage(cfg: SweepConfig, overlap: float, data: dict, method: str, seed: i
     metrics, metrics_cut, key = _evaluate(run, row)
     removed = []
     if not cfg.keep_last:
-        # (its log line of a kept file only when _remove_best, which says it too, does not run)
-        run.status, removed = _remove_last(run_dir, run.status, run.status_path,
+        # (its log line of a kept file only when remove_best, which says it too, does not run)
+        run.status, removed = remove_last(run_dir, run.status, run.status_path,
                                            log if cfg.keep_best else (lambda _: None), run.tag)
     if not cfg.keep_best:
-        run.status, gone = _remove_best(run_dir, run.status, run.status_path, key, log, run.tag)
+        run.status, gone = remove_best(run_dir, run.status, run.status_path, key, log, run.tag)
         removed += gone
     if removed:
         log(f"{run.tag}: {_removed_line(removed)}; its evaluation is in {run_dir / f'metrics_{SPLIT}.json'}")
@@ -221,7 +173,7 @@ def _evaluate(run: _Run, row: dict) -> tuple[dict, dict | None, str]:
     metrics_path = run_dir / f"metrics_{SPLIT}.json"
     cut_path = run_dir / f"metrics_{SPLIT}_cut.json"
     ecfg = eval_config_for(cfg)
-    # keep_best: false removed the evaluated checkpoint: its name is the recorded one (by name, as in _remove_last)
+    # keep_best: false removed the evaluated checkpoint: its name is the recorded one (by name, as in remove_last)
     removed = bool(status.get("best_removed"))
     ckpt_name = Path(status.get("checkpoint") or "").name if removed else find_checkpoint(run_dir, cfg.checkpoint).name
     key = _eval_key(run.rhash, int(status.get("steps", -1)), config_to_dict(cfg.eval), run.data["config_hash"],
@@ -339,85 +291,3 @@ def _evaluate_both(ds, ecfg, progress: bool, log, tag: str, pred):
 
 
 #: why a checkpoint was removed (`mcdp.checkpoint_files.record_removed`; `mcdp eval` on the run prints it)
-LAST_REASON = ("by the sweep's keep_last: false once the run's best.pt was evaluated (so the run cannot be "
-               "resumed; its numbers are in metrics_test.json)")
-BEST_REASON = ("by the sweep's keep_best: false once the run's evaluation of checkpoints/{evaluated} was recorded "
-               "(metrics_test.json); rerun the sweep with keep_best: true into a new --out to keep it")
-PRETRAIN_REASON = ("by the sweep's {key}: false once the pretraining was finished (the runs start from its "
-                   "pretrained.pt, kept)")
-
-
-def _removed_line(removed: list[tuple[str, int, str]]) -> str:
-    """The one log line of what a run's (or the pretraining's) clean-up removed."""
-    return "removed " + ", ".join(f"checkpoints/{name} ({n / 1e6:.0f} MB, {key}: false)" for name, n, key in removed)
-
-
-def _unlink_recorded(run_dir: Path, files: dict[str, dict], key: str | dict,
-                     sizes: dict[str, int]) -> list[tuple[str, int, str]]:
-    """Record ``files`` ({name: {"step", "reason"}}, each checked by `mcdp.checkpoint_files.removable`: ``sizes``)
-    in RUN/checkpoints/removed.json (appended), then delete them; [(name, bytes, the keep_* key that removed it)]."""
-    from mcdp.checkpoint_files import record_removed, unlink_checkpoints
-
-    record_removed(run_dir, files, sizes)  # first: then the files go
-    unlink_checkpoints(run_dir, files)
-    return [(n, sizes[n], key if isinstance(key, str) else key[n]) for n in files]
-
-
-def _removable(run_dir: Path, names, log, tag: str) -> dict[str, int]:
-    """{name: bytes} of the checkpoints ``names`` the run wrote itself (`mcdp.checkpoint_files.removable`);
-    one log line names each file that is kept (a user's file under that name, a link, an unreadable record)."""
-    from mcdp.checkpoint_files import kept_line, removable
-
-    ok, kept = removable(run_dir, names)
-    if kept:
-        log(f"{tag}: {kept_line(kept)}")
-    return ok
-
-
-def _remove_last(run_dir: Path, status: dict, status_path: Path, log, tag: str
-                 ) -> tuple[dict, list[tuple[str, int, str]]]:
-    """keep_last=false: delete last.pt of a trained run whose evaluated checkpoint is best.pt; (status, removed)."""
-    # by name: the recorded path is where the run was evaluated, which a moved sweep folder no longer is
-    # (the sweep evaluates only checkpoints/best.pt or last.pt of the run's own folder)
-    evaluated = Path(status.get("checkpoint") or "")
-    if not (status.get("trained") and evaluated.name == "best.pt"):
-        return status, []
-    ok = _removable(run_dir, ["last.pt", "best.pt"], log, tag)  # best.pt: the run's own, evaluated
-    if "last.pt" in ok and "best.pt" in ok:
-        status = {**status, "last_removed": True}
-        write_json(status_path, status)  # first: an interruption between the two leaves a last.pt, not a lie
-        return status, _unlink_recorded(run_dir, {"last.pt": {"step": status.get("steps"), "reason": LAST_REASON}},
-                                        "keep_last", ok)
-    return status, []
-
-
-def _remove_best(run_dir: Path, status: dict, status_path: Path, key: str, log, tag: str
-                 ) -> tuple[dict, list[tuple[str, int, str]]]:
-    """keep_best=false: delete every checkpoint the run wrote and still has once its evaluation of this key is
-    recorded (the evaluated one is recorded in its status as ``checkpoint`` / ``checkpoint_step``); (status, removed)."""
-    if not (status.get("trained") and status.get("eval_key") == key):
-        return status, []
-    ok = _removable(run_dir, ["best.pt", "last.pt"], log, tag)
-    if not ok:
-        return status, []
-    evaluated = Path(status.get("checkpoint") or "").name
-    reason = BEST_REASON.format(evaluated=evaluated)
-    files = {n: {"step": status.get("checkpoint_step") if n == evaluated else
-                 (status.get("steps") if n == "last.pt" else None), "reason": reason} for n in ok}
-    status = {**status, "best_removed": True, **({"last_removed": True} if "last.pt" in ok else {})}
-    write_json(status_path, status)  # first, as in _remove_last
-    return status, _unlink_recorded(run_dir, files, "keep_best", ok)
-
-
-def _trim_pretraining(cfg: SweepConfig, run_dir: Path, step: int, log) -> None:
-    """keep_last / keep_best: false: delete the finished pretraining's last.pt / best.pt (never read again:
-    the runs start from its pretrained.pt) that it wrote itself, recorded in its run/checkpoints/removed.json."""
-    keys = {n: k for n, k, keep in (("last.pt", "keep_last", cfg.keep_last), ("best.pt", "keep_best", cfg.keep_best))
-            if not keep}
-    ok = _removable(run_dir, list(keys), log, "[sweep] pretraining") if keys else {}
-    if ok:
-        removed = _unlink_recorded(run_dir, {n: {"step": step if n == "last.pt" else None,
-                                                 "reason": PRETRAIN_REASON.format(key=keys[n])} for n in ok},
-                                   keys, ok)
-        log(f"[sweep] pretraining: {_removed_line(removed)}; the runs start from {run_dir.parent / 'pretrained.pt'}, "
-            "kept")

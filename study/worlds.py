@@ -14,7 +14,7 @@ from pathlib import Path
 from corelib.configlib import ConfigError, config_hash, config_to_dict
 from corelib.version import code_version, warn_other_code
 from study.config import SPLIT, SweepConfig, data_config_for, eval_config_for, world_key
-from study.stages import Counters, finite, read_json, write_json, summarize_metrics
+from study.records import Counters, finite, read_json, summarize_metrics, write_json
 from synth.overlap import target_pair_mean
 
 def measured_overlap(ov: dict) -> dict:

@@ -12,7 +12,7 @@ import pytest
 from mcdp.checkpoint_files import REMOVED, WRITTEN, record_removed, removable, removed_checkpoints
 from mcdp.runs import atomic_torch_save
 from study.config import SweepConfig
-from study.stages import _remove_best, _trim_pretraining
+from study.cleanup import remove_best, trim_pretraining
 
 
 def _write(run: Path, name: str, payload: dict, step: int = 2) -> None:
@@ -45,7 +45,7 @@ def test_keep_best_false_deletes_the_runs_files_and_keeps_a_users_file_of_the_sa
     (run / "checkpoints" / "last.pt").write_bytes(b"the user's own file")  # never written by the run
     status, path = _status(run)
     lines: list[str] = []
-    status, removed = _remove_best(run, status, path, "k", lines.append, "[t]")
+    status, removed = remove_best(run, status, path, "k", lines.append, "[t]")
     assert [n for n, _, _ in removed] == ["best.pt"] and not (run / "checkpoints" / "best.pt").exists()
     assert (run / "checkpoints" / "last.pt").read_bytes() == b"the user's own file"
     assert "last_removed" not in status and status["best_removed"] is True
@@ -55,7 +55,7 @@ def test_keep_best_false_deletes_the_runs_files_and_keeps_a_users_file_of_the_sa
     # checkpoint's removal is not overwritten
     record = (run / "checkpoints" / REMOVED).read_text()
     (run / "checkpoints" / "best.pt").write_bytes(b"mine")
-    status2, removed2 = _remove_best(run, status, path, "k", lines.append, "[t]")
+    status2, removed2 = remove_best(run, status, path, "k", lines.append, "[t]")
     assert removed2 == [] and (run / "checkpoints" / "best.pt").read_bytes() == b"mine"
     assert (run / "checkpoints" / REMOVED).read_text() == record
 
@@ -74,8 +74,8 @@ def test_nothing_is_deleted_through_a_symlinked_checkpoints_folder_or_file(tmp_p
             (run / "checkpoints" / n).symlink_to(elsewhere / "checkpoints" / n)
     status, path = _status(run)
     lines: list[str] = []
-    _, removed = _remove_best(run, status, path, "k", lines.append, "[t]")
-    _trim_pretraining(SweepConfig(keep_last=False, keep_best=False), run, 2, lines.append)
+    _, removed = remove_best(run, status, path, "k", lines.append, "[t]")
+    trim_pretraining(SweepConfig(keep_last=False, keep_best=False), run, 2, lines.append)
     assert removed == [] and sorted(p.name for p in (elsewhere / "checkpoints").iterdir()) == \
         ["best.pt", "last.pt", WRITTEN]
     assert lines and all("kept checkpoints/" in ln for ln in lines), lines
@@ -87,7 +87,7 @@ def test_the_pretrainings_trim_deletes_only_what_it_wrote(tmp_path):
     _write(run, "last.pt", {"w": 1})
     (run / "checkpoints" / "best.pt").write_bytes(b"a user's file")
     lines: list[str] = []
-    _trim_pretraining(SweepConfig(keep_last=False, keep_best=False), run, 2, lines.append)
+    trim_pretraining(SweepConfig(keep_last=False, keep_best=False), run, 2, lines.append)
     assert not (run / "checkpoints" / "last.pt").exists() and (run / "checkpoints" / "best.pt").is_file()
     assert any("removed checkpoints/last.pt" in ln for ln in lines)
     assert any("kept checkpoints/best.pt" in ln for ln in lines)
@@ -113,7 +113,7 @@ def test_an_unreadable_removal_record_is_never_replaced_and_nothing_is_deleted(t
     ok, kept = removable(run, ["last.pt"])
     assert ok == {} and REMOVED in kept["last.pt"]
     lines: list[str] = []
-    _trim_pretraining(SweepConfig(keep_last=False, keep_best=False), run, 2, lines.append)
+    trim_pretraining(SweepConfig(keep_last=False, keep_best=False), run, 2, lines.append)
     assert (run / "checkpoints" / "last.pt").is_file()
     assert (run / "checkpoints" / REMOVED).read_bytes() == b"\xff not json"
 

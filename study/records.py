@@ -1,0 +1,59 @@
+"""What the sweep's stages share (`study.stages` for the runs, `study.worlds` for the worlds): the sweep's
+small JSON records, the counters of what was done or skipped, and the summary of one metrics.json that the
+report reads.
+"""
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+from typing import Any
+
+from corelib.atomic import atomic_write_json
+
+
+def read_json(path: Path) -> dict | None:
+    try:
+        return json.loads(path.read_text())
+    except (OSError, ValueError):
+        return None
+
+
+def write_json(path: Path, obj) -> None:
+    path.parent.mkdir(parents=True, exist_ok=True)
+    atomic_write_json(path, obj, allow_nan=True)
+
+
+def finite(x) -> bool:
+    return isinstance(x, (int, float)) and math.isfinite(x)
+
+
+def summarize_metrics(metrics: dict, stage: str = "final") -> dict:
+    """The numbers the report uses, from one metrics.json (`mcdp.evaluate` layout)."""
+    st = metrics["stages"][stage]
+    out: dict[str, Any] = {}
+    for sc in ("none", "median", "rig_median"):
+        if sc not in st:
+            continue
+        out[sc] = {
+            "mean": dict(st[sc]["mean"]),
+            "overlap": dict(st[sc]["overlap"]),
+            "non_overlap": dict(st[sc]["non_overlap"]),
+            "per_camera_abs_rel": {c: v["abs_rel"] for c, v in st[sc]["per_camera"].items()},
+        }
+        if "bands" in st[sc]:  # metrics written before the distance bands have none
+            out[sc]["bands"] = {b: dict(v) for b, v in st[sc]["bands"].items()}
+        for key in ("classes", "motion", "road_bands", "holes"):  # a dataset with semantic labels only
+            if key in st[sc]:
+                out[sc][key] = {k: (dict(v) if isinstance(v, dict) else v) for k, v in st[sc][key].items()}
+    dc = st["dep_con"]
+    out["dep_con"] = {"mean": dc["mean"], "per_camera": dict(dc["per_camera"]), "per_pair": dict(dc["per_pair"])}
+    out["spread"] = dict(st.get("spread", {}))
+    out["n_samples"] = metrics.get("n_samples")
+    out["stages"] = list(metrics["stages"])
+    return out
+
+
+class Counters(dict):
+    def bump(self, key: str) -> None:
+        self[key] = self.get(key, 0) + 1
