@@ -1,6 +1,6 @@
 """Semantic classes of the scene model: the class table, each material's class, each object's class.
 
-A pixel's class is its material's (`MATERIAL_CLASS`), except where the object it belongs to names its own
+A pixel's class is its material's (`MATERIAL_CLASS`, from `scenes.materials.TABLE`), except where the object it belongs to names its own
 (`Scene.instance_class`: a highway building faced with barrier concrete is a building), on a mover (a
 vehicle that moves: ``moving_vehicle``), on the ego body (``ego``) and where no surface is (``sky``, exactly
 the pixels without depth). The table's colours are Cityscapes' where Cityscapes has the class.
@@ -17,7 +17,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from scenes.textures import MATERIALS
+from scenes.materials import TABLE
 
 #: (name, RGB colour, evaluation group), index = position; stable (datasets store the indices)
 CLASSES: tuple[tuple[str, tuple[int, int, int], str], ...] = (
@@ -38,17 +38,8 @@ CLASS: dict[str, int] = {name: i for i, (name, _, _) in enumerate(CLASSES)}
 #: groups the evaluation reports, in order (sky and ego are never evaluated)
 GROUPS = ("road", "building", "vehicle", "vegetation", "other")
 
-_MATERIAL_CLASS_NAMES = {
-    "asphalt": "road", "lane_marking": "lane_marking", "sidewalk": "sidewalk", "kerb": "sidewalk",
-    "grass": "other_ground", "gravel": "other_ground", "plaza": "sidewalk", "brick": "building",
-    "facade_windows_a": "building", "facade_windows_b": "building", "facade_windows_c": "building",
-    "facade_glass": "building", "shopfront": "building", "house_siding": "building", "roof_tiles": "building",
-    "roof_flat": "building", "foliage": "vegetation", "bark": "vegetation", "hedge": "vegetation",
-    "metal_pole": "pole", "car_paint": "parked_vehicle", "car_glass": "parked_vehicle", "tyre": "parked_vehicle",
-    "barrier_concrete": "barrier", "guardrail": "barrier", "sign": "pole", "house_windows": "building",
-}
 #: class index of each material layer (`scenes.textures.LAYER`)
-MATERIAL_CLASS = np.array([CLASS[_MATERIAL_CLASS_NAMES[m]] for m in MATERIALS], np.uint8)
+MATERIAL_CLASS = np.array([CLASS[m.semantic] for m in TABLE], np.uint8)
 
 
 def class_table() -> list[dict]:

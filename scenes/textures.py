@@ -8,12 +8,12 @@ per tile), so repeat wrapping shows no seams, and carries real local contrast
 (grain, mortar, frames, clumps): self-supervised depth learns from gradients.
 
 Physical scale: `TILE_M[name]` is the (width, height) in metres one tile should
-cover; meshes use `uv_scale=uv_scale_for(name)` (tiles per metre). Orientation
+cover; meshes use `uv_scale=uv_scale_for(name)` (tiles per metre). Both, with each material's semantic
+class, come from the one table of materials, `scenes.materials.TABLE`. Orientation
 (see `scenes.primitives`): column = u * S, row = v * S, rows top-down, and on
 vertical surfaces v grows downward, so facades appear upright.
 
-`car_paint`, `sign` and `house_siding` are light and neutral: meshes colour them
-with per-vertex tints.
+`car_paint`, `sign` and `house_siding` are light and neutral: meshes colour them with per-vertex tints.
 
 Example::
 
@@ -27,59 +27,9 @@ from typing import Callable
 
 import numpy as np
 
-MATERIALS: tuple[str, ...] = (
-    "asphalt",            # 0  road surface
-    "lane_marking",       # 1  painted lines (white, worn)
-    "sidewalk",           # 2  paving slabs
-    "kerb",               # 3  granite/concrete kerb stones
-    "grass",              # 4  lawn, verges
-    "gravel",             # 5  shoulders, embankments
-    "plaza",              # 6  large concrete pavement slabs (urban ground)
-    "brick",              # 7  brick courses with mortar
-    "facade_windows_a",   # 8  plaster facade, one window per tile (floor x bay)
-    "facade_windows_b",   # 9  stone facade, two tall windows per tile
-    "facade_windows_c",   # 10 brick facade, window with sill and lintel
-    "facade_glass",       # 11 office curtain wall
-    "shopfront",          # 12 ground-floor shop windows
-    "house_siding",       # 13 horizontal boards (tinted)
-    "roof_tiles",         # 14 pitched roof tiles
-    "roof_flat",          # 15 flat roof membrane / gravel
-    "foliage",            # 16 tree crowns
-    "bark",               # 17 tree trunks
-    "hedge",              # 18 hedges, bushes
-    "metal_pole",         # 19 lamp posts, sign posts
-    "car_paint",          # 20 neutral light grey, tinted per car
-    "car_glass",          # 21 dark windows with reflections
-    "tyre",               # 22 tyres with tread
-    "barrier_concrete",   # 23 New-Jersey style barriers, walls
-    "guardrail",          # 24 corrugated steel rail
-    "sign",               # 25 sign face (tinted)
-    "house_windows",      # 26 house wall with a window (tinted walls)
-)
-LAYER: dict[str, int] = {name: i for i, name in enumerate(MATERIALS)}
-
-#: metres (width, height) one texture tile covers on a surface
-TILE_M: dict[str, tuple[float, float]] = {
-    "asphalt": (4.0, 4.0), "lane_marking": (3.0, 0.15), "sidewalk": (2.4, 2.4), "kerb": (2.0, 0.3),
-    "grass": (3.0, 3.0), "gravel": (3.0, 3.0), "plaza": (4.0, 4.0), "brick": (2.0, 1.2),
-    "facade_windows_a": (3.2, 3.2), "facade_windows_b": (4.0, 3.6), "facade_windows_c": (3.0, 3.0),
-    "facade_glass": (3.0, 3.6), "shopfront": (6.0, 4.0), "house_siding": (2.0, 2.0),
-    "roof_tiles": (2.0, 2.0), "roof_flat": (4.0, 4.0), "foliage": (2.0, 2.0), "bark": (1.0, 1.0),
-    "hedge": (1.5, 1.5), "metal_pole": (0.5, 2.0), "car_paint": (2.0, 2.0), "car_glass": (2.0, 1.0),
-    "tyre": (0.6, 0.3), "barrier_concrete": (4.0, 1.0), "guardrail": (4.0, 0.4), "sign": (1.0, 1.0),
-    "house_windows": (3.0, 2.8),
-}
+from scenes.materials import LAYER, MATERIALS, TILE_M, uv_scale_for  # noqa: F401 (the materials' table)
 
 TEXTURE_SIZES = (64, 128, 256, 512)
-
-
-def uv_scale_for(name: str) -> tuple[float, float]:
-    """Tiles per metre (su, sv) for material `name`, from `TILE_M`."""
-    if name not in TILE_M:
-        raise ValueError(f"unknown material {name!r}; known: {', '.join(MATERIALS)}")
-    w, h = TILE_M[name]
-    return 1.0 / w, 1.0 / h
-
 
 # ---------------------------------------------------------------------------- building blocks
 class _Ctx:
@@ -428,7 +378,7 @@ _MAKERS: dict[str, Callable[[_Ctx], np.ndarray]] = {
     "tyre": _tyre, "barrier_concrete": _barrier, "guardrail": _guardrail, "sign": _sign,
     "house_windows": _house_windows,
 }
-assert set(_MAKERS) == set(MATERIALS) == set(TILE_M), "material tables out of sync"
+assert set(_MAKERS) == set(MATERIALS), "every material of scenes.materials.TABLE needs its texture maker"
 
 
 def make_textures(rng: np.random.Generator, size: int = 256) -> tuple[np.ndarray, list[str]]:
