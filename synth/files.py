@@ -18,6 +18,7 @@ import cv2
 import numpy as np
 
 from corelib.atomic import atomic_path, atomic_write_bytes, atomic_write_json
+from synth.rig import MAX_CAMERA_PX
 
 DEPTH_CHANNEL = "Z"
 
@@ -149,10 +150,22 @@ def read_png(path: str | Path, gray: bool = False) -> np.ndarray:
     if not data.startswith(PNG_SIGNATURE):
         kind = "a JPEG file" if data.startswith(b"\xff\xd8\xff") else "another format"
         raise DatasetError(f"{path}: not a readable PNG ({kind}: its first bytes are not the PNG signature)")
+    _check_png_header(path, data)
     img = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_GRAYSCALE if gray else cv2.IMREAD_COLOR)
     if img is None:
         raise DatasetError(f"{path}: not a readable PNG (truncated or corrupt)")
     return img if gray else np.ascontiguousarray(img[:, :, ::-1])
+
+
+def _check_png_header(path: Path, data: bytes) -> None:
+    """A PNG whose header (IHDR) claims a side above `MAX_CAMERA_PX` is refused before it is decoded: a small
+    file may claim 30000 x 30000 pixels (gigabytes once decoded)."""
+    if data[12:16] != b"IHDR" or len(data) < 24:
+        raise DatasetError(f"{path}: not a readable PNG (no IHDR header)")
+    w, h = int.from_bytes(data[16:20], "big"), int.from_bytes(data[20:24], "big")
+    if not (0 < w <= MAX_CAMERA_PX and 0 < h <= MAX_CAMERA_PX):
+        raise DatasetError(f"{path}: its header claims {w}x{h} pixels, above the {MAX_CAMERA_PX} px a camera's side "
+                           "may have; refused before decoding")
 
 
 JPEG_SIGNATURE = b"\xff\xd8\xff"
@@ -170,6 +183,8 @@ def read_image(path: str | Path) -> np.ndarray:
     data = read_regular(path)
     if not data.startswith(sig):
         raise DatasetError(f"{path}: not a readable {kind} (its first bytes are not the {kind} signature)")
+    if kind == "PNG":
+        _check_png_header(path, data)
     img = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_COLOR)
     if img is None:
         raise DatasetError(f"{path}: not a readable {kind} (truncated or corrupt)")
@@ -199,6 +214,12 @@ def read_depth_exr(path: str | Path) -> np.ndarray:
 
     regular_file(path)  # OpenEXR opens the name itself: a FIFO would block it
     try:
+        with OpenEXR.File(str(path), header_only=True) as f:  # the size it claims, before its pixels are read
+            lo, hi = f.header()["dataWindow"]
+        w, h = int(hi[0]) - int(lo[0]) + 1, int(hi[1]) - int(lo[1]) + 1
+        if not (0 < w <= MAX_CAMERA_PX and 0 < h <= MAX_CAMERA_PX):
+            raise DatasetError(f"{path}: its header claims {w}x{h} pixels, above the {MAX_CAMERA_PX} px a camera's "
+                               "side may have; refused before decoding")
         with OpenEXR.File(str(path)) as f:
             ch = f.channels()
             if DEPTH_CHANNEL not in ch:
