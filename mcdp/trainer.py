@@ -51,6 +51,7 @@ from mcdp.data import RigDataset, StepBatchSampler, collate
 from mcdp.diagnostics import collapse_reason, depth_spread
 from mcdp.distributed import Dist
 from mcdp.logger import TrainLogger
+from mcdp.methods import check_run
 from mcdp.runs import CHECKPOINT_VERSION, RunError, atomic_torch_save, check_resume, resolve_device, resolve_precision
 from mcdp.system import SelfSupervisedSystem
 from mcdp.validation import validation_loss
@@ -89,6 +90,7 @@ class Trainer:
         self.run_dir = Path(run_dir)
         self.progress = progress
         self.log = TrainLogger(None)
+        check_run(cfg, len(ds.camera_names))  # a rig the network cannot take: refused before the folder is made
         self.dist = Dist.from_env()  # torchrun's ranks, or one process
         self._lock = self._log_file = None
         try:
