@@ -243,11 +243,13 @@ def _export_gltf(args) -> int:
 def _verify(args) -> int:
     from synth.dataset import verify_dataset
 
+    from corelib.text import bounded
+
     problems = verify_dataset(args.data, progress=sys.stderr.isatty())
     if problems:
         for p in problems:
-            print(f"FAIL {p}", file=sys.stderr)
-        print(f"synth verify: {len(problems)} problem(s) in {args.data}", file=sys.stderr)
+            print(f"FAIL {bounded(p)}", file=sys.stderr)  # a name of the dataset's, escaped
+        print(f"synth verify: {len(problems)} problem(s) in {bounded(args.data)}", file=sys.stderr)
         return 1
     from synth.files import read_json
     m = read_json(Path(args.data) / "manifest.json")
