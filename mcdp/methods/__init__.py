@@ -174,8 +174,8 @@ def method_of(cfg: ModelConfig) -> Method:
 def network_class(method: Method) -> type:
     """The method's network class: a subclass of `mcdp.methods.base.DepthNetwork`, the one contract (its declared
     members: ``stages``, ``n_out``, ``has_bases``, ``uses_neighbours``, ``joint_pose``,
-    ``reads_overlap_truth``, ``fresh_parameters()``, ``check_config(cfg)``, ``loss_terms``, ``forward``); TypeError
-    otherwise."""
+    ``reads_overlap_truth``, ``fresh_parameters()``, ``check_config(cfg)``, ``check_rig(params, n_cameras)``,
+    ``loss_terms``, ``forward``); TypeError otherwise."""
     from mcdp.methods.base import DepthNetwork
 
     net = method.builder
