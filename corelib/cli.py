@@ -16,6 +16,7 @@ from typing import Callable, Iterable, NamedTuple, Sequence
 
 from corelib.atomic import disk_full_message, file_error_message, is_disk_full, is_user_file_error
 from corelib.exitcodes import DISK_FULL, INTERRUPTED, USAGE
+from corelib.text import bounded, safe_streams
 
 
 class Command(NamedTuple):
@@ -32,14 +33,28 @@ class Command(NamedTuple):
 ErrorRule = tuple[Sequence, int, str]
 
 
+#: the longest part of an argparse error (characters): it may echo a value of any length
+MAX_USAGE_ERROR = 300
+
+
+class ArgumentParser(argparse.ArgumentParser):
+    """argparse's parser whose own errors (an invalid value, an unknown choice) echo the user's words cut to
+    `MAX_USAGE_ERROR` characters and escaped (`corelib.text.bounded`); its subcommands' parsers are of this
+    class too (argparse makes them with the parent's class). Every CLI's parser: `build_parser`."""
+
+    def error(self, message: str):
+        self.print_usage(sys.stderr)
+        self.exit(USAGE, f"{self.prog}: error: {bounded(message, MAX_USAGE_ERROR)}\n")
+
+
 def build_parser(prog: str, description: str, commands: Iterable[Command]) -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(prog=prog, description=description)
+    parser = ArgumentParser(prog=prog, description=description)
     from corelib.version import package_version
 
     parser.add_argument("--version", action="version", version=f"{prog} {package_version()}")
     parser.add_argument("--print-completion", action=_PrintCompletion)
     _verbosity(parser, "top_")
-    common = argparse.ArgumentParser(add_help=False)
+    common = ArgumentParser(add_help=False)
     _verbosity(common, "")
     sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
     for c in commands:
@@ -110,7 +125,7 @@ def parse_command_line(parser: argparse.ArgumentParser, argv: list[str] | None) 
     args, extra = parser.parse_known_args(argv)
     stray = [e for e in extra if e.startswith("-") or "=" not in e]
     if stray or (extra and not hasattr(args, "overrides")):
-        parser.error(f"unrecognized arguments: {bounded(' '.join(stray or extra), 300)}")
+        parser.error(f"unrecognized arguments: {' '.join(stray or extra)}")
     if extra:
         args.overrides = list(args.overrides) + extra
     return args
@@ -120,6 +135,7 @@ def main(prog: str, description: str, commands: Iterable[Command], argv: list[st
          rules: Sequence[ErrorRule]) -> int:
     """Parse ``argv``, run its command, and turn the errors of ``rules`` (first match wins), a full disk
     (exit 4), a file the operating system refuses (exit 2) and Ctrl-C (130) into one line each."""
+    safe_streams()  # a path the terminal's encoding lacks is written escaped, never a failure after the work
     parser = build_parser(prog, description, commands)
     try:
         args = parse_command_line(parser, argv)
@@ -150,11 +166,3 @@ def main(prog: str, description: str, commands: Iterable[Command], argv: list[st
         raise
 
 
-#: the longest error message printed (characters); a longer one is cut, the rest counted
-MAX_MESSAGE = 2000
-
-
-def bounded(text: str, limit: int = MAX_MESSAGE) -> str:
-    """``text`` cut to ``limit`` characters, with the count of the rest: whatever a message echoes (a path, a
-    value of the user's), the error stays a few lines."""
-    return text if len(text) <= limit else f"{text[:limit]}... ({len(text) - limit} more characters)"

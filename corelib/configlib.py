@@ -31,6 +31,24 @@ class ConfigError(ValueError):
     """A configuration value, key or file is invalid; the message names it."""
 
 
+def env_int(name: str, default: int, lo: int, hi: int, hint: str = "") -> int:
+    """The integer value of environment variable `name` (`default` when unset or empty); ConfigError naming the
+    variable, its value cut and escaped, when it is not an integer in [lo, hi] (`hint`: what to do instead)."""
+    import os
+
+    text = os.environ.get(name, "")
+    if not text.strip():
+        return default
+    try:
+        value = int(text.strip())
+    except ValueError:
+        value = None
+    if value is None or not lo <= value <= hi:
+        raise ConfigError(f"environment variable {name}={text[:40]!r} must be an integer in [{lo}, {hi}]"
+                          + (f"; {hint}" if hint else ""))
+    return value
+
+
 class StrictModel(BaseModel):
     """Base for every config section: frozen, unknown keys forbidden, no coercion."""
 

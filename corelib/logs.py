@@ -39,11 +39,21 @@ class _CurrentStderr(logging.StreamHandler):
         pass
 
 
+class _Printable(logging.Formatter):
+    """The bare message, its control characters escaped (`corelib.text.printable`): a line that echoes a path
+    or key of the user's writes nothing but text to the terminal."""
+
+    def format(self, record: logging.LogRecord) -> str:
+        from corelib.text import printable
+
+        return printable(super().format(record))
+
+
 def _root() -> logging.Logger:
     root = logging.getLogger(ROOT)
     if not any(h.get_name() == _STDERR_NAME for h in root.handlers):
         h = _CurrentStderr()
-        h.setFormatter(logging.Formatter("%(message)s"))
+        h.setFormatter(_Printable("%(message)s"))
         h.setLevel(logging.INFO)
         root.addHandler(h)
         root.setLevel(logging.DEBUG)  # the handlers choose what they show

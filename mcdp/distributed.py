@@ -23,6 +23,14 @@ from dataclasses import dataclass
 import torch
 import torch.distributed as dist
 
+from corelib.configlib import ConfigError, env_int
+
+
+#: the most processes WORLD_SIZE may ask for
+MAX_WORLD = 1 << 16
+#: what a malformed torchrun variable's error says to do
+TORCHRUN = "torchrun sets it; unset WORLD_SIZE for one process"
+
 
 @dataclass
 class Dist:
@@ -41,10 +49,18 @@ class Dist:
 
     @staticmethod
     def from_env() -> "Dist":
-        world = int(os.environ.get("WORLD_SIZE", "1") or 1)
+        """torchrun's variables, checked before anything starts: a value that is not an integer in range (a
+        rank outside the world too) or a missing rendezvous address is one ConfigError naming the variable."""
+        world = env_int("WORLD_SIZE", 1, 1, MAX_WORLD, TORCHRUN)
         if world <= 1:
             return Dist()
-        return Dist(world, int(os.environ.get("RANK", "0")), int(os.environ.get("LOCAL_RANK", "0")))
+        for name in ("MASTER_ADDR", "MASTER_PORT"):
+            if not os.environ.get(name):
+                raise ConfigError(f"environment variable {name} is not set, but WORLD_SIZE={world} asks for "
+                                  f"{world} processes; start them with torchrun (it sets {name}), or unset WORLD_SIZE")
+        env_int("MASTER_PORT", 0, 1, 65535, TORCHRUN)
+        rank = env_int("RANK", 0, 0, world - 1, TORCHRUN)  # a rank outside the world would wait for ever
+        return Dist(world, rank, env_int("LOCAL_RANK", 0, 0, world - 1, TORCHRUN))
 
     def start(self, device: torch.device) -> torch.device:
         """Join the process group (gloo on CPU, nccl on CUDA); the device this rank trains on."""

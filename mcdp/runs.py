@@ -199,3 +199,32 @@ def rig_differences(run: Path, ds) -> list[str] | None:
             if old.shape != new.shape or not np.allclose(old, new, rtol=1e-6, atol=1e-6):
                 diffs.append(f"{cam.name} {key}")
     return diffs
+
+
+def write_run_record(run: Path, ds, step: int, oracle: bool, init_from, warn) -> dict:
+    """Write ``run.json`` (what `mcdp eval` compares a dataset against: its data, cameras, rig) for a run that
+    trains on `ds` from `step`. A run resumed on another dataset than the one it was trained on (or on another
+    rig) is said with `warn` in one line, and ``datasets`` keeps every dataset it trained on, in order, with
+    the step it started at (``data`` and ``rig`` are the latest's). Returns the record."""
+    data = str(Path(ds.root).resolve())
+    old = {}
+    if step > 0:
+        try:
+            old = json.loads((run / "run.json").read_text()[:1 << 24])
+        except (OSError, ValueError, UnicodeDecodeError):
+            old = {}
+        old = old if isinstance(old, dict) else {}
+    history = old.get("datasets") if isinstance(old.get("datasets"), list) else (
+        [{"data": old["data"], "from_step": 0}] if isinstance(old.get("data"), str) else [])
+    rig_diff = rig_differences(run, ds) if old else None
+    if history and (history[-1].get("data") != data or rig_diff):
+        rig = f"; its rig differs: {', '.join(rig_diff[:4])}" if rig_diff else ""
+        warn(f"mcdp train: warning: resuming {run} at step {step} on {data}, not on {history[-1].get('data')} "
+             f"where it trained before{rig}; run.json records both (datasets)")
+    if not history or history[-1].get("data") != data:
+        history.append({"data": data, "from_step": step})
+    rec = {"data": data, "datasets": history,
+           "cameras": list(ds.camera_names), "rig": [c.to_json() for c in ds.cameras],  # mcdp eval compares it
+           "neighbours": [list(p) for p in ds.neighbours], "oracle": oracle, "init_from": init_from}
+    atomic_write_json(run / "run.json", rec)
+    return rec

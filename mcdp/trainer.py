@@ -20,7 +20,7 @@ samples is measured and the lowest is kept as ``checkpoints/best.pt``.
 Run folder::
 
     RUN/config.yaml            resolved RunConfig
-    RUN/run.json               dataset path, cameras, neighbours
+    RUN/run.json               dataset path (every dataset trained on), cameras, rig, neighbours
     RUN/checkpoints/last.pt    model, optimiser, step, config (atomic: tmp + os.replace)
     RUN/checkpoints/best.pt    lowest val loss: networks, step, config (no optimiser state: a
                                third of the size; resuming always starts from last.pt)
@@ -41,7 +41,7 @@ from pathlib import Path
 import torch
 import yaml
 
-from corelib.atomic import atomic_write_json, atomic_write_text
+from corelib.atomic import atomic_write_text
 from corelib.configlib import config_to_dict
 from corelib.logs import close_run_log, logger, run_log
 from corelib.rundir import FolderError, claim
@@ -52,7 +52,9 @@ from mcdp.diagnostics import collapse_reason, depth_spread
 from mcdp.distributed import Dist
 from mcdp.logger import TrainLogger
 from mcdp.checkpoint_files import record_written
-from mcdp.runs import CHECKPOINT_VERSION, RunError, atomic_torch_save, check_resume, resolve_device, resolve_precision
+from mcdp.methods import check_run
+from mcdp.runs import (CHECKPOINT_VERSION, RunError, atomic_torch_save, check_resume, resolve_device, resolve_precision,
+                       write_run_record)
 from mcdp.system import SelfSupervisedSystem
 from mcdp.validation import validation_loss
 from mcdp.warmstart import warm_start
@@ -90,6 +92,7 @@ class Trainer:
         self.run_dir = Path(run_dir)
         self.progress = progress
         self.log = TrainLogger(None)
+        check_run(cfg, len(ds.camera_names))  # a rig the network cannot take: refused before the folder is made
         self.dist = Dist.from_env()  # torchrun's ranks, or one process
         self._lock = self._log_file = None
         try:
@@ -177,13 +180,7 @@ class Trainer:
         self._log_file = run_log(self.run_dir / "train.log")
         config_text = yaml.safe_dump(config_to_dict(cfg), sort_keys=False)
         atomic_write_text(self.run_dir / "config.yaml", config_text)
-        atomic_write_json(self.run_dir / "run.json", {
-            "data": str(Path(ds.root).resolve()),
-            "cameras": list(ds.camera_names), "rig": [c.to_json() for c in ds.cameras],  # mcdp eval compares it
-            "neighbours": [list(p) for p in ds.neighbours],
-            "oracle": oracle,
-            "init_from": self.init_from,
-        })
+        write_run_record(self.run_dir, ds, self.step, oracle, self.init_from, log.warning)  # another dataset: said
         self.log = TrainLogger(self.run_dir / "tensorboard" if tensorboard else None)
         self.log.text("config", config_text, self.step)
 

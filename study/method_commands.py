@@ -76,6 +76,25 @@ def _open_dataset(path: str):
     return open_dataset(path)
 
 
+def require_split(ds, data: str, split: str) -> list[str]:
+    """The sequences of `split`; an empty split is refused in one line (before a model is loaded)."""
+    from mcdp.runs import RunError
+    from synth.files import DatasetError
+
+    def filled(k: str) -> bool:
+        try:
+            return bool(ds.split(k))
+        except DatasetError:  # a nuScenes dataroot's empty official split
+            return False
+
+    seqs = ds.split(split)
+    if not seqs:
+        has = [k for k in ("train", "val", "test") if k != split and filled(k)]
+        raise RunError(f"dataset {data}: split {split!r} has no sequence, nothing to do (render more "
+                       f"dataset.sequences, or use --split {' / '.join(has) or '...'})")
+    return seqs
+
+
 # --------------------------------------------------------------------------- train
 def _train_args(p: argparse.ArgumentParser) -> None:
     from corelib.presets import complete_presets
@@ -120,6 +139,11 @@ NO_INIT_WARNING = ("mcdp train: warning: model.method={method} (a network with b
                    "configs/pretrain/tiny.yaml --out pretrain/tiny) and pass model.init_from=pretrain/tiny/pretrained.pt")
 
 
+#: what `mcdp train` says when the dataset's val split holds no rig sample (`synth render` warned of it)
+NO_VAL_WARNING = ("mcdp train: warning: {data} has no val rig sample (an empty val split): no validation loss and no "
+                  "checkpoints/best.pt; checkpoints/last.pt is the result (render 3 or more dataset.sequences)")
+
+
 def _train(args: argparse.Namespace) -> int:
     from mcdp.config import RunConfig
     from corelib.configlib import load_config
@@ -153,10 +177,14 @@ def _train(args: argparse.Namespace) -> int:
         + (f", resuming at step {trainer.step}" if trainer.step else ""))
     if trainer.dist.is_main and trainer.step == 0 and m.init_from is None and trainer.depth.has_bases:
         log.warning(NO_INIT_WARNING.format(method=m.method))
+    no_val = len(trainer.val_set) == 0
+    if no_val and trainer.dist.is_main:
+        log.warning(NO_VAL_WARNING.format(data=args.data))
     try:
         summary = trainer.train()
-        say(f"mcdp train: step {summary['steps']} ({summary['trained']} this run), "
-            f"best val loss {summary['best_val']:.4f}, checkpoints in {Path(args.out) / 'checkpoints'}")
+        val = "no val split, no best.pt" if no_val else f"best val loss {summary['best_val']:.4f}"
+        say(f"mcdp train: step {summary['steps']} ({summary['trained']} this run), {val}, checkpoints in "
+            f"{Path(args.out) / 'checkpoints'}")
     finally:
         trainer.close()
     return 0
@@ -217,16 +245,15 @@ def _eval(args: argparse.Namespace) -> int:
     ds = _open_dataset(args.data)
     if not ds.has_depth:
         raise RunError(f"dataset {args.data} has no ground-truth depth (manifest has_depth=false); eval needs it")
+    seqs = require_split(ds, args.data, args.split)
     pred = Predictor(args.run, ds, args.checkpoint, args.device)
     stages = pred.stages + ["final"]
     if args.stage not in stages:  # a choice checked before the (long) evaluation
         raise RunError(f"--stage {args.stage[:40]!r} is not a stage of {args.run} (its stages: {', '.join(stages)})")
     ecfg = _eval_config(pred.cfg, args.overrides)
-    seqs = ds.split(args.split)
-    if seqs:  # fail early, with the file name, if the depth layer is missing
-        probe = ds.depth_path(seqs[0], ds.camera_names[0], 0)
-        if not probe.is_file():
-            raise RunError(f"dataset {args.data} has no ground-truth depth ({probe} is missing); eval needs it")
+    probe = ds.depth_path(seqs[0], ds.camera_names[0], 0)  # fail early, with the file name, without depth
+    if not probe.is_file():
+        raise RunError(f"dataset {args.data} has no ground-truth depth ({probe} is missing); eval needs it")
     rig_diff = rig_differences(Path(args.run), ds)
     if rig_diff:
         print(f"mcdp eval: warning: {args.data}'s rig differs from the one {args.run} was trained on: "
@@ -280,6 +307,7 @@ def _predict(args: argparse.Namespace) -> int:
         outside_datasets(args.out)
         check_writable(Path(args.out) / "predict.json")
     ds = _open_dataset(args.data)
+    require_split(ds, args.data, args.split)
     pred = Predictor(args.run, ds, args.checkpoint, args.device)
     samples = [(s, f) for s in ds.split(args.split) for f in range(0, ds.n_frames(s), args.stride)]
     if args.max_samples is not None:

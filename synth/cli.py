@@ -157,9 +157,9 @@ def main(argv: list[str] | None = None) -> int:
 def _render(args) -> int:
     from corelib.configlib import ConfigError
     from corelib.presets import preset_path
-    from synth.config import check_render_size, load_data_config, render_size, size_statement
+    from synth.config import check_render_size, empty_split_warning, load_data_config, render_size, size_statement
     from synth.dataset import dataset_containing
-    from synth.render import parse_shard, render_dataset
+    from synth.render import assign_splits, parse_shard, render_dataset
     from synth.rig import camera_sizes_of, sizes_text
 
     cfg = load_data_config(preset_path(args.config, "data"), args.overrides)
@@ -184,6 +184,9 @@ def _render(args) -> int:
     print(f"synth render: {size_statement(size, f' of {sizes_text(camera_sizes_of(cfg.rig, cfg.camera))}')}",
           file=sys.stderr)
     check_render_size(size, args.yes, args.config)
+    warning = empty_split_warning(assign_splits(cfg), cfg.dataset.sequences)
+    if warning:
+        print(f"synth render: {warning}", file=sys.stderr)
     s = render_dataset(cfg, args.out, workers=args.workers, shard=shard, engine=args.engine,
                        progress=not args.no_progress)
     print(f"rendered {s['rendered_sequences']} sequence(s) ({s['rig_frames']} rig-frames) in {s['seconds']:.1f} s "
@@ -240,11 +243,13 @@ def _export_gltf(args) -> int:
 def _verify(args) -> int:
     from synth.dataset import verify_dataset
 
+    from corelib.text import bounded
+
     problems = verify_dataset(args.data, progress=sys.stderr.isatty())
     if problems:
         for p in problems:
-            print(f"FAIL {p}", file=sys.stderr)
-        print(f"synth verify: {len(problems)} problem(s) in {args.data}", file=sys.stderr)
+            print(f"FAIL {bounded(p)}", file=sys.stderr)  # a name of the dataset's, escaped
+        print(f"synth verify: {len(problems)} problem(s) in {bounded(args.data)}", file=sys.stderr)
         return 1
     from synth.files import read_json
     m = read_json(Path(args.data) / "manifest.json")

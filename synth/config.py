@@ -129,6 +129,17 @@ def size_statement(size: dict, what: str = "") -> str:
             f"{size['max_bytes'] / 1e9:.3g} GB before compression, about a third of that on disk")
 
 
+def empty_split_warning(splits: dict[str, list], sequences: int) -> str | None:
+    """One line when a split of the render will be empty (too few ``dataset.sequences`` for the fractions):
+    ``mcdp train`` then validates nothing and ``mcdp eval`` / ``predict`` refuse that split. None when none is."""
+    empty = [k for k, v in splits.items() if not v]
+    if not empty:
+        return None
+    return (f"warning: {sequences} sequence(s) leave the {' and '.join(empty)} split(s) empty (no validation loss "
+            "in mcdp train; mcdp eval / predict refuse an empty split); raise dataset.sequences (3 or more) or "
+            "dataset.val_fraction / test_fraction")
+
+
 def check_render_size(size: dict, yes: bool, source: str, keys: str = "dataset.sequences / dataset.frames / "
                       "camera.*") -> None:
     """ConfigError naming `source` when a render (or all of a command's renders) is above `MAX_RENDER_BYTES`

@@ -33,9 +33,10 @@ from typing import Iterable
 import numpy as np
 
 from corelib.hashing import changed_sections, json_sha256, section_digests, sha256_file
-from synth.files import DatasetError, frame_stem, read_depth_exr, read_json, read_png, read_regular, within
+from synth.files import (MAX_READ_BYTES, DatasetError, frame_stem, read_depth_exr, read_json, read_png, read_regular,
+                         within)
 from synth.label_reader import LabelReader
-from synth.rig import CameraSpec
+from synth.rig import MAX_CAMERA_PX, CameraSpec
 from synth.sizes import camera_sizes, shared_size, size_problems
 
 SCHEMA_VERSION = 1
@@ -254,7 +255,7 @@ def integrity_problems(root: Path, manifest: dict) -> list[str]:
     elif json_sha256(body) != rec.get("manifest_sha256"):
         problems.append(f"{mpath}: content hash does not match its integrity record (the record was edited)")
     try:
-        rig = read_json(root / "rig.json")
+        rig = read_json(within(root, root / "rig.json", "", "dataset root", "is a link to"))
     except DatasetError as exc:
         return problems + [str(exc)]
     try:
@@ -291,15 +292,23 @@ def check_manifest_keys(manifest, mpath: Path) -> None:
         frames = info.get("frames") if isinstance(info, dict) else None
         if not isinstance(frames, int) or isinstance(frames, bool) or frames < 1:
             raise DatasetError(f"{mpath}: sequences.{str(seq)[:40]}.frames must be a positive integer")
+    for key in ("width", "height"):
+        if not _pixels(manifest["image_size"].get(key)):
+            raise DatasetError(f"{mpath}: image_size.{key} must be an integer in [1, {MAX_CAMERA_PX}] (a camera's "
+                               f"largest side), got {str(manifest['image_size'].get(key))[:40]}")
     if "camera_sizes" in manifest:
         sizes = manifest["camera_sizes"]
         if not isinstance(sizes, dict) or sorted(map(str, sizes)) != sorted(map(str, manifest["cameras"])):
             raise DatasetError(f"{mpath}: camera_sizes must give [width, height] of every camera of 'cameras'")
         for cam, wh in sizes.items():
-            if not (isinstance(wh, list) and len(wh) == 2
-                    and all(isinstance(v, int) and not isinstance(v, bool) and v > 0 for v in wh)):
-                raise DatasetError(f"{mpath}: camera_sizes.{str(cam)[:40]} must be [width, height], positive "
-                                   f"integers, got {str(wh)[:40]}")
+            if not (isinstance(wh, list) and len(wh) == 2 and all(_pixels(v) for v in wh)):
+                raise DatasetError(f"{mpath}: camera_sizes.{str(cam)[:40]} must be [width, height], integers in "
+                                   f"[1, {MAX_CAMERA_PX}] (a camera's largest side), got {str(wh)[:40]}")
+
+
+def _pixels(v) -> bool:
+    """An image side a manifest may claim: a positive integer at most the config's bound (`MAX_CAMERA_PX`)."""
+    return isinstance(v, int) and not isinstance(v, bool) and 0 < v <= MAX_CAMERA_PX
 
 
 def _matrix(v, n: int) -> bool:
@@ -370,7 +379,7 @@ def verify_dataset(root: str | Path, progress: bool = False) -> list[str]:
     if not mpath.is_file():
         return [f"{mpath}: missing"]
     try:
-        manifest = read_json(mpath)
+        manifest = read_json(within(root, mpath, "", "dataset root", "is a link to"))  # never through a link out
     except DatasetError as exc:
         return [str(exc)]
     ver = manifest.get("schema_version") if isinstance(manifest, dict) else None
@@ -395,6 +404,9 @@ def verify_dataset(root: str | Path, progress: bool = False) -> list[str]:
             problems.append(f"{p}: missing")
         elif not p.resolve().is_relative_to(base):
             problems.append(f"{p}: is a link to {p.resolve()}, outside the dataset root")
+        elif p.stat().st_size > MAX_READ_BYTES:  # refused by its size, never read to be hashed
+            problems.append(f"{p}: {p.stat().st_size} bytes, more than any dataset file may hold ({MAX_READ_BYTES} "
+                            "bytes); not read")
         elif sha256_file(p) != digest:
             problems.append(f"{p}: checksum mismatch (truncated or altered)")
         else:

@@ -8,7 +8,7 @@ Example::
 """
 from __future__ import annotations
 
-import errno
+import io
 import json
 import os
 import stat
@@ -17,7 +17,8 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from corelib.atomic import atomic_path, atomic_write_bytes, atomic_write_json
+from corelib.atomic import atomic_write_bytes, atomic_write_json
+from synth.rig import MAX_CAMERA_PX
 
 DEPTH_CHANNEL = "Z"
 
@@ -150,6 +151,7 @@ def read_png(path: str | Path, gray: bool = False, depth16: bool = False) -> np.
     if not data.startswith(PNG_SIGNATURE):
         kind = "a JPEG file" if data.startswith(b"\xff\xd8\xff") else "another format"
         raise DatasetError(f"{path}: not a readable PNG ({kind}: its first bytes are not the PNG signature)")
+    _check_png_header(path, data)
     flags = cv2.IMREAD_UNCHANGED if depth16 else cv2.IMREAD_GRAYSCALE if gray else cv2.IMREAD_COLOR
     img = cv2.imdecode(np.frombuffer(data, np.uint8), flags)
     if img is None:
@@ -159,6 +161,17 @@ def read_png(path: str | Path, gray: bool = False, depth16: bool = False) -> np.
             raise DatasetError(f"{path}: is {img.dtype} with shape {img.shape}; the contract is a 16-bit gray PNG")
         return img
     return img if gray else np.ascontiguousarray(img[:, :, ::-1])
+
+
+def _check_png_header(path: Path, data: bytes) -> None:
+    """A PNG whose header (IHDR) claims a side above `MAX_CAMERA_PX` is refused before it is decoded: a small
+    file may claim 30000 x 30000 pixels (gigabytes once decoded)."""
+    if data[12:16] != b"IHDR" or len(data) < 24:
+        raise DatasetError(f"{path}: not a readable PNG (no IHDR header)")
+    w, h = int.from_bytes(data[16:20], "big"), int.from_bytes(data[20:24], "big")
+    if not (0 < w <= MAX_CAMERA_PX and 0 < h <= MAX_CAMERA_PX):
+        raise DatasetError(f"{path}: its header claims {w}x{h} pixels, above the {MAX_CAMERA_PX} px a camera's side "
+                           "may have; refused before decoding")
 
 
 JPEG_SIGNATURE = b"\xff\xd8\xff"
@@ -176,6 +189,8 @@ def read_image(path: str | Path) -> np.ndarray:
     data = read_regular(path)
     if not data.startswith(sig):
         raise DatasetError(f"{path}: not a readable {kind} (its first bytes are not the {kind} signature)")
+    if kind == "PNG":
+        _check_png_header(path, data)
     img = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_COLOR)
     if img is None:
         raise DatasetError(f"{path}: not a readable {kind} (truncated or corrupt)")
@@ -184,28 +199,41 @@ def read_image(path: str | Path) -> np.ndarray:
 
 def write_depth_exr(path: str | Path, depth: np.ndarray, fsync: bool = True) -> None:
     """Write (H, W) float32 z-depth in metres as a single-channel ("Z") ZIP-compressed OpenEXR, whole or
-    not at all."""
+    not at all. OpenEXR encodes in memory and Python writes the file: OpenEXR takes a name only as UTF-8
+    text, so a folder whose name is not (a Latin-1 name under ``LC_ALL=C``) would fail in it, unnamed."""
     import OpenEXR
 
     if depth.ndim != 2 or depth.dtype != np.float32:
         raise ValueError(f"write_depth_exr: expected (H, W) float32, got {depth.shape} {depth.dtype}")
     header = {"compression": OpenEXR.ZIP_COMPRESSION, "type": OpenEXR.scanlineimage}
-    with atomic_path(path, fsync=fsync) as tmp, OpenEXR.File(header, {DEPTH_CHANNEL: np.ascontiguousarray(depth)}) as f:
-        try:
-            f.write(str(tmp))
-        except RuntimeError as exc:  # OpenEXR reports I/O errors as RuntimeError text
-            if "No space left" in str(exc):
-                raise OSError(errno.ENOSPC, "no space left on device", str(tmp)) from None
-            raise
+    buf = io.BytesIO()
+    with OpenEXR.File(header, {DEPTH_CHANNEL: np.ascontiguousarray(depth)}) as f:
+        f.write(buf)
+    atomic_write_bytes(path, buf.getvalue(), fsync=fsync)
+
+
+def _exr_size(f) -> tuple[int, int]:
+    """(width, height) of the data window of an OpenEXR file object's header (nothing else is read)."""
+    import OpenEXR
+
+    with OpenEXR.File(f, header_only=True) as exr:
+        lo, hi = exr.header()["dataWindow"]
+    return int(hi[0]) - int(lo[0]) + 1, int(hi[1]) - int(lo[1]) + 1
 
 
 def read_depth_exr(path: str | Path) -> np.ndarray:
-    """(H, W) float32 z-depth in metres, 0 = no surface."""
+    """(H, W) float32 z-depth in metres, 0 = no surface. The bytes are read by Python (`read_regular`: a
+    regular file, bounded; any file name) and decoded by OpenEXR once its header's size is within bounds."""
     import OpenEXR
 
-    regular_file(path)  # OpenEXR opens the name itself: a FIFO would block it
+    data = io.BytesIO(read_regular(path))
     try:
-        with OpenEXR.File(str(path)) as f:
+        w, h = _exr_size(data)  # the size it claims, before its pixels are decoded
+        if not (0 < w <= MAX_CAMERA_PX and 0 < h <= MAX_CAMERA_PX):
+            raise DatasetError(f"{path}: its header claims {w}x{h} pixels, above the {MAX_CAMERA_PX} px a camera's "
+                               "side may have; refused before decoding")
+        data.seek(0)
+        with OpenEXR.File(data) as f:
             ch = f.channels()
             if DEPTH_CHANNEL not in ch:
                 raise DatasetError(f"{path}: no '{DEPTH_CHANNEL}' channel (has {sorted(ch)[:8]})")
@@ -217,7 +245,7 @@ def read_depth_exr(path: str | Path) -> np.ndarray:
     except DatasetError:
         raise
     except Exception as exc:
-        raise DatasetError(f"{path}: missing or not a readable EXR depth map ({exc})") from None
+        raise DatasetError(f"{path}: not a readable EXR depth map ({exc})") from None
 
 
 FLOW_CHANNELS = ("U", "V")
@@ -225,29 +253,32 @@ FLOW_CHANNELS = ("U", "V")
 
 def write_flow_exr(path: str | Path, flow: np.ndarray, fsync: bool = True) -> None:
     """Write (H, W, 2) float32 optical flow in pixels as a two-channel ("U", "V") ZIP-compressed OpenEXR,
-    whole or not at all."""
+    whole or not at all (encoded in memory, written by Python, as `write_depth_exr`)."""
     import OpenEXR
 
     if flow.ndim != 3 or flow.shape[2] != 2 or flow.dtype != np.float32:
         raise ValueError(f"write_flow_exr: expected (H, W, 2) float32, got {flow.shape} {flow.dtype}")
     header = {"compression": OpenEXR.ZIP_COMPRESSION, "type": OpenEXR.scanlineimage}
     chans = {c: np.ascontiguousarray(flow[..., k]) for k, c in enumerate(FLOW_CHANNELS)}
-    with atomic_path(path, fsync=fsync) as tmp, OpenEXR.File(header, chans) as f:
-        try:
-            f.write(str(tmp))
-        except RuntimeError as exc:
-            if "No space left" in str(exc):
-                raise OSError(errno.ENOSPC, "no space left on device", str(tmp)) from None
-            raise
+    buf = io.BytesIO()
+    with OpenEXR.File(header, chans) as f:
+        f.write(buf)
+    atomic_write_bytes(path, buf.getvalue(), fsync=fsync)
 
 
 def read_flow_exr(path: str | Path) -> np.ndarray:
-    """(H, W, 2) float32 optical flow in pixels (du, dv) of a `write_flow_exr` file."""
+    """(H, W, 2) float32 optical flow in pixels (du, dv) of a `write_flow_exr` file (read as `read_depth_exr`
+    reads: bounded bytes by Python, the header's size checked before its pixels are decoded)."""
     import OpenEXR
 
-    regular_file(path)
+    data = io.BytesIO(read_regular(path))
     try:
-        with OpenEXR.File(str(path)) as f:
+        w, h = _exr_size(data)
+        if not (0 < w <= MAX_CAMERA_PX and 0 < h <= MAX_CAMERA_PX):
+            raise DatasetError(f"{path}: its header claims {w}x{h} pixels, above the {MAX_CAMERA_PX} px a camera's "
+                               "side may have; refused before decoding")
+        data.seek(0)
+        with OpenEXR.File(data) as f:
             ch = f.channels()
             missing = [c for c in FLOW_CHANNELS if c not in ch]
             if missing:
@@ -259,7 +290,7 @@ def read_flow_exr(path: str | Path) -> np.ndarray:
     except DatasetError:
         raise
     except Exception as exc:
-        raise DatasetError(f"{path}: missing or not a readable EXR flow map ({exc})") from None
+        raise DatasetError(f"{path}: not a readable EXR flow map ({exc})") from None
 
 
 def stored_size(path: str | Path) -> tuple[int, int] | None:
@@ -274,11 +305,8 @@ def stored_size(path: str | Path) -> tuple[int, int] | None:
                 return None
             return int.from_bytes(head[16:20], "big"), int.from_bytes(head[20:24], "big")
         if path.suffix == ".exr":
-            import OpenEXR
-
-            with OpenEXR.File(str(regular_file(path)), header_only=True) as f:
-                lo, hi = f.header()["dataWindow"]
-            return int(hi[0] - lo[0] + 1), int(hi[1] - lo[1] + 1)
+            with open(regular_file(path), "rb") as f:
+                return _exr_size(f)
     except Exception:  # noqa: BLE001 - an unreadable header: no size, the checksum says what is wrong
         return None
     return None

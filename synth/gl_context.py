@@ -45,6 +45,7 @@ def select_backend(requested: str = "auto") -> str:
     Sets $PYOPENGL_PLATFORM so worker processes inherit the choice.
     """
     env = os.environ.get("PYOPENGL_PLATFORM", "").strip().lower()
+    egl_device()  # a malformed MCDP_EGL_DEVICE: one line naming it, before any probe
     if requested not in ("auto",) + BACKENDS:
         raise ValueError(f"render.backend must be one of auto, egl, osmesa, got {requested!r}")
     if requested != "auto":
@@ -69,6 +70,23 @@ def select_backend(requested: str = "auto") -> str:
     raise RenderBackendError(INSTALL_HINT + " (" + "; ".join(errors) + ")")
 
 
+#: the variable that picks one EGL device (its index among the machine's), e.g. one GPU of several
+EGL_DEVICE_VAR = "MCDP_EGL_DEVICE"
+
+
+def egl_device(n_devices: int | None = None) -> int | None:
+    """The EGL device index `EGL_DEVICE_VAR` asks for (None: unset, try every device); ConfigError naming the
+    variable when it is not an integer >= 0, or (given `n_devices`) not below the machine's device count."""
+    from corelib.configlib import env_int
+
+    hi = 1 << 16 if n_devices is None else n_devices - 1
+    hint = f"the machine's EGL devices are 0 to {n_devices - 1}" if n_devices else "an EGL device index"
+    if n_devices == 0 and os.environ.get(EGL_DEVICE_VAR, "").strip():
+        raise RenderBackendError(f"environment variable {EGL_DEVICE_VAR} is set but this machine has no EGL device; "
+                                 f"unset it, or set PYOPENGL_PLATFORM=osmesa")
+    return env_int(EGL_DEVICE_VAR, None, 0, hi, hint)
+
+
 # ----------------------------------------------------------------------------- contexts
 
 class _EGLContext:
@@ -80,8 +98,8 @@ class _EGLContext:
 
         self.EGL = EGL
         devices = egl_get_devices()
-        want = os.environ.get("MCDP_EGL_DEVICE")
-        order = [int(want)] if want is not None else list(range(len(devices)))
+        want = egl_device(len(devices))
+        order = [want] if want is not None else list(range(len(devices)))
         last_err: Exception | None = None
         for idx in order:
             try:

@@ -42,12 +42,16 @@ RING_PAIRS = tuple((i, (i + 1) % 6) for i in range(6))
 # camera x (right) = -y, camera y (down) = -z, camera z (forward) = +x.
 _R_BODY_CV = np.array([[0.0, 0.0, 1.0], [-1.0, 0.0, 0.0], [0.0, -1.0, 0.0]])
 
+#: the largest image side of a camera (pixels): the config's bound, and what a manifest may claim and a reader
+#: decodes (`synth.dataset.check_manifest_keys`, `synth.files.read_png`)
+MAX_CAMERA_PX = 4096
+
 
 class CameraConfig(StrictModel):
     """Image size and lens. ``hfov_deg`` is used in ``spacing`` mode (solved in ``fov`` mode)."""
 
-    width: int = Field(320, ge=16, le=4096)
-    height: int = Field(192, ge=16, le=4096)
+    width: int = Field(320, ge=16, le=MAX_CAMERA_PX)
+    height: int = Field(192, ge=16, le=MAX_CAMERA_PX)
     hfov_deg: float = Field(70.0, gt=20.0, le=150.0)
 
 
@@ -65,8 +69,8 @@ class CameraOverride(StrictModel):
     """
 
     hfov_deg: float | None = Field(None, gt=20.0, le=150.0)
-    width: int | None = added_key(None, ge=16, le=4096)  # added_key: a rig.cameras entry keeps its hash
-    height: int | None = added_key(None, ge=16, le=4096)
+    width: int | None = added_key(None, ge=16, le=MAX_CAMERA_PX)  # added_key: a rig.cameras entry keeps its hash
+    height: int | None = added_key(None, ge=16, le=MAX_CAMERA_PX)
     yaw_deg: float | None = Field(None, ge=-180.0, le=180.0)
     pitch_deg: float | None = Field(None, ge=-45.0, le=45.0)
     mount_m: list[float] | None = None  # [x, y, z]

@@ -153,8 +153,8 @@ def test_a_full_disk_during_render_leaves_nothing_half_written_and_the_rerun_res
 
     out = tmp_path / "d"
     args = ["render", str(TINY_DATA), "--out", str(out), "--no-progress", "dataset.frames=3"]
-    # 8 static files, then 20 per sequence (18 PNG + 2 JSON; EXR is written by OpenEXR): in the second one
-    monkeypatch.setattr(corelib.atomic, "open", full_disk_after(33), raising=False)
+    # 8 static files, then 38 per sequence (18 PNG + 18 EXR + 2 JSON): in the second one
+    monkeypatch.setattr(corelib.atomic, "open", full_disk_after(56), raising=False)
     capsys.readouterr()
     assert main(args) == 4
     err = capsys.readouterr().err.strip().splitlines()
@@ -217,29 +217,13 @@ def test_eval_refuses_to_overwrite_a_file_that_is_not_its_metrics(tiny_dataset, 
     assert json.loads(ours.read_text())["run"]["step"] == 1
 
 
-def test_a_full_disk_while_writing_exr_raises_disk_full_and_leaves_no_file(tmp_path, monkeypatch):
-    import OpenEXR
-
+def test_a_full_disk_while_writing_exr_raises_disk_full_and_leaves_no_file(tmp_path, monkeypatch, full_disk_after):
+    """OpenEXR encodes in memory and `corelib.atomic` writes the file: a full disk is its DiskFullError."""
+    import corelib.atomic
     from corelib.atomic import DiskFullError
     from synth.files import write_depth_exr
 
-    real = OpenEXR.File
-
-    class Full:  # OpenEXR reports a full disk as a RuntimeError with the OS text
-        def __init__(self, *a):
-            self.f = real(*a)
-
-        def __enter__(self):
-            return self
-
-        def __exit__(self, *exc):
-            return False
-
-        def write(self, name):
-            Path(name).write_bytes(b"\0" * 10)
-            raise RuntimeError(f'Failed to write pixel data to image file "{name}". No space left on device.')
-
-    monkeypatch.setattr(OpenEXR, "File", Full)
+    monkeypatch.setattr(corelib.atomic, "open", full_disk_after(0), raising=False)
     p = tmp_path / "d.depth.exr"
     with pytest.raises(DiskFullError, match="d.depth.exr: no space left on device"):
         write_depth_exr(p, np.ones((4, 4), np.float32))

@@ -174,8 +174,8 @@ def method_of(cfg: ModelConfig) -> Method:
 def network_class(method: Method) -> type:
     """The method's network class: a subclass of `mcdp.methods.base.DepthNetwork`, the one contract (its declared
     members: ``stages``, ``n_out``, ``has_bases``, ``uses_neighbours``, ``joint_pose``,
-    ``reads_overlap_truth``, ``fresh_parameters()``, ``check_config(cfg)``, ``loss_terms``, ``forward``); TypeError
-    otherwise."""
+    ``reads_overlap_truth``, ``fresh_parameters()``, ``check_config(cfg)``, ``check_rig(params, n_cameras)``,
+    ``loss_terms``, ``forward``); TypeError otherwise."""
     from mcdp.methods.base import DepthNetwork
 
     net = method.builder
@@ -220,10 +220,13 @@ def method_params(cfg: RunConfig) -> BaseModel | None:
         raise ConfigError(f"method_params{where}: {e['msg']} (got {str(e.get('input'))[:80]!r})") from None
 
 
-def check_run(cfg: RunConfig) -> None:
-    """ConfigError, naming the key, when ``cfg``'s network cannot be built or its method_params are wrong."""
+def check_run(cfg: RunConfig, n_cameras: int | None = None) -> None:
+    """ConfigError, naming the key, when ``cfg``'s network cannot be built or its method_params are wrong, or
+    (given ``n_cameras``) it cannot take a rig of that many cameras (``check_rig``)."""
     check_model(cfg.model)
-    method_params(cfg)
+    params = method_params(cfg)
+    if n_cameras is not None:
+        network_class(method_of(cfg.model)).check_rig(params, n_cameras)
 
 
 def build_depth_model(cfg: ModelConfig, params: BaseModel | None = None) -> nn.Module:

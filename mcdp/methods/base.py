@@ -117,6 +117,8 @@ class DepthNetwork(nn.Module):
       None for a method without any), kept as ``.params``: what sizes a network's own layers lives there
       (`mcdp.methods.surround.SurroundParams`), so a checkpoint's config rebuilds the same network;
     - ``model``: the ``model.method`` it builds; ``check_config(cfg)`` refuses another (ConfigError);
+      ``check_rig(params, n_cameras)`` (classmethod) refuses a rig its ``params`` cannot take (ConfigError naming
+      the key), before a run folder is made;
     - ``n_out``: decoder depth channels (instance attribute; 1 = one sigmoid channel);
     - ``has_bases``: n bases combined by weights (the warm start copies the pretraining's basis channels;
       False: its mono head); ``stages``: stage names, the last is evaluated;
@@ -144,6 +146,11 @@ class DepthNetwork(nn.Module):
         if cfg.method != cls.model:
             raise ConfigError(f"model.method={cfg.method}: {cls.__name__} builds model.method={cls.model}; build "
                               "the network with mcdp.methods.build_depth_model")
+
+    @classmethod
+    def check_rig(cls, params, n_cameras: int) -> None:
+        """ConfigError, naming the key, when the network built with ``params`` cannot take a rig of ``n_cameras``
+        cameras (checked before training starts: `mcdp.methods.check_run`); any rig by default."""
 
     @property
     def uses_neighbours(self) -> bool:

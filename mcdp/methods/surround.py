@@ -145,6 +145,14 @@ class SurroundDepthModel(MonoDepthModel):
         return True
 
     @classmethod
+    def check_rig(cls, params, n_cameras: int) -> None:
+        p = params if params is not None else SurroundParams()
+        if n_cameras > p.max_cameras:
+            raise ConfigError(f"method_params.max_cameras={p.max_cameras}: model.method=surround has camera embeddings "
+                              f"for at most that many cameras, the rig has {n_cameras}; set "
+                              f"method_params.max_cameras={n_cameras} (at most 64)")
+
+    @classmethod
     def fresh_layers(cls, cfg) -> str:
         return "cross-view blocks"
 

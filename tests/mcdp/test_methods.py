@@ -78,7 +78,7 @@ def test_nothing_probes_a_network_with_getattr():
     import re
 
     members = ("n_out", "has_bases", "uses_neighbours", "joint_pose", "reads_overlap_truth", "fresh_parameters",
-               "check_config", "stages")
+               "check_config", "check_rig", "stages")
     pat = re.compile(r"(getattr|hasattr)\([^)]*[\"'](" + "|".join(members) + r")[\"']")
     hits = [f"{p.relative_to(ROOT)}:{i}" for pkg in ("mcdp", "study", "synth", "benchmarks")
             for p in (ROOT / pkg).rglob("*.py") for i, line in enumerate(p.read_text().splitlines(), 1)
