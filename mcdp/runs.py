@@ -27,7 +27,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from corelib.atomic import atomic_write_bytes
+from corelib.atomic import atomic_write_bytes, atomic_write_json
 from corelib.configlib import build_config, config_hash, config_to_dict, hashed_dict
 from mcdp.checkpoint_files import REMOVED, removed_checkpoints  # noqa: F401 (REMOVED: the name callers use)
 from mcdp.config import RunConfig, resume_conflicts, upgrade_config_dict

@@ -153,8 +153,9 @@ def test_a_full_disk_during_render_leaves_nothing_half_written_and_the_rerun_res
 
     out = tmp_path / "d"
     args = ["render", str(TINY_DATA), "--out", str(out), "--no-progress", "dataset.frames=3"]
-    # 8 static files, then 38 per sequence (18 PNG + 18 EXR + 2 JSON): in the second one
-    monkeypatch.setattr(corelib.atomic, "open", full_disk_after(56), raising=False)
+    # 8 static files, then 75 per sequence (18 PNG + 18 EXR + 18 semantic + 18 instance maps + 3 JSON): in the
+    # second one
+    monkeypatch.setattr(corelib.atomic, "open", full_disk_after(93), raising=False)
     capsys.readouterr()
     assert main(args) == 4
     err = capsys.readouterr().err.strip().splitlines()
