@@ -115,6 +115,8 @@ def _export_args(e: argparse.ArgumentParser) -> None:
     e.add_argument("--version", default="v1.0-synth", help="table folder name (NuScenes(version=...)); "
                    "default v1.0-synth")
     e.add_argument("--no-lidar", action="store_true", help="cameras only, no synthetic LIDAR_TOP")
+    e.add_argument("--no-labels", action="store_true", help="leave the dataset's labels out (no lidarseg, no label "
+                   "side files; docs/NUSCENES.md, 'Labels')")
     e.add_argument("--jpeg-quality", type=int, default=95)
     e.add_argument("--no-progress", action="store_true")
     e.set_defaults(overrides=[])
@@ -218,8 +220,9 @@ def _export(args) -> int:
     lidar = None if args.no_lidar else build_config(LidarConfig, ov.get("lidar", {}),
                                                     "lidar overrides " + " ".join(args.overrides))
     s = export_nuscenes(args.data, args.out, version=args.version, lidar=lidar, jpeg_quality=args.jpeg_quality,
-                        progress=not args.no_progress and sys.stderr.isatty())
+                        progress=not args.no_progress and sys.stderr.isatty(), labels=not args.no_labels)
     pts = "" if s["lidar_points_per_sweep"] is None else f", {s['lidar_points_per_sweep']:.0f} lidar points/sweep"
+    pts += f", lidarseg for {s['lidarseg']} sweeps" if s["lidarseg"] else ""
     print(f"exported {s['scenes']} scene(s), {s['samples']} samples, {s['sample_data']} sample_data{pts} to "
           f"{s['out']} (NuScenes(version={s['version']!r}, dataroot={s['out']!r}))")
     return 0
