@@ -115,6 +115,8 @@ def _export_args(e: argparse.ArgumentParser) -> None:
     e.add_argument("--version", default="v1.0-synth", help="table folder name (NuScenes(version=...)); "
                    "default v1.0-synth")
     e.add_argument("--no-lidar", action="store_true", help="cameras only, no synthetic LIDAR_TOP")
+    e.add_argument("--no-labels", action="store_true", help="leave the dataset's labels out (no lidarseg, no label "
+                   "side files; docs/NUSCENES.md, 'Labels')")
     e.add_argument("--jpeg-quality", type=int, default=95)
     e.add_argument("--no-progress", action="store_true")
     e.set_defaults(overrides=[])
@@ -221,8 +223,9 @@ def _export(args) -> int:
     lidar = None if args.no_lidar else build_config(LidarConfig, ov.get("lidar", {}),
                                                     "lidar overrides " + " ".join(args.overrides))
     s = export_nuscenes(args.data, args.out, version=args.version, lidar=lidar, jpeg_quality=args.jpeg_quality,
-                        progress=not args.no_progress and sys.stderr.isatty())
+                        progress=not args.no_progress and sys.stderr.isatty(), labels=not args.no_labels)
     pts = "" if s["lidar_points_per_sweep"] is None else f", {s['lidar_points_per_sweep']:.0f} lidar points/sweep"
+    pts += f", lidarseg for {s['lidarseg']} sweeps" if s["lidarseg"] else ""
     print(f"exported {s['scenes']} scene(s), {s['samples']} samples, {s['sample_data']} sample_data{pts} to "
           f"{s['out']} (NuScenes(version={s['version']!r}, dataroot={s['out']!r}))")
     return 0
@@ -265,7 +268,8 @@ COMMANDS = [
             "disk size", _info_args, _info),
     Command("presets", "list the data presets in configs/data", lambda p: None, _presets),
     Command("verify", "check a dataset's integrity and contract; non-zero exit on any problem", _verify_args, _verify),
-    Command("preview", "contact sheet: 6 cameras x (RGB, depth, mask, overlap)", _preview_args, _preview),
+    Command("preview", "contact sheet: 6 cameras x (RGB, depth, mask, overlap[, classes, flow])", _preview_args,
+            _preview),
     Command("merge", "merge shard folders rendered with one config into one dataset", _merge_args, _merge),
     Command("export", "write a dataset in another format (nuScenes dataroot: docs/NUSCENES.md; glTF)", _export_args,
             lambda args: _export(args) if args.format == "nuscenes" else _export_gltf(args)),

@@ -19,7 +19,8 @@ footprint (the car itself, the road under it) are dropped.
 Points are returned in the lidar frame as nuScenes stores them: LIDAR_TOP has x right, y forward,
 z up (``R_EGO_LIDAR`` rotates it into our ego frame, x forward, y left, z up); five float32 per point
 (x, y, z, intensity, ring). ``intensity`` is a proxy: the luma (0..255) of the camera image at the hit
-(no reflectance model). ``ring`` is the beam index, 0 = lowest elevation.
+(no reflectance model). ``ring`` is the beam index, 0 = lowest elevation. `labelled_sweep` also gives each
+point the label (e.g. semantic class) of the camera pixel its hit lies nearest to.
 
 Example::
 
@@ -93,8 +94,9 @@ def beam_directions(cfg: LidarConfig) -> np.ndarray:
 
 
 def _camera_triangles(cam: CameraSpec, depth: np.ndarray, valid: np.ndarray, T_lidar_ego: np.ndarray,
-                      min_grazing_rad: float, gray: np.ndarray | None):
-    """Triangles of one camera's depth mesh in the lidar frame: (T, 3, 3) vertices, (T, 3) gray or None."""
+                      min_grazing_rad: float, gray: np.ndarray | None, label: np.ndarray | None = None):
+    """Triangles of one camera's depth mesh in the lidar frame: (T, 3, 3) vertices, (T, 3) gray or None,
+    (T, 3) label of each vertex's pixel or None."""
     H, W = depth.shape
     u, v = np.meshgrid(np.arange(W) + 0.5, np.arange(H) + 0.5)
     rays = np.stack([u, v, np.ones_like(u)], -1) @ np.linalg.inv(cam.K).T  # (H, W, 3), z = 1
@@ -113,7 +115,8 @@ def _camera_triangles(cam: CameraSpec, depth: np.ndarray, valid: np.ndarray, T_l
     keep = cosang >= math.sin(min_grazing_rad)
     tri = tri[keep]
     g = None if gray is None else gray.reshape(-1).astype(np.float64)[tri]
-    return P.reshape(-1, 3)[tri], g
+    lab = None if label is None else label.reshape(-1)[tri]
+    return P.reshape(-1, 3)[tri], g, lab
 
 
 def simulate_sweep(cfg: LidarConfig, cameras: list[CameraSpec], depths: dict[str, np.ndarray],
@@ -121,21 +124,34 @@ def simulate_sweep(cfg: LidarConfig, cameras: list[CameraSpec], depths: dict[str
     """One instantaneous sweep: (N, 5) float32 (x, y, z, intensity, ring) in the lidar frame, sorted by
     (ring, azimuth). `depths`: z-depth per camera (0 = sky), `masks`: True = scene, `grays`: optional
     (H, W) luma 0..255 per camera for the intensity proxy (0 without)."""
+    return labelled_sweep(cfg, cameras, depths, masks, grays)[0]
+
+
+def labelled_sweep(cfg: LidarConfig, cameras: list[CameraSpec], depths: dict[str, np.ndarray],
+                   masks: dict[str, np.ndarray], grays: dict[str, np.ndarray] | None = None,
+                   labels: dict[str, np.ndarray] | None = None) -> tuple[np.ndarray, np.ndarray | None]:
+    """`simulate_sweep`'s points and, with `labels` ((H, W) integer map per camera, e.g. semantic classes),
+    each point's label: that of the pixel its hit lies nearest to (the triangle's vertex of largest
+    barycentric weight), (N,) of the maps' dtype; None without `labels`."""
     T_lidar_ego = np.linalg.inv(cfg.T_ego_lidar())
-    verts, gvals = [], []
+    verts, gvals, lvals = [], [], []
     for cam in cameras:
         d = np.asarray(depths[cam.name])
         valid = (d > 0) & np.asarray(masks[cam.name], bool)
-        V, g = _camera_triangles(cam, d, valid, T_lidar_ego, math.radians(cfg.min_grazing_deg),
-                                 None if grays is None else np.asarray(grays[cam.name]))
+        V, g, lab = _camera_triangles(cam, d, valid, T_lidar_ego, math.radians(cfg.min_grazing_deg),
+                                      None if grays is None else np.asarray(grays[cam.name]),
+                                      None if labels is None else np.asarray(labels[cam.name]))
         verts.append(V)
         gvals.append(g if g is not None else np.zeros((len(V), 3)))
+        lvals.append(lab)
     V = np.concatenate(verts) if verts else np.zeros((0, 3, 3))
     G = np.concatenate(gvals) if gvals else np.zeros((0, 3))
+    L = None if labels is None else (np.concatenate(lvals) if lvals else np.zeros((0, 3), np.uint8))
     n_az = cfg.n_azimuth()
     empty = np.zeros((0, 5), np.float32)
+    no_labels = None if L is None else L[:0, 0]
     if len(V) == 0:
-        return empty
+        return empty, no_labels
     el_beams = cfg.elevations_rad()
     # angular bounding box of every triangle as seen from the lidar origin
     r = np.linalg.norm(V, axis=2)
@@ -153,7 +169,7 @@ def simulate_sweep(cfg: LidarConfig, cameras: list[CameraSpec], depths: dict[str
     nj = np.where(az_hi - az_lo > math.pi, 0, nj)
     count = nj * nk
     if count.sum() == 0:
-        return empty
+        return empty, no_labels
     t_idx = np.repeat(np.arange(len(V)), count)
     offs = np.arange(count.sum()) - np.repeat(np.cumsum(count) - count, count)
     jj = j0[t_idx] + offs % nj[t_idx]
@@ -176,7 +192,7 @@ def simulate_sweep(cfg: LidarConfig, cameras: list[CameraSpec], depths: dict[str
     tol = 1e-9
     hit = ok & (bu >= -tol) & (bv >= -tol) & (bu + bv <= 1 + tol) & (t >= cfg.min_range_m) & (t <= cfg.max_range_m)
     if not hit.any():
-        return empty
+        return empty, no_labels
     ray = (kk * n_az + jj)[hit]
     t, bu, bv, ti = t[hit], bu[hit], bv[hit], t_idx[hit]
     order = np.lexsort((t, ray))
@@ -188,12 +204,14 @@ def simulate_sweep(cfg: LidarConfig, cameras: list[CameraSpec], depths: dict[str
     xyz = beam_dirs[k, j] * t[:, None]
     inten = (1 - bu - bv) * G[ti, 0] + bu * G[ti, 1] + bv * G[ti, 2]
     out = np.concatenate([xyz, inten[:, None], k[:, None].astype(np.float64)], 1)
+    lab = None if L is None else L[ti, np.argmax(np.stack([1 - bu - bv, bu, bv], 1), axis=1)]
     if cfg.drop_ego_footprint:
         ego = xyz @ R_EGO_LIDAR.T + np.asarray(cfg.mount_xyz_m)
         (x0, x1), (y0, y1) = EGO_FOOTPRINT
         inside = (ego[:, 0] > x0) & (ego[:, 0] < x1) & (ego[:, 1] > y0) & (ego[:, 1] < y1)
         out = out[~inside]
-    return out.astype(np.float32)
+        lab = None if lab is None else lab[~inside]
+    return out.astype(np.float32), lab
 
 
 def luma(rgb: np.ndarray) -> np.ndarray:

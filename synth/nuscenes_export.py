@@ -17,6 +17,7 @@ Layout written (and nothing outside ``NS_ROOT``)::
       mcdp_synth/splits.json            {train, val, test: [scene names]} (our sequence ids)
       mcdp_synth/masks/<CHANNEL>.png    self-occlusion masks (255 = scene, 0 = ego body)
       mcdp_synth/depth/<CHANNEL>/<seq>__<CHANNEL>__<timestamp_us>.depth.exr   exact z-depth (copied bytes)
+      lidarseg/<version>/*.bin, mcdp_synth/labels/...  a dataset's labels (`synth.nuscenes_lidarseg`)
 
 Conventions: calibrated_sensor is sensor -> ego (translation, rotation quaternion [w, x, y, z]),
 ego_pose is ego -> global; our camera frame is OpenCV like nuScenes'. ``camera_intrinsic`` is the
@@ -45,7 +46,8 @@ from corelib.rundir import lock_folder
 from synth.dataset import is_plain_name
 from synth.open import open_dataset
 from synth.files import DatasetError, read_json, read_png, write_json, write_png
-from synth.lidar import LidarConfig, luma, simulate_sweep
+from synth.lidar import LidarConfig, luma
+from synth.nuscenes_lidarseg import LIDARSEG_DIR, ExportLabels
 from synth.nuscenes_tables import rotation_to_quaternion
 
 FORMAT = "mcdp-synth-nuscenes-export"
@@ -60,7 +62,7 @@ LIDAR_CHANNEL = "LIDAR_TOP"
 TABLES = ("category", "attribute", "visibility", "instance", "sensor", "calibrated_sensor", "ego_pose", "log",
           "scene", "sample", "sample_data", "sample_annotation", "map")
 # what an export owns at the top of NS_ROOT (anything else there makes a re-export refuse)
-_OWNED = ("samples", "sweeps", "maps", EXPORT_DIR)
+_OWNED = ("samples", "sweeps", "maps", EXPORT_DIR, LIDARSEG_DIR)
 LOCK = ".lock"  # held while an export writes the folder (a second writer is refused, naming the pid)
 BASE_TIMESTAMP_US = 1_577_836_800 * 10**6   # 2020-01-01T00:00:00Z
 SEQUENCE_SPACING_US = 86_400 * 10**6        # sequence k starts k days later (a sequence lasts < 6 h)
@@ -178,10 +180,10 @@ def _write_jpeg(path: Path, rgb: np.ndarray, quality: int) -> None:
 
 def export_nuscenes(dataset: str | Path, out: str | Path, version: str = DEFAULT_VERSION,
                     lidar: LidarConfig | None = LidarConfig(), jpeg_quality: int = 95,
-                    progress: bool = False) -> dict:
+                    progress: bool = False, labels: bool = True) -> dict:
     """Write the nuScenes dataroot `out` from the synth dataset `dataset`; returns a summary dict.
-    `lidar=None` exports cameras only (no LIDAR_TOP)."""
-    ex = _Export(Path(dataset), Path(out), version, lidar, jpeg_quality)  # the source checked; nothing written
+    `lidar=None` exports cameras only (no LIDAR_TOP); `labels=False` leaves a dataset's labels out."""
+    ex = _Export(Path(dataset), Path(out), version, lidar, jpeg_quality, labels)  # the source checked
     _prepare_output(ex.out, ex.cfg_hash, version, clean=False)  # refuse a foreign folder before writing a byte
     ex.out.mkdir(parents=True, exist_ok=True)
     lock = lock_folder(ex.out, LOCK)  # a second export into `out` is refused, naming this pid
@@ -197,7 +199,8 @@ class _Export:
     calibration, masks, map), every sequence's frames (JPEG, depth copy, LiDAR sweep, table rows), and the
     tables last."""
 
-    def __init__(self, src: Path, out: Path, version: str, lidar: LidarConfig | None, jpeg_quality: int) -> None:
+    def __init__(self, src: Path, out: Path, version: str, lidar: LidarConfig | None, jpeg_quality: int,
+                 labels: bool = True) -> None:
         if not is_plain_name(version) or version in _OWNED or version.endswith(".partial"):
             raise ExportError(f"--version {version!r} is not a plain folder name (letters, digits, . _ -)")
         if not 1 <= int(jpeg_quality) <= 100:
@@ -224,6 +227,7 @@ class _Export:
         self.logs, self.scenes, self.samples, self.sample_data, self.ego_poses = [], [], [], [], []
         self.sd_index: dict[str, dict] = {}
         self.n_points: list[int] = []
+        self.labels = ExportLabels(ds, out, version, self.tok, labels, ExportError)
 
     def run(self, progress: bool) -> dict:
         ds, out, tok = self.ds, self.out, self.tok
@@ -256,12 +260,12 @@ class _Export:
             "scene": self.scenes, "sample": self.samples, "sample_data": self.sample_data,
             "map": [{"token": map_token, "log_tokens": [lg["token"] for lg in self.logs], "category": "semantic_prior",
                      "filename": f"maps/{map_token}.png"}],
+            **self.labels.tables(),  # a dataset with labels: category (with index) and lidarseg
         }
         self._finish(marker, mask_files, tables)
-        n_points = self.n_points
         return {"out": str(out), "version": self.version, "scenes": len(self.scenes), "samples": len(self.samples),
-                "sample_data": len(self.sample_data), "channels": self.channels,
-                "lidar_points_per_sweep": None if self.lidar is None else float(np.mean(n_points))}
+                "sample_data": len(self.sample_data), "channels": self.channels, "lidarseg": len(self.labels.records),
+                "lidar_points_per_sweep": None if self.lidar is None else float(np.mean(self.n_points))}
 
     def _calibration(self) -> tuple[list[dict], list[dict]]:
         """The sensor and calibrated_sensor records of the static rig (+ LIDAR_TOP); sets `cs_token` and
@@ -367,7 +371,8 @@ class _Export:
                                   f"says {cam.width}x{cam.height}")
             rel = f"samples/{ch}/{stem}.jpg"
             _write_jpeg(out / rel, rgb, self.jpeg_quality)
-            entry = {"sequence": seq, "frame": f, "camera": cam.name, "channel": ch}
+            entry = {"sequence": seq, "frame": f, "camera": cam.name, "channel": ch,
+                     **self.labels.camera(seq, cam.name, f, ch, stem)}
             if ds.has_depth:
                 entry["depth"] = self._depth(seq, cam, f, stem, ch, depths)
                 if lidar is not None:
@@ -379,10 +384,11 @@ class _Export:
         if lidar is not None:
             token = sd_tokens[LIDAR_CHANNEL][f]
             rel = f"samples/{LIDAR_CHANNEL}/{seq}__{LIDAR_CHANNEL}__{ts}.pcd.bin"
-            pts = simulate_sweep(lidar, list(ds.cameras), depths, self.masks, grays)
+            pts = self.labels.sweep(token, lidar, list(ds.cameras), depths, self.masks, grays)
             atomic_write_bytes(out / rel, pts.astype("<f4").tobytes(), fsync=False)
             self.n_points.append(len(pts))
-            self.sd_index[token] = {"sequence": seq, "frame": f, "channel": LIDAR_CHANNEL, "points": int(len(pts))}
+            self.sd_index[token] = {"sequence": seq, "frame": f, "channel": LIDAR_CHANNEL, "points": int(len(pts)),
+                                    **self.labels.entry(token)}
             self.sample_data.append(_sd_record(token, sample_token, self.cs_token[LIDAR_CHANNEL], rel, "pcd", 0, 0,
                                                ts, sd_tokens[LIDAR_CHANNEL], f, n))
             self.ego_poses.append({"token": token, **pose})
@@ -422,14 +428,14 @@ class _Export:
             "pixel_centre": "camera_intrinsic is rig.json K: pixel (c, r) has its centre at (c + 0.5, r + 0.5); "
                             "a projected (u, v) lies in pixel (floor(u), floor(v)). For the integer-centre "
                             "convention subtract 0.5 from K[0][2] and K[1][2].",
-            "splits": SPLITS_FILE, "masks": mask_files, "sample_data": self.sd_index,
+            "splits": SPLITS_FILE, "masks": mask_files, "sample_data": self.sd_index, **self.labels.marker(),
         })
         write_json(out / MARKER, marker)
         tmp_dir, final_dir = out / f"{self.version}.partial", out / self.version
         if tmp_dir.exists():
             shutil.rmtree(tmp_dir)
         tmp_dir.mkdir()
-        for name in TABLES:
+        for name in tables:
             write_json(tmp_dir / f"{name}.json", tables[name])
         if final_dir.exists():
             shutil.rmtree(final_dir)

@@ -1,4 +1,5 @@
-"""Contact sheet of one rig sample: 6 cameras x (RGB, coloured depth, mask, overlap with neighbours).
+"""Contact sheet of one rig sample: 6 cameras x (RGB, coloured depth, mask, overlap with neighbours), and for a
+dataset with labels (class map, flow) per camera and a last row, the class legend (`synth.preview_labels`).
 
 Overlap column: the camera's RGB in grey, tinted blue where the previous camera in
 ring order sees the pixel, red where the next one does (purple: both).
@@ -25,6 +26,7 @@ from corelib.atomic import atomic_write_bytes
 from corelib.rundir import FolderError, check_output_file
 from synth.dataset import Dataset, dataset_containing
 from synth.overlap import overlaps_by_neighbour
+from synth.preview_labels import label_tiles, legend
 
 SOFTWARE = "mcdp-synth preview"  # the value of the sheet's ``Software`` text chunk
 
@@ -105,7 +107,10 @@ def make_preview(ds: Dataset, out: str | Path, seq: str | None = None, frame: in
         m3 = np.repeat(mask[..., None].astype(np.uint8) * 255, 3, axis=2)
         tiles = [_label(rgb, cam.name), _label(colorize_depth(depths[cam.name]), "depth"),
                  _label(m3, f"mask ({(~mask).mean():.0%} ego)"), _label(ov.astype(np.uint8), f"overlap {frac:.0%}")]
+        tiles += [_label(img, text) for img, text in label_tiles(ds, seq, cam.name, frame)]
         rows.append(np.concatenate(tiles, axis=1))
+    if "semantic" in ds.label_kinds:
+        rows.append(legend(ds.classes, max(r.shape[1] for r in rows)))
     w = max(r.shape[1] for r in rows)  # cameras of different sizes: a narrower row padded black on the right
     sheet = np.concatenate([np.pad(r, ((0, 0), (0, w - r.shape[1]), (0, 0))) for r in rows], axis=0)
     out.parent.mkdir(parents=True, exist_ok=True)

@@ -21,10 +21,12 @@
                                   bit 2 = by its second (`synth.overlap.overlap_mask`, labels in the
                                   entity's AnnotationContext)
     world/lidar                   Points3D, world frame: the sample's LIDAR_TOP sweep (nuScenes datasets only)
+    world/ego/<CAM>/semantic, flow   a dataset with labels: the class map and the forward flow's arrows
+                                  (`synth.view_labels`); absent without labels
 
 The meshes need the synth dataset's manifest config (the scene is rebuilt from it); a nuScenes dataroot
 gets no mesh. The recording carries its blueprint (`synth.view_blueprint`: a 3-D world view beside the
-six cameras in a grid, masks hidden until toggled).
+six cameras in a grid, masks hidden until toggled; a labels tab with labels).
 
 ``K`` goes in unchanged: Rerun's pinhole puts pixel (0, 0)'s corner at the image origin and its
 default principal point at (W/2, H/2), the +0.5 pixel-centre convention of rig.json. The recording is
@@ -47,6 +49,7 @@ from corelib.atomic import atomic_pipe
 from corelib.rundir import FolderError, check_output_file
 from synth.extras import VIZ_INSTALL as INSTALL
 from synth.overlap import neighbours_of, overlaps_by_neighbour
+from synth.view_labels import class_context, flow_arrows
 
 APP_ID = "mcdp_synth"
 TIMELINE = "time"
@@ -137,14 +140,20 @@ def recording(out: Path, name: str, blueprint=None) -> Iterator[object]:
             rec.disconnect()
 
 
-def blueprint_of(ds, seq: str, stages=()):
+def blueprint_of(ds, seq: str, stages=(), labels: bool = False):
     """The recording's blueprint (`synth.view_blueprint.rig_blueprint`) for `ds`'s cameras, its 3-D eye behind
-    the ego of `seq`'s first frame."""
+    the ego of `seq`'s first frame; `labels`: a labels tab when the dataset has semantic or flow labels."""
     import rerun.blueprint as rrb
 
     from synth.view_blueprint import rig_blueprint
 
-    return rig_blueprint(rrb, ds.cameras, RigRecorder.cam_path, stages, ds.ego(seq)[0]["T_world_ego"])
+    return rig_blueprint(rrb, ds.cameras, RigRecorder.cam_path, stages, ds.ego(seq)[0]["T_world_ego"],
+                         labels=bool(label_kinds(ds, labels)))
+
+
+def label_kinds(ds, labels: bool = True) -> set[str]:
+    """The labels a recording of `ds` shows: some of {"semantic", "flow"} (none unless `labels`)."""
+    return set(getattr(ds, "label_kinds", ())) & {"semantic", "flow"} if labels else set()
 
 
 def scene_model(ds, seq: str):
@@ -188,7 +197,8 @@ def backproject(depth: np.ndarray, K: np.ndarray, T_ego_cam: np.ndarray, keep: n
 class RigRecorder:
     """Logs one sequence of a dataset into a RecordingStream (layout: module docstring)."""
 
-    def __init__(self, rr, rec, ds, seq: str, point_stride: int = 2, time_offset_s: float = 0.0) -> None:
+    def __init__(self, rr, rec, ds, seq: str, point_stride: int = 2, time_offset_s: float = 0.0,
+                 labels: bool = False) -> None:
         if point_stride < 1:
             raise ViewError(f"--point-stride {point_stride} must be >= 1")
         self.rr, self.rec, self.ds, self.seq = rr, rec, ds, seq
@@ -199,6 +209,7 @@ class RigRecorder:
         self.lidar = getattr(ds, "lidar_points_world", None)  # nuScenes datasets only
         self.model = None  # (DataConfig, Scene) once `log_sequence` rebuilt it
         self.rgb: dict[str, np.ndarray] = {}  # the last logged frame's images, per camera
+        self.labels = label_kinds(ds, labels)  # shown labels (`synth.view_labels`)
 
     @staticmethod
     def cam_path(name: str) -> str:
@@ -225,6 +236,8 @@ class RigRecorder:
             if len(self.nbrs[cam.name]) >= 2:
                 labels.append((3, "seen by both neighbours", (200, 60, 220)))
             rec.log(f"{path}/overlap", rr.AnnotationContext(labels), static=True)
+            for kind in sorted(self.labels):
+                rec.log(f"{path}/{kind}", class_context(rr, self.ds.classes), static=True)
 
     def log_sequence(self, ego_body: bool = True) -> None:
         """At the sequence's start: its trajectory, the world mesh and the movers' meshes (synth datasets),
@@ -273,6 +286,7 @@ class RigRecorder:
                 rec.log(f"{path}/rgb", rr.EncodedImage(contents=ds.read_bytes(png), media_type="image/png"))
             else:
                 rec.log(f"{path}/rgb", rr.Image(rgb))
+            self._log_labels(path, cam.name, frame)
             depth = ds.read_depth(self.seq, cam.name, frame) if ds.has_depth else None
             if depth is None:
                 continue
@@ -296,6 +310,18 @@ class RigRecorder:
                                                colors=(255, 255, 255)))
         return depths
 
+    def _log_labels(self, path: str, cam: str, frame: int) -> None:
+        """The camera-frame's class map and flow arrows (`synth.view_labels`), where the dataset has them."""
+        rr, rec, ds = self.rr, self.rec, self.ds
+        sem = ds.read_semantic(self.seq, cam, frame) if "semantic" in self.labels else None
+        if sem is not None:
+            rec.log(f"{path}/semantic", rr.SegmentationImage(sem))
+        if "flow" in self.labels:
+            if frame < ds.n_frames(self.seq) - 1:
+                rec.log(f"{path}/flow", flow_arrows(rr, *ds.read_flow(self.seq, cam, frame), sem))
+            else:
+                rec.log(f"{path}/flow", rr.Clear(recursive=False))  # no forward flow at the last frame
+
 
 def record_rig(dataset: str | Path, out: str | Path, seq: str | None = None, frames: str | None = None,
                point_stride: int = 2) -> dict:
@@ -311,8 +337,8 @@ def record_rig(dataset: str | Path, out: str | Path, seq: str | None = None, fra
     seq = pick_sequence(ds, seq)
     rng = parse_frames(frames, ds.n_frames(seq), seq)
     t0 = time.perf_counter()
-    with recording(out, f"{seq}", blueprint_of(ds, seq)) as rec:
-        r = RigRecorder(rr, rec, ds, seq, point_stride)
+    with recording(out, f"{seq}", blueprint_of(ds, seq, labels=True)) as rec:
+        r = RigRecorder(rr, rec, ds, seq, point_stride, labels=True)
         r.log_static()
         r.log_sequence()
         for f in rng:

@@ -8,7 +8,9 @@ ground-truth and predicted points). Right: tabs, each a grid of the six cameras 
   (toggle them with the eye icon in the blueprint panel), so no mask covers the image by default;
 - **depth (ground truth)**: the depth images; the masks hidden the same way;
 - **depth <stage>** (`mcdp predict --rrd` only, one tab per stage): the predicted depth, its abs_rel
-  image hidden.
+  image hidden;
+- **labels** (`synth view` of a dataset with labels): the image under its class map and the forward flow's
+  arrows (`synth.view_labels`); the other tabs and the 3-D view hide both.
 
 The 3-D view starts behind and above the car of the first frame; the selection and time
 panels start collapsed (the blueprint panel, with the toggles, open). It hides the per-camera depth and mask images (a depth image under a pinhole would be drawn
@@ -57,12 +59,12 @@ def eye(rrb, T_world_ego) -> object:
     return rrb.EyeControls3D(position=at(EYE_EGO_M), look_target=at(TARGET_EGO_M), eye_up=[0.0, 0.0, 1.0])
 
 
-def rig_blueprint(rrb, cameras, cam_path, stages=(), T_world_ego=None) -> object:
+def rig_blueprint(rrb, cameras, cam_path, stages=(), T_world_ego=None, labels: bool = False) -> object:
     """The blueprint (module docstring) for `cameras` (`synth.rig` cameras), whose entities sit under
     ``cam_path(name)``; `stages`: the predicted stages with a tab each; `T_world_ego`: the first frame's ego pose
-    (the 3-D view starts behind the car), or None for Rerun's own view of everything."""
+    (the 3-D view starts behind the car), or None for Rerun's own view of everything; `labels`: a labels tab."""
     names, cols = ring_order(cameras)
-    masks = ("ego_mask", "overlap")
+    masks = ("ego_mask", "overlap", *(("semantic", "flow") if labels else ()))
 
     def grid(title, shown, hidden, name_suffix=""):
         views = []
@@ -76,6 +78,8 @@ def rig_blueprint(rrb, cameras, cam_path, stages=(), T_world_ego=None) -> object
     tabs = [grid("RGB", ["rgb"], ["depth", *masks]), grid("depth (ground truth)", ["depth"], list(masks), " depth")]
     for s in stages:
         tabs.append(grid(f"depth {s}", [f"pred/{s}/depth"], [f"pred/{s}/abs_rel", *masks], f" {s}"))
+    if labels:
+        tabs.append(grid("labels", ["rgb", "semantic", "flow"], ["depth", "ego_mask", "overlap"], " labels"))
     hidden_3d = [f"{cam_path(n)}/{p}" for n in names for p in ("depth", *masks, "pred")]
     world = rrb.Spatial3DView(origin="world", name="world: rig, mesh, trajectory, points",
                               overrides=_hide(rrb, hidden_3d),

@@ -36,6 +36,21 @@ def tiny_dataset(tmp_path_factory, tiny_config):
     return out
 
 
+@pytest.fixture(scope="session")
+def tiny_dataset_without_labels(tiny_dataset, tmp_path_factory):
+    """A copy of the tiny dataset as rendered before labels existed: its manifest has no labels record (the
+    label files stay, unread)."""
+    import json
+    import shutil
+
+    out = tmp_path_factory.mktemp("tiny_old") / "data"
+    shutil.copytree(tiny_dataset, out)
+    m = json.loads((out / "manifest.json").read_text())
+    m.pop("labels")
+    (out / "manifest.json").write_text(json.dumps(m, indent=1))
+    return out
+
+
 @pytest.fixture(scope="module")
 def local_ray():
     """A private local Ray (2 CPUs, no dashboard) for one test module, shut down and removed after it.

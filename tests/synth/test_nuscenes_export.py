@@ -61,8 +61,9 @@ def test_devkit_loads_without_warnings(nusc, tiny_dataset):
     n_frames = sum(ds.n_frames(s) for s in ds.sequences)
     assert len(ns.scene) == len(ds.sequences) and len(ns.sample) == n_frames
     assert len(ns.sample_data) == 7 * n_frames and len(ns.ego_pose) == 7 * n_frames
-    for t in ("category", "attribute", "visibility", "instance", "sample_annotation"):
+    for t in ("attribute", "visibility", "instance", "sample_annotation"):
         assert getattr(ns, t) == []
+    assert [c["index"] for c in ns.category] == list(range(32))  # tiny has labels: lidarseg's categories
 
 
 def test_channels_intrinsics_extrinsics(nusc, tiny_dataset):
@@ -267,7 +268,8 @@ def test_reexport_is_reproducible_and_cli(ns_root, tiny_dataset, tmp_path, capsy
                "lidar.azimuth_res_deg=1.0", "lidar.beams=16", "--no-progress"])
     assert rc == 0, capsys.readouterr().err
     assert not (copy / VERSION).exists() and sorted(p.name for p in copy.iterdir()) == \
-        [".lock", "maps", "mcdp_synth", "samples", "v1.0-ci"]
+        [".lock", "lidarseg", "maps", "mcdp_synth", "samples", "v1.0-ci"]
+    assert [p.name for p in (copy / "lidarseg").iterdir()] == ["v1.0-ci"]  # the previous version's labels gone
     ns, out, caught = _load(copy, "v1.0-ci")
     assert caught == [] and "warn" not in out.lower()
     pts = LidarPointCloud.from_file(str(copy / ns.get("sample_data", ns.sample[0]["data"]["LIDAR_TOP"])["filename"]))
@@ -317,7 +319,7 @@ def test_refuses_foreign_or_other_folders(tiny_dataset, tmp_path, capsys):
 
 def test_tables_complete_and_json_last(ns_root):
     root = Path(ns_root)
-    assert sorted(p.stem for p in (root / VERSION).iterdir()) == sorted(TABLES)
+    assert sorted(p.stem for p in (root / VERSION).iterdir()) == sorted([*TABLES, "lidarseg"])  # tiny has labels
     assert not list(root.rglob("*.tmp")) and not list(root.glob("*.partial"))
     newest_side = max(p.stat().st_mtime_ns for p in root.rglob("*") if p.is_file() and VERSION not in p.parts)
     assert min(p.stat().st_mtime_ns for p in (root / VERSION).iterdir()) >= newest_side

@@ -116,6 +116,10 @@ def check_blueprint(path, cameras, tabs: list[str]) -> dict:
             assert {f"{o}/ego_mask", f"{o}/overlap"} <= set(views[v]["hidden"]), tab  # masks: toggles, off
             if tab == "RGB":
                 assert f"{o}/rgb" not in views[v]["hidden"] and f"{o}/depth" in views[v]["hidden"]
+            if "labels" in tabs:  # the labels show in their own tab only (and not in the 3-D view)
+                labels = {f"{o}/semantic", f"{o}/flow"}
+                assert labels.isdisjoint(views[v]["hidden"]) if tab == "labels" else labels <= set(views[v]["hidden"])
+                assert labels <= set(world["hidden"])
     return views
 
 
@@ -123,7 +127,61 @@ def test_recording_carries_the_blueprint(recording, tiny_dataset):
     from synth.open import open_dataset
 
     ds = open_dataset(tiny_dataset)
-    check_blueprint(recording, ds.cameras, ["RGB", "depth (ground truth)"])
+    check_blueprint(recording, ds.cameras, ["RGB", "depth (ground truth)", "labels"])
+
+
+def test_labels_are_a_segmentation_image_with_the_class_colours_and_flow_arrows(recording, tiny_dataset):
+    """Frames 1..3 of seq_00001: per camera and frame the class map as a SegmentationImage (equal to the PNG), the
+    class table as its AnnotationContext, the valid forward flow as arrows on the grid of `flow_stride`."""
+    from synth.open import open_dataset
+    from synth.view_labels import flow_stride
+
+    ds = open_dataset(tiny_dataset)
+    ego = ds.ego("seq_00001")
+    ents = read_rrd(recording)
+    for cam in ds.cameras:
+        for kind in ("semantic", "flow"):
+            (ctx,) = [r["AnnotationContext:context"][0] for t, r in ents[f"/world/ego/{cam.name}/{kind}"] if t is None]
+            assert [(c["class_id"], c["class_description"]["info"]["label"]) for c in ctx] == \
+                [(c["index"], c["name"]) for c in ds.classes]
+            r, g, b = ds.classes[1]["color"]
+            assert ctx[1]["class_description"]["info"]["color"] == (r << 24) | (g << 16) | (b << 8) | 255
+        sems = {t: r for t, r in ents[f"/world/ego/{cam.name}/semantic"] if t is not None}
+        flows = {t: r for t, r in ents[f"/world/ego/{cam.name}/flow"] if t is not None}
+        assert sorted(sems) == sorted(flows) == [round(ego[f]["timestamp_s"] * 1e9) for f in (1, 2, 3)]
+        for f in (1, 3):
+            t = round(ego[f]["timestamp_s"] * 1e9)
+            sem = ds.read_semantic("seq_00001", cam.name, f)
+            row = sems[t]
+            assert row["SegmentationImage:format"][0]["width"] == cam.width
+            got = np.asarray(row["SegmentationImage:buffer"][0], np.uint8).reshape(cam.height, cam.width)
+            assert np.array_equal(got, sem)
+            flow, valid = ds.read_flow("seq_00001", cam.name, f)
+            org = np.asarray(flows[t]["Arrows2D:origins"], np.float32)
+            u, v = (org[:, 0] - 0.5).astype(int), (org[:, 1] - 0.5).astype(int)
+            s = flow_stride(cam.width)
+            assert (u % s == s // 2).all() and (v % s == s // 2).all() and valid[v, u].all()
+            assert len(org) == valid[s // 2::s, s // 2::s].sum() > 0
+            np.testing.assert_allclose(np.asarray(flows[t]["Arrows2D:vectors"]), flow[v, u], rtol=1e-6)
+            assert flows[t]["Arrows2D:class_ids"] == sem[v, u].tolist()
+
+
+def test_without_labels_the_recording_is_as_before(tiny_dataset, tiny_dataset_without_labels, tmp_path):
+    """The last frame has no forward flow: its arrows are cleared. A dataset without labels records no label
+    entities and no labels tab."""
+    from synth.cli import main
+    from synth.open import open_dataset
+
+    ds = open_dataset(tiny_dataset)
+    outs = {}
+    for name, data in (("new", tiny_dataset), ("old", tiny_dataset_without_labels)):
+        outs[name] = tmp_path / f"{name}.rrd"
+        assert main(["view", str(data), "--seq", "seq_00000", "--frames", "5:6", "--out", str(outs[name])]) == 0
+    new, old = read_rrd(outs["new"]), read_rrd(outs["old"])
+    assert [r for t, r in new["/world/ego/CAM_FRONT/flow"] if t is not None] == [{"Clear:is_recursive": [False]}]
+    assert {e for e in new if not e.endswith(("/semantic", "/flow"))} == set(old)
+    assert not any(e.endswith(("/semantic", "/flow")) for e in old)
+    check_blueprint(outs["old"], ds.cameras, ["RGB", "depth (ground truth)"])
 
 
 def test_ring_order_is_front_row_then_back_row():
