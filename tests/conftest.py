@@ -37,6 +37,17 @@ def tiny_dataset(tmp_path_factory, tiny_config):
 
 
 @pytest.fixture(scope="session")
+def flow_dataset(tmp_path_factory):
+    """The tiny preset with every label, forward flow included (off by default: its cost), rendered once."""
+    from synth.config import load_data_config
+    from synth.render import render_dataset
+
+    out = tmp_path_factory.mktemp("labels") / "data"
+    render_dataset(load_data_config(TINY, ["labels.flow=true"]), out, workers=1, progress=False, log=lambda *a: None)
+    return out
+
+
+@pytest.fixture(scope="session")
 def tiny_dataset_without_labels(tiny_dataset, tmp_path_factory):
     """A copy of the tiny dataset as rendered before labels existed: its manifest has no labels record (the
     label files stay, unread)."""

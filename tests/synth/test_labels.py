@@ -17,20 +17,6 @@ from synth.files import DatasetError
 from synth.labels import forward_flow, instance_map, semantic_map
 from synth.open import open_dataset
 
-from tests.conftest import TINY
-
-
-@pytest.fixture(scope="module")
-def flow_dataset(tmp_path_factory):
-    """The tiny preset with every label, forward flow included (off by default: its cost)."""
-    from synth.config import load_data_config
-    from synth.render import render_dataset
-
-    out = tmp_path_factory.mktemp("labels") / "data"
-    cfg = load_data_config(TINY, ["labels.flow=true"])
-    render_dataset(cfg, out, workers=1, progress=False, log=lambda *a: None)
-    return out
-
 
 @pytest.fixture(scope="module")
 def ds(flow_dataset):

@@ -238,5 +238,6 @@ def test_cli_bad_input(tmp_path, capsys, args, needle):
 def test_preview_sheet(tiny_dataset, tmp_path):
     assert synth_main(["preview", str(tiny_dataset), "--out", str(tmp_path / "s.png")]) == 0
     img = cv2.imread(str(tmp_path / "s.png"))
-    assert img.shape == (6 * 64 + 36, 6 * 96, 3)  # tiny has labels: 2 tiles more per camera, a legend (2 lines)
+    # tiny has the default labels (semantic, instance; no flow): the class tile more per camera, a legend (3 lines)
+    assert img.shape == (6 * 64 + 54, 5 * 96, 3)
     assert synth_main(["preview", str(tiny_dataset), "--out", str(tmp_path / "t.png"), "--frame", "99"]) == 2
