@@ -60,6 +60,8 @@ class Dataset(LabelReader):
         self._mask_cache: dict[str, np.ndarray] = {}
         self._sizes = {c.name: (c.width, c.height) for c in self.cameras}
 
+    format = "synth"  # `synth.protocol.DatasetReader.format`
+
     @property
     def width(self) -> int:
         """The image width every camera shares; a rig of several sizes has none (`shared_size`)."""

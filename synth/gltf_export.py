@@ -169,7 +169,7 @@ def export_gltf(dataset: str | Path, out: str | Path, progress: bool = False) ->
     trimesh = import_trimesh()
     src, out = Path(dataset), Path(out)
     ds = open_dataset(src)
-    if not hasattr(ds, "read_bytes") or "config" not in ds.manifest:
+    if ds.format != "synth" or "config" not in ds.manifest:
         raise DatasetError(f"{src}: a glTF export needs a synth dataset (its scenes are rebuilt from the manifest's "
                            "config), not a nuScenes dataroot")
     if dataset_containing(out) is not None or out.resolve() == src.resolve():

@@ -34,14 +34,14 @@ def dataset_info(path: str | Path) -> dict:
     from synth.open import open_dataset
 
     ds = open_dataset(path)
-    m = getattr(ds, "manifest", {}) or {}
+    m = (ds.manifest if ds.format in ("synth", "nuscenes") else {}) or {}
     frames = {s: ds.n_frames(s) for s in ds.sequences}
     splits = {k: list(m.get("splits", {}).get(k, [])) for k in SPLITS}
     overlap = m.get("overlap") or {}
     size, n_files = disk_bytes(ds.root)
     default = m.get("image_size") or {"width": ds.cameras[0].width, "height": ds.cameras[0].height}
     return {
-        "path": str(ds.root), "format": m.get("format", "synth"), "version": m.get("version"),
+        "path": str(ds.root), "format": ds.format, "version": m.get("version"),
         "sequences": frames, "frames": sum(frames.values()),
         "splits": {k: {"sequences": v, "frames": sum(frames.get(s, 0) for s in v)} for k, v in splits.items()},
         "families": dict(m.get("families") or {}),

@@ -59,6 +59,7 @@ def _angles(K: np.ndarray, T: np.ndarray, width: int) -> tuple[float, float, flo
 
 
 class NuScenesDataset(NoLabels):
+    format = "nuscenes"  # `synth.protocol.DatasetReader.format`
     """A nuScenes dataroot as a `synth.protocol.DatasetReader` (module docstring). Holds plain
     records only (the devkit object is dropped after `open_nuscenes`), so it pickles cheaply."""
 

@@ -4,8 +4,9 @@ viewer (`synth.view`, which `mcdp predict --rrd` records through) read from a da
 Implemented by `synth.dataset.Dataset` (a rendered dataset), `synth.nuscenes_read.NuScenesDataset` (a
 nuScenes dataroot) and the tests' fake (tests/mcdp/test_evaluate.py); tests/synth/test_protocol.py checks
 all three. A reader may have more (`Dataset.manifest`, `read_bytes`, `NuScenesDataset.lidar_points_world`,
-...), but a consumer that takes any dataset reads only these members, or probes an extra with
-``getattr`` / ``hasattr`` and works without it. docs/INTERFACES.md lists the same members.
+...), but a consumer that takes any dataset reads only these members; it reads an extra only after `format`
+says which reader it has (``ds.format == "synth"``: the manifest, ``read_bytes``; ``"nuscenes"``: the LiDAR
+sweeps), never by probing with ``getattr`` / ``hasattr``. docs/INTERFACES.md lists the same members.
 
 Conventions (docs/INTERFACES.md): metres; OpenCV camera axes; ``T_a_b`` maps points of frame b into
 frame a; `K` in pixels of the stored image with pixel centres at +0.5; depth is z-depth, 0 = no value.
@@ -55,6 +56,12 @@ class Camera(Protocol):
 @runtime_checkable
 class DatasetReader(Protocol):
     """Read access to a multi-camera dataset: a rig, sequences of frames, their images, depth and poses."""
+
+    @property
+    def format(self) -> str:
+        """What kind of dataset this is: ``"synth"`` (a rendered dataset: its manifest records the generator
+        config, its scenes can be rebuilt, its files read whole), ``"nuscenes"`` (a dataroot: LiDAR sweeps), or
+        another reader's own name. Consumers branch on it, never on which members a reader happens to have."""
 
     @property
     def root(self) -> Path:

@@ -153,7 +153,7 @@ def blueprint_of(ds, seq: str, stages=(), labels: bool = False):
 
 def label_kinds(ds, labels: bool = True) -> set[str]:
     """The labels a recording of `ds` shows: some of {"semantic", "flow"} (none unless `labels`)."""
-    return set(getattr(ds, "label_kinds", ())) & {"semantic", "flow"} if labels else set()
+    return set(ds.label_kinds) & {"semantic", "flow"} if labels else set()
 
 
 def scene_model(ds, seq: str):
@@ -163,7 +163,7 @@ def scene_model(ds, seq: str):
     from synth.files import DatasetError
     from synth.gltf_export import rebuild_scene
 
-    if not hasattr(ds, "read_bytes") or "config" not in getattr(ds, "manifest", {}):
+    if ds.format != "synth" or "config" not in ds.manifest:
         return None
     try:
         return rebuild_scene(ds, seq)
@@ -206,7 +206,7 @@ class RigRecorder:
         self.ego = ds.ego(seq)
         self.names = list(ds.camera_names)
         self.nbrs = dict(zip(self.names, neighbours_of(ds.neighbours, len(self.names))))
-        self.lidar = getattr(ds, "lidar_points_world", None)  # nuScenes datasets only
+        self.lidar = ds.lidar_points_world if ds.format == "nuscenes" else None  # a dataroot's LiDAR sweeps
         self.model = None  # (DataConfig, Scene) once `log_sequence` rebuilt it
         self.rgb: dict[str, np.ndarray] = {}  # the last logged frame's images, per camera
         self.labels = label_kinds(ds, labels)  # shown labels (`synth.view_labels`)
@@ -282,7 +282,7 @@ class RigRecorder:
             rgb = ds.read_rgb(self.seq, cam.name, frame)  # checked: size, readable
             self.rgb[cam.name] = rgb
             png = ds.rgb_path(self.seq, cam.name, frame)
-            if png.suffix == ".png" and hasattr(ds, "read_bytes"):
+            if png.suffix == ".png" and ds.format == "synth":
                 rec.log(f"{path}/rgb", rr.EncodedImage(contents=ds.read_bytes(png), media_type="image/png"))
             else:
                 rec.log(f"{path}/rgb", rr.Image(rgb))

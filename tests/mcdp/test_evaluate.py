@@ -31,6 +31,7 @@ class FakeCamera:
 
 
 class FakeDataset(NoLabels):
+    format = "fake"
     """A `synth.protocol.DatasetReader` (tests/synth/test_protocol.py checks it): two forward cameras,
     j = i shifted right.
 

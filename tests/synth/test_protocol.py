@@ -65,7 +65,7 @@ def missing_members(obj, protocol: type) -> list[str]:
 
 def test_the_protocol_lists_what_the_interfaces_page_lists():
     members = {n for n in vars(DatasetReader) if not n.startswith("_")}
-    assert members == {"root", "cameras", "camera_names", "neighbours", "sequences", "fps", "has_depth",
+    assert members == {"format", "root", "cameras", "camera_names", "neighbours", "sequences", "fps", "has_depth",
                        "ground_truth", "split", "n_frames", "ego", "T_world_ego", "rgb_path", "depth_path",
                        "read_rgb", "read_depth", "mask", "label_kinds", "classes", "read_semantic", "read_instance",
                        "read_movers", "read_flow", "instances"}
