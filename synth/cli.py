@@ -244,7 +244,7 @@ def _export_gltf(args) -> int:
 
 
 def _verify(args) -> int:
-    from synth.dataset import verify_dataset
+    from synth.verify import verify_dataset
 
     from corelib.text import bounded
 

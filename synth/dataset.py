@@ -16,7 +16,7 @@ Layout (docs/DATASET.md)::
 
 A sequence is written into ``<seq>.partial/`` and renamed to ``<seq>/`` when complete,
 so a folder named like a sequence is always whole. A reader refuses a dataset without
-a manifest, with an unknown schema_version, or (``verify=True``) whose checksums do not
+a manifest, with an unknown schema_version, or (`synth.open.open_dataset(..., verify=True)`) whose checksums do not
 match, with a `DatasetError` that names the file.
 
 Example::
@@ -28,16 +28,13 @@ from __future__ import annotations
 
 import re
 from pathlib import Path
-from typing import Iterable
 
 import numpy as np
 
-from corelib.hashing import changed_sections, json_sha256, section_digests, sha256_file
-from synth.files import (MAX_READ_BYTES, DatasetError, frame_stem, read_depth_exr, read_json, read_png, read_regular,
-                         within)
+from synth.files import DatasetError, frame_stem, read_depth_exr, read_json, read_png, read_regular, within
 from synth.label_reader import LabelReader
 from synth.rig import MAX_CAMERA_PX, CameraSpec
-from synth.sizes import camera_sizes, shared_size, size_problems
+from synth.sizes import camera_sizes, shared_size
 
 SCHEMA_VERSION = 1
 GENERATOR = "mcdp-synth"
@@ -225,49 +222,8 @@ def dataset_containing(path: str | Path) -> Path | None:
 
 
 INTEGRITY = "integrity"
-_MANIFEST_DEPTH, _RIG_DEPTH = 2, 3  # "splits.train", "sequences.seq_0003"; "cameras[CAM_FRONT].K"
-
-
-def integrity_record(manifest: dict, rig: dict) -> dict:
-    """What `verify` checks the manifest and rig.json against: per-section sha256 of both (so a
-    change is named, e.g. ``splits.test`` or ``cameras[CAM_BACK].K``) and of the whole manifest."""
-    body = {k: v for k, v in manifest.items() if k != INTEGRITY}
-    return {"algorithm": "sha256 of canonical JSON (sorted keys, no spaces)",
-            "manifest_sha256": json_sha256(body),
-            "manifest_sections": section_digests(body, _MANIFEST_DEPTH),
-            "rig_sections": section_digests(rig, _RIG_DEPTH)}
-
-
-def _short_list(items: list[str], n: int = 6) -> str:
+def short_list(items: list[str], n: int = 6) -> str:
     return ", ".join(items[:n]) + (f" (+{len(items) - n} more)" if len(items) > n else "")
-
-
-def integrity_problems(root: Path, manifest: dict) -> list[str]:
-    """The manifest's and rig.json's content against the integrity record written with them."""
-    mpath = root / MANIFEST
-    rec = manifest.get(INTEGRITY)
-    if not isinstance(rec, dict) or not isinstance(rec.get("manifest_sections"), dict):
-        return [f"{mpath}: no integrity record (written by an older mcdp-synth); its content cannot be "
-                "checked: render the dataset again"]
-    problems = []
-    body = {k: v for k, v in manifest.items() if k != INTEGRITY}
-    changed = changed_sections(rec["manifest_sections"], section_digests(body, _MANIFEST_DEPTH))
-    if changed:
-        problems.append(f"{mpath}: changed since the render: {_short_list(changed)}")
-    elif json_sha256(body) != rec.get("manifest_sha256"):
-        problems.append(f"{mpath}: content hash does not match its integrity record (the record was edited)")
-    try:
-        rig = read_json(within(root, root / "rig.json", "", "dataset root", "is a link to"))
-    except DatasetError as exc:
-        return problems + [str(exc)]
-    try:
-        check_rig(rig, manifest, root / "rig.json")
-    except DatasetError as exc:
-        problems.append(str(exc))
-    changed = changed_sections(rec.get("rig_sections") or {}, section_digests(rig, _RIG_DEPTH))
-    if changed:
-        problems.append(f"{root / 'rig.json'}: changed since the render: {_short_list(changed)}")
-    return problems
 
 
 _REQUIRED_KEYS = {"schema_version": int, "generator": str, "cameras": list, "image_size": dict, "fps": (int, float),
@@ -287,9 +243,9 @@ def check_manifest_keys(manifest, mpath: Path) -> None:
             raise DatasetError(f"{mpath}: key {key!r} has the wrong type ({type(manifest[key]).__name__})")
     extra = sorted(set(manifest) - set(_REQUIRED_KEYS) - _OPTIONAL_KEYS)
     if extra:
-        raise DatasetError(f"{mpath}: unknown key(s) {_short_list([repr(k[:40]) for k in extra], 4)} "
-                           f"(schema {SCHEMA_VERSION} knows {_short_list(sorted(_REQUIRED_KEYS), 20)} and "
-                           f"{_short_list(sorted(_OPTIONAL_KEYS), 20)})")
+        raise DatasetError(f"{mpath}: unknown key(s) {short_list([repr(k[:40]) for k in extra], 4)} "
+                           f"(schema {SCHEMA_VERSION} knows {short_list(sorted(_REQUIRED_KEYS), 20)} and "
+                           f"{short_list(sorted(_OPTIONAL_KEYS), 20)})")
     for seq, info in manifest["sequences"].items():
         frames = info.get("frames") if isinstance(info, dict) else None
         if not isinstance(frames, int) or isinstance(frames, bool) or frames < 1:
@@ -327,8 +283,8 @@ def check_rig(rig, manifest: dict, rpath: Path) -> None:
         raise DatasetError(f"{rpath}: 'cameras' must be a non-empty list")
     names = [c.get("name") if isinstance(c, dict) else None for c in rig["cameras"]]
     if names != manifest["cameras"]:
-        raise DatasetError(f"{rpath}: camera names {_short_list([str(n)[:20] for n in names])} differ from the "
-                           f"manifest's cameras {_short_list(manifest['cameras'])}")
+        raise DatasetError(f"{rpath}: camera names {short_list([str(n)[:20] for n in names])} differ from the "
+                           f"manifest's cameras {short_list(manifest['cameras'])}")
     sizes, source = camera_sizes(manifest), "camera_sizes" if "camera_sizes" in manifest else "image_size"
     for c in rig["cameras"]:
         field = f"cameras[{c['name']}]"
@@ -349,9 +305,8 @@ def check_rig(rig, manifest: dict, rpath: Path) -> None:
         raise DatasetError(f"{rpath}: 'neighbours' must be a list of [i, j] camera indices below {n}")
 
 
-def open_synth(path: str | Path, verify: bool = False) -> Dataset:
-    """Open a folder rendered by this package (`synth.open.open_dataset` opens any format); ``verify=True``
-    also checks every file's sha256."""
+def open_synth(path: str | Path) -> Dataset:
+    """Open a folder rendered by this package (`synth.open.open_dataset` opens any format and verifies)."""
     root = Path(path)
     if not root.is_dir():
         raise DatasetError(f"{root}: dataset folder does not exist")
@@ -367,66 +322,4 @@ def open_synth(path: str | Path, verify: bool = False) -> Dataset:
     check_manifest_names(root, manifest, mpath)
     rig = read_json(within(root, root / "rig.json", "", "dataset root", "is a link to"))
     check_rig(rig, manifest, root / "rig.json")
-    if verify:
-        problems = verify_dataset(root)
-        if problems:
-            raise DatasetError("; ".join(problems[:5]) + (f" (+{len(problems) - 5} more)" if len(problems) > 5 else ""))
     return Dataset(root, manifest, rig)
-
-
-def verify_dataset(root: str | Path, progress: bool = False) -> list[str]:
-    """Every problem found (missing, truncated or altered file, unknown schema); [] when the dataset is whole."""
-    root = Path(root)
-    mpath = root / MANIFEST
-    if not mpath.is_file():
-        return [f"{mpath}: missing"]
-    try:
-        manifest = read_json(within(root, mpath, "", "dataset root", "is a link to"))  # never through a link out
-    except DatasetError as exc:
-        return [str(exc)]
-    ver = manifest.get("schema_version") if isinstance(manifest, dict) else None
-    if ver != SCHEMA_VERSION:
-        return [f"{mpath}: schema_version {repr(ver)[:40]} is not {SCHEMA_VERSION}"]
-    try:
-        check_manifest_keys(manifest, mpath)
-        check_manifest_names(root, manifest, mpath)
-    except DatasetError as exc:
-        return [str(exc)]
-    problems = integrity_problems(root, manifest)
-    files: dict[str, str] = manifest.get("files", {})
-    items: Iterable = files.items()
-    if progress:
-        from corelib.progress import progress_bar
-        items = progress_bar(items, total=len(files), desc="verify", unit="file")
-    base = root.resolve()
-    sizes = camera_sizes(manifest)
-    for rel, digest in items:
-        p = root / rel
-        if not p.is_file():
-            problems.append(f"{p}: missing")
-        elif not p.resolve().is_relative_to(base):
-            problems.append(f"{p}: is a link to {p.resolve()}, outside the dataset root")
-        elif p.stat().st_size > MAX_READ_BYTES:  # refused by its size, never read to be hashed
-            problems.append(f"{p}: {p.stat().st_size} bytes, more than any dataset file may hold ({MAX_READ_BYTES} "
-                            "bytes); not read")
-        elif sha256_file(p) != digest:
-            problems.append(f"{p}: checksum mismatch (truncated or altered)")
-        else:
-            problems += size_problems(p, rel, sizes)
-    # every expected frame file is listed
-    cams = manifest.get("cameras", [])
-    kinds = (manifest.get("labels") or {}).get("kinds") or []
-    every = [".png", ".depth.exr"] + [s for k, s in (("semantic", ".semantic.png"), ("instance", ".instance.png"),
-                                                     ("flow", ".movers.png")) if k in kinds]
-    for seq, info in manifest.get("sequences", {}).items():
-        n = int(info["frames"])
-        if "instance" in kinds and f"{seq}/instances.json" not in files:
-            problems.append(f"{root / seq / 'instances.json'}: not listed in the manifest")
-        for cam in cams:
-            for f in range(n):
-                flow = [".flow.exr", ".flow_valid.png"] if "flow" in kinds and f < n - 1 else []
-                for suffix in every + flow:
-                    rel = f"{seq}/{cam}/{frame_stem(f)}{suffix}"
-                    if rel not in files:
-                        problems.append(f"{root / rel}: not listed in the manifest")
-    return problems

@@ -15,7 +15,8 @@ from corelib.configlib import config_hash, config_to_dict
 from corelib.hashing import sha256_file
 from synth import __version__
 from synth.config import DataConfig
-from synth.dataset import GENERATOR, INTEGRITY, MANIFEST, SCHEMA_VERSION, integrity_record
+from synth.dataset import GENERATOR, INTEGRITY, MANIFEST, SCHEMA_VERSION
+from synth.verify import integrity_record
 from synth.files import read_json, write_json
 from synth.rig import Rig
 from synth.sizes import size_keys

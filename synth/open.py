@@ -35,4 +35,11 @@ def open_dataset(path: str | Path, verify: bool = False):
             from synth.nuscenes_read import open_nuscenes  # the devkit loads only when needed
 
             return open_nuscenes(root)
-    return open_synth(root, verify)
+    ds = open_synth(root)
+    if verify:
+        from synth.verify import verify_dataset
+
+        problems = verify_dataset(root)
+        if problems:
+            raise DatasetError("; ".join(problems[:5]) + (f" (+{len(problems) - 5} more)" if len(problems) > 5 else ""))
+    return ds

@@ -154,8 +154,10 @@ def test_verify_refuses_a_file_over_the_read_bound_by_its_size_without_hashing_i
     with open(big, "wb") as f:  # sparse: no disk
         f.truncate(3 * 2**30)
     hashed = []
-    real = dataset.sha256_file
-    monkeypatch.setattr(dataset, "sha256_file", lambda p: hashed.append(Path(p)) or real(p))
+    import synth.verify
+
+    real = synth.verify.sha256_file
+    monkeypatch.setattr(synth.verify, "sha256_file", lambda p: hashed.append(Path(p)) or real(p))
     capsys.readouterr()
     assert synth_main(["verify", str(d)]) == 1
     err = capsys.readouterr().err

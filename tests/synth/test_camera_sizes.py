@@ -15,7 +15,7 @@ import pytest
 
 from corelib.configlib import ConfigError
 from synth.config import load_data_config
-from synth.dataset import verify_dataset
+from synth.verify import verify_dataset
 from synth.files import DatasetError, read_json, stored_size, write_png
 from synth.open import open_dataset
 from synth.rig import intrinsics_from_hfov
@@ -146,8 +146,8 @@ def test_training_evaluation_prediction_and_preview_read_each_camera_at_its_size
     sheet = make_preview(ds, tmp_path / "sheet.png")
     from synth.preview_labels import legend
 
-    # 4 tiles + the labels' 2 per camera (the widest row: CAM_BACK's), the class legend below the 6 rows
-    assert stored_size(sheet) == (6 * 96, 5 * 48 + 64 + legend(ds.classes, 6 * 96).shape[0])
+    # 4 tiles + the class map per camera (default labels: no flow; the widest row: CAM_BACK's), the legend below
+    assert stored_size(sheet) == (5 * 96, 5 * 48 + 64 + legend(ds.classes, 5 * 96).shape[0])
     assert "64x48, CAM_BACK 96x64" in format_info(dataset_info(renders["mixed"]))
 
 

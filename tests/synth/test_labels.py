@@ -12,7 +12,7 @@ import pytest
 from scenes.labels import CLASS, CLASSES, MATERIAL_CLASS, class_table, instance_table
 from scenes.model import Mesh
 from scenes.textures import LAYER, MATERIALS
-from synth.dataset import integrity_record, verify_dataset
+from synth.verify import integrity_record, verify_dataset
 from synth.files import DatasetError
 from synth.labels import forward_flow, instance_map, semantic_map
 from synth.open import open_dataset

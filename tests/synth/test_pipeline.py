@@ -8,7 +8,7 @@ import pytest
 
 from synth.cli import main as synth_main
 from synth.config import load_data_config
-from synth.dataset import verify_dataset
+from synth.verify import verify_dataset
 from synth.open import open_dataset
 from synth.files import DatasetError, read_depth_exr, write_depth_exr
 from synth.merge import merge_datasets
