@@ -19,12 +19,15 @@ Example::
 """
 from __future__ import annotations
 
-from typing import Callable, Mapping
+from typing import TYPE_CHECKING, Callable, Mapping
 
 import numpy as np
 
 from mcdp.config import EvalConfig
 from mcdp.metrics import valid_gt_mask
+
+if TYPE_CHECKING:
+    from synth.protocol import DatasetReader
 
 
 def flat_road_depth(K: np.ndarray, T_ego_cam: np.ndarray, height: int, width: int, far: float) -> np.ndarray:
@@ -53,7 +56,7 @@ def flat_road_predictor(ds, far: float) -> Callable[[str, int], Mapping[str, lis
     return lambda seq, frame: {"flat_road": maps}
 
 
-def median_gt_depth(ds: "DatasetReader", split: str = "train", cfg: EvalConfig | None = None) -> float:
+def median_gt_depth(ds: DatasetReader, split: str = "train", cfg: EvalConfig | None = None) -> float:
     """Median ground-truth depth over a split's evaluable pixels (the constant of the reference predictor).
 
     Uses the same pixels as `evaluate` (depth range, self-occlusion masks, frame stride,
@@ -81,7 +84,7 @@ def median_gt_depth(ds: "DatasetReader", split: str = "train", cfg: EvalConfig |
     return float(np.median(v))
 
 
-def constant_depth_predictor(ds: "DatasetReader", depth_m: float) -> Callable[[str, int], Mapping[str, np.ndarray]]:
+def constant_depth_predictor(ds: DatasetReader, depth_m: float) -> Callable[[str, int], Mapping[str, np.ndarray]]:
     """A `predict_fn` for `evaluate` that predicts `depth_m` metres at every pixel of every camera."""
     if not (np.isfinite(depth_m) and depth_m > 0):
         raise ValueError(f"depth_m must be a positive finite depth in metres, got {depth_m}")

@@ -16,7 +16,7 @@ PRETRAIN_REASON = ("by the sweep's {key}: false once the pretraining was finishe
                    "pretrained.pt, kept)")
 
 
-def _removed_line(removed: list[tuple[str, int, str]]) -> str:
+def removed_line(removed: list[tuple[str, int, str]]) -> str:
     """The one log line of what a run's (or the pretraining's) clean-up removed."""
     return "removed " + ", ".join(f"checkpoints/{name} ({n / 1e6:.0f} MB, {key}: false)" for name, n, key in removed)
 
@@ -88,5 +88,5 @@ def trim_pretraining(cfg: SweepConfig, run_dir: Path, step: int, log) -> None:
         removed = _unlink_recorded(run_dir, {n: {"step": step if n == "last.pt" else None,
                                                  "reason": PRETRAIN_REASON.format(key=keys[n])} for n in ok},
                                    keys, ok)
-        log(f"[sweep] pretraining: {_removed_line(removed)}; the runs start from {run_dir.parent / 'pretrained.pt'}, "
+        log(f"[sweep] pretraining: {removed_line(removed)}; the runs start from {run_dir.parent / 'pretrained.pt'}, "
             "kept")

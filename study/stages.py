@@ -11,7 +11,7 @@ from typing import Any
 
 from corelib.configlib import ConfigError, config_hash, config_to_dict
 from corelib.version import code_version, warn_other_code
-from study.cleanup import remove_best, remove_last, trim_pretraining
+from study.cleanup import remove_best, remove_last, removed_line, trim_pretraining
 from study.config import SPLIT, SweepConfig, eval_config_for, overlap_key, run_config_for
 from study.records import Counters, finite, read_json, summarize_metrics, write_json  # noqa: F401 (re-exported)
 
@@ -73,7 +73,7 @@ def run_stage(cfg: SweepConfig, overlap: float, data: dict, method: str, seed: i
         run.status, gone = remove_best(run_dir, run.status, run.status_path, key, log, run.tag)
         removed += gone
     if removed:
-        log(f"{run.tag}: {_removed_line(removed)}; its evaluation is in {run_dir / f'metrics_{SPLIT}.json'}")
+        log(f"{run.tag}: {removed_line(removed)}; its evaluation is in {run_dir / f'metrics_{SPLIT}.json'}")
     _fill_row(row, run.status, metrics, metrics_cut, key)
     log(_row_line(run.tag, row))
     return row

@@ -191,6 +191,7 @@ def test_the_readme_table_lists_every_exit_code_once():
     assert table[5] == ["mcdp sweep"] and table[2] == ["*"] and table[130] == ["*"]
 
 
+@pytest.mark.slow
 def test_no_opengl_back_end_is_exit_6_in_exactly_the_commands_the_readme_names(work, tmp_path):
     """PYOPENGL_PLATFORM=glx: a platform we do not support, as on a machine without EGL and OSMesa."""
     argv = {"synth render": SYNTH + ["render", "configs/data/tiny.yaml", "--out", str(tmp_path / "r")],
@@ -288,6 +289,7 @@ def test_a_write_killed_with_sigkill_leaves_no_temporary_file_after_the_next_run
     assert not [p for p in data.rglob("*") if ".tmp" in p.name]
 
 
+@pytest.mark.slow
 def test_every_writer_removes_a_killed_writers_temporary_file_on_its_next_run(work, tmp_path):
     """export, train (a checkpoint), predict: a writer killed with SIGKILL in the output folder (its
     ``.NAME.tmpPID``, exactly as `corelib.atomic` leaves it) is gone after the command's next run there."""

@@ -120,6 +120,7 @@ def test_the_walk_finds_the_numeric_keys():
                                     "SweepConfig.seeds"} <= names
 
 
+@pytest.mark.slow
 def test_the_walk_is_the_same_alone_and_in_the_suite():
     """A fresh interpreter that imports only this file finds the same keys as this process, whatever the suite
     imported before it."""

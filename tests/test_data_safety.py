@@ -174,6 +174,7 @@ def test_a_full_disk_during_render_leaves_nothing_half_written_and_the_rerun_res
     assert main(["verify", str(out)]) == 0
 
 
+@pytest.mark.slow
 def test_a_full_disk_while_checkpointing_keeps_the_last_checkpoint_and_training_resumes(tiny_dataset, tmp_path,
                                                                                        capsys, monkeypatch, full_disk_after):
     import corelib.atomic

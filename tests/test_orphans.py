@@ -21,7 +21,8 @@ import pytest
 from tests.conftest import default_signals
 
 ROOT = Path(__file__).resolve().parents[1]
-pytestmark = pytest.mark.skipif(not sys.platform.startswith("linux"), reason="PR_SET_PDEATHSIG is Linux-only")
+pytestmark = [pytest.mark.skipif(not sys.platform.startswith("linux"), reason="PR_SET_PDEATHSIG is Linux-only"),
+              pytest.mark.slow]  # processes killed and waited for: `pytest -m "not slow"` skips it
 
 
 def _stat(pid: int) -> tuple[int, str] | None:

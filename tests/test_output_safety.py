@@ -61,7 +61,7 @@ def test_preview_rewrites_its_own_sheet_and_refuses_a_user_png(data, tmp_path, c
     assert synth_main(["preview", str(data), "--out", str(sheet), "--frame", "1"]) == 0
     assert sheet.read_bytes() != first  # its own sheet: rewritten
     img = cv2.imread(str(sheet))
-    assert img.shape == (6 * 64, 4 * 96, 3)  # 6 cameras x 4 tiles of 96x64: still a valid PNG
+    assert img.shape == (6 * 64 + 54, 5 * 96, 3)  # 6 cameras x 5 tiles of 96x64 (the class map), a legend
     photo = tmp_path / "photo.png"
     cv2.imwrite(str(photo), np.zeros((8, 8, 3), np.uint8))
     held = photo.read_bytes()
@@ -157,7 +157,7 @@ def test_a_jpeg_under_a_png_name_is_refused_where_it_is_read(data, tmp_path, cap
 def test_a_render_states_its_size_and_refuses_a_huge_one_without_yes(tmp_path, capsys, tiny_config):
     from synth.config import MAX_RENDER_BYTES, render_size
 
-    assert render_size(tiny_config) == {"rig_frames": 18, "images": 108, "max_bytes": 108 * 96 * 64 * (7 + 1 + 2 + 10)}
+    assert render_size(tiny_config) == {"rig_frames": 18, "images": 108, "max_bytes": 108 * 96 * 64 * (7 + 1 + 2)}
     assert render_size(tiny_config, shard_of=2)["rig_frames"] == 12  # sequences 0 and 2 of 3
     out = tmp_path / "big"
     huge = ["camera.width=4096", "camera.height=4096", "dataset.sequences=100000", "dataset.frames=10000"]
@@ -203,12 +203,12 @@ def test_run_sweep_checks_every_render_and_yes_lets_it_through(tmp_path):
 
     cfg = load_sweep_config(ROOT / "configs" / "sweep" / "ci.yaml", [f"data_overrides=[{HUGE_WORLD}]"])
     with pytest.raises(ConfigError, match=r"sweep: its 3 world\(s\) \(2 overlap\(s\) of configs/data/tiny.yaml "
-                                          r"and the pretraining's\): this render is up to 1.61e\+03 GB"):
+                                          r"and the pretraining's\): this render is up to 805 GB"):
         run_sweep(cfg, tmp_path / "s", progress=False, log=lambda s: None)
     assert not (tmp_path / "s").exists()
     size = check_nested_configs(cfg, yes=True)  # told to: the size is returned, nothing refused
     assert size == {"rig_frames": 2 * 400 + 3 * 4, "images": 6 * (800 + 12),
-                    "max_bytes": (6 * 800 * 4096 * 4096 + 6 * 12 * 96 * 64) * (7 + 1 + 2 + 10)}  # RGB, depth, labels
+                    "max_bytes": (6 * 800 * 4096 * 4096 + 6 * 12 * 96 * 64) * (7 + 1 + 2)}  # RGB, depth, labels
 
 
 # --------------------------------------------------------------------------- 9: outputs inside a dataset

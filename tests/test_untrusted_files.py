@@ -363,6 +363,7 @@ def _renders(pid: int) -> bool:
     return any(k in maps for k in ("libEGL", "libOSMesa", "libGL", "llvmpipe", "gallium"))
 
 
+@pytest.mark.slow
 def test_a_render_worker_killed_ends_the_render_in_one_line_and_the_rerun_resumes(tmp_path):
     import signal
     import subprocess

@@ -15,6 +15,8 @@ from pathlib import Path
 
 import pytest
 
+pytestmark = pytest.mark.slow  # minutes of training, rendering or processes: `pytest -m "not slow"` skips it
+
 ROOT = Path(__file__).resolve().parents[1]
 VIZ_TESTS = ["tests/synth/test_view.py", "tests/synth/test_gltf_export.py", "tests/mcdp/test_recording.py"]
 

@@ -10,6 +10,8 @@ import sys
 from pathlib import Path
 
 import pytest
+
+pytestmark = pytest.mark.slow  # minutes of training, rendering or processes: `pytest -m "not slow"` skips it
 import torch
 
 from study.method_commands import main

@@ -51,6 +51,7 @@ def assert_same_state(a: dict, b: dict) -> None:
 
 
 # --------------------------------------------------------------------------- resume and determinism
+@pytest.mark.slow
 def test_resume_is_exact_and_runs_are_seeded(ds, tmp_path):
     ov = ("train.steps=4", "train.ckpt_every=2", "train.val_every=2", "train.color_aug=true")
     train(ds, tmp_path / "straight", "mcdp_m1", *ov)

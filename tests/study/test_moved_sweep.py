@@ -6,10 +6,14 @@ import json
 import shutil
 from pathlib import Path
 
+import pytest
+
 from corelib.configlib import config_hash
 from mcdp.runs import run_hash
 from study import cli as study_cli
 from study import config as sweep
+
+pytestmark = pytest.mark.slow  # a whole sweep copied and resumed: `pytest -m "not slow"` skips it
 
 ROOT = Path(__file__).resolve().parents[2]
 CI = ROOT / "configs" / "sweep" / "ci.yaml"

@@ -16,6 +16,8 @@ import shutil
 from pathlib import Path
 
 import pytest
+
+pytestmark = pytest.mark.slow  # minutes of training, rendering or processes: `pytest -m "not slow"` skips it
 import yaml
 
 pytest.importorskip("ray")

@@ -9,6 +9,8 @@ from pathlib import Path
 
 import pytest
 
+pytestmark = pytest.mark.slow  # minutes of training, rendering or processes: `pytest -m "not slow"` skips it
+
 from study import cli as study_cli
 from study.reach import band_names, format_reach, paired, quantities
 from study.results import evaluations

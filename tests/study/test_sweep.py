@@ -168,6 +168,7 @@ def _finite(x) -> bool:
     return isinstance(x, (int, float)) and math.isfinite(x)
 
 
+@pytest.mark.slow
 def test_ci_sweep_end_to_end_rerun_and_resume(tmp_path, capsys):
     out = tmp_path / "sweep"
     keep = ["keep_last=true", "keep_best=true"]  # ci.yaml deletes the checkpoints after eval; this test resumes one
@@ -284,6 +285,7 @@ def test_ci_sweep_end_to_end_rerun_and_resume(tmp_path, capsys):
     assert res3["rows"][0]["steps"] == 3
 
 
+@pytest.mark.slow
 def test_parallel_jobs_give_the_same_numbers_as_sequential(mini_sweep, tmp_path):
     """jobs=2 (spawned processes) and jobs=1 (in process) train and evaluate identically."""
     common = ["--no-progress", "overlaps=[0.5]", "methods=[mono2,mcdp_m1]"]

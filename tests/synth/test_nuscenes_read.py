@@ -259,6 +259,8 @@ def test_dataroot_without_our_extras_warns_once_and_masks_everything(ns_root, tm
 def test_ambiguous_version_is_refused(ns_root, tmp_path):
     root = _copy(ns_root, tmp_path)
     shutil.copytree(root / VERSION, root / "v1.0-other")
+    if (root / "lidarseg" / VERSION).is_dir():  # the export's lidarseg labels, which the devkit loads per version
+        shutil.copytree(root / "lidarseg" / VERSION, root / "lidarseg" / "v1.0-other")
     with pytest.raises(DatasetError, match="several nuScenes versions.*v1.0-other, v1.0-synth"):
         open_nuscenes(root)
     assert open_nuscenes(root, version="v1.0-other").version == "v1.0-other"

@@ -24,7 +24,8 @@ def test_ray_render_writes_the_local_engines_files(local_ray, tmp_path, capsys):
     assert synth_main(["render", str(TINY), "--out", str(local), FRAMES, "--no-progress"]) == 0
     assert synth_main(["render", str(TINY), "--out", str(ray_out), FRAMES, "--engine", "ray", "--no-progress"]) == 0
     a, b = _manifest(local), _manifest(ray_out)
-    assert len(a["files"]) == 3 * (6 * 3 * 2 + 1) + 1 + 6  # 3 seqs x (6 cams x 3 frames x png+exr, ego.json), rig, masks
+    # 3 seqs x (6 cams x 3 frames x (png, exr, semantic, instance), ego.json, instances.json), rig, masks
+    assert len(a["files"]) == 3 * (6 * 3 * 4 + 2) + 1 + 6
     assert a["files"] == b["files"]
     assert a["overlap"] == b["overlap"] and a["splits"] == b["splits"]
     assert synth_main(["verify", str(ray_out)]) == 0

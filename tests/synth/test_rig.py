@@ -95,7 +95,7 @@ def test_a_camera_of_its_own_size_has_its_K_from_that_size_and_its_hfov():
     assert camera_sizes_of(cfg.rig, cfg.camera)["CAM_BACK"] == (480, 192)
     assert r1.size_text() == "320x192, CAM_FRONT 320x240, CAM_BACK 480x192" and r0.size_text() == "320x192"
     extra = (480 * 192 - 320 * 192) + (320 * 240 - 320 * 192)
-    assert render_size(cfg)["max_bytes"] - render_size(base)["max_bytes"] == extra * 20 * render_size(cfg)["rig_frames"]
+    assert render_size(cfg)["max_bytes"] - render_size(base)["max_bytes"] == extra * 10 * render_size(cfg)["rig_frames"]
     assert config_hash(cfg) != config_hash(base)
 
 
@@ -124,7 +124,7 @@ def test_an_added_key_at_its_default_keeps_every_hash():
     bd["scene"]["family_weights"] = [1.0, 1.0, 1.0]
     assert config_hash(back) == json_sha256(bd)
     assert config_hash(load_config(DataConfig, None, ["rig.overlap_target=pixels"])) != config_hash(cfg)
-    assert config_hash(load_config(DataConfig, None, ["labels.flow=false"])) != config_hash(cfg)
+    assert config_hash(load_config(DataConfig, None, ["labels.flow=true"])) != config_hash(cfg)
     from study.config import SweepConfig
 
     s = SweepConfig()
