@@ -179,7 +179,7 @@ def _word(pd: dict) -> str:
 
 def format_verdicts(results: dict) -> str:
     """One verdict line per overlap: each mechanism's propagation next to the yardsticks' headroom."""
-    L = ["### Verdict per overlap (non-overlap pixels)\n"]
+    L = ["### Per overlap, in words (non-overlap pixels)\n"]
     for d in results["data"]:
         o = d["overlap"]
         q = quantities(results, o)
