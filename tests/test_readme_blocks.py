@@ -24,6 +24,8 @@ from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
 VENV = Path(sys.executable).parent.parent
+#: the viz environment: this checkout's, else the one beside the environment running the test (a worktree's)
+VIZ = next((v for v in (ROOT / ".venv-viz", VENV.parent / ".venv-viz") if v.is_dir()), None)
 TRAIN_TINY = "train.steps=2 train.val_every=2 train.val_samples=1 train.ckpt_every=2"
 DEFAULT_TINY = "dataset.sequences=2 dataset.frames=3 camera.width=96 camera.height=64"
 NO_VIZ = "needs .venv-viz (`bash scripts/setup.sh --test`), absent here"
@@ -79,8 +81,7 @@ def plan_of(cmd: str) -> tuple[str, str]:
     keys = [k for k in PLAN if cmd.startswith(k)]
     assert keys, f"README line not in tests/test_readme_blocks.py's PLAN (run, scale or skip it): {cmd}"
     kind, arg = PLAN[max(keys, key=len)]
-    if kind != "skip" and cmd.startswith(".venv-viz/") and not (ROOT / ".venv-viz").exists() \
-            and not Path("/work/main/.venv-viz").exists():
+    if kind != "skip" and cmd.startswith(".venv-viz/") and VIZ is None:
         return "skip", NO_VIZ
     if "--engine ray" in cmd and importlib.util.find_spec("ray") is None:
         return "skip", NO_RAY
@@ -99,9 +100,8 @@ def test_the_readme_blocks_run_in_order_from_an_empty_folder(tmp_path):
     for name in ("configs", "benchmarks", "scripts"):
         (tmp_path / name).symlink_to(ROOT / name, target_is_directory=True)
     (tmp_path / ".venv").symlink_to(VENV, target_is_directory=True)
-    viz = ROOT / ".venv-viz" if (ROOT / ".venv-viz").exists() else Path("/work/main/.venv-viz")
-    if viz.exists():
-        (tmp_path / ".venv-viz").symlink_to(viz, target_is_directory=True)
+    if VIZ is not None:
+        (tmp_path / ".venv-viz").symlink_to(VIZ, target_is_directory=True)
     script, skipped = ["set -eo pipefail"], []
     for block in bash_blocks():
         for cmd, _ in command_lines(block):
