@@ -7,9 +7,11 @@ inference). Mono2 uses no overlap at all, so *method − Mono2*, paired over see
 mechanism gains from the overlap at a given overlap; *as trained − cut* is what it takes from the
 other cameras at inference (0 by construction for a network that never reads them).
 
-Verdicts: a method **gains from overlap x on** when it is lower than Mono2 beyond the paired 95 %
-interval at x and at every larger overlap of the sweep; **better at x only** when it is lower at some
-overlaps but not from one on; **gains at no overlap** when it is never lower. Read from
+Where a method is better than Mono2 (`from_which_overlap`): **at every overlap of the sweep**; **from overlap x
+on** when it is lower than Mono2 beyond the paired 95 % interval at x and at every larger overlap, at least two of
+them; **at x only** (or at x and y only) otherwise; **at no overlap of the sweep** when it is never lower. The
+verdict lines themselves are in the report's one verdict section (`study.verdicts`). A row that reads ground truth
+(an ORACLE, `is_yardstick`) is a yardstick: it is in the table, never among the mechanisms' verdicts. Read from
 `study.results` only (nothing computed from raw files here).
 """
 from __future__ import annotations
@@ -37,19 +39,67 @@ def _pd(pd: dict, digits: int = 3, word: bool = False, floor: float = 0.0) -> st
 
 
 def from_which_overlap(diffs: dict[float, dict]) -> str:
-    """Verdict from {overlap: paired difference vs Mono2}: 'from x on', 'at x only', or 'at no overlap'."""
+    """Where a method is better than Mono2, from {overlap: paired difference vs Mono2}: 'at every overlap of the
+    sweep', 'from overlap x on' (x and at least one larger overlap, every one of them), 'at x only' / 'at x and y
+    only', or 'at no overlap of the sweep'; then where it is worse, if anywhere."""
     xs = sorted(diffs)
     better = [o for o in xs if diffs[o]["differs"] < 0]
     worse = [o for o in xs if diffs[o]["differs"] > 0]
-    tail = ""
-    if worse:
-        tail = "; worse at " + ", ".join(f"{o:.2f}" for o in worse)
+    tail = "; worse at " + _overlaps(worse) if worse else ""
     if not better:
-        return "gains at no overlap of the sweep" + tail
-    for i, o in enumerate(xs):
-        if all(diffs[x]["differs"] < 0 for x in xs[i:]):
-            return f"gains from overlap {o:.2f} on" + (" (every overlap of the sweep)" if i == 0 else "") + tail
-    return "better at " + ", ".join(f"{o:.2f}" for o in better) + " only, not from one overlap on" + tail
+        return "at no overlap of the sweep" + tail
+    if better == xs:
+        return "at every overlap of the sweep" + tail
+    if len(better) >= 2 and better == xs[len(xs) - len(better):]:
+        return f"from overlap {better[0]:.2f} on" + tail
+    return f"at {_overlaps(better)} only" + tail
+
+
+def _overlaps(xs: list[float]) -> str:
+    return _join([f"{o:.2f}" for o in xs])
+
+
+def _join(names: list[str]) -> str:
+    return names[0] if len(names) == 1 else ", ".join(names[:-1]) + " and " + names[-1]
+
+
+def is_yardstick(results: dict, m: str) -> bool:
+    """A row that reads ground truth: its network's input holds it (``reads_overlap_truth``, ORACLE-local) or its
+    scale comes from it (an ORACLE run, ``scale.source=oracle_gt_median``). A yardstick, never a mechanism."""
+    from mcdp.methods import METHODS, network_class
+
+    if any(r.get("oracle") for r in results.get("rows", []) if r.get("method") == m):
+        return True
+    return m in METHODS and bool(network_class(METHODS[m]).reads_overlap_truth)
+
+
+def paired_all(results: dict, methods: list[str]) -> tuple[dict, dict, dict]:
+    """Each method against Mono2 per overlap: ({method: {key of `KEYS`: {overlap: paired difference}}}, as trained
+    − cut ({method: {overlap: pd}}, reading methods only) and the mean depth change when cut ({method: {overlap:
+    m}})."""
+    evs = evaluations(results)
+    diffs: dict[str, dict[str, dict[float, dict]]] = {m: {k: {} for k, _ in KEYS} for m in methods}
+    cuts: dict[str, dict[float, dict]] = {m: {} for m in methods}
+    change: dict[str, dict[float, float]] = {m: {} for m in methods}
+    for d in results["data"]:
+        o = d["overlap"]
+        for m in methods:
+            for key, _ in KEYS:
+                diffs[m][key][o] = paired_difference(results, o, m, BASELINE, key)
+            if Evaluation(m, CUT) in evs:
+                cuts[m][o] = paired_difference(results, o, m, Evaluation(m, CUT), "median.mean.abs_rel")
+                change[m][o] = method_agg(results, o, m, "cut.depth_change_m").get("mean", math.nan)
+    return diffs, cuts, change
+
+
+def verdict_line(m: str, diffs: dict, cuts: dict, change: dict, label) -> str:
+    """One method's verdict against Mono2 (`paired_all`'s entries for it)."""
+    acc = from_which_overlap(diffs["median.mean.abs_rel"])
+    non = from_which_overlap(diffs["median.non_overlap.abs_rel"])
+    dc = from_which_overlap(diffs["dep_con.mean"])
+    inf = _reads_others(cuts, change) if cuts else "reads no other camera at inference (by construction)"
+    return (f"- **{label(m)}**: more accurate than Mono2 {acc}; on non-overlap pixels {non}; more consistent "
+            f"(Dep Con) {dc}; {inf}.")
 
 
 def format_mechanisms(results: dict, label) -> str:
@@ -68,23 +118,16 @@ def format_mechanisms(results: dict, label) -> str:
         "|D − D̂| / D_gt), mean difference over seeds ± 95 % t half-width; **bold** = beyond the interval "
         "(negative = better than Mono2). *As trained − cut* (all px) is what the network takes from the other "
         "cameras at inference; for a network that never reads them it is 0 by construction.\n")
+    yard = [label(m) for m in methods if is_yardstick(results, m)]
+    if yard:
+        add(f"{_join(yard)} read{'s' if len(yard) == 1 else ''} ground truth: a yardstick of what the overlap could "
+            "give, not a mechanism; in the table, never among the verdicts.\n")
     if len(results["seeds"]) < 2:
         add("One seed only: no interval, no verdict.\n")
         return "\n".join(L)
-    diffs, cuts, change = _table(results, methods, evs, label, add)
+    diffs, _, _ = _table(results, methods, evs, label, add)
     add("")
-    add("### Verdicts: which mechanism gains from overlap, and from which overlap on\n")
-    for m in methods:
-        acc = from_which_overlap(diffs[m]["median.mean.abs_rel"])
-        non = from_which_overlap(diffs[m]["median.non_overlap.abs_rel"])
-        dc = from_which_overlap(diffs[m]["dep_con.mean"])
-        inf = _reads_others(cuts[m], change[m]) if cuts[m] else "reads no other camera at inference (by construction)"
-        add(f"- **{label(m)}**: accuracy vs Mono2 {acc}; on non-overlap pixels {non}; Dep Con {dc}; {inf}.")
-    gainers = [label(m) for m in methods if "from overlap" in from_which_overlap(diffs[m]["median.mean.abs_rel"])]
-    add("- **In one line**: " + (", ".join(gainers) + " gain(s) accuracy over Mono2 from some overlap on"
-                                 if gainers else "no mechanism is more accurate than Mono2 from any overlap on")
-        + " (median-scaled abs_rel, all pixels, beyond the paired 95 % interval).")
-    add("")
+    add("The verdicts: section 'Verdicts' above.\n")
     add("Per overlap, every paired comparison in words:\n")
     for d in results["data"]:
         o = d["overlap"]
@@ -96,29 +139,19 @@ def format_mechanisms(results: dict, label) -> str:
 
 
 def _table(results: dict, methods: list[str], evs: list[Evaluation], label, add) -> tuple[dict, dict, dict]:
-    """The table (one row per overlap and method, through `add`); returns its paired differences vs Mono2
-    ({method: {key: {overlap: pd}}}), as trained − cut ({method: {overlap: pd}}) and the mean depth change
-    when cut ({method: {overlap: m}})."""
+    """The table (one row per overlap and method, through `add`); returns `paired_all`'s differences."""
     meas = {d["overlap"]: d["measured"]["measured_mean"] for d in results["data"]}
     add("| overlap | measured | Method | " + " | ".join(name for _, name in KEYS)
         + " | as trained − cut | mean abs(trained − cut) depth, m |")
     add("|---|---|---|" + "---|" * (len(KEYS) + 2))
-    diffs: dict[str, dict[str, dict[float, dict]]] = {m: {k: {} for k, _ in KEYS} for m in methods}
-    cuts: dict[str, dict[float, dict]] = {m: {} for m in methods}
-    change: dict[str, dict[float, float]] = {m: {} for m in methods}
+    diffs, cuts, change = paired_all(results, methods)
     for d in results["data"]:
         o = d["overlap"]
         for m in methods:
-            cells = []
-            for key, _ in KEYS:
-                pd = paired_difference(results, o, m, BASELINE, key)
-                diffs[m][key][o] = pd
-                cells.append(_pd(pd))
-            if Evaluation(m, CUT) in evs:
-                cuts[m][o] = paired_difference(results, o, m, Evaluation(m, CUT), "median.mean.abs_rel")
+            cells = [_pd(diffs[m][key][o]) for key, _ in KEYS]
+            if o in cuts[m]:
                 cut = _pd(cuts[m][o], 4, floor=USE_FLOOR)
                 ch = method_agg(results, o, m, "cut.depth_change_m")
-                change[m][o] = ch.get("mean", math.nan)
                 moved = _num(ch.get("mean"), 4) + (f" ± {_num(ch.get('ci95'), 4)}" if ch.get("n", 0) > 1 else "")
             else:
                 cut, moved = "0 (reads no other camera)", "0"

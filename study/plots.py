@@ -5,7 +5,11 @@
   median-scaled abs_rel on all and on non-overlap pixels, and Dep Con; a filled marker is beyond the interval;
 - abs_rel_vs_overlap.png, dep_con_vs_overlap.png: the absolute numbers, the methods on their own axes and the
   yardsticks (constant depth, flat-road prior) on a panel of their own, so the methods are not squashed;
-- overlap_vs_non_overlap_abs_rel.png, measured_overlap.png; propagation_by_distance.png (`distance_plot`).
+- overlap_vs_non_overlap_abs_rel.png (one panel per method and scaling), measured_overlap.png;
+  propagation_by_distance.png (`distance_plot`).
+
+One sign in every figure of a difference: a − b with b the reference (Mono2, the cut, the emptied input), below 0 =
+better.
 """
 from __future__ import annotations
 
@@ -149,29 +153,56 @@ def make_plots(results: dict, plot_dir: Path) -> list[Path]:
     _legend(fig, axes)
     paths.append(_save(plt, fig, plot_dir / "dep_con_vs_overlap.png"))
 
-    fig, axes = plt.subplots(1, 2, figsize=(11, 4.2))
-    for ax, sc in zip(axes, ("none", "median")):
-        for i, m in enumerate(methods):
-            c = colors[i % len(colors)]
-            ax.plot(xs, series(m, f"{sc}.overlap.abs_rel")[0], marker="o", color=c, label=label(m))
-            ax.plot(xs, series(m, f"{sc}.non_overlap.abs_rel")[0], marker="s", ls="--", color=c)
-        _style(ax, f"{SCALE_LABEL[sc]} scaling", "abs_rel (lower is better)", xs, x_axis(results))
-    axes[0].plot([], [], "k-", marker="o", label="overlap pixels (solid)")
-    axes[0].plot([], [], "k--", marker="s", label="non-overlap pixels (dashed)")
-    fig.suptitle("abs_rel on overlap vs non-overlap pixels (mean over seeds)", fontsize=11)
-    fig.tight_layout()
-    _legend(fig, axes)
-    paths.append(_save(plt, fig, plot_dir / "overlap_vs_non_overlap_abs_rel.png"))
+    paths.append(_save(plt, overlap_figure(results), plot_dir / "overlap_vs_non_overlap_abs_rel.png"))
 
+    paths.append(_save(plt, measured_figure(results), plot_dir / "measured_overlap.png"))
+    return paths
+
+
+def overlap_figure(results: dict):
+    """overlap_vs_non_overlap_abs_rel.png as small multiples: one panel per method (columns) and scaling (rows, each
+    row on one y-range), two lines each: overlap pixels (solid) and non-overlap pixels (dashed), mean over seeds."""
+    plt = _plt()
+    xs, methods = results["overlaps"], results["methods"]
+    colors = plt.rcParams["axes.prop_cycle"].by_key()["color"]
+    fig, axes = plt.subplots(2, len(methods), figsize=(2.9 * len(methods) + 1, 6.4), squeeze=False, sharey="row")
+    for row, sc in zip(axes, ("none", "median")):
+        for j, (ax, m) in enumerate(zip(row, methods)):
+            c = colors[j % len(colors)]
+            for region, mk, ls, name in (("overlap", "o", "-", "overlap pixels"),
+                                         ("non_overlap", "s", "--", "non-overlap pixels")):
+                ax.plot(xs, [method_agg(results, o, m, f"{sc}.{region}.abs_rel")["mean"] for o in xs], marker=mk,
+                        ls=ls, color=c, label=name)
+            _style(ax, f"{label(m)}\n{SCALE_LABEL[sc]} scaling", "abs_rel (lower is better)" if j == 0 else "", xs,
+                   x_axis(results))
+            if sc == "none":
+                ax.set_xlabel("")
+    fig.suptitle("abs_rel on overlap (solid) vs non-overlap (dashed) pixels, one panel per method "
+                 "(mean over seeds)", fontsize=11)
+    fig.tight_layout()
+    _legend(fig, [axes[0][0]])
+    return fig
+
+
+def measured_figure(results: dict):
+    """measured_overlap.png: the target (y = x: with ``rig.overlap_target=pixels`` a pixel overlap, the knob; else the
+    geometric overlap, the shared fraction of the hfov), the measured pixel overlap and, for the pixels knob, the
+    geometric overlap of the solved layout."""
+    plt = _plt()
+    xs = results["overlaps"]
+    measured = [d["measured"] for d in results["data"]]
+    pixels = {m.get("knob") or "angle" for m in measured} == {"pixels"}
     fig, ax = plt.subplots(figsize=(5, 4))
-    meas = [d["measured"]["measured_mean"] for d in results["data"]]
-    ax.plot(xs, xs, "k:", label="target (geometric)")
-    ax.plot(xs, meas, "o-", label="measured pixel overlap")
+    ax.plot(xs, xs, "k:", label="target pixel overlap (the knob; y = x)" if pixels else
+            "target = geometric overlap, shared fraction of hfov (y = x)")
+    ax.plot(xs, [m["measured_mean"] for m in measured], "o-", label="measured pixel overlap")
+    geo = [m.get("geometric") for m in measured]
+    if pixels and all(isinstance(g, (int, float)) for g in geo):
+        ax.plot(xs, geo, "^--", color="0.5", label="geometric overlap of the solved layout")
     _style(ax, "measured vs target overlap\n(pairs at the target)", "overlap", xs, x_axis(results))
     ax.legend(fontsize=8)
     fig.tight_layout()
-    paths.append(_save(plt, fig, plot_dir / "measured_overlap.png"))
-    return paths
+    return fig
 
 
 def paired_series(results: dict) -> dict[str, dict[str, list[dict]]]:
@@ -214,54 +245,80 @@ def paired_plot(results: dict, plot_dir: Path) -> Path | None:
     return _save(plt, fig, plot_dir / "paired_vs_mono2.png")
 
 
-def distance_plot(results: dict, plot_dir: Path) -> Path | None:
-    """propagation_by_distance.png: per overlap (one panel each), the paired gain (positive = helps) by
-    distance band from the overlap: each mechanism vs Mono2, reading the neighbours (cut - as trained), and
-    the ORACLE-local yardstick (emptied - filled), with 95 % intervals over the (world, seed) pairs."""
-    from study.reach import LOCAL, band_names, paired
+def distance_lines(results: dict) -> list[tuple[str, tuple, str]]:
+    """The lines of propagation_by_distance.png, (name, (a, b), line style), each drawn as a − b per band, the sign
+    of every figure (below 0 = better): each mechanism − Mono2, a reading network as trained − cut, and the
+    ORACLE-local yardstick filled − emptied."""
+    from study.reach import LOCAL
 
-    bands = band_names(results)
     have = {Evaluation.of(f) for f in results["flat"]}
-    lines = [(f"{label(m)} vs Mono2", ("mono2", m), "-") for m in ("fsm", "mcdp_m2", "mcdp_local")
+    lines = [(f"{label(m)} − Mono2", (m, "mono2"), "-") for m in ("fsm", "mcdp_m2", "mcdp_local")
              if Evaluation(m) in have and Evaluation("mono2") in have]
-    lines += [(f"{label(m)}: cut - as trained", (Evaluation(m, CUT), m), "--") for m in ("mcdp_m2", "mcdp_local")
+    lines += [(f"{label(m)}: as trained − cut", (m, Evaluation(m, CUT)), "--") for m in ("mcdp_m2", "mcdp_local")
               if Evaluation(m, CUT) in have]
     if Evaluation(LOCAL, CUT) in have:
-        lines.append(("ORACLE-local: emptied - filled", (Evaluation(LOCAL, CUT), LOCAL), ":"))
+        lines.append(("ORACLE-local (yardstick): filled − emptied", (LOCAL, Evaluation(LOCAL, CUT)), ":"))
+    return lines
+
+
+def robust_limit(values: list[float], floor: float = 0.005) -> float:
+    """A panel's half-range: the 85th percentile of |mean| and |mean ± interval| over its points, with 15 % to
+    spare, at least `floor`, so one wild band is clipped (and annotated) instead of flattening every other line."""
+    v = sorted(abs(x) for x in values if math.isfinite(x))
+    if not v:
+        return floor
+    return max(floor, v[min(len(v) - 1, int(0.85 * len(v)))] * 1.15)
+
+
+def distance_figure(results: dict):
+    """propagation_by_distance.png's figure, or None without bands or lines: per overlap (one panel each), a − b of
+    `distance_lines` by distance band (median-scaled abs_rel, below 0 = better) with 95 % intervals over the (world,
+    seed) pairs; each panel's range from `robust_limit`, a mean beyond it drawn at the edge with its value
+    written; the legend below the panels, which use the full width."""
+    from study.reach import band_names, paired
+
+    bands, lines = band_names(results), distance_lines(results)
     if not bands or not lines:
         return None
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
+    plt = _plt()
     overlaps = results["overlaps"]
-    # no shared y: a band with few pixels (far from a wide overlap) has a wide interval that would flatten
-    # every other panel; each panel's axis covers its means and is clipped at 3x the largest of them
-    fig, axes = plt.subplots(1, len(overlaps), figsize=(4.2 * len(overlaps) + 1.5, 4.2), squeeze=False)
+    fig, axes = plt.subplots(1, len(overlaps), figsize=(5.2 * len(overlaps), 4.4), squeeze=False)
     x = list(range(len(bands)))
-    axis = x_axis(results)[1]
-    for ax, o, tick in zip(axes[0], overlaps, axis):
-        reach, top = 0.0, 0.0
+    for ax, o, tick in zip(axes[0], overlaps, x_axis(results)[1]):
+        drawn = []
         for k, (name, (a, b), ls) in enumerate(lines):
             pds = [paired(results, o, (a, f"median.band.{bd}.abs_rel"), (b, f"median.band.{bd}.abs_rel")) for bd in bands]
             y = [p["mean"] for p in pds]
-            e = [p["ci95"] if p["n"] > 1 else 0.0 for p in pds]
-            fin = [(abs(v), abs(v) + d) for v, d in zip(y, e) if math.isfinite(v) and math.isfinite(d)]
-            top = max([top] + [v for v, _ in fin])
-            reach = max([reach] + [r for _, r in fin])
-            ax.errorbar([xi + 0.04 * (k - len(lines) / 2) for xi in x], y, yerr=e, marker="o", ls=ls, capsize=3,
-                        label=name)
-        lim = max(0.005, min(reach, 3.0 * top)) * 1.1
-        ax.set_ylim(-lim, lim)
+            e = [p["ci95"] if p["n"] > 1 and math.isfinite(p["ci95"]) else 0.0 for p in pds]
+            drawn.append(([xi + 0.05 * (k - (len(lines) - 1) / 2) for xi in x], y, e, name, ls))
+        lim = robust_limit([v + s * d for _, y, e, _, _ in drawn for v, d in zip(y, e) for s in (-1, 0, 1)])
+        clipped = False
+        for k, (xk, y, e, name, ls) in enumerate(drawn):
+            c = f"C{k}"
+            yc = [max(-lim, min(lim, v)) if math.isfinite(v) else math.nan for v in y]
+            ax.errorbar(xk, yc, yerr=e, marker="o", ls=ls, capsize=3, color=c, label=name)
+            for xi, v, d in zip(xk, y, e):
+                if math.isfinite(v) and abs(v) > lim:  # outside the range: at the edge, its value written
+                    ax.annotate(f"{v:+.3f}", (xi, math.copysign(lim, v)), textcoords="offset points",
+                                xytext=(4, -10 if v > 0 else 4), fontsize=7, color=c)
+                    clipped = True
+                clipped = clipped or (math.isfinite(v) and abs(v) + d > lim)
+        ax.set_ylim(-lim * 1.05, lim * 1.05)
         ax.axhline(0.0, color="k", lw=0.8)
         ax.set_xticks(x, bands, rotation=30, fontsize=8)
-        clipped = " (intervals clipped)" if reach > lim else ""
-        ax.set_title(f"overlap {tick.replace(chr(10), ' ')}{clipped}", fontsize=10)
+        ax.set_title(f"overlap {tick.replace(chr(10), ' ')}" + (" (clipped: values written)" if clipped else ""),
+                     fontsize=10)
         ax.set_xlabel("distance to the overlap (fraction of width)")
         ax.grid(alpha=0.3)
-    axes[0][0].set_ylabel("abs_rel gain (median scaling; > 0 helps)")
-    handles, names = axes[0][0].get_legend_handles_labels()
-    fig.legend(handles, names, loc="center right", fontsize=8)
-    fig.tight_layout(rect=(0, 0, 0.78, 1))
-    return _save(plt, fig, plot_dir / "propagation_by_distance.png", bbox_inches=None)
+    axes[0][0].set_ylabel("abs_rel difference (median scaling; < 0 better)")
+    fig.suptitle("By distance from the overlap: each difference a − b, below 0 = better (95 % intervals over the "
+                 "(world, seed) pairs)", fontsize=10)
+    fig.tight_layout()
+    _legend(fig, axes[0], ncol=min(len(lines), 3))
+    return fig
+
+
+def distance_plot(results: dict, plot_dir: Path) -> Path | None:
+    """propagation_by_distance.png (`distance_figure`); None when there is nothing to draw."""
+    fig = distance_figure(results)
+    return None if fig is None else _save(_plt(), fig, plot_dir / "propagation_by_distance.png")

@@ -242,8 +242,6 @@ def format_primary(results: dict, o: float = PRIMARY_OVERLAP) -> str:
     else:
         add("Spread split: not separable (one training seed per world: the intervals cover world and seed together).\n")
     add(_recovered(measured))
-    add(f"**Headline** (control passed, every mechanism's null equivalent within ±{DELTA:g}, or what is not): "
-        f"{headline(results, o)}.\n")
     bands = band_names(results)
     band_comps = [(cid, name, a, b) for cid, name, a, b, _ in comps if cid == "c"]
     if bands and band_comps:

@@ -95,7 +95,7 @@ def format_propagation(results: dict, label) -> str:
     if len(results["seeds"]) < 2:
         add("One seed only: no interval, no verdict.\n")
         return "\n".join(L)
-    add("### Verdict per overlap: propagation and refinement\n")
+    add("### Per overlap, in words: propagation and refinement\n")
     for d in results["data"]:
         o = d["overlap"]
         for m in methods:

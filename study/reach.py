@@ -141,7 +141,7 @@ def format_reach(results: dict, label) -> str:
     if bands and any(k.startswith("median.road_band.") for f in results["flat"] for k in f):
         add("### The road alone, by distance from the overlap (the surface the neighbours share most)\n")
         L += _band_table(results, bands, "median.road_band.{b}.abs_rel")
-    add(format_verdicts(results))
+    add(format_in_words(results))
     return "\n".join(L)
 
 
@@ -177,9 +177,9 @@ def _word(pd: dict) -> str:
     return {1: "helps", -1: "hurts", 0: "no difference beyond the interval"}[pd["differs"]]
 
 
-def format_verdicts(results: dict) -> str:
+def format_in_words(results: dict) -> str:
     """One verdict line per overlap: each mechanism's propagation next to the yardsticks' headroom."""
-    L = ["### Verdict per overlap (non-overlap pixels)\n"]
+    L = ["### Per overlap, in words (non-overlap pixels)\n"]
     for d in results["data"]:
         o = d["overlap"]
         q = quantities(results, o)

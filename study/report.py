@@ -38,6 +38,7 @@ from study.primary import format_primary
 from study.propagation import format_propagation
 from study.classes import format_classes
 from study.reach import format_reach
+from study.verdicts import format_verdicts
 from study.results import (BASELINE, PRIOR_LABEL, REF_LABEL, SCALE_LABEL, YARDSTICKS, fmt_diff, method_agg,
                            paired_difference, verdict_word, yardstick_agg, yardstick_row)
 from study.results import fmt_num as _num
@@ -116,6 +117,7 @@ def format_report(results: dict, plots: list[str]) -> str:
     primary = format_primary(results)
     if primary:  # a sweep with named primary comparisons opens with them (the copy test first)
         L += [primary, ""]
+    L += [format_verdicts(results, label), ""]  # the report's one verdict section
     L += _summary_section(results)
     for d in results["data"]:
         L += _overlap_section(results, d, cams)
@@ -286,10 +288,6 @@ def _summary_section(results: dict) -> list[str]:
     classes = format_classes(results, label)
     if classes:
         L += [classes, ""]
-    add("### Verdicts: against the yardsticks (abs_rel, mean over seeds) and Mono2 (paired over seeds)\n")
-    add(_verdicts(results))
-    add("")
-
     return L
 
 
@@ -391,56 +389,6 @@ def _timing_section(results: dict) -> list[str]:
     add("Latest invocation: " + ", ".join(f"{k} {v}" for k, v in c.items()) + ".\n")
 
     return L
-
-
-def _verdicts(results: dict) -> str:
-    """The verdict lines: each method against the yardsticks (their single numbers, so the mean over seeds), and
-    against Mono2 only through paired differences and their 95 % interval (`verdict_word`), never raw means: in
-    median scaling those are the lines of the mechanisms' section (`study.mechanisms`), in metric scaling here."""
-    methods = results["methods"]
-    others = [m for m in methods if m != BASELINE]
-    lines = []
-    paired = BASELINE in methods and others and len(results["seeds"]) > 1
-    for d in results["data"]:
-        o = d["overlap"]
-        for sc in ("none", "median"):
-            head = f"- overlap {o:.2f}, {SCALE_LABEL[sc]}: "
-            cref = yardstick_agg(results, o, f"{sc}.mean.abs_rel")["mean"]
-            pref = yardstick_agg(results, o, f"{sc}.mean.abs_rel", "prior")["mean"]
-            if sc == "median" and math.isfinite(cref) and math.isfinite(pref):
-                means = {m: method_agg(results, o, m, f"{sc}.mean.abs_rel")["mean"] for m in methods}
-                short = [f"{label(m)} {v:.3f}" for m, v in means.items() if not (v <= 0.5 * cref and v < pref)]
-                lines.append(head + (f"**not all methods reach <= 0.5 x constant ({0.5 * cref:.3f}) and below the "
-                                     f"flat-road prior ({pref:.3f})**: " + ", ".join(short) if short else
-                                     f"every method (mean over seeds) is at <= 0.5 x constant ({0.5 * cref:.3f}) "
-                                     f"and below the flat-road prior ({pref:.3f}); worst "
-                                     f"{max(means.values()):.3f}"))
-            if math.isfinite(cref):
-                worse = [label(m) for m in methods
-                         if not method_agg(results, o, m, f"{sc}.mean.abs_rel")["mean"] < cref]
-                lines.append(head + (f"**not better than the constant-depth reference** ({cref:.3f}): "
-                                     + ", ".join(worse) if worse else
-                                     f"every method beats the constant-depth reference ({cref:.3f})"))
-            if paired and sc == "none":
-                cells = []
-                for m in others:
-                    pa = paired_difference(results, o, m, BASELINE, f"{sc}.mean.abs_rel")
-                    pn = paired_difference(results, o, m, BASELINE, f"{sc}.non_overlap.abs_rel")
-                    cells.append(f"{label(m)} {fmt_diff(pa)}: {verdict_word(pa)} (non-overlap px "
-                                 f"{fmt_diff(pn)}: {verdict_word(pn)})")
-                lines.append(head + "each method − Mono2, paired over seeds: " + "; ".join(cells))
-    if BASELINE not in methods:
-        lines.append("- Mono2 is not part of this sweep: no comparison with it.")
-    elif not others:
-        lines.append("- Only Mono2 is part of this sweep: no comparison with it.")
-    elif paired:
-        lines.append("- Against Mono2 in median scaling: the paired verdicts of 'Which mechanism gains from the "
-                     "overlap?' above (and paired_vs_mono2.png); a method is said to be better or worse than Mono2 "
-                     "only where the paired 95 % interval excludes 0.")
-    if len(results["seeds"]) == 1:
-        lines.append("- One training seed only: no paired interval, so no verdict against Mono2; differences smaller "
-                     "than the seed-to-seed spread (unknown here) are not evidence either way.")
-    return "\n".join(lines)
 
 
 def _sec(x) -> str:

@@ -75,7 +75,7 @@ def test_report_has_the_reach_section_and_figure(reach_sweep):
     out, res = reach_sweep
     text = (out / "report.md").read_text()
     assert "How far does the overlap reach?" in text and "By distance from the overlap" in text
-    assert "Verdict per overlap (non-overlap pixels)" in text
+    assert "Per overlap, in words (non-overlap pixels)" in text
     assert "plots/propagation_by_distance.png" in text and (out / "plots" / "propagation_by_distance.png").is_file()
     assert format_reach(res, str) in text
     assert "world k trained with seed k" in text

@@ -1,0 +1,119 @@
+"""The report's one verdict section: every verdict line of a sweep's report.md in one place, read from the same
+paired differences as the tables below it (`study.mechanisms.paired_all`, `study.results`).
+
+- the primary comparisons' headline, for a sweep that names them (`study.primary.headline`);
+- each mechanism against Mono2, where it is more accurate, on non-overlap pixels, more consistent, and what it
+  takes from the other cameras at inference; a row that reads ground truth (`study.mechanisms.is_yardstick`) is a
+  yardstick and stands in no verdict;
+- "In one line": where each mechanism is more accurate than Mono2 ("at 0.30 only", "from overlap 0.30 on");
+- how many paired comparisons these verdicts rest on, each at 95 % and uncorrected, against how many a world
+  without any difference would put beyond the interval by chance (5 %);
+- each method against the yardsticks (constant depth, flat-road prior) and, in metric scaling, Mono2.
+
+Every other section of the report gives tables and, per overlap, its comparisons in words; none is titled a verdict.
+"""
+from __future__ import annotations
+
+import math
+
+from mcdp.methods import label as method_label
+from study.mechanisms import KEYS, from_which_overlap, is_yardstick, paired_all, verdict_line
+from study.results import (BASELINE, SCALE_LABEL, fmt_diff, method_agg, paired_difference, verdict_word,
+                           yardstick_agg)
+
+#: the per-comparison level of every interval in the report
+ALPHA = 0.05
+
+
+def format_verdicts(results: dict, label) -> str:
+    """Markdown: the section ``## Verdicts``."""
+    L = ["## Verdicts\n", "Every verdict of this report; the sections below give the numbers they read. A method is "
+         "better or worse than Mono2 only where the paired 95 % interval excludes 0.\n"]
+    from study.primary import LOCAL, headline
+
+    if any(f.get("method") == LOCAL for f in results.get("flat", [])):
+        L.append(f"- **Primary comparisons** (the section above): {headline(results)}.")
+    L += mechanism_lines(results, label)
+    L += ["", "Against the yardsticks (abs_rel, mean over seeds) and, in metric scaling, Mono2 (paired over seeds):\n",
+          yardstick_lines(results)]
+    return "\n".join(L) + "\n"
+
+
+def mechanism_lines(results: dict, label) -> list[str]:
+    """Each mechanism's line, the line "In one line" and the multiple-comparison note; [] without Mono2, a second
+    method or a second seed."""
+    methods = [m for m in results["methods"] if m != BASELINE]
+    if BASELINE not in results["methods"] or not methods or len(results["seeds"]) < 2:
+        return []
+    mech = [m for m in methods if not is_yardstick(results, m)]
+    diffs, cuts, change = paired_all(results, methods)
+    L = [verdict_line(m, diffs[m], cuts[m], change[m], label) for m in mech]
+    yard = [label(m) for m in methods if m not in mech]
+    if yard:
+        L.append(f"- {', '.join(yard)}: reads ground truth, a yardstick, not a mechanism: in the tables only.")
+    if not mech:
+        return L
+    if mech:
+        where = {m: from_which_overlap(diffs[m]["median.mean.abs_rel"]).split("; worse")[0] for m in mech}
+        better = [f"{label(m)} {w}" for m, w in where.items() if w != "at no overlap of the sweep"]
+        never = [label(m) for m, w in where.items() if w == "at no overlap of the sweep"]
+        L.append("- **In one line**: " + ("more accurate than Mono2: " + "; ".join(better) if better else
+                                          "no mechanism is more accurate than Mono2 at any overlap")
+                 + (f"; at no overlap: {', '.join(never)}" if better and never else "")
+                 + " (median-scaled abs_rel, all pixels, beyond the paired 95 % interval).")
+    n = sum(1 for m in mech for key, _ in KEYS for o in diffs[m][key])
+    hits = sum(1 for m in mech for key, _ in KEYS for pd in diffs[m][key].values() if pd["differs"])
+    L.append(f"- **Multiple comparisons**: these lines read {n} paired comparisons with Mono2 "
+             f"({len(mech)} mechanism(s) x {len(results['data'])} overlap(s) x {len(KEYS)} measures), each at 95 % and "
+             f"not corrected for the others: were no mechanism different from Mono2, about {ALPHA * n:.1f} of them would "
+             f"fall beyond their interval by chance; {hits} do. A single 'at x only' is weak evidence on its own.")
+    return L
+
+
+def yardstick_lines(results: dict) -> str:
+    """The verdict lines: each method against the yardsticks (their single numbers, so the mean over seeds), and
+    against Mono2 only through paired differences and their 95 % interval (`verdict_word`), never raw means: in
+    median scaling those are the lines of the mechanisms' section (`study.mechanisms`), in metric scaling here."""
+    methods = results["methods"]
+    others = [m for m in methods if m != BASELINE and not is_yardstick(results, m)]
+    lines = []
+    paired = BASELINE in methods and others and len(results["seeds"]) > 1
+    for d in results["data"]:
+        o = d["overlap"]
+        for sc in ("none", "median"):
+            head = f"- overlap {o:.2f}, {SCALE_LABEL[sc]}: "
+            cref = yardstick_agg(results, o, f"{sc}.mean.abs_rel")["mean"]
+            pref = yardstick_agg(results, o, f"{sc}.mean.abs_rel", "prior")["mean"]
+            if sc == "median" and math.isfinite(cref) and math.isfinite(pref):
+                means = {m: method_agg(results, o, m, f"{sc}.mean.abs_rel")["mean"] for m in methods}
+                short = [f"{method_label(m)} {v:.3f}" for m, v in means.items() if not (v <= 0.5 * cref and v < pref)]
+                lines.append(head + (f"**not all methods reach <= 0.5 x constant ({0.5 * cref:.3f}) and below the "
+                                     f"flat-road prior ({pref:.3f})**: " + ", ".join(short) if short else
+                                     f"every method (mean over seeds) is at <= 0.5 x constant ({0.5 * cref:.3f}) "
+                                     f"and below the flat-road prior ({pref:.3f}); worst "
+                                     f"{max(means.values()):.3f}"))
+            if math.isfinite(cref):
+                worse = [method_label(m) for m in methods
+                         if not method_agg(results, o, m, f"{sc}.mean.abs_rel")["mean"] < cref]
+                lines.append(head + (f"**not better than the constant-depth reference** ({cref:.3f}): "
+                                     + ", ".join(worse) if worse else
+                                     f"every method beats the constant-depth reference ({cref:.3f})"))
+            if paired and sc == "none":
+                cells = []
+                for m in others:
+                    pa = paired_difference(results, o, m, BASELINE, f"{sc}.mean.abs_rel")
+                    pn = paired_difference(results, o, m, BASELINE, f"{sc}.non_overlap.abs_rel")
+                    cells.append(f"{method_label(m)} {fmt_diff(pa)}: {verdict_word(pa)} (non-overlap px "
+                                 f"{fmt_diff(pn)}: {verdict_word(pn)})")
+                lines.append(head + "each method − Mono2, paired over seeds: " + "; ".join(cells))
+    if BASELINE not in methods:
+        lines.append("- Mono2 is not part of this sweep: no comparison with it.")
+    elif not others:
+        lines.append("- Only Mono2 is part of this sweep: no comparison with it.")
+    elif paired:
+        lines.append("- Against Mono2 in median scaling: the lines above (and paired_vs_mono2.png); a method is said "
+                     "to be better or worse than Mono2 only where the paired 95 % interval excludes 0.")
+    if len(results["seeds"]) == 1:
+        lines.append("- One training seed only: no paired interval, so no verdict against Mono2; differences smaller "
+                     "than the seed-to-seed spread (unknown here) are not evidence either way.")
+    return "\n".join(lines)
