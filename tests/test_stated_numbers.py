@@ -45,6 +45,15 @@ def _wall_min(r: dict) -> float:
     return r["timing"]["this_invocation_s"] / 60
 
 
+def _from_empty_min(name: str) -> str:
+    """The wall minutes a preface states for its run from an empty folder (a report re-evaluated later records only
+    the latest invocation in results.json, so the README is held to the preface)."""
+    text = (RESULTS / name / "preface.md").read_text()
+    m = re.search(r"from an empty folder: \*\*([\d.]+) min\*\*", text)
+    assert m, f"docs/results/{name}/preface.md states no 'from an empty folder: **N min**'"
+    return m.group(1)
+
+
 def _inert(r: dict, method: str) -> tuple[int, int]:
     fl = [f for f in r["flat"] if f["method"] == method and f.get("variant", "trained") == "trained"]
     return sum(1 for f in fl if f.get("refine.depth_change_m", math.inf) < 0.01), len(fl)
@@ -52,9 +61,10 @@ def _inert(r: dict, method: str) -> tuple[int, int]:
 
 #: (file, pattern with one or more groups, report, what the groups must be, given its results.json)
 CLAIMS = [
-    ("README.md", r"main job on its defaults: .*?\((\d+) min measured", "sweep_cpu", lambda r: (round(_wall_min(r)),)),
+    ("README.md", r"main job on its defaults: .*?\((\d+) min measured", "sweep_cpu",
+     lambda r: (str(round(float(_from_empty_min("sweep_cpu")))),)),
     ("README.md", r"one\s+run from an empty folder, ([\d.]+) min measured", "sweep_cpu",
-     lambda r: (f"{_wall_min(r):.1f}",)),
+     lambda r: (_from_empty_min("sweep_cpu"),)),
     ("README.md", r"with seed k on world k \((\w+) \(world, seed\) pairs", "sweep_cpu", lambda r: (len(r["seeds"]),)),
     ("README.md", r"paired over the (\w+) \(world, seed\) pairs", "sweep_cpu", lambda r: (len(r["seeds"]),)),
     ("README.md", r"`cpu.yaml`: [\d.]+ GB of disk for its (\d+) runs", "sweep_cpu", lambda r: (_runs(r),)),
