@@ -66,3 +66,42 @@ def collapse_reason(spread: dict) -> str | None:
     if np.isfinite(r) and r < COLLAPSE_RATIO:
         return f"depth is nearly constant (p90/p10 = {r:.2f} < {COLLAPSE_RATIO})"
     return None
+
+
+#: steps a fresh network may stay a constant map before the collapse guard warns
+COLLAPSE_GRACE_STEPS = 100
+#: logged checks in a row that must show a collapse before the guard warns
+COLLAPSE_STREAK = 5
+
+
+class TrainingDiverged(RuntimeError):
+    """The loss became NaN/inf; training stopped (the last checkpoint is intact)."""
+
+
+class CollapseGuard:
+    """When the trainer warns that depth collapsed: a fresh network starts as a constant (model.init_depth), so
+    only once the depth has spread out, or after `COLLAPSE_GRACE_STEPS` steps that never left the constant start;
+    and only when `COLLAPSE_STREAK` logged checks in a row agree (one odd batch is not a collapse)."""
+
+    def __init__(self) -> None:
+        self.armed = False
+        self.streak = 0
+
+    def warn_now(self, reason: str | None, step: int) -> bool:
+        """Record one check (`collapse_reason`'s answer at `step`); True exactly when the warning is due."""
+        if reason is None:
+            self.armed = True
+            self.streak = 0
+            return False
+        self.streak += 1
+        return (self.armed or step >= COLLAPSE_GRACE_STEPS) and self.streak == COLLAPSE_STREAK
+
+
+def gradient_divergence(named_parameters, step: int) -> str | None:
+    """The message of a `TrainingDiverged` when a gradient is NaN/inf (naming the first such parameter), else
+    None."""
+    named = [(n, p) for n, p in named_parameters if p.grad is not None]
+    if not named or torch.isfinite(torch.nn.utils.get_total_norm([p.grad for _, p in named])):
+        return None
+    name = next((n for n, p in named if not torch.isfinite(p.grad).all()), "?")
+    return f"the gradient of {name} is not finite at step {step} (loss was finite); the weights were not updated"

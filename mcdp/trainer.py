@@ -48,7 +48,8 @@ from corelib.rundir import FolderError, claim
 from corelib.version import code_version, warn_other_code
 from mcdp.config import RunConfig
 from mcdp.data import RigDataset, StepBatchSampler, collate
-from mcdp.diagnostics import collapse_reason, depth_spread
+from mcdp.diagnostics import (CollapseGuard, TrainingDiverged, collapse_reason, depth_spread,  # noqa: F401
+                              gradient_divergence)  # TrainingDiverged: raised here, imported from here
 from mcdp.distributed import Dist
 from mcdp.logger import TrainLogger
 from mcdp.checkpoint_files import record_written
@@ -59,19 +60,11 @@ from mcdp.system import SelfSupervisedSystem
 from mcdp.validation import validation_loss
 from mcdp.warmstart import warm_start
 
-#: steps a fresh network may stay a constant map before the collapse guard warns
-COLLAPSE_GRACE_STEPS = 100
-#: logged checks in a row that must show a collapse before the guard warns
-COLLAPSE_STREAK = 5
 #: fp16 steps in a row the GradScaler may skip (non-finite gradients) before training stops
 FP16_SKIP_LIMIT = 20
 
 
 log = logger("mcdp.train")
-
-
-class TrainingDiverged(RuntimeError):
-    """The loss became NaN/inf; training stopped (the last checkpoint is intact)."""
 
 
 class Trainer:
@@ -167,8 +160,7 @@ class Trainer:
         self.step = 0
         self._skipped = 0
         self.spread: dict = {}
-        self.spread_armed = False
-        self.collapse_streak = 0
+        self.collapse_guard = CollapseGuard()
         self.best_val = math.inf
         self.val_history: list[tuple[int, float]] = []
         if ckpt is not None:
@@ -273,16 +265,7 @@ class Trainer:
         mask = batch["mask"].reshape(depth.shape)
         spread = depth_spread(depth, mask, m.min_depth, m.max_depth)
         reason = collapse_reason(spread)
-        if reason is None:
-            self.spread_armed = True
-            self.collapse_streak = 0
-        else:
-            self.collapse_streak += 1
-        # a fresh network starts as a constant (model.init_depth): warn only once the depth has
-        # spread out, or after COLLAPSE_GRACE_STEPS steps that never left the constant start; and
-        # only when COLLAPSE_STREAK logged checks in a row agree (one odd batch is not a collapse)
-        armed = self.spread_armed or self.step >= COLLAPSE_GRACE_STEPS
-        if reason is not None and armed and self.collapse_streak == COLLAPSE_STREAK and self.dist.is_main:
+        if self.collapse_guard.warn_now(reason, self.step) and self.dist.is_main:
             log.warning(f"mcdp train: WARNING step {self.step}: depth collapsed: {reason}")
         self.spread = dict(spread, collapsed=reason)
         self.log.scalars({f"depth_spread/{k}": spread[k] for k in ("ratio", "at_min", "at_max")}, self.step)
@@ -294,14 +277,9 @@ class Trainer:
 
     def _check_gradients(self) -> None:
         """TrainingDiverged naming the step and the first parameter whose gradient is NaN/inf."""
-        grads = [p.grad for p in self.system.parameters() if p.grad is not None]
-        if not grads or torch.isfinite(torch.nn.utils.get_total_norm(grads)):
-            return
-        name = next((n for n, p in self.system.named_parameters()
-                     if p.grad is not None and not torch.isfinite(p.grad).all()), "?")
-        raise TrainingDiverged(f"the gradient of {name} is not finite at step {self.step} (loss was finite); "
-                               "the weights were not updated" + self._last_good()
-                               + "; try a lower train.lr or train.grad_clip=1.0")
+        msg = gradient_divergence(self.system.named_parameters(), self.step)
+        if msg is not None:
+            raise TrainingDiverged(msg + self._last_good() + "; try a lower train.lr or train.grad_clip=1.0")
 
     # ------------------------------------------------------------------ loop
     def train(self, until: int | None = None) -> dict:

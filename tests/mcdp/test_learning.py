@@ -141,7 +141,7 @@ def test_the_trainer_warns_naming_the_step_when_depth_collapses(ds, tmp_path, ca
         tr.step = 5  # within the grace steps a constant start is not a collapse
         tr.check_spread({("depth", "init", 0): torch.full((6, 1, 64, 96), 10.0)}, {"mask": mask})
         assert "WARNING" not in capsys.readouterr().err
-        tr.collapse_streak = 0
+        tr.collapse_guard.streak = 0
         near = {("depth", "init", 0): torch.full((6, 1, 64, 96), 0.1)}
         for step in range(150, 154):  # a streak shorter than COLLAPSE_STREAK: no warning yet
             tr.step = step
