@@ -49,6 +49,16 @@ def recording(tiny_dataset, tmp_path_factory):
     return out
 
 
+@pytest.fixture(scope="module")
+def flow_recording(flow_dataset, tmp_path_factory):
+    """A recording of the tiny preset rendered with every label (forward flow is off by default)."""
+    from synth.cli import main
+
+    out = tmp_path_factory.mktemp("view_flow") / "rig.rrd"
+    assert main(["view", str(flow_dataset), "--seq", "seq_00001", "--frames", "1:4", "--out", str(out)]) == 0
+    return out
+
+
 def test_recording_verifies_and_holds_the_rig_of_rig_json(recording, tiny_dataset):
     assert "verified without error" in rrd_verify(recording)
     ents = read_rrd(recording)
@@ -130,15 +140,15 @@ def test_recording_carries_the_blueprint(recording, tiny_dataset):
     check_blueprint(recording, ds.cameras, ["RGB", "depth (ground truth)", "labels"])
 
 
-def test_labels_are_a_segmentation_image_with_the_class_colours_and_flow_arrows(recording, tiny_dataset):
+def test_labels_are_a_segmentation_image_with_the_class_colours_and_flow_arrows(flow_recording, flow_dataset):
     """Frames 1..3 of seq_00001: per camera and frame the class map as a SegmentationImage (equal to the PNG), the
     class table as its AnnotationContext, the valid forward flow as arrows on the grid of `flow_stride`."""
     from synth.open import open_dataset
     from synth.view_labels import flow_stride
 
-    ds = open_dataset(tiny_dataset)
+    ds = open_dataset(flow_dataset)
     ego = ds.ego("seq_00001")
-    ents = read_rrd(recording)
+    ents = read_rrd(flow_recording)
     for cam in ds.cameras:
         for kind in ("semantic", "flow"):
             (ctx,) = [r["AnnotationContext:context"][0] for t, r in ents[f"/world/ego/{cam.name}/{kind}"] if t is None]
@@ -166,15 +176,15 @@ def test_labels_are_a_segmentation_image_with_the_class_colours_and_flow_arrows(
             assert flows[t]["Arrows2D:class_ids"] == sem[v, u].tolist()
 
 
-def test_without_labels_the_recording_is_as_before(tiny_dataset, tiny_dataset_without_labels, tmp_path):
+def test_without_labels_the_recording_is_as_before(flow_dataset, tiny_dataset_without_labels, tmp_path):
     """The last frame has no forward flow: its arrows are cleared. A dataset without labels records no label
     entities and no labels tab."""
     from synth.cli import main
     from synth.open import open_dataset
 
-    ds = open_dataset(tiny_dataset)
+    ds = open_dataset(flow_dataset)  # the tiny preset with flow: its images and depth are the dataset's without labels
     outs = {}
-    for name, data in (("new", tiny_dataset), ("old", tiny_dataset_without_labels)):
+    for name, data in (("new", flow_dataset), ("old", tiny_dataset_without_labels)):
         outs[name] = tmp_path / f"{name}.rrd"
         assert main(["view", str(data), "--seq", "seq_00000", "--frames", "5:6", "--out", str(outs[name])]) == 0
     new, old = read_rrd(outs["new"]), read_rrd(outs["old"])
