@@ -197,19 +197,24 @@ def read_image(path: str | Path) -> np.ndarray:
     return np.ascontiguousarray(img[:, :, ::-1])
 
 
-def write_depth_exr(path: str | Path, depth: np.ndarray, fsync: bool = True) -> None:
-    """Write (H, W) float32 z-depth in metres as a single-channel ("Z") ZIP-compressed OpenEXR, whole or
-    not at all. OpenEXR encodes in memory and Python writes the file: OpenEXR takes a name only as UTF-8
-    text, so a folder whose name is not (a Latin-1 name under ``LC_ALL=C``) would fail in it, unnamed."""
+def _encode_exr(channels: dict[str, np.ndarray]) -> bytes:
+    """A ZIP-compressed scanline OpenEXR of float32 (H, W) `channels`, encoded in memory: OpenEXR takes a file
+    name only as UTF-8 text, so Python writes the bytes (any folder name, a Latin-1 one under ``LC_ALL=C`` too)."""
     import OpenEXR
 
-    if depth.ndim != 2 or depth.dtype != np.float32:
-        raise ValueError(f"write_depth_exr: expected (H, W) float32, got {depth.shape} {depth.dtype}")
     header = {"compression": OpenEXR.ZIP_COMPRESSION, "type": OpenEXR.scanlineimage}
     buf = io.BytesIO()
-    with OpenEXR.File(header, {DEPTH_CHANNEL: np.ascontiguousarray(depth)}) as f:
+    with OpenEXR.File(header, {k: np.ascontiguousarray(v) for k, v in channels.items()}) as f:
         f.write(buf)
-    atomic_write_bytes(path, buf.getvalue(), fsync=fsync)
+    return buf.getvalue()
+
+
+def write_depth_exr(path: str | Path, depth: np.ndarray, fsync: bool = True) -> None:
+    """Write (H, W) float32 z-depth in metres as a single-channel ("Z") ZIP-compressed OpenEXR, whole or
+    not at all (`_encode_exr`)."""
+    if depth.ndim != 2 or depth.dtype != np.float32:
+        raise ValueError(f"write_depth_exr: expected (H, W) float32, got {depth.shape} {depth.dtype}")
+    atomic_write_bytes(path, _encode_exr({DEPTH_CHANNEL: depth}), fsync=fsync)
 
 
 def _exr_size(f) -> tuple[int, int]:
@@ -221,9 +226,10 @@ def _exr_size(f) -> tuple[int, int]:
     return int(hi[0]) - int(lo[0]) + 1, int(hi[1]) - int(lo[1]) + 1
 
 
-def read_depth_exr(path: str | Path) -> np.ndarray:
-    """(H, W) float32 z-depth in metres, 0 = no surface. The bytes are read by Python (`read_regular`: a
-    regular file, bounded; any file name) and decoded by OpenEXR once its header's size is within bounds."""
+def _read_exr(path: str | Path, names: tuple[str, ...], what: str) -> list[np.ndarray]:
+    """The float32 (H, W) channels `names` of an OpenEXR file, all of one shape. The bytes are read by Python
+    (`read_regular`: a regular file, bounded; any file name) and decoded by OpenEXR once its header's size is
+    within bounds; DatasetError naming the file otherwise (`what`: "depth map", "flow map")."""
     import OpenEXR
 
     data = io.BytesIO(read_regular(path))
@@ -235,17 +241,23 @@ def read_depth_exr(path: str | Path) -> np.ndarray:
         data.seek(0)
         with OpenEXR.File(data) as f:
             ch = f.channels()
-            if DEPTH_CHANNEL not in ch:
-                raise DatasetError(f"{path}: no '{DEPTH_CHANNEL}' channel (has {sorted(ch)[:8]})")
-            px = ch[DEPTH_CHANNEL].pixels
-            if px.dtype != np.float32 or px.ndim != 2:
-                raise DatasetError(f"{path}: channel '{DEPTH_CHANNEL}' is {px.dtype} with shape {px.shape}; the "
-                                   "contract is one float32 (FLOAT) channel of shape (H, W)")
-            return np.ascontiguousarray(px)
+            missing = [c for c in names if c not in ch]
+            if missing:
+                raise DatasetError(f"{path}: no {', '.join(repr(c) for c in missing)} channel (has {sorted(ch)[:8]})")
+            px = [ch[c].pixels for c in names]
+            if any(p.dtype != np.float32 or p.ndim != 2 or p.shape != px[0].shape for p in px):
+                raise DatasetError(f"{path}: channel(s) {', '.join(names)} must be float32 (FLOAT) of one shape (H, W); "
+                                   f"got {[(str(p.dtype), p.shape) for p in px]}")
+            return [np.ascontiguousarray(p) for p in px]
     except DatasetError:
         raise
     except Exception as exc:
-        raise DatasetError(f"{path}: not a readable EXR depth map ({exc})") from None
+        raise DatasetError(f"{path}: not a readable EXR {what} ({exc})") from None
+
+
+def read_depth_exr(path: str | Path) -> np.ndarray:
+    """(H, W) float32 z-depth in metres, 0 = no surface (`_read_exr`)."""
+    return _read_exr(path, (DEPTH_CHANNEL,), "depth map")[0]
 
 
 FLOW_CHANNELS = ("U", "V")
@@ -253,44 +265,15 @@ FLOW_CHANNELS = ("U", "V")
 
 def write_flow_exr(path: str | Path, flow: np.ndarray, fsync: bool = True) -> None:
     """Write (H, W, 2) float32 optical flow in pixels as a two-channel ("U", "V") ZIP-compressed OpenEXR,
-    whole or not at all (encoded in memory, written by Python, as `write_depth_exr`)."""
-    import OpenEXR
-
+    whole or not at all (`_encode_exr`)."""
     if flow.ndim != 3 or flow.shape[2] != 2 or flow.dtype != np.float32:
         raise ValueError(f"write_flow_exr: expected (H, W, 2) float32, got {flow.shape} {flow.dtype}")
-    header = {"compression": OpenEXR.ZIP_COMPRESSION, "type": OpenEXR.scanlineimage}
-    chans = {c: np.ascontiguousarray(flow[..., k]) for k, c in enumerate(FLOW_CHANNELS)}
-    buf = io.BytesIO()
-    with OpenEXR.File(header, chans) as f:
-        f.write(buf)
-    atomic_write_bytes(path, buf.getvalue(), fsync=fsync)
+    atomic_write_bytes(path, _encode_exr({c: flow[..., k] for k, c in enumerate(FLOW_CHANNELS)}), fsync=fsync)
 
 
 def read_flow_exr(path: str | Path) -> np.ndarray:
-    """(H, W, 2) float32 optical flow in pixels (du, dv) of a `write_flow_exr` file (read as `read_depth_exr`
-    reads: bounded bytes by Python, the header's size checked before its pixels are decoded)."""
-    import OpenEXR
-
-    data = io.BytesIO(read_regular(path))
-    try:
-        w, h = _exr_size(data)
-        if not (0 < w <= MAX_CAMERA_PX and 0 < h <= MAX_CAMERA_PX):
-            raise DatasetError(f"{path}: its header claims {w}x{h} pixels, above the {MAX_CAMERA_PX} px a camera's "
-                               "side may have; refused before decoding")
-        data.seek(0)
-        with OpenEXR.File(data) as f:
-            ch = f.channels()
-            missing = [c for c in FLOW_CHANNELS if c not in ch]
-            if missing:
-                raise DatasetError(f"{path}: no channel(s) {missing} (has {sorted(ch)[:8]}); a flow map has U and V")
-            px = [ch[c].pixels for c in FLOW_CHANNELS]
-            if any(p.dtype != np.float32 or p.ndim != 2 or p.shape != px[0].shape for p in px):
-                raise DatasetError(f"{path}: channels U, V must be float32 (H, W) of one shape")
-            return np.stack(px, -1)
-    except DatasetError:
-        raise
-    except Exception as exc:
-        raise DatasetError(f"{path}: not a readable EXR flow map ({exc})") from None
+    """(H, W, 2) float32 optical flow in pixels (du, dv) of a `write_flow_exr` file (`_read_exr`)."""
+    return np.stack(_read_exr(path, FLOW_CHANNELS, "flow map"), -1)
 
 
 def stored_size(path: str | Path) -> tuple[int, int] | None:
