@@ -88,19 +88,19 @@ class SupervisedRun:
 
     def __init__(self, cfg, ds):
         from mcdp.data import RigDataset, neighbour_table
-        from mcdp.methods import build_depth_model
+        from mcdp.methods import build_network
 
         self.cfg, self.ds = cfg, ds
         tc = cfg.train
         if tc.threads > 0:
             torch.set_num_threads(tc.threads)
         torch.manual_seed(tc.seed)
-        self.model = build_depth_model(cfg.model)
+        self.network = build_network(cfg.model)
         if cfg.model.init_from:
             from mcdp.warmstart import warm_start
 
-            warm_start(self.model, cfg.model.init_from)
-        self.opt = torch.optim.Adam(self.model.parameters(), lr=tc.lr)
+            warm_start(self.network, cfg.model.init_from)
+        self.opt = torch.optim.Adam(self.network.parameters(), lr=tc.lr)
         self.train_set = RigDataset(ds, "train", tc.height, tc.width)
         self.nbr = neighbour_table(ds.neighbours, len(ds.camera_names))
         self.step = 0
@@ -110,7 +110,7 @@ class SupervisedRun:
 
         H, W = self.cfg.train.height, self.cfg.train.width
         out = []
-        for k, t in zip(batch["seq_index"].tolist(), batch["frame"].tolist()):
+        for k, t in zip(batch.seq_index.tolist(), batch.frame.tolist()):
             seq = self.train_set.seqs[k]
             for n in self.ds.camera_names:
                 g = np.asarray(self.ds.read_depth(seq, n, t), np.float32)
@@ -123,17 +123,17 @@ class SupervisedRun:
         from mcdp.data import StepBatchSampler, collate
 
         tc = self.cfg.train
-        final = self.model.stages[-1]
+        final = self.network.stages[-1]
         for idx in StepBatchSampler(len(self.train_set), tc.batch_size, tc.seed, self.step, until):
             batch = collate([self.train_set[i] for i in idx])
             lr = tc.lr * (tc.lr_decay_factor if self.step >= int(tc.lr_decay_at * tc.steps) else 1.0)
             for g in self.opt.param_groups:
                 g["lr"] = lr
-            out = self.model(batch["rgb"][:, :, 1], batch["K"], batch["T_ego_cam"], batch["mask"], self.nbr)
+            out = self.network(batch.depth_input(self.nbr))
             gt = self.gt(batch)
-            valid = (gt > EVAL.min_depth) & (gt < EVAL.max_depth) & (batch["mask"].reshape(gt.shape) > 0)
+            valid = (gt > EVAL.min_depth) & (gt < EVAL.max_depth) & (batch.mask.reshape(gt.shape) > 0)
             loss = 0.0
-            for st in self.model.stages:
+            for st in self.network.stages:
                 d = out["depth", st, 0]
                 loss = loss + (torch.log(d[valid]) - torch.log(gt[valid])).abs().mean()
             self.opt.zero_grad(set_to_none=True)
@@ -146,7 +146,7 @@ class SupervisedRun:
         from corelib.configlib import config_to_dict
 
         atomic_torch_save({"version": CHECKPOINT_VERSION, "step": self.step, "config": config_to_dict(self.cfg),
-                           "depth_model": self.model.state_dict(), "cameras": list(self.ds.camera_names)}, path)
+                           "depth_model": self.network.state_dict(), "cameras": list(self.ds.camera_names)}, path)
 
     def close(self) -> None:
         pass

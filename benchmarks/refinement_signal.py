@@ -33,7 +33,8 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from mcdp.data import RigDataset, collate  # noqa: E402
-from mcdp.oracle import fit_oracle_weights, ground_truth_at  # noqa: E402
+from mcdp.oracle import fit_oracle_weights  # noqa: E402
+from mcdp.truth import ground_truth_at  # noqa: E402
 from mcdp.runs import config_from_checkpoint, find_checkpoint, load_checkpoint  # noqa: E402
 from mcdp.system import SelfSupervisedSystem  # noqa: E402
 from synth.open import open_dataset  # noqa: E402

@@ -51,7 +51,7 @@ MODES = ["before", "fp32", "bf16", "cl"]
 
 
 def synthetic_batch(H: int, W: int, n_cams: int = 6, seed: int = 0):
-    """A batch of the mcdp.data schema on a ring of cameras (60 deg spacing, 70 deg hfov)."""
+    """A `mcdp.inputs.RigBatch` on a ring of cameras (60 deg spacing, 70 deg hfov)."""
     import numpy as np
     import torch
 
@@ -73,11 +73,10 @@ def synthetic_batch(H: int, W: int, n_cams: int = 6, seed: int = 0):
     Tw[0, :, 0, 3] = torch.tensor([-0.5, 0.0, 0.5])
     mask = torch.ones(1, n_cams, 1, H, W)
     mask[..., -H // 10:, :] = 0
-    return {
-        "rgb": rgb, "K": K.expand(1, n_cams, 3, 3).clone(), "T_ego_cam": T[None], "mask": mask,
-        "T_world_ego": Tw, "seq_index": torch.zeros(1, dtype=torch.long), "frame": torch.ones(1, dtype=torch.long),
-        "gt_median": torch.full((1, n_cams), 10.0),
-    }
+    from mcdp.inputs import RigBatch
+
+    return RigBatch(rgb, K.expand(1, n_cams, 3, 3).clone(), T[None], mask, Tw, torch.zeros(1, dtype=torch.long),
+                    torch.ones(1, dtype=torch.long), {"gt_median": torch.full((1, n_cams), 10.0)})
 
 
 def mm_ceiling(dtype, dev, n: int = 1024, reps: int = 5) -> float:
@@ -130,7 +129,7 @@ def worker(preset: str, H: int, W: int, steps: int, device: str, threads: int = 
 
         losses._box3 = lambda t: F.avg_pool2d(t, 3, 1)
     opt = torch.optim.Adam(system.parameters(), lr=1e-4, fused=precision != "before")
-    batch = {k: v.to(dev) for k, v in synthetic_batch(H, W).items()}
+    batch = synthetic_batch(H, W).to(dev)
 
     def sync():
         if dev.type == "cuda":

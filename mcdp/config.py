@@ -13,7 +13,7 @@ checkpoint. Sections:
 - ``scale``: where metric scale comes from (no ground truth unless the labelled oracle).
 - ``train``: optimisation, resolution, seeding, logging cadence.
 - ``eval``: evaluation settings (`EvalConfig`, read by `mcdp.evaluate`).
-- ``method_params``: the method's own parameters (e.g. FSM's loss weights): keys of the params model
+- ``method_params``: the method's own parameters (e.g. FSM's loss weights): keys of the params class
   its registry row declares (`mcdp.methods.Method.params`), validated there (`mcdp.methods.method_params`:
   an unknown key or a bad value is a ConfigError naming ``method_params.<key>``); unset keys keep the
   model's defaults. Empty by default, and then outside the run's hash (`corelib.configlib.added_key`).
@@ -62,7 +62,7 @@ class ModelConfig(StrictModel):
     refine_steps: m, refinement steps (0 = bases only, the "M0" row).
     neighbours: which ring neighbours feed the weight network: ``left`` (i-1),
         ``right`` (i+1) or ``both``. L_con always uses every adjacent pair in
-        both directions (see `mcdp.methods.mcdp`).
+        both directions (see `mcdp.methods.depth_bases`).
     pretrained: path to a local torchvision ResNet-18 state dict (never downloaded), or null.
     min_depth, max_depth: metres; the sigmoid output maps to disparity in
         [1/max_depth, 1/min_depth] (`mcdp.methods.base.disp_to_depth`).
@@ -300,7 +300,7 @@ class RunConfig(StrictModel):
     scale: ScaleConfig = ScaleConfig()
     train: TrainConfig = TrainConfig()
     eval: EvalConfig = EvalConfig()
-    #: the method's own parameters, checked against its registry row's params model (module docstring)
+    #: the method's own parameters, checked against its registry row's params class (module docstring)
     method_params: dict[str, Any] = added_key(default_factory=dict)
 
 

@@ -1,22 +1,9 @@
 """Rig samples for training: one sequence frame t (with t-1, t+1) of every camera.
 
-Batch schema (the only place it is defined; B = rig samples, N = cameras in rig
-order, frames in the order [-1, 0, +1], H x W = training size)::
+The batch a step trains on is a `mcdp.inputs.RigBatch` (its schema is there, the one place); a sample
+holds the optional input fields its network declares (`mcdp.inputs.Field`) and no other.
 
-    rgb          (B, N, 3, 3, H, W) float32 in [0, 1]   images of frames t-1, t, t+1
-    K            (B, N, 3, 3)       float32             intrinsics scaled to H x W
-    T_ego_cam    (B, N, 4, 4)       float32             camera -> ego (rig extrinsics)
-    mask         (B, N, 1, H, W)    float32 0/1         1 = scene, 0 = ego body
-    T_world_ego  (B, 3, 4, 4)       float32             ego odometry at t-1, t, t+1
-    seq_index    (B,)               int64               index into `RigDataset.seqs`
-    frame        (B,)               int64               frame t
-    gt_median    (B, N)             float32             ONLY when oracle=True: median GT depth
-    overlap_truth (B, N, 1, H, W)   float32             ONLY for ORACLE-local (mcdp.methods.oracle_local): GT depth
-                                                        of the overlap pixels (nearest), 0 elsewhere
-                                                        (metres) over scene pixels at dataset
-                                                        resolution; the oracle scale mode.
-
-Ground-truth depth never enters a batch otherwise. Images are resized with
+Images are resized with
 area interpolation; K follows exactly (diag(sx, sy, 1) @ K, pixel centres at +0.5);
 masks are resized with area interpolation and thresholded at 0.99, so a
 pixel counts as scene only if (almost) all of it is scene.
@@ -25,7 +12,7 @@ Example::
 
     ds = synth.open.open_dataset("data/tiny")
     train = RigDataset(ds, "train", height=64, width=96)
-    batch = collate([train[0], train[1]])
+    batch = collate([train[0], train[1]])   # a RigBatch
 """
 from __future__ import annotations
 
@@ -34,6 +21,8 @@ from typing import Sequence
 import cv2
 import numpy as np
 import torch
+
+from mcdp.inputs import Field, RigBatch, stack
 
 FRAME_OFFSETS = (-1, 0, 1)
 
@@ -125,15 +114,6 @@ class RigReader:
                 self._cached_bytes += u8.nbytes
         return u8.astype(np.float32) / 255.0
 
-    def gt_median(self, seq: str, frame: int) -> np.ndarray:
-        """(N,) median ground-truth depth over scene pixels at dataset resolution (ORACLE mode only)."""
-        med = np.zeros(len(self.cam_names), dtype=np.float32)
-        for c, name in enumerate(self.cam_names):
-            d = self.ds.read_depth(seq, name, frame)
-            v = d[(d > 0) & self.mask_full[c]]
-            med[c] = float(np.median(v)) if v.size else 1.0
-        return med
-
 
 class RigDataset(torch.utils.data.Dataset):
     """Rig samples (seq, t) of one split with 1 <= t <= F-2 (t-1 and t+1 must exist).
@@ -142,14 +122,14 @@ class RigDataset(torch.utils.data.Dataset):
         ds: an opened `synth.dataset` dataset.
         split: 'train' | 'val' | 'test'.
         height, width: training size.
-        oracle: also return ``gt_median`` (the labelled oracle scale mode; reads ground truth).
+        fields: the optional inputs its network reads (`mcdp.inputs.Field`; `mcdp.methods.fields_of` for a run):
+            each sample holds these under ``fields`` and no other.
     """
 
-    def __init__(self, ds, split: str, height: int, width: int, oracle: bool = False, overlap_truth: bool = False):
+    def __init__(self, ds, split: str, height: int, width: int, fields: tuple[Field, ...] = ()):
         self.reader = RigReader(ds, height, width)
         self.split = split
-        self.oracle = oracle
-        self.overlap_truth = overlap_truth
+        self.fields = tuple(fields)
         self.seqs = list(ds.split(split))
         self.T_world_ego = {s: np.asarray(ds.T_world_ego(s), dtype=np.float64) for s in self.seqs}
         self.samples = [(k, t) for k, s in enumerate(self.seqs) for t in range(1, ds.n_frames(s) - 1)]
@@ -171,19 +151,14 @@ class RigDataset(torch.utils.data.Dataset):
             "T_world_ego": torch.from_numpy(T),
             "seq_index": torch.tensor(k, dtype=torch.long),
             "frame": torch.tensor(t, dtype=torch.long),
+            "fields": {f.name: f.of(r, seq, t) for f in self.fields},
         }
-        if self.oracle:
-            item["gt_median"] = torch.from_numpy(r.gt_median(seq, t))
-        if self.overlap_truth:  # ORACLE-local's input (mcdp.methods.oracle_local): reads ground truth
-            from mcdp.oracle import overlap_truth_at
-
-            item["overlap_truth"] = overlap_truth_at(r.ds, r.mask_full, seq, t, (r.height, r.width))
         return item
 
 
-def collate(items: list[dict]) -> dict:
-    """Stack rig samples into a batch (schema in the module docstring)."""
-    return {k: torch.stack([it[k] for it in items]) for k in items[0]}
+def collate(items: list[dict]) -> RigBatch:
+    """Stack rig samples into a `mcdp.inputs.RigBatch`."""
+    return stack(items)
 
 
 class StepBatchSampler(torch.utils.data.Sampler):

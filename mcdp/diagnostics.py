@@ -105,3 +105,10 @@ def gradient_divergence(named_parameters, step: int) -> str | None:
         return None
     name = next((n for n, p in named if not torch.isfinite(p.grad).all()), "?")
     return f"the gradient of {name} is not finite at step {step} (loss was finite); the weights were not updated"
+
+
+def loss_divergence(losses: dict, step: int) -> str:
+    """The message of a `TrainingDiverged` for a non-finite loss: its value and every scalar term's."""
+    bad = {k: float(v.detach()) for k, v in losses.items() if not k.startswith("_") and v.numel() == 1}
+    return (f"loss is {float(losses['loss'].detach())} at step {step}; terms: "
+            + ", ".join(f"{k}={v:.4g}" for k, v in bad.items()))

@@ -52,19 +52,19 @@ class TrainLogger:
             with self._named():
                 self.writer.add_text(tag, "\n".join("    " + line for line in text.splitlines()), step)
 
-    def images(self, batch: dict, outputs: dict, step: int) -> None:
+    def images(self, batch, outputs: dict, step: int) -> None:
         """Rows: the rig's RGB at t, one colour-mapped disparity row per stage, then the masks
         (red: scene mask, green: pixels used by L_p: the step's ``outputs["used"]``, `mcdp.system`)."""
         if self.writer is None:
             return
         import torchvision
 
-        N = batch["rgb"].shape[1]
-        rows = [batch["rgb"][0, :, 1].float().cpu()]  # (N, 3, H, W)
+        N = batch.rgb.shape[1]
+        rows = [batch.rgb[0, :, 1].float().cpu()]  # (N, 3, H, W)
         for stage in outputs["stages"]:
             disp = outputs["disp", stage, 0][:N].detach().float().cpu()
             rows.append(torch.from_numpy(colorize_disparity(disp[:, 0].numpy())).permute(0, 3, 1, 2).float() / 255)
-        m = batch["mask"][0].float().cpu()
+        m = batch.mask[0].float().cpu()
         used = outputs["used"][:N].float().cpu()
         rows.append(torch.cat([m, used, m * 0], 1))
         grid = torchvision.utils.make_grid(torch.cat(rows, 0), nrow=N, padding=2)

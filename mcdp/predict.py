@@ -5,16 +5,16 @@
 `mcdp.evaluate.evaluate`). The network runs at the training size; depth is
 upsampled bilinearly to each camera's dataset size. Only frame t is used (no
 temporal neighbours, no pose network). No ground truth is read, except what the network itself
-declares as an input: a run trained with ``scale.source=oracle_gt_median`` rescales by the GT
-median exactly as in training and is labelled ORACLE (`Predictor.oracle`), and ORACLE-local
-(``reads_overlap_truth``) is given the overlap's ground-truth depth.
+declares as an input field (`mcdp.inputs.Field`): a run trained with ``scale.source=oracle_gt_median``
+rescales by the GT median exactly as in training and is labelled ORACLE (`Predictor.oracle`), and
+ORACLE-local is given the overlap's ground-truth depth (its field reads it).
 
 Inference only predicts. Its steps are public so that an experiment can change an input or
 observe the outputs without the predictor knowing the experiment (the overlap experiment's cut,
 ORACLE weights and refinement statistics: `study.probes`)::
 
     inp = pred.inputs(seq, frame)      # `Inputs`: what the network reads of one rig sample
-    out = pred.forward(inp)            # the network's outputs (`mcdp.methods.mcdp.DepthModel.forward`)
+    out = pred.forward(inp.cut())      # the network's outputs, here with the neighbours cut
     small = pred.stages_of(out)        # {stage: (N, 1, h, w) metres at training size}
     depth = pred.upsample(small)       # {stage: (N, H, W) float32 metres at the dataset size}
 
@@ -31,6 +31,7 @@ Example::
 """
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -42,7 +43,8 @@ from corelib.atomic import atomic_write_bytes
 from corelib.configlib import config_to_dict
 from mcdp.config import EVAL_MAX_DEPTH
 from mcdp.data import RigReader, neighbour_table
-from mcdp.methods import build_depth_model, method_params
+from mcdp.inputs import DepthInput
+from mcdp.methods import build_network, fields_of, method_params
 from mcdp.runs import RunError, config_from_checkpoint, find_checkpoint, load_checkpoint, resolve_device
 from mcdp.visual import depth_grid
 from synth.protocol import DatasetReader
@@ -50,21 +52,18 @@ from synth.protocol import DatasetReader
 
 @dataclass(frozen=True)
 class Inputs:
-    """What the depth network reads of one rig sample at inference (a batch of one rig, N cameras).
-
-    rgb (1, N, 3, h, w) float32 in [0, 1] at training size (``rgb_np``: the same, (N, 3, h, w) numpy);
-    nbr (N, 2) int64: each camera's left/right neighbour, -1 for none (`mcdp.data.neighbour_table`);
-    gt_median (1, N) or None: the ground-truth median, ONLY for a ``scale.source=oracle_gt_median`` run;
-    overlap_truth (1, N, 1, h, w) or None: the overlap's ground-truth depth, ONLY for a network that
-    ``reads_overlap_truth`` (None = emptied)."""
+    """One rig sample at inference: which it is, its images at training size ``rgb_np`` (N, 3, h, w) float32
+    in [0, 1], and ``network_input``, the `mcdp.inputs.DepthInput` (a batch of one rig) the network reads,
+    with the input fields it declares and no other."""
 
     seq: str
     frame: int
-    rgb: torch.Tensor
     rgb_np: np.ndarray
-    nbr: torch.Tensor
-    gt_median: torch.Tensor | None = None
-    overlap_truth: torch.Tensor | None = None
+    network_input: DepthInput
+
+    def cut(self) -> "Inputs":
+        """The same sample with the neighbours cut (`mcdp.inputs.DepthInput.cut`)."""
+        return dataclasses.replace(self, network_input=self.network_input.cut())
 
 
 class Predictor:
@@ -89,36 +88,31 @@ class Predictor:
             )
         self.ds = ds
         self.device = resolve_device(device)
-        self.model = build_depth_model(self.cfg.model, method_params(self.cfg)).to(self.device)
-        self.model.load_state_dict(ckpt["depth_model"])
-        self.model.eval()
+        self.network = build_network(self.cfg.model, method_params(self.cfg)).to(self.device)
+        self.network.load_state_dict(ckpt["depth_model"])
+        self.network.eval()
+        self.fields = fields_of(self.cfg)  # the input fields the network reads (as in training)
         self.reader = RigReader(ds, self.cfg.train.height, self.cfg.train.width)
         self.nbr = neighbour_table(ds.neighbours, len(ds.camera_names)).to(self.device)
         self.K = torch.from_numpy(self.reader.K).to(self.device)[None]
         self.T_ego_cam = torch.from_numpy(self.reader.T_ego_cam).to(self.device)[None]
         self.mask = torch.from_numpy(self.reader.mask).to(self.device)[None]
         self.oracle = self.cfg.scale.oracle
-        self.stages = list(self.model.stages)
-        self.n_out = self.model.n_out  # depth bases of the network (1: nothing to weight)
+        self.stages = list(self.network.stages)
+        self.n_out = self.network.n_out  # depth bases of the network (1: nothing to weight)
 
     def inputs(self, seq: str, frame: int) -> Inputs:
         """What the network reads of rig sample (seq, frame), as trained."""
         rgb = self.reader.rgb(seq, frame)
-        gtm = hint = None
-        if self.oracle:  # ORACLE: the reference code's ground-truth median scaling
-            gtm = torch.from_numpy(self.reader.gt_median(seq, frame)).to(self.device)[None]
-        if self.model.reads_overlap_truth:  # ORACLE-local's input: the overlap's ground-truth depth
-            from mcdp.oracle import overlap_truth_at
-
-            hint = overlap_truth_at(self.ds, self.reader.mask_full, seq, frame, tuple(self.mask.shape[-2:]))
-            hint = hint.to(self.device)[None]
-        return Inputs(seq, frame, torch.from_numpy(rgb).to(self.device)[None], rgb, self.nbr, gtm, hint)
+        values = {f.name: f.of(self.reader, seq, frame).to(self.device)[None] for f in self.fields}
+        net = DepthInput(torch.from_numpy(rgb).to(self.device)[None], self.K, self.T_ego_cam, self.mask, self.nbr,
+                         values, self.fields)
+        return Inputs(seq, frame, rgb, net)
 
     @torch.no_grad()
     def forward(self, inp: Inputs) -> dict:
-        """The network's outputs for ``inp`` at training size (`mcdp.methods.mcdp.DepthModel.forward`, scale 0 only)."""
-        return self.model(inp.rgb, self.K, self.T_ego_cam, self.mask, inp.nbr, inp.gt_median, scales=1,
-                          overlap_truth=inp.overlap_truth)
+        """The network's outputs for ``inp`` at training size (`mcdp.methods.depth_bases.DepthModel.forward`, scale 0 only)."""
+        return self.network(inp.network_input, scales=1)
 
     def stages_of(self, out: dict) -> dict[str, torch.Tensor]:
         """{stage: (N, 1, h, w) float32 metres at training size}, stages in order."""

@@ -29,6 +29,7 @@ import torch
 
 from corelib.atomic import atomic_write_bytes, atomic_write_json
 from corelib.configlib import build_config, config_hash, config_to_dict, hashed_dict
+from corelib.version import code_version
 from mcdp.checkpoint_files import REMOVED, removed_checkpoints  # noqa: F401 (REMOVED: the name callers use)
 from mcdp.config import RunConfig, resume_conflicts, upgrade_config_dict
 
@@ -81,6 +82,30 @@ def atomic_torch_save(obj, path: Path) -> tuple[str, int]:
     data = buf.getbuffer()
     atomic_write_bytes(path, data)
     return hashlib.sha256(data).hexdigest(), len(data)
+
+
+def checkpoint_record(step: int, cfg: RunConfig, depth, pose, optimizer, scaler, ds, *, best_val: float,
+                      val_history: list, spread: dict, init_from, world_size: int) -> dict:
+    """What a training checkpoint holds (`load_checkpoint` reads it): the networks', optimiser's and scaler's
+    states, the step, the config, the val history, the rig trained on, the RNG state and the code version."""
+    return {
+        "version": CHECKPOINT_VERSION,
+        "step": step,
+        "config": config_to_dict(cfg),
+        "depth_model": depth.state_dict(),
+        "pose_model": pose.state_dict() if pose is not None else None,
+        "optimizer": optimizer.state_dict(),
+        "scaler": scaler.state_dict(),
+        "best_val": best_val,
+        "val_history": val_history,
+        "cameras": list(ds.camera_names),
+        "neighbours": [list(p) for p in ds.neighbours],
+        "torch_rng": torch.get_rng_state(),
+        "depth_spread": dict(spread),
+        "init_from": init_from,
+        "world_size": world_size,
+        "code_version": code_version(),
+    }
 
 
 def load_checkpoint(path: Path) -> dict:

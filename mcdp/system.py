@@ -42,8 +42,9 @@ import torch.nn.functional as F
 from mcdp.config import RunConfig
 from mcdp.data import directed_pairs, neighbour_table
 from mcdp.geometry import splat_depth, warp_by_depth
+from mcdp.inputs import RigBatch
 from mcdp.losses import consistency_loss, photometric_error, reprojection_loss, smoothness_loss
-from mcdp.methods import method_of, method_params
+from mcdp.methods import fields_of, method_of, method_params
 from mcdp.methods.base import LossContext, is_refined, resize_mask_to
 from mcdp.pose import PoseModel
 from mcdp.rigid import odometry_camera_motion
@@ -103,6 +104,7 @@ class SelfSupervisedSystem(torch.nn.Module):
         method = method_of(cfg.model)
         self.params = method_params(cfg)  # the method's own parameters (LossContext.params), or None
         self.depth = method.builder(cfg.model, self.params)
+        self.fields = fields_of(cfg)  # the optional inputs its batches carry (`mcdp.inputs.Field`)
         self.pose = PoseModel(cfg.model.pretrained) if cfg.scale.source != "odometry" else None
         self.register_buffer("nbr", neighbour_table(neighbours, n_cams), persistent=False)
         tgt, src = directed_pairs(neighbours)
@@ -116,17 +118,17 @@ class SelfSupervisedSystem(torch.nn.Module):
     def device(self) -> torch.device:
         return self.nbr.device
 
-    def predict_poses(self, batch: dict, net_rgb: torch.Tensor) -> tuple[dict, dict]:
+    def predict_poses(self, batch: RigBatch, net_rgb: torch.Tensor) -> tuple[dict, dict]:
         """T_src_tgt per source offset, (B*N, 4, 4), and pose statistics/velocity loss terms."""
-        B, N = batch["rgb"].shape[:2]
-        odom = {o: odometry_camera_motion(batch["T_world_ego"], batch["T_ego_cam"], o) for o in (-1, 1)}
+        B, N = batch.rgb.shape[:2]
+        odom = {o: odometry_camera_motion(batch.T_world_ego, batch.T_ego_cam, o) for o in (-1, 1)}
         stats = {}
         if self.pose is None:
             poses = odom
         else:
             with torch.autocast(self.device.type, dtype=self.amp_dtype, enabled=self.use_amp):
                 # a network that moves the rig as one (`joint_pose`: mcdp.methods.surround) gets the extrinsics
-                joint = batch["T_ego_cam"] if self.depth.joint_pose else None
+                joint = batch.T_ego_cam if self.depth.joint_pose else None
                 poses = self.pose(net_rgb, joint)
             t_pred = torch.stack([poses[o][..., :3, 3].norm(dim=-1) for o in (-1, 1)])  # (2, B, N)
             t_odom = torch.stack([odom[o][..., :3, 3].norm(dim=-1) for o in (-1, 1)])
@@ -135,21 +137,17 @@ class SelfSupervisedSystem(torch.nn.Module):
             stats["t_norm_odom"] = t_odom.mean()
         return {o: p.reshape(B * N, 4, 4).float() for o, p in poses.items()}, stats
 
-    def process_batch(self, batch: dict, step: int = 0, train: bool = True, need_con: bool | None = None) -> tuple[dict, dict]:
+    def process_batch(self, batch: RigBatch, step: int = 0, train: bool = True, need_con: bool | None = None) -> tuple[dict, dict]:
         """Forward + losses for one batch (schema in `mcdp.data`). Returns (outputs, losses)."""
         cfg = self.cfg
-        rgb = batch["rgb"]
+        rgb = batch.rgb
         B = rgb.shape[0]
         rank, world = self.shard
         net_rgb = (color_augment(rgb, cfg.train.seed, step, rank * B, world * B)
                    if (train and cfg.train.color_aug) else rgb)
-        oracle = batch.get("gt_median") if cfg.scale.oracle else None
         with torch.autocast(self.device.type, dtype=self.amp_dtype, enabled=self.use_amp):
-            outputs = self.depth(
-                net_rgb[:, :, 1], batch["K"], batch["T_ego_cam"], batch["mask"], self.nbr, oracle,
-                scales=cfg.model.scales, refine_scales=cfg.loss.refine_scales,
-                overlap_truth=batch.get("overlap_truth"),
-            )
+            outputs = self.depth(batch.depth_input(self.nbr, self.fields, net_rgb),
+                                 scales=cfg.model.scales, refine_scales=cfg.loss.refine_scales)
         poses, pose_stats = self.predict_poses(batch, net_rgb)
         losses = self.compute_losses(batch, outputs, poses, need_con=need_con, step=step)
         for k, v in pose_stats.items():
@@ -160,18 +158,18 @@ class SelfSupervisedSystem(torch.nn.Module):
 
     forward = process_batch  # DistributedDataParallel calls forward: its gradient hooks need it
 
-    def compute_losses(self, batch: dict, outputs: dict, poses: dict, need_con: bool | None = None,
+    def compute_losses(self, batch: RigBatch, outputs: dict, poses: dict, need_con: bool | None = None,
                        step: int = 0) -> dict:
         """Photometric + smoothness per stage and scale, L_con per stage, the method's own terms (module
         docstring); writes ``outputs["used"]``."""
         cfg = self.cfg
-        rgb = batch["rgb"].float()
+        rgb = batch.rgb.float()
         B, N, _, C, H, W = rgb.shape
         BN = B * N
         target = rgb[:, :, 1].reshape(BN, C, H, W)
         sources = [rgb[:, :, 1 + o].reshape(BN, C, H, W) for o in (-1, 1)]
-        mask = batch["mask"].reshape(BN, 1, H, W).float()
-        K = batch["K"].reshape(BN, 3, 3).float()
+        mask = batch.mask.reshape(BN, 1, H, W).float()
+        K = batch.K.reshape(BN, 3, 3).float()
         src_and_mask = [torch.cat([s, mask], 1) for s in sources]  # the ego body is static in each camera
         scales = list(range(cfg.model.scales))
         img_s = {s: target if s == 0 else F.avg_pool2d(target, 2**s) for s in scales}
@@ -222,16 +220,16 @@ class SelfSupervisedSystem(torch.nn.Module):
         losses["loss"] = total
         return losses
 
-    def consistency(self, depth: torch.Tensor, batch: dict) -> torch.Tensor:
+    def consistency(self, depth: torch.Tensor, batch: RigBatch) -> torch.Tensor:
         """L_con over every directed adjacent pair: (B*N, 1, H, W) depth -> scalar (metres)."""
-        B, N = batch["rgb"].shape[:2]
+        B, N = batch.rgb.shape[:2]
         H, W = depth.shape[-2:]
         tgt, src = self.pair_tgt, self.pair_src
         P = tgt.numel()
         d = depth.view(B, N, 1, H, W)
-        m = batch["mask"].float()
-        K = batch["K"].float()
-        T = batch["T_ego_cam"].float()
+        m = batch.mask.float()
+        K = batch.K.float()
+        T = batch.T_ego_cam.float()
         T_tgt_src = torch.linalg.inv(T[:, tgt]) @ T[:, src]  # (B, P, 4, 4)
         d_hat, hit = splat_depth(
             d[:, src].reshape(B * P, 1, H, W),

@@ -45,16 +45,17 @@ from corelib.atomic import atomic_write_text
 from corelib.configlib import config_to_dict
 from corelib.logs import close_run_log, logger, run_log
 from corelib.rundir import FolderError, claim
-from corelib.version import code_version, warn_other_code
+from corelib.version import warn_other_code
 from mcdp.config import RunConfig
 from mcdp.data import RigDataset, StepBatchSampler, collate
 from mcdp.diagnostics import (CollapseGuard, TrainingDiverged, collapse_reason, depth_spread,  # noqa: F401
-                              gradient_divergence)  # TrainingDiverged: raised here, imported from here
+                              gradient_divergence, loss_divergence)  # TrainingDiverged: raised here, imported from here
 from mcdp.distributed import Dist
+from mcdp.inputs import RigBatch
 from mcdp.logger import TrainLogger
 from mcdp.checkpoint_files import record_written
 from mcdp.methods import check_run
-from mcdp.runs import (CHECKPOINT_VERSION, RunError, atomic_torch_save, check_resume, resolve_device, resolve_precision,
+from mcdp.runs import (RunError, atomic_torch_save, check_resume, checkpoint_record, resolve_device, resolve_precision,
                        write_run_record)
 from mcdp.system import SelfSupervisedSystem
 from mcdp.validation import validation_loss
@@ -121,23 +122,22 @@ class Trainer:
         torch.manual_seed(tc.seed)
         self.system = SelfSupervisedSystem(cfg, ds.neighbours, len(ds.camera_names)).to(self.device)
         self.depth, self.pose = self.system.depth, self.system.pose
-        wnet = list(self.depth.fresh_parameters())  # MCDP's weight networks, SurroundDepth's attention, ...
-        wids = {id(p) for p in wnet}
-        rest = [p for p in self.system.parameters() if id(p) not in wids]
+        fresh = list(self.depth.fresh_parameters())  # MCDP's weight networks, SurroundDepth's attention, ...
+        fresh_ids = {id(p) for p in fresh}
+        rest = [p for p in self.system.parameters() if id(p) not in fresh_ids]
         groups = [{"params": rest, "lr_mult": 1.0}]
-        if wnet:  # the fresh layers learn at a rate of their own (train.weight_lr_mult)
-            groups.append({"params": wnet, "lr_mult": tc.weight_lr_mult})
+        if fresh:  # the fresh layers learn at a rate of their own (train.weight_lr_mult)
+            groups.append({"params": fresh, "lr_mult": tc.weight_lr_mult})
         # fused: one kernel for all parameters (CPU and CUDA); ~7x faster than the per-tensor loop on
         # a CPU, the same update to float rounding (docs/results/train_step.md)
         fused = self.device.type in ("cpu", "cuda")
         self.optimizer = torch.optim.Adam(groups, lr=tc.lr, betas=(0.9, 0.999), fused=fused)
 
-        oracle = cfg.scale.oracle
-        hint = bool(self.depth.reads_overlap_truth)  # ORACLE-local: the batch carries the overlap's ground truth
-        self.train_set = RigDataset(ds, "train", tc.height, tc.width, oracle=oracle, overlap_truth=hint)
+        fields = self.system.fields  # the optional inputs its network reads (e.g. ORACLE-local's ground truth)
+        self.train_set = RigDataset(ds, "train", tc.height, tc.width, fields)
         if len(self.train_set) == 0:
             raise RunError(f"dataset {ds.root}: the train split has no rig sample (sequences need >= 3 frames)")
-        self.val_set = RigDataset(ds, "val", tc.height, tc.width, oracle=oracle, overlap_truth=hint)
+        self.val_set = RigDataset(ds, "val", tc.height, tc.width, fields)
 
         self.use_amp, self.amp_dtype = resolve_precision(tc.precision, self.device)
         self.scaler = torch.amp.GradScaler("cuda", enabled=self.use_amp and self.amp_dtype == torch.float16)
@@ -172,30 +172,16 @@ class Trainer:
         self._log_file = run_log(self.run_dir / "train.log")
         config_text = yaml.safe_dump(config_to_dict(cfg), sort_keys=False)
         atomic_write_text(self.run_dir / "config.yaml", config_text)
-        write_run_record(self.run_dir, ds, self.step, oracle, self.init_from, log.warning)  # another dataset: said
+        write_run_record(self.run_dir, ds, self.step, cfg.scale.oracle, self.init_from, log.warning)  # another dataset: said
         self.log = TrainLogger(self.run_dir / "tensorboard" if tensorboard else None)
         self.log.text("config", config_text, self.step)
 
     # ------------------------------------------------------------------ state
     def state(self) -> dict:
-        return {
-            "version": CHECKPOINT_VERSION,
-            "step": self.step,
-            "config": config_to_dict(self.cfg),
-            "depth_model": self.depth.state_dict(),
-            "pose_model": self.pose.state_dict() if self.pose is not None else None,
-            "optimizer": self.optimizer.state_dict(),
-            "scaler": self.scaler.state_dict(),
-            "best_val": self.best_val,
-            "val_history": self.val_history,
-            "cameras": list(self.ds.camera_names),
-            "neighbours": [list(p) for p in self.ds.neighbours],
-            "torch_rng": torch.get_rng_state(),
-            "depth_spread": dict(self.spread),
-            "init_from": self.init_from,
-            "world_size": self.dist.world,
-            "code_version": code_version(),
-        }
+        """What checkpoints/last.pt holds (`mcdp.runs.checkpoint_record`, beside the reader of the format)."""
+        return checkpoint_record(self.step, self.cfg, self.depth, self.pose, self.optimizer, self.scaler, self.ds,
+                                 best_val=self.best_val, val_history=self.val_history, spread=self.spread,
+                                 init_from=self.init_from, world_size=self.dist.world)
 
     def save_checkpoint(self, name: str = "last.pt", weights_only: bool = False) -> Path:
         """Atomically write ``checkpoints/<name>``, its sha256 recorded (`mcdp.checkpoint_files`: a clean-up
@@ -240,8 +226,8 @@ class Trainer:
         tc = self.cfg.train
         return tc.lr * (tc.lr_decay_factor if step >= int(tc.lr_decay_at * tc.steps) else 1.0)
 
-    def to_device(self, batch: dict) -> dict:
-        return {k: v.to(self.device, non_blocking=True) for k, v in batch.items()}
+    def to_device(self, batch: RigBatch) -> RigBatch:
+        return batch.to(self.device, non_blocking=True)
 
     # ------------------------------------------------------------------ validation
     def val_indices(self) -> list[int]:
@@ -257,12 +243,12 @@ class Trainer:
         return validation_loss(self, idx) if idx else None
 
     # ------------------------------------------------------------------ logging
-    def check_spread(self, outputs: dict, batch: dict) -> dict:
+    def check_spread(self, outputs: dict, batch: RigBatch) -> dict:
         """Spread of the final stage's depth on this batch (`mcdp.diagnostics`); warns once per collapse."""
         m = self.cfg.model
         final = self.depth.stages[-1]
         depth = outputs["depth", final, 0]
-        mask = batch["mask"].reshape(depth.shape)
+        mask = batch.mask.reshape(depth.shape)
         spread = depth_spread(depth, mask, m.min_depth, m.max_depth)
         reason = collapse_reason(spread)
         if self.collapse_guard.warn_now(reason, self.step) and self.dist.is_main:
@@ -274,12 +260,6 @@ class Trainer:
     def _last_good(self) -> str:
         last = self.run_dir / "checkpoints" / "last.pt"
         return f"; the last good checkpoint is {last}" if last.exists() else ""
-
-    def _check_gradients(self) -> None:
-        """TrainingDiverged naming the step and the first parameter whose gradient is NaN/inf."""
-        msg = gradient_divergence(self.system.named_parameters(), self.step)
-        if msg is not None:
-            raise TrainingDiverged(msg + self._last_good() + "; try a lower train.lr or train.grad_clip=1.0")
 
     # ------------------------------------------------------------------ loop
     def train(self, until: int | None = None) -> dict:
@@ -320,7 +300,7 @@ class Trainer:
             lv = self.dist.sum_([float(loss.detach())], self.device)[0] / self.dist.world  # mean over ranks
             history.append(lv)
             ema = lv if ema is None else 0.9 * ema + 0.1 * lv
-            n_last += batch["rgb"].shape[0] * self.dist.world
+            n_last += batch.rgb.shape[0] * self.dist.world
             dt_step = time.perf_counter() - t0
 
             if self.step % tc.log_every == 0 or self.step == tc.steps:
@@ -362,25 +342,21 @@ class Trainer:
                                            num_workers=tc.num_workers, pin_memory=self.device.type == "cuda",
                                            persistent_workers=False)
 
-    def _step(self, batch: dict) -> tuple[dict, dict]:
+    def _step(self, batch: RigBatch) -> tuple[dict, dict]:
         """One optimiser step on `batch` at `self.step`: (outputs, losses). TrainingDiverged on a non-finite loss
         (on any rank) or gradient, or fp16 steps skipped `FP16_SKIP_LIMIT` times in a row."""
         tc = self.cfg.train
         outputs, losses = (self.ddp or self.system)(batch, self.step, True)
         loss = losses["loss"]
         if self.dist.any_true(not bool(torch.isfinite(loss)), self.device):  # every rank stops together
-            bad = {k: float(v.detach()) for k, v in losses.items() if not k.startswith("_") and v.numel() == 1}
-            last = self.run_dir / "checkpoints" / "last.pt"
-            raise TrainingDiverged(
-                f"loss is {float(loss.detach())} at step {self.step}; terms: "
-                + ", ".join(f"{k}={v:.4g}" for k, v in bad.items())
-                + (f"; the last good checkpoint is {last}" if last.exists() else "")
-                + "; try a lower train.lr or train.grad_clip=1.0"
-            )
+            raise TrainingDiverged(loss_divergence(losses, self.step) + self._last_good()
+                                   + "; try a lower train.lr or train.grad_clip=1.0")
         self.optimizer.zero_grad(set_to_none=True)
         self.scaler.scale(loss).backward()
         if not self.scaler.is_enabled():  # (fp16's GradScaler skips non-finite steps itself)
-            self._check_gradients()
+            bad_grad = gradient_divergence(self.system.named_parameters(), self.step)  # names the first parameter
+            if bad_grad is not None:
+                raise TrainingDiverged(bad_grad + self._last_good() + "; try a lower train.lr or train.grad_clip=1.0")
         if tc.grad_clip is not None:
             self.scaler.unscale_(self.optimizer)
             torch.nn.utils.clip_grad_norm_([p for g in self.optimizer.param_groups for p in g["params"]], tc.grad_clip)

@@ -42,7 +42,7 @@ def validation_loss(t, idx: list[int]) -> float:
         batch = t.to_device(collate([t.val_set[i]]))
         outputs, losses = t.system.process_batch(batch, t.step, train=False)
         if acc is not None:
-            seq, frame = t.val_set.seqs[int(batch["seq_index"][0])], int(batch["frame"][0])
+            seq, frame = t.val_set.seqs[int(batch.seq_index[0])], int(batch.frame[0])
             acc.add(t.ds, seq, frame, outputs["depth", final, 0][:, 0].float().cpu().numpy(), t.cfg.eval)
         vals.append(float(losses[f"stage/{final}"]))
     for n in nets:

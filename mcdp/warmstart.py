@@ -13,7 +13,7 @@ number of bases, scales or a different encoder). The file is read with
 
 Example::
 
-    record = warm_start(model, "pretrain/pretrained.pt")   # {"path", "sha256", "config_hash", "step"}
+    record = warm_start(network, "pretrain/pretrained.pt")   # {"path", "sha256", "config_hash", "step"}
 """
 from __future__ import annotations
 
@@ -42,8 +42,8 @@ def read_pretraining(path: str | Path) -> dict:
     return obj
 
 
-def warm_start(model, path: str | Path) -> dict:
-    """Copy a pretraining's encoder, decoder trunk and matching head into ``model`` (a `DepthModel`).
+def warm_start(network, path: str | Path) -> dict:
+    """Copy a pretraining's encoder, decoder trunk and matching head into ``network`` (a `mcdp.methods.base.DepthNetwork`).
 
     Returns the record a run keeps: {"path", "sha256", "config_hash", "step"}.
     """
@@ -53,13 +53,13 @@ def warm_start(model, path: str | Path) -> dict:
     n_src = int(obj["model"].get("bases", -1))
     if not obj["model"].get("mono_head"):
         raise WarmStartError(f"model.init_from: {p} was not trained with the mono head (model.mono_head=true)")
-    mono = not model.has_bases  # Monodepth2's one channel takes the pretraining's mono head
-    n_dst = model.n_out
+    mono = not network.has_bases  # Monodepth2's one channel takes the pretraining's mono head
+    n_dst = network.n_out
     if not mono and n_dst != n_src:
         raise WarmStartError(
             f"model.init_from: layer decoder.dispconv: the pretraining {p} has {n_src} bases, this run "
             f"model.bases={n_dst}; use model.bases={n_src} or another pretraining")
-    dst = model.state_dict()
+    dst = network.state_dict()
     new = {}
     for key, t in dst.items():
         if not (key.startswith("encoder.") or key.startswith("decoder.")):
@@ -74,6 +74,6 @@ def warm_start(model, path: str | Path) -> dict:
                 f"model.init_from: layer {key} has shape {tuple(t.shape)} here, {tuple(s.shape)} in the pretraining "
                 f"{p}; the architectures differ")
         new[key] = s.to(t.dtype)
-    model.load_state_dict({**dst, **new})
+    network.load_state_dict({**dst, **new})
     return {"path": str(p), "sha256": sha256_file(p), "config_hash": obj.get("config_hash"),
             "step": int(obj.get("step", -1))}

@@ -231,7 +231,11 @@ def run_config_for(cfg: SweepConfig, method: str, seed: int, init_from: str | No
     (+ ``model.init_from``, the sweep's pretraining)."""
     from mcdp.config import RunConfig
 
-    preset = resolve_path(Path(cfg.train_presets_dir) / f"{method}.yaml", "training preset")
+    own = Path(cfg.train_presets_dir) / f"{method}.yaml"  # a method needs no preset: base.yaml + its row
+    try:
+        preset = resolve_path(own, "training preset")
+    except ConfigError:
+        preset = resolve_path(Path(cfg.train_presets_dir) / "base.yaml", f"training preset (no {own.name}, and)")
     values = {"train.seed": seed, "train.device": cfg.device, "eval": config_to_dict(cfg.eval)}
     if init_from is not None:
         values["model.init_from"] = init_from

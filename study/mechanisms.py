@@ -64,13 +64,13 @@ def _join(names: list[str]) -> str:
 
 
 def is_yardstick(results: dict, m: str) -> bool:
-    """A row that reads ground truth: its network's input holds it (``reads_overlap_truth``, ORACLE-local) or its
+    """A row that reads ground truth: its network reads an input field that holds it (``reads_ground_truth()``, ORACLE-local) or its
     scale comes from it (an ORACLE run, ``scale.source=oracle_gt_median``). A yardstick, never a mechanism."""
     from mcdp.methods import METHODS, network_class
 
     if any(r.get("oracle") for r in results.get("rows", []) if r.get("method") == m):
         return True
-    return m in METHODS and bool(network_class(METHODS[m]).reads_overlap_truth)
+    return m in METHODS and network_class(METHODS[m]).reads_ground_truth()
 
 
 def paired_all(results: dict, methods: list[str]) -> tuple[dict, dict, dict]:

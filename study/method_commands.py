@@ -101,6 +101,9 @@ def _train_args(p: argparse.ArgumentParser) -> None:
 
     complete_presets(p.add_argument("preset", help="training preset YAML, e.g. configs/train/mcdp_m1.yaml (list: mcdp "
                                     "presets train)"), "train")
+    p.add_argument("--method", help="a registered method (mcdp/methods/__init__.py) whose row's config values go "
+                   "under the preset, e.g. configs/train/tiny/base.yaml --method mcdp_m2 (a method needs no preset "
+                   "of its own)")
     p.add_argument("--data", help="dataset folder (synth render output); required unless --print-config")
     p.add_argument("--out", help="run folder; training resumes if it holds checkpoints/last.pt; required unless "
                    "--print-config")
@@ -144,13 +147,34 @@ NO_VAL_WARNING = ("mcdp train: warning: {data} has no val rig sample (an empty v
                   "checkpoints/best.pt; checkpoints/last.pt is the result (render 3 or more dataset.sequences)")
 
 
+def method_row_defaults(name: str | None) -> dict | None:
+    """The config values of registered method ``name`` (its row's defaults), None for no name; a ConfigError
+    naming ``--method`` and the registered names for another."""
+    from corelib.configlib import ConfigError
+    from corelib.text import bounded
+    from mcdp.methods import METHODS
+
+    if name is None:
+        return None
+    if name not in METHODS:
+        raise ConfigError(f"--method {bounded(name, 80)}: not a registered method (registered: {', '.join(METHODS)})")
+    return dict(METHODS[name].defaults)
+
+
 def _train(args: argparse.Namespace) -> int:
     from mcdp.config import RunConfig
     from corelib.configlib import load_config
     from corelib.logs import logger
     from corelib.presets import preset_path
 
-    cfg = load_config(RunConfig, preset_path(args.preset, "train"), args.overrides)  # before torch is imported
+    cfg = load_config(RunConfig, preset_path(args.preset, "train"), args.overrides,
+                      base=method_row_defaults(args.method))  # before torch is imported
+    if args.method is not None and cfg.model.method != method_row_defaults(args.method)["model.method"]:
+        from corelib.configlib import ConfigError
+
+        raise ConfigError(f"--method {args.method}: the preset sets model.method={cfg.model.method}, not this "
+                          "method's; give a preset that names no method (configs/train/base.yaml, "
+                          "configs/train/tiny/base.yaml)")
     if args.print_config:
         return print_config(cfg)
     require(args, "--data", "--out")

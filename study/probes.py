@@ -29,7 +29,6 @@ Example::
 """
 from __future__ import annotations
 
-import dataclasses
 
 import numpy as np
 import torch
@@ -41,8 +40,9 @@ PROBED = (TRAINED, CUT)
 
 
 def cut_inputs(inp):
-    """`mcdp.predict.Inputs` with the neighbours cut: neighbour table all -1, no overlap ground truth."""
-    return dataclasses.replace(inp, nbr=torch.full_like(inp.nbr, -1), overlap_truth=None)
+    """`mcdp.predict.Inputs` with the neighbours cut: neighbour table all -1, every input field that carries
+    other cameras' content (an ORACLE-local input) emptied (`mcdp.inputs.DepthInput.cut`)."""
+    return inp.cut()
 
 
 class Probed:
@@ -67,7 +67,7 @@ class Probed:
         self.pred = pred
         self.variant = variant
         self.oracle_weights = oracle_range is not None and pred.n_out > 1
-        self.oracle_spread = oracle_range is not None and variant == TRAINED and not pred.model.uses_neighbours
+        self.oracle_spread = oracle_range is not None and variant == TRAINED and not pred.network.uses_neighbours
         self.oracle_range = None if oracle_range is None else (float(oracle_range[0]), float(oracle_range[1]))
         self.kept: dict | None = {} if keep else None  # (seq, frame) -> last stage's depth at training size
         self._kept_bytes = 0
@@ -147,7 +147,8 @@ class Probed:
     def _spread_depth(self, seq: str, frame: int, depth: torch.Tensor) -> torch.Tensor:
         """The hand-built propagator: `depth` (N, 1, h, w) corrected from the overlap's ground truth (within the
         ORACLE depth range, scene pixels) by `mcdp.oracle.spread_from_overlap`."""
-        from mcdp.oracle import ground_truth_at, overlap_at, spread_from_overlap
+        from mcdp.oracle import spread_from_overlap
+        from mcdp.truth import ground_truth_at, overlap_at
 
         pred = self.pred
         size = tuple(depth.shape[-2:])
@@ -159,17 +160,18 @@ class Probed:
     def _oracle_depth(self, seq: str, frame: int, out: dict) -> tuple[torch.Tensor, torch.Tensor]:
         """(depth at the weights fitted on every valid pixel, at those fitted on the overlap pixels only)."""
         from mcdp.methods.base import combine_bases
-        from mcdp.oracle import fit_oracle_weights, ground_truth_at, overlap_at
+        from mcdp.oracle import fit_oracle_weights
+        from mcdp.truth import ground_truth_at, overlap_at
 
         pred = self.pred
         bases = out["bases"][0]  # (N, n, h, w)
         size = tuple(bases.shape[-2:])
         gt, valid = ground_truth_at(pred.ds, pred.reader.mask_full, seq, frame, size, self.oracle_range)
         gt, valid = gt.to(pred.device), valid.to(pred.device)
-        wts = fit_oracle_weights(bases, gt, valid, pred.model.to_depth)
+        wts = fit_oracle_weights(bases, gt, valid, pred.network.to_depth)
         n = wts.shape[1]
         self._acc["oracle_weight_move"] += float((wts - 1.0 / n).abs().mean(1).sum())
         ov = overlap_at(pred.ds, pred.reader.mask_full, seq, frame, size).to(pred.device)
-        w_ov = fit_oracle_weights(bases, gt, valid & ov, pred.model.to_depth)  # no overlap pixel: 1/n
-        return (pred.model.to_depth(combine_bases(bases.float(), wts))[1],
-                pred.model.to_depth(combine_bases(bases.float(), w_ov))[1])
+        w_ov = fit_oracle_weights(bases, gt, valid & ov, pred.network.to_depth)  # no overlap pixel: 1/n
+        return (pred.network.to_depth(combine_bases(bases.float(), wts))[1],
+                pred.network.to_depth(combine_bases(bases.float(), w_ov))[1])

@@ -282,7 +282,7 @@ def _evaluate_both(ds, ecfg, progress: bool, log, tag: str, pred):
     metrics = evaluate(ds, trained.predict, SPLIT, ecfg, progress=progress)
     metrics["refinement"] = trained.refinement
     metrics_cut = None
-    if pred.model.uses_neighbours:
+    if pred.network.uses_neighbours:
         cut = Probed(pred, CUT, reference=trained)
         log(f"{tag}: evaluating it again with the neighbours cut at inference")
         metrics_cut = evaluate(ds, cut.predict, SPLIT, ecfg, progress=progress)

@@ -1,57 +1,35 @@
 """The one table of training methods: each is a row of the paper's Table 1 and of every report.
 
-A method is an entry here: its name (the row key in sweeps and reports, and the name of its
-presets ``configs/train/<name>.yaml`` and ``configs/train/tiny/<name>.yaml``), its display
-label, the config values that make it this method (``defaults``: dotted keys, applied under
-the preset and the user's overrides; the presets must agree with them, tested), and the class of
-its depth network (which checks what it needs of ``ModelConfig``: ``check_config``, and holds the
-method's own loss terms: ``loss_terms``). Table order = report order.
+A method is a row here (`Method`): its name (the row key in sweeps and reports), its display label, the
+config values that make it this method (``defaults``: dotted keys applied under a preset and the user's
+overrides; ``model.method`` is the row's name unless the row says otherwise, as the MCDP rows, which share
+one network, do), the class of its depth network, and the pydantic class of its own parameters. Table
+order = report order. A row needs no preset file of its own: ``configs/train/base.yaml`` (and
+``configs/train/tiny/base.yaml``) under the row's defaults is its config (`mcdp train
+configs/train/tiny/base.yaml --method NAME`, and the sweep for a method without a preset); the paper
+rows' presets are that, written out (tested).
 
-The package: this table (read before torch is imported: a row names its network and params model as
-"module:Class" strings, imported when first built or checked), the contract (`mcdp.methods.base`) and
-one module per network family (`mcdp.methods.mcdp`: MCDP and Mono2; `mcdp.methods.fsm`,
-`mcdp.methods.surround`, `mcdp.methods.local`, `mcdp.methods.oracle_local`).
+The network's contract is one class, `mcdp.methods.base.DepthNetwork` (its docstring is the contract):
+every row's network subclasses it (`network_class` refuses anything else). This table is read before
+torch is imported: a row may name its network and params class as "module:Class" strings, imported when
+first built or checked. One module per network family: `mcdp.methods.depth_bases` (MCDP and Mono2),
+`mcdp.methods.fsm`, `mcdp.methods.surround`, `mcdp.methods.local`, `mcdp.methods.oracle_local`.
 
-The depth network's contract is one class, `mcdp.methods.base.DepthNetwork`: every method's network
-subclasses it (most through `mcdp.methods.mcdp.DepthModel`; `network_class` refuses anything else) and
-overrides what differs. Its declared members, read as attributes and never probed:
-``__init__(ModelConfig, params=None)`` (``params``: the validated ``method_params``), ``check_config(cfg)``
-(classmethod: ConfigError naming the key), ``.cfg``,
-``.stages`` (stage names, the last is evaluated), ``n_out`` (decoder depth channels), ``has_bases`` (n
-bases combined by weights), ``uses_neighbours`` (the depth reads other cameras at inference: the sweep
-also evaluates it cut), ``joint_pose`` (the pose network moves the rig as one), ``reads_overlap_truth``
-(an ORACLE whose input holds the overlap's ground truth), ``fresh_parameters()`` (the layers no
-pretraining initialises: they learn at ``train.weight_lr_mult`` x the rate), ``loss_terms(outputs,
-batch, ctx)`` (the method's own terms, below) and ``forward(rgb, K, T_ego_cam, mask, nbr,
-oracle_gt_median=None, scales=None, refine_scales=None, overlap_truth=None) -> {("disp" | "depth",
-stage, scale): (B*N, 1, h, w), "stages": [...], "scale": (B*N,)}``. tests/mcdp/test_methods.py checks
-every registered method against it.
-
-A method's own loss terms: the network's ``loss_terms(outputs, batch, ctx) -> {name: scalar}``, each
-scalar already weighted; `mcdp.system.SelfSupervisedSystem` adds them to the step's loss and logs
-each under its name (the val loss that picks ``best.pt`` stays L_p + lambda L_con). ``outputs`` are
-the depth network's own; what the terms read of the step besides them is the frozen
-`mcdp.methods.base.LossContext` ``ctx``: ``cfg``, ``poses`` ({-1, +1}: (B*N, 4, 4) T_src_tgt, the camera
-motions of the temporal warps: predicted, or the odometry's under ``scale.source=odometry``),
-``pairs`` ((P,), (P,) int64: the directed adjacent camera pairs (tgt, src)) and ``step``, e.g. for
-`mcdp.methods.fsm`.
-
-A method's own parameters (e.g. FSM's loss weights): a pydantic model named in its row's ``params``;
-the run config's ``method_params:`` section holds the keys a run sets, validated against that model
+A method's own parameters (e.g. FSM's loss weights): a pydantic class named in its row's ``params``; the
+run config's ``method_params:`` section holds the keys a run sets, validated against that class
 (`method_params`, `check_run`: an unknown key or a bad value is one ConfigError naming
-``method_params.<key>``; a method without a model refuses any key), and the validated model reaches the
-loss terms as ``ctx.params`` and the network's constructor as ``params`` (what sizes its own layers:
-`mcdp.methods.surround.SurroundParams`). Left empty the section is not hashed, so runs that set nothing keep their
-hashes (`corelib.configlib.added_key`).
+``method_params.<key>``; a method without one refuses any key), and the validated parameters reach the
+loss terms as ``ctx.params`` and the network's constructor as ``params``. Left empty the section is not
+hashed, so runs that set nothing keep their hashes (`corelib.configlib.added_key`).
 
-A report reads a method through its row and network class, never its name: ``has_bases`` and
-``fresh_layers(model_config(row))`` (`study.report.warm_start_line`).
+A method's own inputs: the `mcdp.inputs.Field`s its network declares (``DepthNetwork.inputs``);
+`fields_of` is what a run's data reader fills.
 
-To add a method: write its network (its loss terms and its params model with it) in one module, then
-add one line to `METHODS` below (or call `register` from your own code before training; `unregister`
-removes it, e.g. in a test's teardown: tests/mcdp/test_toy_method.py does all of this)::
+To add a method: write its network (its loss terms, params class and input fields with it) in one
+module, then add one line to `METHODS` below (or call `register` from your own code before training;
+`unregister` removes it, e.g. in a test's teardown: tests/mcdp/test_toy_method.py does all of this)::
 
-    register(Method("toy", "Toy net", {"model.method": "toy"}, ToyDepth, params=ToyParams))
+    register(Method("toy", "Toy net", {"model.refine_steps": 0}, ToyDepth, params=ToyParams))
 """
 from __future__ import annotations
 
@@ -71,20 +49,19 @@ if TYPE_CHECKING:  # this table is read before torch is imported (a config is ch
 class Method:
     name: str
     label: str
+    #: the config values that make it this method; ``model.method`` defaults to ``name``
     defaults: Mapping[str, Any] = field(default_factory=dict)
-    #: the network's class (or any builder), or its "module:name", imported when first built or checked
-    build: Callable[[ModelConfig], nn.Module] | str = "mcdp.methods.mcdp:DepthModel"
-    #: the pydantic model of the method's own parameters (the run config's ``method_params`` section), or its
+    #: the network's class (a `mcdp.methods.base.DepthNetwork`), or its "module:name", imported when first built
+    build: Callable[[ModelConfig], nn.Module] | str = "mcdp.methods.depth_bases:DepthModel"
+    #: the pydantic class of the method's own parameters (the run config's ``method_params`` section), or its
     #: "module:name", or None (then ``method_params`` must stay empty)
     params: type[BaseModel] | str | None = None
 
-    @property
-    def model(self) -> str:
-        """The ``model.method`` value this method trains."""
-        return str(self.defaults.get("model.method", self.name))
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "defaults", {"model.method": self.name, **dict(self.defaults)})
 
     @property
-    def params_model(self) -> type[BaseModel] | None:
+    def params_class(self) -> type[BaseModel] | None:
         """`params`, imported if it was given as "module:name"."""
         return None if self.params is None else _resolve(self.params)
 
@@ -120,11 +97,11 @@ def unregister(name: str) -> Method:
 
 
 for _m in (
-    Method("mono2", "Mono2", {"model.method": "mono2", "model.refine_steps": 0, "loss.consistency_weight": 0.0},
-           "mcdp.methods.mcdp:MonoDepthModel"),
-    Method("fsm", "FSM", {"model.method": "fsm", "model.refine_steps": 0, "loss.consistency_weight": 0.0},
+    Method("mono2", "Mono2", {"model.refine_steps": 0, "loss.consistency_weight": 0.0},
+           "mcdp.methods.depth_bases:MonoDepthModel"),
+    Method("fsm", "FSM", {"model.refine_steps": 0, "loss.consistency_weight": 0.0},
            "mcdp.methods.fsm:FsmDepthModel", params="mcdp.methods.fsm:FsmParams"),
-    Method("surround", "SurroundDepth", {"model.method": "surround", "model.refine_steps": 0,
+    Method("surround", "SurroundDepth", {"model.refine_steps": 0,
                                          "loss.consistency_weight": 0.0}, "mcdp.methods.surround:SurroundDepthModel",
            params="mcdp.methods.surround:SurroundParams"),
     Method("mcdp_m0", "MCDP (m = 0)", {"model.method": "mcdp", "model.refine_steps": 0,
@@ -139,11 +116,11 @@ for _m in (
     Method("mcdp_m2_nocon", "MCDP (w/o L_con, m = 2)", {"model.method": "mcdp", "model.refine_steps": 2,
                                                          "loss.consistency_weight": 0.0}),
     # per-pixel basis weights fed the neighbours' warped features and depth: built to propagate locally
-    Method("mcdp_local", "MCDP-local (m = 2)", {"model.method": "mcdp_local", "model.refine_steps": 2,
+    Method("mcdp_local", "MCDP-local (m = 2)", {"model.refine_steps": 2,
                                                 "loss.consistency_weight": PAPER_LAMBDA},
            "mcdp.methods.local:LocalDepthModel"),
     # a yardstick, not a method: Mono2 + the ground-truth depth of the overlap pixels as input (filled / emptied)
-    Method("oracle_local", "ORACLE-local (GT overlap input)", {"model.method": "oracle_local", "model.refine_steps": 0,
+    Method("oracle_local", "ORACLE-local (GT overlap input)", {"model.refine_steps": 0,
                                                               "loss.consistency_weight": 0.0},
            "mcdp.methods.oracle_local:OracleLocalModel"),
 ):
@@ -162,20 +139,19 @@ def label(name: str) -> str:
 
 
 def method_of(cfg: ModelConfig) -> Method:
-    """The method that trains ``cfg.method`` (the first registered one); ConfigError if none does."""
+    """The method that trains ``cfg.method`` (the first registered row whose ``model.method`` it is); ConfigError
+    if none does."""
     for m in METHODS.values():
-        if m.model == cfg.method:
+        if m.defaults["model.method"] == cfg.method:
             return m
-    models = sorted({m.model for m in METHODS.values()})
+    models = sorted({m.defaults["model.method"] for m in METHODS.values()})
     raise ConfigError(f"model.method {cfg.method!r} is not a registered method's model (registered: "
                       f"{', '.join(models)}; see mcdp/methods/__init__.py)")
 
 
 def network_class(method: Method) -> type:
-    """The method's network class: a subclass of `mcdp.methods.base.DepthNetwork`, the one contract (its declared
-    members: ``stages``, ``n_out``, ``has_bases``, ``uses_neighbours``, ``joint_pose``,
-    ``reads_overlap_truth``, ``fresh_parameters()``, ``check_config(cfg)``, ``check_rig(params, n_cameras)``,
-    ``loss_terms``, ``forward``); TypeError otherwise."""
+    """The method's network class: a subclass of `mcdp.methods.base.DepthNetwork`, the one contract; TypeError
+    otherwise."""
     from mcdp.methods.base import DepthNetwork
 
     net = method.builder
@@ -197,23 +173,23 @@ def check_model(cfg: ModelConfig) -> None:
 
 
 def method_params(cfg: RunConfig) -> BaseModel | None:
-    """The run's method parameters: ``cfg.method_params`` validated against its method's params model
-    (unset keys at the model's defaults), or None for a method without one. ConfigError, one line naming
+    """The run's method parameters: ``cfg.method_params`` validated against its method's params class
+    (unset keys at the class's defaults), or None for a method without one. ConfigError, one line naming
     ``method_params.<key>``, for an unknown key or a bad value."""
     method = method_of(cfg.model)
-    model, given = method.params_model, dict(cfg.method_params)
-    if model is None:
+    params_class, given = method.params_class, dict(cfg.method_params)
+    if params_class is None:
         if given:
             raise ConfigError(f"method_params.{sorted(given)[0]}: method {method.name!r} has no parameters of its "
                               "own (leave method_params empty)")
         return None
-    known = sorted(model.model_fields)
+    known = sorted(params_class.model_fields)
     for key in given:
-        if key not in model.model_fields:
+        if key not in params_class.model_fields:
             raise ConfigError(f"method_params.{key}: unknown key for method {method.name!r} (its parameters: "
                               f"{', '.join(known)})")
     try:
-        return model.model_validate(given)
+        return params_class.model_validate(given)
     except ValidationError as err:
         e = err.errors()[0]
         where = "".join(f".{p}" for p in e["loc"])  # () for a check across keys (the section as a whole)
@@ -229,7 +205,17 @@ def check_run(cfg: RunConfig, n_cameras: int | None = None) -> None:
         network_class(method_of(cfg.model)).check_rig(params, n_cameras)
 
 
-def build_depth_model(cfg: ModelConfig, params: BaseModel | None = None) -> nn.Module:
-    """The depth network for ``cfg.method`` (the builder of the first method that trains it), given the run's
-    `method_params` (None: the params model's defaults, for a method that has one)."""
+def build_network(cfg: ModelConfig, params: BaseModel | None = None) -> nn.Module:
+    """The depth network for ``cfg.method`` (the network of the first method that trains it), given the run's
+    `method_params` (None: the params class's defaults, for a method that has one)."""
     return network_class(method_of(cfg))(cfg, params)
+
+
+def fields_of(cfg: RunConfig) -> tuple:
+    """The optional input fields (`mcdp.inputs.Field`) a run's data reader fills: its network's declared
+    ``inputs``, and `mcdp.methods.base.GT_MEDIAN` when the run is scaled by the ORACLE (``scale.source=
+    oracle_gt_median``)."""
+    from mcdp.methods.base import GT_MEDIAN
+
+    declared = tuple(network_class(method_of(cfg.model)).inputs)
+    return declared + ((GT_MEDIAN,) if cfg.scale.oracle and GT_MEDIAN not in declared else ())

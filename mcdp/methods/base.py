@@ -1,11 +1,6 @@
-"""The method contract: `DepthNetwork`, the one base class every method's depth network subclasses, the
-`LossContext` its own loss terms read, and the conventions every method's outputs share.
-
-`DepthNetwork` declares what the trainer, the predictor, the warm start and the report read of a network
-(its members are read as attributes, never probed; tests/mcdp/test_methods.py checks every registered
-network against it). The registry (`mcdp.methods`) names each method's network; one module per family
-holds the networks: `mcdp.methods.mcdp` (MCDP and its Monodepth2 baseline, the class most methods
-subclass), `mcdp.methods.fsm`, `mcdp.methods.surround`, `mcdp.methods.local`, `mcdp.methods.oracle_local`.
+"""The method contract: `DepthNetwork` (its docstring is the contract's one description), the
+`LossContext` a method's own loss terms read, `GT_MEDIAN` (the ORACLE scale mode's input field), and
+the conventions every method's outputs share.
 
 Output -> depth (the ONLY place): `disp_to_depth` maps a sigmoid value
 sig in (0, 1) to disparity disp = 1/max_depth + (1/min_depth - 1/max_depth) sig
@@ -26,10 +21,11 @@ Stages are named "init", "refine1", ..., "refine{m}" (`stage_names`; the evaluat
 Why these helpers live here and not in a family's module: they are the conventions of every method's
 outputs, read also outside the networks (the training step's loss: `is_refined`, `resize_mask_to` for
 the scene mask at each decoder scale; the ORACLE of the bases and the study's probes: `combine_bases`).
-What one family alone uses stays in its module (`mcdp.methods.mcdp.masked_median`, ``SLOTS``).
+What one family alone uses stays in its module (`mcdp.methods.depth_bases.masked_median`, ``SLOTS``).
 """
 from __future__ import annotations
 
+from abc import ABCMeta, abstractmethod
 from dataclasses import dataclass
 from typing import Any
 
@@ -37,8 +33,17 @@ import torch
 import torch.nn as nn
 import torch.nn.functional as F
 
-from corelib.configlib import ConfigError
 from mcdp.config import ModelConfig
+from mcdp.inputs import DepthInput, Field
+from mcdp.truth import gt_median
+
+def _read_gt_median(reader, seq: str, frame: int):
+    return gt_median(reader.ds, reader.mask_full, seq, frame)
+
+
+#: the ORACLE scale mode's input (``scale.source=oracle_gt_median``, the public reference code's scaling):
+#: each camera's median ground-truth depth; every depth is multiplied by it / the init stage's median
+GT_MEDIAN = Field("gt_median", _read_gt_median, "(N,) metres", truth=True)
 
 
 def disp_to_depth(sig: torch.Tensor, min_depth: float, max_depth: float) -> tuple[torch.Tensor, torch.Tensor]:
@@ -106,51 +111,60 @@ class LossContext:
     step: int = 0
 
 
-class DepthNetwork(nn.Module):
-    """The contract of every method's depth network (`mcdp.methods`): what the trainer, the predictor, the
-    warm start and the report read of it, declared here with its defaults and never probed with getattr.
+class DepthNetwork(nn.Module, metaclass=ABCMeta):
+    """The method contract: what the trainer, the predictor, the warm start and the reports read of every
+    method's depth network, declared here (the one description of it), read as attributes and never probed
+    with getattr. A method's network subclasses this (most subclass `mcdp.methods.depth_bases.DepthModel`),
+    defines `forward` and overrides what differs; its registry row (`mcdp.methods.Method`) names it, and
+    tests/mcdp/test_methods.py checks every registered network against this contract.
 
-    A method's network subclasses this (most subclass `mcdp.methods.mcdp.DepthModel`) and overrides what differs:
+    Members:
 
-    - ``__init__(cfg, params=None)``: ``cfg`` the `ModelConfig`, ``params`` the method's own parameters (its
-      registry row's params model validated from the run config's ``method_params``, `mcdp.methods.method_params`;
+    - ``__init__(cfg, params=None)``: ``cfg`` the `ModelConfig`; ``params`` the method's own parameters (its
+      row's params class validated from the run config's ``method_params`` section, `mcdp.methods.method_params`;
       None for a method without any), kept as ``.params``: what sizes a network's own layers lives there
       (`mcdp.methods.surround.SurroundParams`), so a checkpoint's config rebuilds the same network;
-    - ``model``: the ``model.method`` it builds; ``check_config(cfg)`` refuses another (ConfigError);
-      ``check_rig(params, n_cameras)`` (classmethod) refuses a rig its ``params`` cannot take (ConfigError naming
-      the key), before a run folder is made;
+    - ``check_config(cfg)`` (classmethod): ConfigError naming the key for a model config it cannot be built
+      from; ``check_rig(params, n_cameras)`` (classmethod): the same for a rig its ``params`` cannot take,
+      checked before a run folder is made;
+    - ``inputs``: the optional input fields it reads (`mcdp.inputs.Field`, e.g. ORACLE-local's overlap ground
+      truth): the data reader and the predictor fill these and no other; ``reads_ground_truth()``
+      (classmethod): one of them reads ground truth, so the network is an ORACLE (a yardstick);
     - ``n_out``: decoder depth channels (instance attribute; 1 = one sigmoid channel);
     - ``has_bases``: n bases combined by weights (the warm start copies the pretraining's basis channels;
       False: its mono head); ``stages``: stage names, the last is evaluated;
     - ``uses_neighbours``: the depth reads other cameras at inference (the sweep evaluates it cut too);
     - ``joint_pose``: the pose network moves the rig as one (it is given the extrinsics);
-    - ``reads_overlap_truth``: an ORACLE whose input holds the overlap's ground truth (`mcdp.methods.oracle_local`);
     - ``fresh_parameters()``: the layers no pretraining initialises (they learn at ``train.weight_lr_mult``);
       ``fresh_layers(cfg)`` (classmethod): what they are, in words, for reports ("" when there are none);
     - ``loss_terms(outputs, batch, ctx)``: the method's own loss terms, ``{name: weighted scalar}`` added to
-      the step's loss and logged under their names (`LossContext`: what the step gives them; none by default);
-    - ``forward(rgb, K, T_ego_cam, mask, nbr, oracle_gt_median=None, scales=None, refine_scales=None,
-      overlap_truth=None)``: the outputs of `mcdp.methods.mcdp.DepthModel.forward`.
+      the step's loss and logged under their names (``batch``: the step's `mcdp.inputs.RigBatch`;
+      `LossContext`: what the step gives them besides; none by default);
+    - ``forward(inp, scales=None, refine_scales=None)`` (abstract): ``inp`` a `mcdp.inputs.DepthInput`;
+      returns ``{("sig" | "disp" | "depth", stage, scale): (B*N, 1, h, w), ("weights", stage): ...,
+      "stages": [...], "scale": (B*N,)}`` as `mcdp.methods.depth_bases.DepthModel.forward` documents. A run
+      scaled by the ORACLE (``scale.source=oracle_gt_median``) also fills `GT_MEDIAN`, whatever the network.
     """
 
-    model = ""
     params = None
     has_bases = False
     joint_pose = False
-    reads_overlap_truth = False
+    inputs: tuple[Field, ...] = ()
     n_out = 1
 
     @classmethod
     def check_config(cls, cfg: ModelConfig) -> None:
-        """ConfigError, naming the key, for a model config this network cannot be built from."""
-        if cfg.method != cls.model:
-            raise ConfigError(f"model.method={cfg.method}: {cls.__name__} builds model.method={cls.model}; build "
-                              "the network with mcdp.methods.build_depth_model")
+        """ConfigError, naming the key, for a model config this network cannot be built from; any by default."""
 
     @classmethod
     def check_rig(cls, params, n_cameras: int) -> None:
         """ConfigError, naming the key, when the network built with ``params`` cannot take a rig of ``n_cameras``
         cameras (checked before training starts: `mcdp.methods.check_run`); any rig by default."""
+
+    @classmethod
+    def reads_ground_truth(cls) -> bool:
+        """Whether an input field it reads holds ground truth (an ORACLE: every row that carries it says so)."""
+        return any(f.truth for f in cls.inputs)
 
     @property
     def uses_neighbours(self) -> bool:
@@ -165,6 +179,10 @@ class DepthNetwork(nn.Module):
         "" when nothing starts fresh. A classmethod: the report reads it without building the network."""
         return ""
 
-    def loss_terms(self, outputs: dict, batch: dict, ctx: LossContext) -> dict:
+    def loss_terms(self, outputs: dict, batch, ctx: LossContext) -> dict:
         """This method's own loss terms for one step: {name: scalar, already weighted}; none by default."""
         return {}
+
+    @abstractmethod
+    def forward(self, inp: DepthInput, scales: int | None = None, refine_scales: int | None = None) -> dict:
+        """Every stage's depth for the rigs of ``inp`` (class docstring)."""

@@ -1,7 +1,7 @@
 """FSM: Full Surround Monodepth (Guizilini et al., "Full Surround Monodepth from Multiple Cameras",
 RA-L 2022), the method ``fsm``: the rig's overlap used in TRAINING only.
 
-Network and inference are Monodepth2's (`FsmDepthModel` is `mcdp.methods.mcdp.MonoDepthModel` under
+Network and inference are Monodepth2's (`FsmDepthModel` is `mcdp.methods.depth_bases.MonoDepthModel` under
 its own name): one image in, one depth out, no neighbour at inference, so cutting the neighbours
 at inference changes nothing (``study.probes.Probed(pred, CUT)`` predicts the same depth; tested). What
 makes it FSM is its loss, on top of the system's temporal Monodepth2 term (`mcdp.system`: the
@@ -62,7 +62,7 @@ from mcdp.config import MAX_WEIGHT, Float
 from mcdp.geometry import warp_by_depth
 from mcdp.losses import min_reprojection, photometric_error
 from mcdp.methods.base import LossContext
-from mcdp.methods.mcdp import MonoDepthModel
+from mcdp.methods.depth_bases import MonoDepthModel
 
 SPATIAL_WEIGHT = 0.1
 POSE_TRANSLATION_WEIGHT = 1.0
@@ -84,9 +84,7 @@ class FsmDepthModel(MonoDepthModel):
     """FSM's depth network: Monodepth2's, one image in, one depth out (no neighbour at inference); its own
     loss terms are `fsm_loss`."""
 
-    model = "fsm"
-
-    def loss_terms(self, outputs: dict, batch: dict, ctx: LossContext) -> dict:
+    def loss_terms(self, outputs: dict, batch, ctx: LossContext) -> dict:
         return fsm_loss(outputs, batch, ctx)
 
 
@@ -172,14 +170,14 @@ def pose_consistency(motions: dict, T_ego_cam: torch.Tensor, ref: int = 0) -> tu
     return torch.stack(t_err).mean(), torch.stack(r_err).mean()
 
 
-def fsm_loss(outputs: dict, batch: dict, ctx: LossContext) -> dict:
+def fsm_loss(outputs: dict, batch, ctx: LossContext) -> dict:
     """FSM's own terms for `mcdp.system.SelfSupervisedSystem` (weighted; module docstring).
 
-    Reads from ``outputs`` the depths of every stage and scale, and from the step's `LossContext` its
+    Reads from ``batch`` (the step's `mcdp.inputs.RigBatch`) the images and the rig, from ``outputs`` the depths of every stage and scale, and from the step's `LossContext` its
     ``poses`` ({-1, +1}: (B*N, 4, 4) T_src_tgt, the camera motions of the temporal warps) and ``pairs``.
     """
     cfg, w = ctx.cfg, ctx.params or FsmParams()
-    rgb = batch["rgb"].float()
+    rgb = batch.rgb.float()
     B, N = rgb.shape[:2]
     H, W = rgb.shape[-2:]
     tgt, src = ctx.pairs
@@ -192,12 +190,12 @@ def fsm_loss(outputs: dict, batch: dict, ctx: LossContext) -> dict:
             st = 0.0
             for s in scales:
                 depth = outputs["depth", stage, s].reshape(B, N, 1, H, W)
-                r = spatial_photometric(depth, rgb, batch["mask"], batch["K"], batch["T_ego_cam"], motions,
+                r = spatial_photometric(depth, rgb, batch.mask, batch.K, batch.T_ego_cam, motions,
                                         tgt, src, cfg.loss.ssim_alpha)
                 st = st + r["pair"].sum() / N
             total = total + st / len(scales)
         out["fsm/spatial"] = w.spatial_weight * total
     if cfg.scale.source != "odometry":  # a pose network predicts each camera's motion
-        t, r = pose_consistency(motions, batch["T_ego_cam"])
+        t, r = pose_consistency(motions, batch.T_ego_cam)
         out["fsm/pose_consistency"] = w.pose_translation_weight * t + w.pose_rotation_weight * r
     return out

@@ -23,8 +23,8 @@ image (tested): the only difference is that the map is not averaged away.
 
 Example::
 
-    model = build_depth_model(cfg.model)   # model.method=mcdp_local
-    out = model(rgb, K, T_ego_cam, mask, nbr)
+    net = build_network(cfg.model)   # model.method=mcdp_local
+    out = net(DepthInput(rgb, K, T_ego_cam, mask, nbr))
     out["weights", "refine1"].shape        # (B*N, n, h/16, w/16): per-cell basis weights
 """
 from __future__ import annotations
@@ -33,7 +33,7 @@ import torch
 import torch.nn as nn
 
 from mcdp.geometry import depth_to_points, transform_points, warp_by_depth
-from mcdp.methods.mcdp import DepthModel
+from mcdp.methods.depth_bases import DepthModel
 from mcdp.networks import PyramidReduce, conv_bn_relu
 
 #: the warped-depth log ratio is clipped to this magnitude (a factor e^2 ~ 7.4 either way)
@@ -77,7 +77,6 @@ class LocalWeightNet(nn.Module):
 class LocalDepthModel(DepthModel):
     """MCDP with per-pixel basis weights fed the neighbours' warped features and depth (module docstring)."""
 
-    model = "mcdp_local"
     weight_net_class = LocalWeightNet
 
     def _neighbour_features(self, red, mask_h, depth_h, K_h, T_ego_cam, T_cam_ego, nbr, device_type):

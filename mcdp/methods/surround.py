@@ -34,7 +34,7 @@ prediction rebuild the network it trained.
 
 Warm start (``model.init_from``): encoder and decoder from the shared pretraining exactly as for
 ``mono2``; the cross-view blocks (``cross_view.*``) start fresh and learn at ``train.weight_lr_mult``
-x the rate (`mcdp.methods.mcdp.DepthModel.fresh_parameters`).
+x the rate (`mcdp.methods.depth_bases.DepthModel.fresh_parameters`).
 """
 from __future__ import annotations
 
@@ -47,7 +47,8 @@ import torch.nn.functional as F
 from pydantic import Field, model_validator
 
 from corelib.configlib import ConfigError, StrictModel
-from mcdp.methods.mcdp import MonoDepthModel
+from mcdp.inputs import DepthInput
+from mcdp.methods.depth_bases import MonoDepthModel
 from mcdp.networks import ResnetEncoder
 
 
@@ -124,7 +125,6 @@ class CrossViewBlock(nn.Module):
 class SurroundDepthModel(MonoDepthModel):
     """Monodepth2's network with cross-view attention between the cameras' encoder features."""
 
-    model = "surround"
     #: with a pose network (scale.source velocity): one rigid rig motion (`mcdp.rigid.rig_motion`)
     joint_pose = True
 
@@ -156,12 +156,12 @@ class SurroundDepthModel(MonoDepthModel):
     def fresh_layers(cls, cfg) -> str:
         return "cross-view blocks"
 
-    def encode(self, x: torch.Tensor, B: int, N: int, nbr: torch.Tensor) -> list[torch.Tensor]:
+    def encode(self, x: torch.Tensor, B: int, N: int, inp: DepthInput) -> list[torch.Tensor]:
         if N > self.params.max_cameras:
             raise ValueError(f"model.method=surround has camera embeddings for at most {self.params.max_cameras} "
                              f"cameras (method_params.max_cameras), the rig has {N}")
         feats = self.encoder(x)
-        cut = bool((nbr < 0).all())
+        cut = bool((inp.nbr < 0).all())
         for lv, block in self.cross_view.items():
             feats[int(lv)] = block(feats[int(lv)], B, N, cut)
         return feats

@@ -33,15 +33,15 @@ def rigs(ds):
     out = []
     for i in range(len(train)):
         b = collate([train[i]])
-        seq, t = train.seqs[int(b["seq_index"][0])], int(b["frame"][0])
-        mot = {o: odometry_camera_motion(b["T_world_ego"], b["T_ego_cam"], o) for o in (-1, 1)}
+        seq, t = train.seqs[int(b.seq_index[0])], int(b.frame[0])
+        mot = {o: odometry_camera_motion(b.T_world_ego, b.T_ego_cam, o) for o in (-1, 1)}
         out.append((b, gt_depth(ds, seq, t), mot))
     return out
 
 
 def spatial(b, depth, mot, ds, **kw):
     tgt, src = kw.pop("pairs", directed_pairs(ds.neighbours))
-    return spatial_photometric(depth, b["rgb"], b["mask"], b["K"], b["T_ego_cam"], mot, tgt, src, **kw)
+    return spatial_photometric(depth, b.rgb, b.mask, b.K, b.T_ego_cam, mot, tgt, src, **kw)
 
 
 # --------------------------------------------------------------------------- the signal
@@ -92,24 +92,24 @@ def test_self_occlusion_masks_exclude_pixels_on_both_sides_of_the_warp(ds, rigs)
     counts = full["seen"].sum(dim=(0, 2, 3, 4))
     j = int(src[int(counts.argmax())])  # a source camera that sees something
     # source side: a source camera all ego body -> no pixel of its pairs is seen, the others are unchanged
-    mask = b["mask"].clone()
+    mask = b.mask.clone()
     mask[:, j] = 0
-    r = spatial_photometric(gt, b["rgb"], mask, b["K"], b["T_ego_cam"], mot, tgt, src)
+    r = spatial_photometric(gt, b.rgb, mask, b.K, b.T_ego_cam, mot, tgt, src)
     by_j = (src == j) | (tgt == j)
     assert float(r["seen"].sum(dim=(0, 2, 3, 4))[src == j].sum()) == 0
     assert torch.equal(r["seen"][:, ~by_j], full["seen"][:, ~by_j])
     # half of its image ego body: fewer pixels of its pairs seen, but not none
-    mask = b["mask"].clone()
+    mask = b.mask.clone()
     mask[:, j, :, :, : mask.shape[-1] // 2] = 0
-    r = spatial_photometric(gt, b["rgb"], mask, b["K"], b["T_ego_cam"], mot, tgt, src)
+    r = spatial_photometric(gt, b.rgb, mask, b.K, b.T_ego_cam, mot, tgt, src)
     half = r["seen"].sum(dim=(0, 2, 3, 4))[src == j]
     assert (half <= counts[src == j]).all() and half.sum() < counts[src == j].sum()
     # target side: a target pixel on its own ego body never counts, whatever the warp
-    mask = b["mask"].clone()
+    mask = b.mask.clone()
     mask[:, :, :, :32] = 0
-    r = spatial_photometric(gt, b["rgb"], mask, b["K"], b["T_ego_cam"], mot, tgt, src)
+    r = spatial_photometric(gt, b.rgb, mask, b.K, b.T_ego_cam, mot, tgt, src)
     assert float(r["seen"][..., :32, :].sum()) == 0 and float(r["seen"].sum()) > 0
-    assert float((r["seen"] * (1 - b["mask"][:, tgt])).sum()) == 0
+    assert float((r["seen"] * (1 - b.mask[:, tgt])).sum()) == 0
 
 
 def test_the_per_pixel_minimum_is_over_every_context_that_sees_the_pixel(ds, rigs):
@@ -117,7 +117,7 @@ def test_the_per_pixel_minimum_is_over_every_context_that_sees_the_pixel(ds, rig
     frames t-1 / t+1 (spatio-temporal contexts) take over wherever they see the pixel."""
     b, gt, mot = rigs[0]
     tgt, src = directed_pairs(ds.neighbours)
-    r = spatial_photometric(gt, b["rgb"], b["mask"], b["K"], b["T_ego_cam"], mot, tgt, src)
+    r = spatial_photometric(gt, b.rgb, b.mask, b.K, b.T_ego_cam, mot, tgt, src)
     e = torch.stack(r["errors"])  # (3, B, P, 1, H, W)
     v = torch.stack(r["valid"]) > 0
     seen = r["seen"] > 0
@@ -125,11 +125,11 @@ def test_the_per_pixel_minimum_is_over_every_context_that_sees_the_pixel(ds, rig
     expect = torch.where(v, e, torch.full_like(e, float("inf"))).min(0).values
     assert torch.equal(r["per_pixel"][seen], expect[seen])
     # one pair, target 0 <- source 1; only camera 1's frame t is noise (camera 0's target stays clean)
-    rgb = b["rgb"].clone()
+    rgb = b.rgb.clone()
     rgb[:, 1, 1] = torch.rand(rgb[:, 1, 1].shape, generator=torch.Generator().manual_seed(0))
     pair = (torch.tensor([0]), torch.tensor([1]))
-    only_t = spatial_photometric(gt, rgb, b["mask"], b["K"], b["T_ego_cam"], mot, *pair, contexts=(0,))
-    every = spatial_photometric(gt, rgb, b["mask"], b["K"], b["T_ego_cam"], mot, *pair)
+    only_t = spatial_photometric(gt, rgb, b.mask, b.K, b.T_ego_cam, mot, *pair, contexts=(0,))
+    every = spatial_photometric(gt, rgb, b.mask, b.K, b.T_ego_cam, mot, *pair)
     both = (every["valid"][0] > 0) & ((every["valid"][1] > 0) | (every["valid"][2] > 0))
     assert both.sum() > 100
     assert (every["per_pixel"][both] <= every["errors"][0][both]).all()
@@ -140,17 +140,17 @@ def test_the_per_pixel_minimum_is_over_every_context_that_sees_the_pixel(ds, rig
 # --------------------------------------------------------------------------- pose consistency
 def test_pose_consistency_is_zero_for_one_rigid_rig_motion_and_grows_with_a_camera_that_disagrees(rigs):
     b, _, mot = rigs[0]
-    t, r = pose_consistency(mot, b["T_ego_cam"])
+    t, r = pose_consistency(mot, b.T_ego_cam)
     assert float(t) < 1e-9 and float(r) < 1e-9
     bad = {o: m.clone() for o, m in mot.items()}
     bad[1][:, 2, 0, 3] += 0.1  # camera 2 moves 10 cm more sideways at t+1
-    t, r = pose_consistency(bad, b["T_ego_cam"])
+    t, r = pose_consistency(bad, b.T_ego_cam)
     assert float(t) == pytest.approx(0.1 ** 2 / 2, rel=1e-3) and float(r) < 1e-9  # mean over o = -1, +1
     c, s = np.cos(0.05), np.sin(0.05)
     turn = torch.tensor([[c, -s, 0, 0], [s, c, 0, 0], [0, 0, 1, 0], [0, 0, 0, 1]], dtype=mot[1].dtype)
     bad = {o: m.clone() for o, m in mot.items()}
     bad[-1][:, 4] = turn @ bad[-1][:, 4]
-    t, r = pose_consistency(bad, b["T_ego_cam"])
+    t, r = pose_consistency(bad, b.T_ego_cam)
     assert float(r) > 1e-4
 
 
@@ -168,7 +168,7 @@ def test_the_system_adds_fsm_terms_for_the_fsm_preset(ds, rigs, source):
     assert float(losses["fsm/spatial"]) > 0
     # the terms read the step through their LossContext: nothing is written into the outputs for them, and
     # the loss dict holds scalars only (no side channel such as the old losses["_used"])
-    assert "poses" not in out and "pairs" not in out and out["used"].shape == b["mask"].flatten(0, 1).shape
+    assert "poses" not in out and "pairs" not in out and out["used"].shape == b.mask.flatten(0, 1).shape
     assert all(v.dim() == 0 for v in losses.values()), [k for k, v in losses.items() if v.dim()]
     assert ("fsm/pose_consistency" in losses) == (source == "velocity")
     extra = sum(float(v) for k, v in losses.items() if k.startswith("fsm/"))
@@ -190,7 +190,7 @@ def test_the_tiny_fsm_preset_trains_two_steps_and_its_cut_evaluation_equals_its_
     net = Predictor(run, ds, "last")
     pred = Probed(net, keep=True)
     cut = Probed(net, CUT, reference=pred)
-    assert cut.variant == CUT and isinstance(net.model, FsmDepthModel)
+    assert cut.variant == CUT and isinstance(net.network, FsmDepthModel)
     a = evaluate(ds, pred.predict, "test", EvalConfig(), progress=False)
     c = evaluate(ds, cut.predict, "test", EvalConfig(), progress=False)
     # nothing to cut: the network never reads the neighbours (compared as JSON: NaN == NaN there)

@@ -56,10 +56,10 @@ def test_the_photometric_loss_is_lowest_at_the_true_depth(ds, one_thread, out_of
     scores: dict[str, list[float]] = {}
     for i in range(len(train)):
         batch = collate([train[i]])
-        seq, t = train.seqs[int(batch["seq_index"][0])], int(batch["frame"][0])
+        seq, t = train.seqs[int(batch.seq_index[0])], int(batch.frame[0])
         gt = gt_depth(ds, seq, t)
         med = float(gt[gt < 100].median())
-        poses, _ = system.predict_poses(batch, batch["rgb"])
+        poses, _ = system.predict_poses(batch, batch.rgb)
         for name, d in (("gt", gt), ("gt x 0.5", gt * 0.5), ("gt x 2", gt * 2), ("constant", torch.full_like(gt, med)),
                         ("0.2 m", torch.full_like(gt, 0.2))):
             losses = system.compute_losses(batch, outputs_of(d), poses)
@@ -115,7 +115,7 @@ def test_overfitting_one_rig_lowers_its_loss_and_spreads_the_depth(ds, one_threa
         outputs, losses = system.process_batch(batch, 0, train=True)
     last = float(losses["loss"])
     assert last < 0.93 * first, f"loss {first:.4f} -> {last:.4f}"
-    spread = depth_spread(outputs["depth", "init", 0], batch["mask"].reshape(-1, 1, 64, 96))
+    spread = depth_spread(outputs["depth", "init", 0], batch.mask.reshape(-1, 1, 64, 96))
     assert spread["ratio"] > 1.05, spread
 
 
@@ -176,7 +176,7 @@ def test_flat_road_depth_matches_the_ground_plane_analytically():
 
 # --------------------------------------------------------------------------- shared pretraining
 def _fake_pretraining(path: Path, bases: int = 8, mono_head: bool = True) -> dict:
-    from mcdp.methods.mcdp import DepthModel
+    from mcdp.methods.depth_bases import DepthModel
     from mcdp.warmstart import FORMAT, VERSION
     from corelib.configlib import config_to_dict
 
@@ -190,7 +190,7 @@ def _fake_pretraining(path: Path, bases: int = 8, mono_head: bool = True) -> dic
 
 
 def test_warm_start_copies_the_trunk_and_the_matching_head(tmp_path):
-    from mcdp.methods.mcdp import DepthModel, MonoDepthModel
+    from mcdp.methods.depth_bases import DepthModel, MonoDepthModel
     from corelib.hashing import sha256_file
     from mcdp.warmstart import warm_start
 
@@ -218,7 +218,7 @@ def test_warm_start_copies_the_trunk_and_the_matching_head(tmp_path):
     ("model.scales=2", None),
 ])
 def test_warm_start_refuses_another_architecture_naming_the_layer(tmp_path, override, needle):
-    from mcdp.methods.mcdp import DepthModel
+    from mcdp.methods.depth_bases import DepthModel
     from mcdp.warmstart import WarmStartError, warm_start
 
     p = tmp_path / "pretrained.pt"
@@ -232,7 +232,7 @@ def test_warm_start_refuses_another_architecture_naming_the_layer(tmp_path, over
 
 
 def test_warm_start_refuses_files_that_are_not_a_pretraining(tmp_path):
-    from mcdp.methods.mcdp import MonoDepthModel
+    from mcdp.methods.depth_bases import MonoDepthModel
     from mcdp.warmstart import WarmStartError, warm_start
 
     model = MonoDepthModel(cfg_of("mono2").model)

@@ -3,7 +3,8 @@ import torch
 
 from corelib.configlib import load_config
 from mcdp.config import RunConfig
-from mcdp.methods import METHODS, build_depth_model
+from mcdp.inputs import DepthInput
+from mcdp.methods import METHODS, build_network
 from mcdp.methods.base import combine_bases
 from mcdp.methods.local import LocalDepthModel, LocalWeightNet
 from mcdp.networks import WeightNet
@@ -42,7 +43,7 @@ def test_per_pixel_weights_combine_convexly():
 def _model():
     cfg = load_config(RunConfig, TINY / "mcdp_local.yaml", ["model.weight_init_std=1.0"])
     torch.manual_seed(0)
-    return build_depth_model(cfg.model).eval(), cfg
+    return build_network(cfg.model).eval(), cfg
 
 
 def _inputs(N=6, H=64, W=96):
@@ -67,11 +68,11 @@ def _inputs(N=6, H=64, W=96):
 def test_local_model_gives_per_pixel_weights_and_reads_its_neighbours():
     model, cfg = _model()
     assert isinstance(model, LocalDepthModel) and model.uses_neighbours and model.has_bases
-    assert METHODS["mcdp_local"].model == "mcdp_local"
+    assert METHODS["mcdp_local"].defaults["model.method"] == "mcdp_local"
     rgb, K, T, mask, nbr = _inputs()
     with torch.no_grad():
-        out = model(rgb, K, T, mask, nbr, scales=1)
-        cut = model(rgb, K, T, mask, torch.full_like(nbr, -1), scales=1)
+        out = model(DepthInput(rgb, K, T, mask, nbr), scales=1)
+        cut = model(DepthInput(rgb, K, T, mask, nbr).cut(), scales=1)
     w = out["weights", "refine2"]
     assert w.dim() == 4 and w.shape[:2] == (6, cfg.model.bases)
     assert torch.allclose(w.sum(1), torch.ones_like(w[:, 0]), atol=1e-5)

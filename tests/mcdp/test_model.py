@@ -9,9 +9,10 @@ import torch
 
 from mcdp.config import ModelConfig, RunConfig
 from mcdp.data import directed_pairs, neighbour_table
+from mcdp.inputs import DepthInput, RigBatch
 from mcdp.losses import reprojection_loss
 from mcdp.methods.base import combine_bases, disp_to_depth
-from mcdp.methods.mcdp import DepthModel, MonoDepthModel
+from mcdp.methods.depth_bases import DepthModel, MonoDepthModel
 from mcdp.pose import PoseModel
 from mcdp.rigid import odometry_camera_motion, pose_from_axisangle, rotation_from_axisangle
 from mcdp.system import SelfSupervisedSystem
@@ -23,8 +24,8 @@ H, W, N = 64, 96, 6
 RING = [(i, (i + 1) % N) for i in range(N)]
 
 
-def rig_batch(B: int = 1, seed: int = 0) -> dict:
-    """A batch of the mcdp.data schema: six cameras on a ring (60 deg apart, 70 deg hfov), smooth random images."""
+def rig_batch(B: int = 1, seed: int = 0) -> RigBatch:
+    """A batch (`mcdp.inputs.RigBatch`): six cameras on a ring (60 deg apart, 70 deg hfov), smooth random images."""
     g = torch.Generator().manual_seed(seed)
     f = W / 2 / math.tan(math.radians(70) / 2)
     K = torch.tensor([[f, 0, W / 2], [0, f, H / 2], [0, 0, 1.0]])
@@ -43,10 +44,8 @@ def rig_batch(B: int = 1, seed: int = 0) -> dict:
     Tw[:, :, 0, 3] = torch.tensor([-1.0, 0.0, 1.0])  # 1 m per frame forward
     mask = torch.ones(B, N, 1, H, W)
     mask[..., -6:, :] = 0
-    return {
-        "rgb": rgb, "K": K.expand(B, N, 3, 3).clone(), "T_ego_cam": T.expand(B, N, 4, 4).clone(), "mask": mask,
-        "T_world_ego": Tw, "seq_index": torch.zeros(B, dtype=torch.long), "frame": torch.ones(B, dtype=torch.long),
-    }
+    return RigBatch(rgb, K.expand(B, N, 3, 3).clone(), T.expand(B, N, 4, 4).clone(), mask, Tw,
+                    torch.zeros(B, dtype=torch.long), torch.ones(B, dtype=torch.long))
 
 
 def small_model_cfg(**kw) -> ModelConfig:
@@ -86,7 +85,7 @@ def test_initial_weights_are_one_over_n_and_init_depth_is_respected():
     model = DepthModel(small_model_cfg(refine_steps=0, init_depth=10.0)).eval()
     b = rig_batch()
     with torch.no_grad():
-        out = model(b["rgb"][:, :, 1], b["K"], b["T_ego_cam"], b["mask"], neighbour_table(RING, N))
+        out = model(b.depth_input(neighbour_table(RING, N)))
     assert torch.allclose(out["weights", "init"], torch.full((N, 8), 1 / 8))
     d = out["depth", "init", 0]
     assert 5.0 < float(d.median()) < 20.0
@@ -98,7 +97,7 @@ def test_m_refinements_give_m_plus_one_depth_maps(m):
     torch.manual_seed(0)
     model = DepthModel(small_model_cfg(refine_steps=m))
     b = rig_batch()
-    out = model(b["rgb"][:, :, 1], b["K"], b["T_ego_cam"], b["mask"], neighbour_table(RING, N))
+    out = model(b.depth_input(neighbour_table(RING, N)))
     assert out["stages"] == ["init"] + [f"refine{k}" for k in range(1, m + 1)]
     depths = [out["depth", st, 0] for st in out["stages"]]
     assert len(depths) == m + 1
@@ -147,9 +146,9 @@ def test_refined_weights_depend_only_on_the_configured_neighbours(neighbours, ch
 
     def w0(rgb):
         with torch.no_grad():
-            return model(rgb, b["K"], b["T_ego_cam"], b["mask"], nbr)["weights", "refine1"][0]
+            return model(DepthInput(rgb, b.K, b.T_ego_cam, b.mask, nbr))["weights", "refine1"][0]
 
-    rgb = b["rgb"][:, :, 1].clone()
+    rgb = b.rgb[:, :, 1].clone()
     ref = w0(rgb)
     # camera i's right neighbour is i+1, its left neighbour i-1 (rig order FRONT, FRONT_RIGHT, ...)
     for cam in changed + unchanged:
@@ -168,9 +167,9 @@ def test_oracle_scale_sets_the_masked_median_to_the_gt_median():
     b = rig_batch()
     gt = torch.arange(1.0, N + 1)[None] * 5
     with torch.no_grad():
-        out = model(b["rgb"][:, :, 1], b["K"], b["T_ego_cam"], b["mask"], neighbour_table(RING, N), gt)
+        out = model(DepthInput(b.rgb[:, :, 1], b.K, b.T_ego_cam, b.mask, neighbour_table(RING, N), {"gt_median": gt}))
     d = out["depth", "init", 0]
-    m = b["mask"].reshape(N, 1, H, W) > 0
+    m = b.mask.reshape(N, 1, H, W) > 0
     med = torch.stack([d[i][m[i]].median() for i in range(N)])
     assert torch.allclose(med, gt[0], rtol=2e-2)
 
@@ -228,7 +227,7 @@ def test_neighbour_table_and_directed_pairs_of_an_open_ring():
 def test_pose_model_shapes_and_inverse_convention():
     torch.manual_seed(0)
     pm = PoseModel()
-    rgb = rig_batch()["rgb"]
+    rgb = rig_batch().rgb
     P = pm(rgb)
     assert P[-1].shape == (1, N, 4, 4) and P[1].shape == (1, N, 4, 4)
     assert torch.allclose(P[1][..., 3, :], torch.tensor([0, 0, 0, 1.0]).expand(1, N, 4))
@@ -247,14 +246,14 @@ def test_cached_automask_equals_the_loss_module_automask(out_of_view):
         # recompute scale 0 with the loss module's own auto-masking
         from mcdp.geometry import warp_by_depth
 
-        rgb = b["rgb"]
+        rgb = b.rgb
         tgt = rgb[:, :, 1].reshape(N, 3, H, W)
         srcs = [rgb[:, :, 1 + o].reshape(N, 3, H, W) for o in (-1, 1)]
-        mask = b["mask"].reshape(N, 1, H, W)
-        K = b["K"].reshape(N, 3, 3)
+        mask = b.mask.reshape(N, 1, H, W)
+        K = b.K.reshape(N, 3, 3)
         warped, valid = [], []
         for o, s in zip((-1, 1), srcs):
-            T = odometry_camera_motion(b["T_world_ego"], b["T_ego_cam"], o).reshape(N, 4, 4)
+            T = odometry_camera_motion(b.T_world_ego, b.T_ego_cam, o).reshape(N, 4, 4)
             w, v = warp_by_depth(torch.cat([s, mask], 1), out["depth", "init", 0], K, K, T, padding_mode="border")
             warped.append(w[:, :3])
             valid.append(v * (w[:, 3:] > 0.99).float())

@@ -5,8 +5,9 @@ import numpy as np
 import pytest
 import torch
 
-from mcdp.methods.oracle_local import hint_channels
-from mcdp.oracle import overlap_truth, overlap_truth_at
+from mcdp.inputs import DepthInput
+from mcdp.methods.oracle_local import OVERLAP_TRUTH, given_channels
+from mcdp.truth import overlap_truth, overlap_truth_at
 from mcdp.predict import Predictor
 from study.probes import CUT, Probed
 
@@ -32,39 +33,58 @@ def test_filled_differs_from_emptied_and_emptied_is_the_cut(ds, tmp_path, one_th
     seq, f = _frame(ds)
     net = Predictor(run, ds, device="cpu")
     filled, emptied = Probed(net), Probed(net, CUT)
-    assert net.model.reads_overlap_truth and net.model.uses_neighbours
-    with torch.no_grad():  # a hint layer far from zero: the input must change the depth
-        net.model.hint.weight.normal_(std=1.0)
+    assert net.network.reads_ground_truth() and net.network.uses_neighbours
+    with torch.no_grad():  # a given-depth layer far from zero: the input must change the depth
+        net.network.given_encoder.weight.normal_(std=1.0)
     a, b = filled.predict(seq, f), emptied.predict(seq, f)
     assert np.array_equal(a["init"], net.predict(seq, f)["init"])  # as trained = the predictor alone
     assert not np.allclose(a["init"], b["init"])
     # emptied = the same network given an all-zero overlap input (what a camera without neighbours gets)
     lone = Predictor(run, NoNeighbours(ds), device="cpu")
     with torch.no_grad():
-        lone.model.hint.weight.copy_(net.model.hint.weight)
+        lone.network.given_encoder.weight.copy_(net.network.given_encoder.weight)
     assert np.array_equal(lone.predict(seq, f)["init"], b["init"])
 
 
-def _oracle_and_mono2(hint_std: float = 0.0):
+def _oracle_and_mono2(given_std: float = 0.0):
     """A randomly initialised ORACLE-local network (tiny preset) and the Mono2 network with the same encoder and
-    decoder weights; the hint layers random (std `hint_std`) or at their zero init (0)."""
+    decoder weights; the given-depth layers random (std `given_std`) or at their zero init (0)."""
     from corelib.configlib import load_config
     from mcdp.config import RunConfig
-    from mcdp.methods import build_depth_model
+    from mcdp.methods import build_network
     from tests.mcdp.test_refinement import TINY
 
     with torch.random.fork_rng():
         torch.manual_seed(0)
-        oracle = build_depth_model(load_config(RunConfig, TINY / "oracle_local.yaml", []).model).eval()
-        mono = build_depth_model(load_config(RunConfig, TINY / "mono2.yaml", []).model).eval()
-        if hint_std:
+        oracle = build_network(load_config(RunConfig, TINY / "oracle_local.yaml", []).model).eval()
+        mono = build_network(load_config(RunConfig, TINY / "mono2.yaml", []).model).eval()
+        if given_std:
             with torch.no_grad():
-                for conv in (oracle.hint, *oracle.hint_heads):
-                    conv.weight.normal_(std=hint_std)
+                for conv in (oracle.given_encoder, *oracle.given_heads):
+                    conv.weight.normal_(std=given_std)
     missing, unexpected = mono.load_state_dict(oracle.state_dict(), strict=False)
-    assert not missing and sorted(unexpected) == ["hint.weight"] + [f"hint_heads.{s}.weight"
+    assert not missing and sorted(unexpected) == ["given_encoder.weight"] + [f"given_heads.{s}.weight"
                                                                     for s in range(oracle.cfg.scales)]
     return oracle, mono
+
+
+def _inp(x, K, T, mask, nbr, given=None) -> DepthInput:
+    """The network's input; ``given`` (B, N, 1, H, W) the overlap's depth, or None (no input)."""
+    return DepthInput(x, K, T, mask, nbr, {} if given is None else {OVERLAP_TRUTH.name: given}, (OVERLAP_TRUTH,))
+
+
+def test_an_oracle_local_checkpoint_from_before_the_rename_loads_its_layers(one_thread):
+    """Its layers were named ``hint`` and ``hint_heads``: a state dict under those names loads into the renamed
+    layers, value for value, and nothing is missing or left over."""
+    oracle, _ = _oracle_and_mono2(given_std=0.5)
+    old = {k.replace("given_encoder.", "hint.").replace("given_heads.", "hint_heads."): v.clone()
+           for k, v in oracle.state_dict().items()}
+    assert "hint.weight" in old and "given_encoder.weight" not in old
+    fresh, _ = _oracle_and_mono2()
+    assert not torch.equal(fresh.given_encoder.weight, oracle.given_encoder.weight)
+    fresh.load_state_dict(old)  # strict
+    for k, v in oracle.state_dict().items():
+        assert torch.equal(fresh.state_dict()[k], v), k
 
 
 def _rig_inputs():
@@ -84,14 +104,14 @@ def _rig_inputs():
     return x, K, T, mask, nbr, given
 
 
-def test_a_fresh_hint_layer_starts_as_mono2(one_thread):
-    """Zero-initialised hint layers (a warm start): the network is Mono2's except on the hinted pixels, which
+def test_fresh_given_depth_layers_start_as_mono2(one_thread):
+    """Zero-initialised given-depth layers (a warm start): the network is Mono2's except on the hinted pixels, which
     take the given depth (preserve_input); the pixels whose depth differs from Mono2's are exactly the hinted ones."""
     oracle, mono = _oracle_and_mono2()
     x, K, T, mask, nbr, given = _rig_inputs()
     with torch.no_grad():
-        a = oracle(x, K, T, mask, nbr, scales=1, overlap_truth=given)["depth", "init", 0]
-        b = mono(x, K, T, mask, nbr, scales=1)["depth", "init", 0]
+        a = oracle(_inp(x, K, T, mask, nbr, given), scales=1)["depth", "init", 0]
+        b = mono(_inp(x, K, T, mask, nbr), scales=1)["depth", "init", 0]
     g = given.reshape(2, 1, 64, 96)
     hinted = g > 0
     assert 0 < int(hinted.sum()) < hinted.numel()
@@ -103,13 +123,13 @@ def test_a_fresh_hint_layer_starts_as_mono2(one_thread):
 def test_filled_keeps_the_given_depth_at_every_scale(one_thread):
     """Hint layers far from zero: at every hinted pixel the full-resolution depth is the given depth, at every
     decoder scale the output is the given depth (resized nearest) there, and the pixels that were not handed
-    a depth are not forced to anything: the hint moves them (through the hint layers), differently from the
+    a depth are not forced to anything: the hint moves them (through the given-depth layers), differently from the
     hinted ones."""
-    oracle, mono = _oracle_and_mono2(hint_std=0.5)
+    oracle, mono = _oracle_and_mono2(given_std=0.5)
     x, K, T, mask, nbr, given = _rig_inputs()
     with torch.no_grad():
-        out = oracle(x, K, T, mask, nbr, overlap_truth=given)
-        ref = mono(x, K, T, mask, nbr)
+        out = oracle(_inp(x, K, T, mask, nbr, given))
+        ref = mono(_inp(x, K, T, mask, nbr))
     g = given.reshape(2, 1, 64, 96)
     hinted = g > 0
     d = out["depth", "init", 0]
@@ -121,29 +141,29 @@ def test_filled_keeps_the_given_depth_at_every_scale(one_thread):
         assert int((gs > 0).sum()) > 0, s
         torch.testing.assert_close(1.0 / disp[gs > 0], gs[gs > 0], rtol=1e-4, atol=0)  # scale 1/2^s: the hint
     # the other pixels: moved by the hint (not Mono2's depth), not forced (a "given" 0 m would read as the
-    # network's min_depth), their logit the network's own plus the scale's hint head
+    # network's min_depth), their logit the network's own plus the scale's given-depth head
     assert not torch.allclose(d[~hinted], ref["depth", "init", 0][~hinted], rtol=1e-3)
     assert (d[~hinted] > 1.01 * oracle.cfg.min_depth).all()
     heads_off = copy.deepcopy(oracle)
     with torch.no_grad():
-        for conv in heads_off.hint_heads:
+        for conv in heads_off.given_heads:
             conv.weight.zero_()
-        own = heads_off(x, K, T, mask, nbr, scales=1, overlap_truth=given)["sig", "init", 0]
-        want = torch.sigmoid(torch.logit(own.clamp(1e-6, 1 - 1e-6)) + oracle.hint_heads[0](hint_channels(g)))
+        own = heads_off(_inp(x, K, T, mask, nbr, given), scales=1)["sig", "init", 0]
+        want = torch.sigmoid(torch.logit(own.clamp(1e-6, 1 - 1e-6)) + oracle.given_heads[0](given_channels(g)))
     torch.testing.assert_close(out["sig", "init", 0][~hinted], want[~hinted], rtol=1e-5, atol=1e-7)
 
 
 @pytest.mark.parametrize("cut", ["no overlap input", "neighbours cut"])
 def test_emptied_is_exactly_mono2(one_thread, cut):
     """Emptied (no overlap input, or the neighbours cut: nbr all -1), the network is exactly Mono2's with the
-    same encoder and decoder weights, at every scale, even with hint layers far from zero."""
-    oracle, mono = _oracle_and_mono2(hint_std=0.5)
+    same encoder and decoder weights, at every scale, even with given-depth layers far from zero."""
+    oracle, mono = _oracle_and_mono2(given_std=0.5)
     x, K, T, mask, nbr, given = _rig_inputs()
     if cut == "neighbours cut":
         nbr = torch.full_like(nbr, -1)
     with torch.no_grad():
-        a = oracle(x, K, T, mask, nbr, overlap_truth=None if cut == "no overlap input" else given)
-        b = mono(x, K, T, mask, nbr)
+        a = oracle(_inp(x, K, T, mask, nbr, None if cut == "no overlap input" else given))
+        b = mono(_inp(x, K, T, mask, nbr))
     keys = [k for k in b if isinstance(k, tuple) and k[0] in ("sig", "disp", "depth")]
     assert len(keys) == 3 * oracle.cfg.scales and sorted(keys) == sorted(k for k in a if isinstance(k, tuple)
                                                                          and k[0] in ("sig", "disp", "depth"))
@@ -185,7 +205,7 @@ def test_the_copy_test_scores_exactly_the_hinted_pixels(ds):
 
 
 def test_an_oracle_local_network_passes_the_copy_test(ds, tmp_path, one_thread):
-    """End to end: an ORACLE-local network (random, hint layers far from zero) predicted as the sweep evaluates it
+    """End to end: an ORACLE-local network (random, given-depth layers far from zero) predicted as the sweep evaluates it
     (`study.probes`) scores ~0 abs_rel (scaling none) on the evaluation's overlap pixels, not elsewhere."""
     from mcdp.evaluate import evaluate
 
@@ -193,7 +213,7 @@ def test_an_oracle_local_network_passes_the_copy_test(ds, tmp_path, one_thread):
     assert (pred.cfg.train.height, pred.cfg.train.width) == (ds.cameras[0].height, ds.cameras[0].width)
     with torch.no_grad(), torch.random.fork_rng():
         torch.manual_seed(1)
-        for conv in (pred.model.hint, *pred.model.hint_heads):
+        for conv in (pred.network.given_encoder, *pred.network.given_heads):
             conv.weight.normal_(std=0.5)
     st = evaluate(ds, Probed(pred).predict, "test", progress=False)["stages"]["init"]["none"]
     assert st["overlap"]["abs_rel"] < 1e-5

@@ -34,13 +34,13 @@ def untrained(ds, path: Path, preset: str, *overrides: str) -> Predictor:
     """The predictor of a randomly initialised (seed 0) network of a tiny preset, from a checkpoint written at
     ``path``: what a trained run's predictor is, without the training (the probe's plumbing, fast)."""
     from corelib.configlib import config_to_dict
-    from mcdp.methods import build_depth_model, method_params
+    from mcdp.methods import build_network, method_params
     from mcdp.runs import CHECKPOINT_VERSION, atomic_torch_save
 
     cfg = load_config(RunConfig, TINY / f"{preset}.yaml", list(overrides))
     with torch.random.fork_rng():
         torch.manual_seed(0)
-        net = build_depth_model(cfg.model, method_params(cfg))
+        net = build_network(cfg.model, method_params(cfg))
     atomic_torch_save({"version": CHECKPOINT_VERSION, "step": 0, "config": config_to_dict(cfg),
                        "depth_model": net.state_dict(), "cameras": list(ds.camera_names)}, path)
     return Predictor(None, ds, checkpoint=str(path), device="cpu")
@@ -148,11 +148,12 @@ def test_the_propagator_is_an_extra_stage_of_a_network_that_reads_no_other_camer
     in the as-trained probe of a network that reads no other camera, given an ORACLE range; the ground truth on
     the overlap pixels, the prediction corrected from them elsewhere. Not in a cut probe, nor for a network that
     reads its neighbours."""
-    from mcdp.oracle import ground_truth_at, overlap_at, spread_from_overlap
+    from mcdp.oracle import spread_from_overlap
+    from mcdp.truth import ground_truth_at, overlap_at
 
     rng = (0.5, 80.0)
     mono = untrained(ds, tmp_path / "mono2.pt", "mono2")
-    assert not mono.model.uses_neighbours
+    assert not mono.network.uses_neighbours
     p = Probed(mono, oracle_range=rng)
     assert p.stages == ["init", "final", "oracle_spread"]
     seq, f = _frame(ds)
@@ -173,7 +174,7 @@ def test_the_propagator_is_an_extra_stage_of_a_network_that_reads_no_other_camer
     # no propagator: without an ORACLE range, in a cut probe, for networks that read their neighbours
     assert Probed(mono).stages == ["init"] and Probed(mono, CUT, oracle_range=rng).stages == ["init"]
     local = untrained(ds, tmp_path / "oracle_local.pt", "oracle_local")
-    assert local.model.uses_neighbours
+    assert local.network.uses_neighbours
     lp = Probed(local, oracle_range=rng)
     assert lp.stages == ["init"] and list(lp.predict(seq, f)) == ["init"]
     m1 = untrained(ds, tmp_path / "m1.pt", "mcdp_m1")

@@ -10,9 +10,11 @@ from pathlib import Path
 import pytest
 import torch
 
+from mcdp.inputs import DepthInput
+
 from corelib.configlib import load_config
 from mcdp.config import RunConfig
-from mcdp.methods.mcdp import MonoDepthModel
+from mcdp.methods.depth_bases import MonoDepthModel
 from mcdp.methods.surround import CrossViewBlock, SurroundDepthModel, SurroundParams
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -42,7 +44,7 @@ def inputs(seed: int):
 
 def depth(model, rgb, nbr, K, T, mask) -> torch.Tensor:
     with torch.no_grad():
-        return model(rgb, K, T, mask, nbr)["depth", "init", 0]
+        return model(DepthInput(rgb, K, T, mask, nbr))["depth", "init", 0]
 
 
 @pytest.mark.parametrize("seed", [0, 1])
@@ -125,11 +127,11 @@ def test_the_tiny_surround_preset_trains_two_steps_and_evaluates_as_trained_and_
     net = Predictor(run, ds, "last")
     pred = Probed(net, keep=True)
     cut = Probed(net, CUT, reference=pred)
-    assert isinstance(net.model, SurroundDepthModel) and net.model.uses_neighbours
+    assert isinstance(net.network, SurroundDepthModel) and net.network.uses_neighbours
     # the checkpoint's method_params rebuilt the network it trained (sizes not at their defaults)
-    assert list(net.model.cross_view) == ["4"] and net.model.cross_view["4"].camera.shape == (16, 64)
+    assert list(net.network.cross_view) == ["4"] and net.network.cross_view["4"].camera.shape == (16, 64)
     # two steps moved the zero convolutions off zero: the fresh layers learn
-    assert all(float(b.out.weight.detach().abs().max()) > 0 for b in net.model.cross_view.values())
+    assert all(float(b.out.weight.detach().abs().max()) > 0 for b in net.network.cross_view.values())
     a = evaluate(ds, pred.predict, "test", EvalConfig(), progress=False)
     c = evaluate(ds, cut.predict, "test", EvalConfig(), progress=False)
     fa, fc = a["stages"]["final"]["median"]["mean"]["abs_rel"], c["stages"]["final"]["median"]["mean"]["abs_rel"]
@@ -148,7 +150,7 @@ def test_joint_pose_is_one_rigid_rig_motion_and_keeps_one_that_already_is(seed, 
     from mcdp.rigid import odometry_camera_motion, pose_from_axisangle, rig_motion
 
     b = collate([RigDataset(ds, "train", 64, 96)[seed]])
-    T = b["T_ego_cam"].float()
+    T = b.T_ego_cam.float()
     n = T.shape[1]
     g = torch.Generator().manual_seed(seed)
     aa, t = torch.randn(n, 3, generator=g) * 0.05, torch.randn(n, 3, generator=g)
@@ -158,7 +160,7 @@ def test_joint_pose_is_one_rigid_rig_motion_and_keeps_one_that_already_is(seed, 
     tr, rot = pose_consistency(joint, T)
     assert float(tr) < 1e-9 and float(rot) < 1e-9
     # odometry motions are one rig motion already: decompose them and average: the same motions back
-    mot = odometry_camera_motion(b["T_world_ego"], T, 1)[0]  # (N, 4, 4)
+    mot = odometry_camera_motion(b.T_world_ego, T, 1)[0]  # (N, 4, 4)
     R, tt = mot[:, :3, :3].double(), mot[:, :3, 3]
     ang = torch.arccos(((R.diagonal(dim1=-2, dim2=-1).sum(-1) - 1) / 2).clamp(-1, 1))
     axis = torch.stack([R[:, 2, 1] - R[:, 1, 2], R[:, 0, 2] - R[:, 2, 0], R[:, 1, 0] - R[:, 0, 1]], -1)
@@ -178,9 +180,9 @@ def test_the_system_feeds_the_extrinsics_to_the_pose_network_for_surround_only(d
         torch.manual_seed(0)
         system = SelfSupervisedSystem(cfg, ds.neighbours, len(ds.camera_names))
         with torch.no_grad():
-            poses, _ = system.predict_poses(b, b["rgb"])
+            poses, _ = system.predict_poses(b, b.rgb)
         n = len(ds.camera_names)
-        tr, rot = pose_consistency({o: p.view(1, n, 4, 4) for o, p in poses.items()}, b["T_ego_cam"])
+        tr, rot = pose_consistency({o: p.view(1, n, 4, 4) for o, p in poses.items()}, b.T_ego_cam)
         assert (float(tr) + float(rot) < 1e-8) == rigid, (name, float(tr), float(rot))
 
 
@@ -193,7 +195,7 @@ def test_its_sizes_are_its_method_params_checked_and_default_to_the_sizes_it_had
     cfg = load_config(RunConfig, TINY / "surround.yaml")
     p = methods.method_params(cfg)
     assert p == SurroundParams() and (p.d_model, p.heads, p.mlp_ratio, p.max_cameras, p.levels) == (128, 4, 2, 16, [3, 4])
-    net = methods.build_depth_model(cfg.model, p)
+    net = methods.build_network(cfg.model, p)
     shapes = {k: tuple(v.shape) for k, v in net.state_dict().items() if k.startswith("cross_view.")}
     assert shapes["cross_view.3.camera"] == (16, 128) and shapes["cross_view.4.qkv.weight"] == (384, 128)
     assert shapes["cross_view.4.mlp.0.weight"] == (256, 128) and len({k.split(".")[1] for k in shapes}) == 2
@@ -202,7 +204,7 @@ def test_its_sizes_are_its_method_params_checked_and_default_to_the_sizes_it_had
     small = load_config(RunConfig, TINY / "surround.yaml", ["method_params.d_model=32", "method_params.heads=2",
                                                              "method_params.levels=[2, 4]", "method_params.mlp_ratio=1"])
     assert config_hash(small) != config_hash(cfg)
-    net = methods.build_depth_model(small.model, methods.method_params(small))
+    net = methods.build_network(small.model, methods.method_params(small))
     assert sorted(net.cross_view) == ["2", "4"] and net.cross_view["2"].camera.shape == (16, 32)
     assert net.cross_view["2"].heads == 2 and net.cross_view["2"].mlp[0].weight.shape == (32, 32)
     for override, msg in [("method_params.d_model=30", r"^method_params: .*d_model=30 must be a multiple of 4"),

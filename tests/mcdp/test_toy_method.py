@@ -4,6 +4,7 @@ evaluator or the study. The toy trains warm-started from a pretraining, its own 
 moves the gradient by its own weight, and ``mcdp eval`` / ``mcdp predict`` run on it."""
 from __future__ import annotations
 
+import dataclasses
 from pathlib import Path
 
 import pytest
@@ -13,7 +14,7 @@ from corelib.configlib import config_to_dict, load_config
 from mcdp import methods
 from mcdp.config import RunConfig
 from mcdp.data import collate
-from tests.mcdp.toy_method import ToyDepth, ToyParams
+from tests.mcdp.toy_method import EGO_SPEED, ToyDepth, ToyInputDepth, ToyParams
 
 ROOT = Path(__file__).resolve().parents[2]
 TINY = ROOT / "configs" / "train" / "tiny"
@@ -37,7 +38,7 @@ def toy_cfg(row, *overrides: str) -> RunConfig:
 
 def fake_pretraining(path: Path) -> dict:
     """A shared pretraining file as `study.pretrain` writes it (8 bases + the mono head), random weights."""
-    from mcdp.methods.mcdp import DepthModel
+    from mcdp.methods.depth_bases import DepthModel
     from mcdp.warmstart import FORMAT, VERSION
 
     cfg = load_config(RunConfig, TINY / "mcdp_m0.yaml", ["model.bases=8", "model.mono_head=true"])
@@ -102,6 +103,54 @@ def test_the_toy_method_trains_warm_started_with_its_own_term_and_evaluates(toy,
     assert any((tmp_path / "pred").rglob("*"))
 
 
+@pytest.fixture
+def toy_input():
+    """A toy that needs an input of its own (`tests.mcdp.toy_method.EGO_SPEED`): its module and this row, nothing
+    else (its row names no ``model.method``: the row's name is it)."""
+    row = methods.register(methods.Method("toy_input", "Toy with an input", {"model.refine_steps": 0,
+                                                                             "loss.consistency_weight": 0.0},
+                                          ToyInputDepth))
+    yield row
+    methods.unregister("toy_input")
+
+
+def test_a_toy_with_an_input_of_its_own_gets_it_in_training_and_inference(toy_input, ds, tmp_path, one_thread):
+    """Its field is in every training sample and in the predictor's input (and in no other method's), it moves
+    the depth, and a gradient reaches the layer that reads it; the cut keeps it (it carries no other camera)."""
+    from mcdp.predict import Predictor
+    from mcdp.trainer import Trainer
+
+    cfg = load_config(RunConfig, TINY / "base.yaml", ["train.steps=2", "scale.source=odometry"],
+                      base=dict(toy_input.defaults))
+    assert methods.fields_of(cfg) == (EGO_SPEED,)
+    assert methods.fields_of(load_config(RunConfig, TINY / "mono2.yaml")) == ()
+    run = tmp_path / "run"
+    tr = Trainer(cfg, ds, run, progress=False, tensorboard=False)
+    try:
+        item = tr.train_set[0]
+        assert list(item["fields"]) == ["ego_speed"] and item["fields"]["ego_speed"].shape == (len(ds.camera_names),)
+        assert float(item["fields"]["ego_speed"][0]) > 0.1  # the tiny render drives ~2 m per frame
+        batch = tr.to_device(collate([tr.train_set[0], tr.train_set[1]]))
+        assert batch.fields["ego_speed"].shape == (2, len(ds.camera_names))
+        _, losses = tr.system.process_batch(batch, 0, train=True)
+        losses["loss"].backward()
+        assert float(tr.depth.speed_gain.grad.abs()) > 0  # the loss reaches the layer that reads the input
+        tr.system.zero_grad()
+        tr.train()
+    finally:
+        tr.close()
+    pred = Predictor(run, ds, "last")
+    inp = pred.inputs(ds.split("test")[0], 1)
+    assert set(inp.network_input.fields) == {"ego_speed"} and inp.cut().network_input.fields.keys() == {"ego_speed"}
+    with torch.no_grad():
+        pred.network.speed_gain.fill_(1.0)
+        a = pred.forward(inp)["depth", "init", 0]
+        faster = dict(inp.network_input.fields, ego_speed=inp.network_input.fields["ego_speed"] * 3)
+        b = pred.forward(dataclasses.replace(inp, network_input=dataclasses.replace(inp.network_input,
+                                                                                     fields=faster)))["depth", "init", 0]
+    assert not torch.allclose(a, b)  # the input reaches the depth
+
+
 def test_the_toy_row_is_what_the_study_and_the_report_read(toy):
     """Sweeps accept it, reports label it in table order and read its network's members for the warm start."""
     from study.config import SweepConfig
@@ -116,4 +165,5 @@ def test_the_toy_row_is_what_the_study_and_the_report_read(toy):
 def test_the_toy_row_does_not_outlive_its_fixture():
     """Run after the tests above (file order): their fixture's teardown removed the row, so no other test
     sees a toy method in the global registry."""
-    assert "toy" not in methods.METHODS and all(m.model != "toy" for m in methods.METHODS.values())
+    assert "toy" not in methods.METHODS and "toy_input" not in methods.METHODS
+    assert all(m.defaults["model.method"] not in ("toy", "toy_input") for m in methods.METHODS.values())

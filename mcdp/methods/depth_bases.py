@@ -19,9 +19,9 @@ trunk.
 
 Example::
 
-    model = DepthModel(cfg.model)   # MonoDepthModel for model.method=mono2 (mcdp.methods.build_depth_model)
-    out = model(rgb, K, T_ego_cam, mask, nbr)      # shapes in DepthModel.forward
-    depth = out["depth", "refine1", 0]             # (B*N, 1, H, W) metres
+    net = DepthModel(cfg.model)   # MonoDepthModel for model.method=mono2 (mcdp.methods.build_network)
+    out = net(DepthInput(rgb, K, T_ego_cam, mask, nbr))   # shapes in DepthModel.forward
+    depth = out["depth", "refine1", 0]                   # (B*N, 1, H, W) metres
 """
 from __future__ import annotations
 
@@ -32,7 +32,8 @@ import torch.nn.functional as F
 from corelib.configlib import ConfigError
 from mcdp.config import ModelConfig
 from mcdp.geometry import scale_intrinsics, warp_by_depth
-from mcdp.methods.base import DepthNetwork, combine_bases, disp_to_depth, is_refined, resize_mask_to, stage_names
+from mcdp.inputs import DepthInput
+from mcdp.methods.base import GT_MEDIAN, DepthNetwork, combine_bases, disp_to_depth, is_refined, resize_mask_to, stage_names
 from mcdp.networks import DepthDecoder, ResnetEncoder, WeightNet
 
 SLOTS = {"left": (0,), "right": (1,), "both": (0, 1)}
@@ -55,8 +56,6 @@ class DepthModel(DepthNetwork):
     ``n_out``: the decoder's depth channels: ``model.bases`` (MCDP), 1 (`MonoDepthModel`).
     """
 
-    #: the ``model.method`` this class builds (`mcdp.methods.build_depth_model` picks the class)
-    model = "mcdp"
     #: n depth bases combined by weights (MCDP); False: Monodepth2's one sigmoid channel
     has_bases = True
     #: the weight network of each refinement step: one weight vector per image (`mcdp.methods.local`: per pixel)
@@ -65,7 +64,6 @@ class DepthModel(DepthNetwork):
     @classmethod
     def check_config(cls, cfg: ModelConfig) -> None:
         """ConfigError, naming the key, for a model config this network cannot be built from."""
-        super().check_config(cfg)
         if not cls.has_bases and cfg.refine_steps > 0:
             raise ConfigError(f"model.refine_steps must be 0 for model.method={cfg.method} (refinement needs "
                               "depth bases)")
@@ -120,41 +118,27 @@ class DepthModel(DepthNetwork):
     def fresh_layers(cls, cfg: ModelConfig) -> str:
         return "weight networks" if cls.has_bases and cfg.refine_steps > 0 else ""
 
-    def encode(self, x: torch.Tensor, B: int, N: int, nbr: torch.Tensor) -> list[torch.Tensor]:
+    def encode(self, x: torch.Tensor, B: int, N: int, inp: DepthInput) -> list[torch.Tensor]:
         """Encoder features of the B*N images x (BN, 3, H, W); a method may mix the cameras here
-        (`mcdp.methods.surround`). nbr: (N, 2) neighbour table, all -1 when the neighbours are cut."""
+        (`mcdp.methods.surround`: ``inp.nbr`` all -1 when the neighbours are cut) or read its own input
+        fields (`mcdp.methods.oracle_local`)."""
         return self.encoder(x)
 
     def to_depth(self, sig: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         """(disp, depth) of a (combined) sigmoid map with this model's depth range."""
         return disp_to_depth(sig, self.cfg.min_depth, self.cfg.max_depth)
 
-    def forward(
-        self,
-        rgb: torch.Tensor,
-        K: torch.Tensor,
-        T_ego_cam: torch.Tensor,
-        mask: torch.Tensor,
-        nbr: torch.Tensor,
-        oracle_gt_median: torch.Tensor | None = None,
-        scales: int | None = None,
-        refine_scales: int | None = None,
-        overlap_truth: torch.Tensor | None = None,
-    ) -> dict:
+    def forward(self, inp: DepthInput, scales: int | None = None, refine_scales: int | None = None) -> dict:
         """Predict every stage's depth for a batch of rigs.
 
         Args:
-            rgb: (B, N, 3, H, W) frame-t images in [0, 1] (network input; may be colour-augmented).
-            K: (B, N, 3, 3) intrinsics at H x W.
-            T_ego_cam: (B, N, 4, 4).
-            mask: (B, N, 1, H, W) 1 = scene.
-            nbr: (N, 2) [left, right] neighbour indices, -1 = none (`mcdp.data.neighbour_table`).
-            oracle_gt_median: (B, N) ORACLE only: every depth is multiplied by
-                median(GT) / median(init depth) per image (the public reference code's scaling).
+            inp: `mcdp.inputs.DepthInput`: rgb (B, N, 3, H, W) frame-t images in [0, 1] (may be
+                colour-augmented), K (B, N, 3, 3) at H x W, T_ego_cam (B, N, 4, 4), mask (B, N, 1, H, W) 1 =
+                scene, nbr (N, 2) [left, right] neighbour indices, -1 = none; its field `GT_MEDIAN` (B, N), in
+                an ORACLE-scaled run only: every depth is multiplied by median(GT) / median(init depth) per
+                image (the public reference code's scaling).
             scales: decoder scales returned for "init" (default ``model.scales``; 1 = full resolution only).
             refine_scales: scales returned for refined stages (default = ``scales``).
-            overlap_truth: (B, N, 1, H, W) ORACLE only (``reads_overlap_truth``): ground-truth depth of the
-                overlap pixels, 0 elsewhere; None = empty.
 
         Returns:
             dict with, for every stage name st and scale s (images flattened to B*N):
@@ -164,11 +148,11 @@ class DepthModel(DepthNetwork):
               ("weights", st): (B*N, n) basis weights,
               "stages": list of stage names, "scale": (B*N,) depth scale applied (1 unless oracle).
         """
+        rgb, mask = inp.rgb, inp.mask
         B, N, _, H, W = rgb.shape
         BN = B * N
         x = rgb.reshape(BN, 3, H, W)
-        feats = (self.encode(x, B, N, nbr, overlap_truth=overlap_truth) if self.reads_overlap_truth
-                 else self.encode(x, B, N, nbr))
+        feats = self.encode(x, B, N, inp)
         bases = self.decoder(feats)  # {s: (BN, n, h, w)}
         n = self.n_out
         mono = None
@@ -195,6 +179,7 @@ class DepthModel(DepthNetwork):
         logits = torch.zeros(BN, n, device=rgb.device, dtype=bases[0].dtype)
         scale = torch.ones(BN, device=rgb.device, dtype=torch.float32)
         mask_f = mask.reshape(BN, 1, H, W)
+        oracle_gt_median = inp.get(GT_MEDIAN)
         if oracle_gt_median is not None:
             with torch.no_grad():
                 sig0 = combine_bases(bases[0], torch.softmax(logits, 1)) if n > 1 else bases[0]
@@ -206,7 +191,7 @@ class DepthModel(DepthNetwork):
         emit("init", torch.softmax(logits, 1), scale)
         if not self.weight_nets:
             return out
-        self._refine(out, feats, bases, logits, scale, K, T_ego_cam, mask_f, nbr, emit, rgb.device.type)
+        self._refine(out, feats, bases, logits, scale, inp.K, inp.T_ego_cam, mask_f, inp.nbr, emit, rgb.device.type)
         return out
 
     def _refine(self, out: dict, feats: list, bases: dict, logits: torch.Tensor, scale: torch.Tensor, K: torch.Tensor,
@@ -224,7 +209,7 @@ class DepthModel(DepthNetwork):
         T_ego_cam = T_ego_cam.float()
         T_cam_ego = torch.linalg.inv(T_ego_cam)
         refine_stages = stage_names(self.cfg.refine_steps)
-        for k, wnet in enumerate(self.weight_nets, start=1):
+        for k, weight_net in enumerate(self.weight_nets, start=1):
             prev = refine_stages[k - 1]
             # The depth that places the neighbours' features is taken as given: the
             # refinement loss should change the weights, not move the previous
@@ -234,10 +219,10 @@ class DepthModel(DepthNetwork):
             else:
                 sig_h = F.interpolate(out["sig", prev, 0], size=(h, w), mode="bilinear", align_corners=False)
             depth_h = (self.to_depth(sig_h)[1] * scale.view(BN, 1, 1, 1)).detach()
-            red = wnet.reduce(feats[:3]) * mask_h  # (BN, c, h, w)
+            red = weight_net.reduce(feats[:3]) * mask_h  # (BN, c, h, w)
             parts, valids = self._neighbour_features(red, mask_h, depth_h, K_h, T_ego_cam, T_cam_ego, nbr,
                                                      device_type)
-            delta = wnet(torch.cat(parts + valids, 1))  # (BN, n), or (BN, n, h', w') per pixel
+            delta = weight_net(torch.cat(parts + valids, 1))  # (BN, n), or (BN, n, h', w') per pixel
             if delta.dim() == 4 and logits.dim() == 2:
                 logits = logits[:, :, None, None]
             logits = logits + delta
@@ -277,5 +262,4 @@ class DepthModel(DepthNetwork):
 class MonoDepthModel(DepthModel):
     """Monodepth2: the same encoder and decoder with one sigmoid depth channel, stage "init" only."""
 
-    model = "mono2"
     has_bases = False

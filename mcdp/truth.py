@@ -1,0 +1,69 @@
+"""Ground-truth readers: what a yardstick reads of a dataset's depth, at the dataset or a network's size.
+
+Data, not the ORACLE: every reader here reads ground truth, so whatever uses one is a yardstick and says
+so (an ORACLE-scaled run, `mcdp.methods.oracle_local`'s input field, the ORACLE weights and propagator of
+`mcdp.oracle` and `study.probes`). Nothing in training or inference reads them unless a `mcdp.inputs.Field`
+with ``truth=True`` is declared.
+"""
+from __future__ import annotations
+
+import numpy as np
+import torch
+import torch.nn.functional as F
+
+from synth.overlap import neighbours_of, overlap_union
+
+
+def gt_median(ds, masks, seq: str, frame: int) -> np.ndarray:
+    """(N,) float32: each camera's median ground-truth depth over its scene pixels at the dataset resolution
+    (1.0 for a camera without one): the ORACLE scale mode's input (``scale.source=oracle_gt_median``)."""
+    med = np.ones(len(ds.camera_names), dtype=np.float32)
+    for c, name in enumerate(ds.camera_names):
+        d = ds.read_depth(seq, name, frame)
+        v = d[(d > 0) & masks[c]]
+        if v.size:
+            med[c] = float(np.median(v))
+    return med
+
+
+def ground_truth_at(ds, masks, seq: str, frame: int, size: tuple[int, int],
+                    depth_range: tuple[float, float]) -> tuple[torch.Tensor, torch.Tensor]:
+    """ORACLE input: every camera's ground truth at ``size`` (nearest) and its valid pixels.
+
+    Args:
+        ds: a dataset (``camera_names``, ``read_depth``); masks: per camera (H, W) bool scene masks.
+        depth_range: (min, max) metres that count, as in the evaluation.
+    Returns:
+        gt (N, 1, h, w) metres, valid (N, 1, h, w) bool.
+    """
+    lo, hi = depth_range
+    gts, valids = [], []
+    for c, name in enumerate(ds.camera_names):
+        g = torch.from_numpy(ds.read_depth(seq, name, frame).astype("float32"))[None, None]
+        v = (g >= lo) & (g <= hi) & torch.as_tensor(masks[c], dtype=torch.bool)[None, None]
+        gts.append(F.interpolate(g, size=size, mode="nearest"))
+        valids.append(F.interpolate(v.float(), size=size, mode="nearest") > 0.5)
+    return torch.cat(gts), torch.cat(valids)
+
+
+def overlap_truth(ds, masks, seq: str, frame: int) -> list:
+    """Per camera, (H, W) float32 at the dataset resolution: the ground-truth depth of its overlap pixels
+    (`synth.overlap.overlap_mask` with every neighbour, as the evaluation splits its regions), 0 elsewhere
+    (a camera without neighbours: 0 everywhere). ORACLE input: it reads ground truth."""
+    names, cams = list(ds.camera_names), list(ds.cameras)
+    gts = [np.asarray(ds.read_depth(seq, n, frame), np.float64) for n in names]
+    Ks, Ts = [c.K for c in cams], [c.T_ego_cam for c in cams]
+    nbrs = neighbours_of(ds.neighbours, len(names))
+    return [np.where(overlap_union(i, gts, Ks, Ts, masks, nbrs[i]), gts[i], 0.0).astype(np.float32)
+            for i in range(len(names))]
+
+
+def overlap_truth_at(ds, masks, seq: str, frame: int, size: tuple[int, int]) -> torch.Tensor:
+    """(N, 1, h, w) float32: `overlap_truth` at ``size`` (nearest: a depth, never a blend of two)."""
+    maps = overlap_truth(ds, masks, seq, frame)
+    return torch.cat([F.interpolate(torch.from_numpy(m)[None, None], size=size, mode="nearest") for m in maps])
+
+
+def overlap_at(ds, masks, seq: str, frame: int, size: tuple[int, int]) -> torch.Tensor:
+    """(N, 1, h, w) bool: each camera's overlap pixels at ``size`` (nearest). ORACLE input."""
+    return overlap_truth_at(ds, masks, seq, frame, size) > 0
