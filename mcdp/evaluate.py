@@ -85,7 +85,7 @@ from synth.protocol import DatasetReader
 from . import geometry
 from . import label_regions as LR
 from .metrics import (
-    METRIC_NAMES,
+    metric_names,
     metric_terms,
     ratio_of_medians,
     reduce_terms,
@@ -114,7 +114,7 @@ def _nanmean(values) -> float:
 
 def _mean_dicts(dicts) -> dict:
     dicts = list(dicts)
-    return {k: _nanmean(d[k] for d in dicts) for k in METRIC_NAMES} if dicts else nan_metrics()
+    return {k: _nanmean(d[k] for d in dicts) for k in metric_names()} if dicts else nan_metrics()
 
 
 def eval_frames(n_frames: int, cfg: EvalConfig) -> range:

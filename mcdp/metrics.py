@@ -24,7 +24,7 @@ from mcdp.config import EVAL_MAX_DEPTH, EVAL_MIN_DEPTH
 
 __all__ = [
     "METRICS",
-    "METRIC_NAMES",
+    "metric_names",
     "Metric",
     "depth_metrics",
     "nan_metrics",
@@ -68,8 +68,12 @@ METRICS: tuple[Metric, ...] = (
     Metric("a2", lambda x: x.thresh < 1.25 ** 2),
     Metric("a3", lambda x: x.thresh < 1.25 ** 3),
 )
-#: keys of every metrics dict, in table order
-METRIC_NAMES = tuple(m.name for m in METRICS)
+
+
+def metric_names() -> tuple[str, ...]:
+    """The keys of every metrics dict, in table order: read from `METRICS` when called, so that a metric is one
+    entry there and nothing else (tests/mcdp/test_metrics.py adds a toy one)."""
+    return tuple(m.name for m in METRICS)
 
 
 def _np(x, name: str, dtype=np.float64) -> np.ndarray:
@@ -89,7 +93,7 @@ def _same_shape(ref: np.ndarray, ref_name: str, **others: np.ndarray) -> None:
 
 def nan_metrics() -> dict:
     """Metrics dict with every value NaN (for an empty evaluation set)."""
-    return {k: float("nan") for k in METRIC_NAMES}
+    return {k: float("nan") for k in metric_names()}
 
 
 def depth_metrics(gt, pred, valid) -> dict:
@@ -105,7 +109,7 @@ def depth_metrics(gt, pred, valid) -> dict:
         valid: (...) bool mask, same shape.
 
     Returns:
-        dict with keys ``METRIC_NAMES`` (python floats); all NaN if no pixel is valid.
+        dict with keys ``metric_names()`` (python floats); all NaN if no pixel is valid.
 
     Raises:
         ValueError: shapes differ, or gt/pred is not positive and finite on a valid pixel.

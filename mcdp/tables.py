@@ -10,7 +10,7 @@ from __future__ import annotations
 import numpy as np
 
 from mcdp.evaluate import SCALINGS
-from mcdp.metrics import METRIC_NAMES
+from mcdp.metrics import metric_names
 
 def _fmt(x: float) -> str:
     return "   nan" if x is None or (isinstance(x, float) and np.isnan(x)) else f"{x:6.3f}"
@@ -36,7 +36,7 @@ def format_tables(metrics: dict, stage: str = "final") -> str:
     st = metrics["stages"][stage]
     cams = list(metrics["cameras"])
     w = max([len(c) for c in cams] + [len("non_overlap"), 8])
-    header = f"{'camera':<{w}} " + " ".join(f"{k:>8}" for k in METRIC_NAMES)
+    header = f"{'camera':<{w}} " + " ".join(f"{k:>8}" for k in metric_names())
     lines = [
         f"split={metrics['split']} samples={metrics['n_samples']} stage={stage} "
         f"depth range [{metrics['min_depth']}, {metrics['max_depth']}] m"
@@ -48,15 +48,15 @@ def format_tables(metrics: dict, stage: str = "final") -> str:
         s = st[sc]
         lines += ["", f"scaling: {sc}", header, "-" * len(header)]
         for c in cams:
-            lines.append(f"{c:<{w}} " + " ".join(f"  {_fmt(s['per_camera'][c][k])}" for k in METRIC_NAMES))
+            lines.append(f"{c:<{w}} " + " ".join(f"  {_fmt(s['per_camera'][c][k])}" for k in metric_names()))
         lines.append("-" * len(header))
         for row in ("mean", "overlap", "non_overlap"):
-            lines.append(f"{row:<{w}} " + " ".join(f"  {_fmt(s[row][k])}" for k in METRIC_NAMES))
+            lines.append(f"{row:<{w}} " + " ".join(f"  {_fmt(s[row][k])}" for k in metric_names()))
         if "classes" in s:  # a dataset with semantic labels (mcdp.label_regions)
             lines.append("-" * len(header))
             rows = [(g, s["classes"][g]) for g in s["classes"]] + [(m, s["motion"][m]) for m in s["motion"]]
             for name, v in rows:
-                lines.append(f"{name[:w]:<{w}} " + " ".join(f"  {_fmt(v[k])}" for k in METRIC_NAMES))
+                lines.append(f"{name[:w]:<{w}} " + " ".join(f"  {_fmt(v[k])}" for k in metric_names()))
             h = s.get("holes", {})
             lines.append(f"movers beyond {h.get('ratio', 2.0):g}x their depth: {_fmt(h.get('moving'))} of "
                          f"{h.get('moving_pixels', 0)} moving-vehicle pixels (parked: {_fmt(h.get('parked'))} of "

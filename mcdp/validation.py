@@ -24,7 +24,7 @@ import numpy as np
 import torch
 
 from mcdp.data import collate
-from mcdp.metrics import METRIC_NAMES, clamp_depth, metric_terms, metrics_from_means, nan_metrics, valid_gt_mask
+from mcdp.metrics import clamp_depth, metric_names, metric_terms, metrics_from_means, nan_metrics, valid_gt_mask
 
 
 @torch.no_grad()
@@ -57,7 +57,7 @@ class DepthAccumulator:
     """Sums of the per-pixel metric terms over val samples (`sums`: 7 term sums, then the pixel count)."""
 
     def __init__(self) -> None:
-        self.sums = np.zeros(len(METRIC_NAMES) + 1, dtype=np.float64)
+        self.sums = np.zeros(len(metric_names()) + 1, dtype=np.float64)
 
     def add(self, ds, seq: str, frame: int, depth: np.ndarray, cfg) -> None:
         """Score one rig sample: ``depth`` (N, h, w) predicted metres in ``ds.camera_names`` order."""

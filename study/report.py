@@ -31,7 +31,7 @@ from pathlib import Path
 from corelib.atomic import atomic_write_json, atomic_write_text
 from mcdp.diagnostics import COLLAPSE_RATIO
 from mcdp.methods import METHODS, label, model_config, network_class
-from mcdp.metrics import METRIC_NAMES
+from mcdp.metrics import metric_names
 from study.plots import distance_plot, make_plots
 from study.mechanisms import format_mechanisms
 from study.primary import format_primary
@@ -310,17 +310,17 @@ def _overlap_section(results: dict, d: dict, cams: list[str] | None) -> list[str
         add(f"| {k} | {_num(v['target'])} | {_num(v['measured'])} |")
     add("")
     add(f"**Table 1 layout** (test split; Δ = relative change of abs_rel vs Mono2, negative = better)\n")
-    add("| Method | Scale | " + " | ".join(METRIC_NAMES) + " | Δ abs_rel |")
-    add("|---|---|" + "---|" * (len(METRIC_NAMES) + 1))
+    add("| Method | Scale | " + " | ".join(metric_names()) + " | Δ abs_rel |")
+    add("|---|---|" + "---|" * (len(metric_names()) + 1))
     for sc in ("none", "median"):
         ref = method_agg(results, o, BASELINE, f"{sc}.mean.abs_rel")["mean"]
         for m in methods:
-            cells = [_fmt(method_agg(results, o, m, f"{sc}.mean.{k}")) for k in METRIC_NAMES]
+            cells = [_fmt(method_agg(results, o, m, f"{sc}.mean.{k}")) for k in metric_names()]
             abs_rel = method_agg(results, o, m, f"{sc}.mean.abs_rel")["mean"]
             delta = "—" if m == BASELINE else _pct(_rel(abs_rel, ref))
             add(f"| {label(m)} | {SCALE_LABEL[sc]} | " + " | ".join(cells) + f" | {delta} |")
         for which, ylabel, _ in YARDSTICKS:
-            cells = [_fmt(yardstick_agg(results, o, f"{sc}.mean.{k}", which)) for k in METRIC_NAMES]
+            cells = [_fmt(yardstick_agg(results, o, f"{sc}.mean.{k}", which)) for k in metric_names()]
             add(f"| *{ylabel}* | {SCALE_LABEL[sc]} | " + " | ".join(cells)
                 + f" | {_pct(_rel(yardstick_agg(results, o, f'{sc}.mean.abs_rel', which)['mean'], ref))} |")
     add("")

@@ -15,7 +15,7 @@ import math
 import time
 from typing import Any
 
-from mcdp.metrics import METRIC_NAMES
+from mcdp.metrics import metric_names
 from study.variants import CUT, ORACLE, ORACLE_OVL, SPREAD, TRAINED, VARIANTS, Evaluation
 
 
@@ -126,7 +126,7 @@ def flat_row(row: dict) -> dict[str, Any]:
         if sc not in m:
             continue
         for region in ("mean", "overlap", "non_overlap"):
-            for k in METRIC_NAMES:
+            for k in metric_names():
                 out[f"{sc}.{region}.{k}"] = _f(m[sc][region].get(k))
         for cam, v in m[sc]["per_camera_abs_rel"].items():
             out[f"{sc}.camera.{cam}.abs_rel"] = _f(v)

@@ -10,7 +10,7 @@ import pytest
 from mcdp import evaluate as E
 from mcdp import priors as P
 from mcdp import tables as T
-from mcdp.metrics import METRIC_NAMES
+from mcdp.metrics import metric_names
 from synth.label_reader import NoLabels
 
 H, W, F_PX, Z_WALL, SHIFT_PX = 12, 16, 20.0, 10.0, 3
@@ -121,7 +121,7 @@ def test_layout_and_perfect_prediction():
         for sc in E.SCALINGS:
             s = stage[sc]
             assert {"mean", "per_camera", "overlap", "non_overlap"} <= set(s)
-            assert set(s["mean"]) == set(METRIC_NAMES)
+            assert set(s["mean"]) == set(metric_names())
             assert set(s["per_camera"]) == set(m["cameras"])
         assert set(stage["dep_con"]["per_pair"]) == {"CAM_FRONT->CAM_FRONT_RIGHT", "CAM_FRONT_RIGHT->CAM_FRONT"}
         assert set(stage["dep_con"]["per_camera"]) == set(m["cameras"])
@@ -266,3 +266,31 @@ def test_cameras_of_different_sizes_are_scored_each_at_its_own_size():
     with pytest.raises(ValueError, match=r"camera CAM_FRONT_RIGHT: depth must have the dataset resolution "
                                          rf"\({2 * H}, {2 * W}\)"):
         run(ds, lambda s, f: {"init": np.ones((2, H, W), np.float32)})  # one size for both: refused, named
+
+
+def test_a_toy_metric_is_one_entry_in_the_metrics_table(monkeypatch):
+    """A metric is one `mcdp.metrics.Metric` row: with a toy one added to `METRICS` (and nothing else), the
+    evaluation scores it in every scaling and region, the printed tables give it a column, and the trainer's
+    validation pools it; its value is the one its term defines (here mean |log10 g - log10 p|)."""
+    from mcdp import metrics as M
+    from mcdp.validation import DepthAccumulator
+
+    toy = M.Metric("log10", lambda x: np.abs(np.log10(x.g) - np.log10(x.p)))
+    monkeypatch.setattr(M, "METRICS", M.METRICS + (toy,))
+    assert M.metric_names()[-1] == "log10"
+    ds = FakeDataset()
+
+    def double(seq, frame):  # twice the wall's depth everywhere: log10 error log10(2) on every valid pixel
+        return {"init": np.full((2, H, W), 2 * Z_WALL, np.float32)}
+
+    m = run(ds, double)
+    none = m["stages"]["final"]["none"]
+    for region in ("mean", "overlap", "non_overlap"):
+        assert none[region]["log10"] == pytest.approx(math.log10(2), rel=1e-6), region
+    assert m["stages"]["final"]["median"]["mean"]["log10"] == pytest.approx(0.0, abs=1e-6)  # scaled back
+    header = next(line for line in T.format_tables(m).splitlines() if line.startswith("camera"))
+    assert header.split()[-1] == "log10"  # the last column of the printed tables
+    acc = DepthAccumulator()
+    assert acc.sums.shape == (len(M.METRICS) + 1,)
+    acc.add(ds, ds.split("test")[0], 1, np.full((2, H, W), 2 * Z_WALL, np.float32), E.EvalConfig())
+    assert acc.metrics(acc.sums)["log10"] == pytest.approx(math.log10(2), rel=1e-6)

@@ -16,7 +16,7 @@ import json
 import random
 from pathlib import Path
 
-from mcdp.metrics import METRIC_NAMES
+from mcdp.metrics import metric_names
 from study.report import write_csv
 from study.results import aggregate_flat, evaluation_names, flat_rows
 
@@ -26,7 +26,7 @@ CAMS = ("CAM_A", "CAM_B")
 
 def metrics(rng: random.Random, base: float) -> dict:
     def block():
-        return {k: round(base * rng.uniform(0.8, 1.2), 5) for k in METRIC_NAMES}
+        return {k: round(base * rng.uniform(0.8, 1.2), 5) for k in metric_names()}
     sc = {s: {"mean": block(), "overlap": block(), "non_overlap": block(),
               "per_camera_abs_rel": {c: round(base * rng.uniform(0.8, 1.2), 5) for c in CAMS}}
           for s in ("none", "median")}
