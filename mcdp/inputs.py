@@ -112,6 +112,11 @@ class RigBatch:
         return RigBatch(*(move(getattr(self, f.name)) for f in dataclasses.fields(self) if f.name != "fields"),
                         fields={k: move(v) for k, v in self.fields.items()})
 
+    def pin_memory(self) -> "RigBatch":
+        """The same batch in page-locked memory (the DataLoader calls this with ``pin_memory=True``, on CUDA)."""
+        return RigBatch(*(getattr(self, f.name).pin_memory() for f in dataclasses.fields(self) if f.name != "fields"),
+                        fields={k: v.pin_memory() for k, v in self.fields.items()})
+
     def depth_input(self, nbr: torch.Tensor, declared: tuple[Field, ...] = (),
                     rgb: torch.Tensor | None = None) -> DepthInput:
         """Frame t as a network reads it. ``rgb``: (B, N, 3, 3, H, W) images to use instead of ``self.rgb``
