@@ -118,6 +118,15 @@ class SelfSupervisedSystem(torch.nn.Module):
     def device(self) -> torch.device:
         return self.nbr.device
 
+    def param_groups(self, weight_lr_mult: float) -> list[dict]:
+        """The optimiser's parameter groups: the depth network's fresh layers (``fresh_parameters``: MCDP's
+        weight networks, SurroundDepth's attention, ...) at ``weight_lr_mult`` x the rate (``lr_mult``), every
+        other parameter (the pose network's too) at the rate."""
+        fresh = list(self.depth.fresh_parameters())
+        fresh_ids = {id(p) for p in fresh}
+        groups = [{"params": [p for p in self.parameters() if id(p) not in fresh_ids], "lr_mult": 1.0}]
+        return groups + ([{"params": fresh, "lr_mult": weight_lr_mult}] if fresh else [])
+
     def predict_poses(self, batch: RigBatch, net_rgb: torch.Tensor) -> tuple[dict, dict]:
         """T_src_tgt per source offset, (B*N, 4, 4), and pose statistics/velocity loss terms."""
         B, N = batch.rgb.shape[:2]

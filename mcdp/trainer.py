@@ -122,12 +122,7 @@ class Trainer:
         torch.manual_seed(tc.seed)
         self.system = SelfSupervisedSystem(cfg, ds.neighbours, len(ds.camera_names)).to(self.device)
         self.depth, self.pose = self.system.depth, self.system.pose
-        fresh = list(self.depth.fresh_parameters())  # MCDP's weight networks, SurroundDepth's attention, ...
-        fresh_ids = {id(p) for p in fresh}
-        rest = [p for p in self.system.parameters() if id(p) not in fresh_ids]
-        groups = [{"params": rest, "lr_mult": 1.0}]
-        if fresh:  # the fresh layers learn at a rate of their own (train.weight_lr_mult)
-            groups.append({"params": fresh, "lr_mult": tc.weight_lr_mult})
+        groups = self.system.param_groups(tc.weight_lr_mult)  # the fresh layers learn at a rate of their own
         # fused: one kernel for all parameters (CPU and CUDA); ~7x faster than the per-tensor loop on
         # a CPU, the same update to float rounding (docs/results/train_step.md)
         fused = self.device.type in ("cpu", "cuda")
@@ -240,15 +235,22 @@ class Trainer:
         """Final-stage L_p + lambda L_con on fixed val samples (no ground truth); None without a val split.
         With ground truth in the dataset, the same samples' depth metrics go to TensorBoard (`mcdp.validation`)."""
         idx = self.val_indices()
-        return validation_loss(self, idx) if idx else None
+        if not idx:
+            return None
+        scored = self.ds.has_depth and self.dist.is_main and self.log.enabled  # ground truth for TensorBoard only
+        loss, depth = validation_loss(self.system, self.val_set, idx, self.step, self.dist, self.device,
+                                      (self.ds, self.cfg.eval) if scored else None)
+        if depth:
+            self.log.scalars({f"val/depth_{k}": v for k, v in depth.items()}, self.step)
+        return loss
 
     # ------------------------------------------------------------------ logging
-    def check_spread(self, outputs: dict, batch: RigBatch) -> dict:
+    def check_spread(self, outputs: dict, mask: torch.Tensor) -> dict:
         """Spread of the final stage's depth on this batch (`mcdp.diagnostics`); warns once per collapse."""
         m = self.cfg.model
         final = self.depth.stages[-1]
         depth = outputs["depth", final, 0]
-        mask = batch.mask.reshape(depth.shape)
+        mask = mask.reshape(depth.shape)
         spread = depth_spread(depth, mask, m.min_depth, m.max_depth)
         reason = collapse_reason(spread)
         if self.collapse_guard.warn_now(reason, self.step) and self.dist.is_main:
@@ -304,7 +306,7 @@ class Trainer:
             dt_step = time.perf_counter() - t0
 
             if self.step % tc.log_every == 0 or self.step == tc.steps:
-                self.check_spread(outputs, batch)
+                self.check_spread(outputs, batch.mask)
                 now = time.perf_counter()
                 rate = n_last / max(now - t_last, 1e-9)
                 t_last, n_last = now, 0

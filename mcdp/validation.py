@@ -12,7 +12,7 @@ stays chosen by the val loss, without ground truth); `mcdp eval` remains the mea
 
 Example::
 
-    v = validation_loss(trainer, trainer.val_indices())
+    v, depth = validation_loss(system, val_set, idx, step, dist, device, (ds, cfg.eval))
     acc = DepthAccumulator()
     acc.add(ds, seq, frame, depth_nhw, cfg.eval)     # (N, h, w) metres, training size
     acc.metrics(sums)                                 # {"abs_rel": ..., ...}
@@ -28,29 +28,29 @@ from mcdp.metrics import clamp_depth, metric_names, metric_terms, metrics_from_m
 
 
 @torch.no_grad()
-def validation_loss(t, idx: list[int]) -> float:
-    """The val loss of trainer ``t`` over the val samples ``idx`` (each rank its share; the mean over all)
-    at ``t.step``; the networks are back in train mode after. With ground truth (rank 0, TensorBoard on),
-    rank 0's samples' depth metrics are logged too (one process: all of them)."""
-    acc = DepthAccumulator() if t.ds.has_depth and t.dist.is_main and t.log.enabled else None
-    nets = [n for n in (t.depth, t.pose) if n is not None]
+def validation_loss(system, val_set, idx: list[int], step: int, dist, device, depth_of=None) -> tuple[float, dict]:
+    """The val loss over the val samples ``idx`` of ``val_set`` (a `mcdp.data.RigDataset`) at ``step``: the
+    step's own ``stage/<final>`` loss of ``system`` (a `mcdp.system.SelfSupervisedSystem`, in eval mode here
+    and back in train mode after), each rank its share (``dist``: `mcdp.distributed.Dist`), the mean over all.
+    With ``depth_of`` (the dataset with ground truth and the `mcdp.config.EvalConfig`), this rank's samples'
+    depth metrics too (`DepthAccumulator`; one process: all of them), else {}. Returns (loss, metrics)."""
+    acc = DepthAccumulator() if depth_of is not None else None
+    nets = [n for n in (system.depth, system.pose) if n is not None]
     for n in nets:
         n.eval()
     vals = []
-    final = t.depth.stages[-1]
-    for i in idx[t.dist.rank::t.dist.world]:
-        batch = t.to_device(collate([t.val_set[i]]))
-        outputs, losses = t.system.process_batch(batch, t.step, train=False)
+    final = system.depth.stages[-1]
+    for i in idx[dist.rank::dist.world]:
+        batch = collate([val_set[i]]).to(device, non_blocking=True)
+        outputs, losses = system.process_batch(batch, step, train=False)
         if acc is not None:
-            seq, frame = t.val_set.seqs[int(batch.seq_index[0])], int(batch.frame[0])
-            acc.add(t.ds, seq, frame, outputs["depth", final, 0][:, 0].float().cpu().numpy(), t.cfg.eval)
+            seq, frame = val_set.seqs[int(batch.seq_index[0])], int(batch.frame[0])
+            acc.add(depth_of[0], seq, frame, outputs["depth", final, 0][:, 0].float().cpu().numpy(), depth_of[1])
         vals.append(float(losses[f"stage/{final}"]))
     for n in nets:
         n.train()
-    total, count = t.dist.sum_([float(np.sum(vals)), float(len(vals))], t.device)
-    if acc is not None:
-        t.log.scalars({f"val/depth_{k}": v for k, v in acc.metrics(acc.sums).items()}, t.step)
-    return total / count
+    total, count = dist.sum_([float(np.sum(vals)), float(len(vals))], device)
+    return total / count, (acc.metrics(acc.sums) if acc is not None else {})
 
 
 class DepthAccumulator:

@@ -15,7 +15,7 @@ import sys
 
 from corelib import exitcodes
 from corelib.cli import Command
-from study import method_commands
+from study import command_common, method_commands
 from corelib.presets import complete_presets, preset_path
 
 # the study's modules (and torch, which they import) are imported by the command that runs, once its
@@ -27,7 +27,7 @@ def _pretrain_args(p: argparse.ArgumentParser) -> None:
                                     "mcdp presets pretrain)"), "pretrain")
     p.add_argument("--out", help="pretraining folder (reused when its config hash matches); required unless "
                    "--print-config")
-    method_commands.add_print_config(p)
+    command_common.add_print_config(p)
     p.add_argument("--no-progress", action="store_true")
     p.add_argument("--yes", action="store_true", help="start a pretraining whose render is larger than "
                    "synth.config.MAX_RENDER_BYTES (500 GB uncompressed) without refusing")
@@ -41,9 +41,9 @@ def run_pretrain_command(args: argparse.Namespace) -> int:
 
     cfg = load_pretrain_config(preset_path(args.config, "pretrain"), args.overrides)
     if args.print_config:
-        return method_commands.print_config(cfg)
-    method_commands.require(args, "--out")
-    method_commands.outside_datasets(args.out)  # before anything is written
+        return command_common.print_config(cfg)
+    command_common.require(args, "--out")
+    command_common.outside_datasets(args.out)  # before anything is written
     size = render_size(resolved_configs(cfg, check_network=False)[0])
     print(f"mcdp pretrain: its world: {size_statement(size)}", file=sys.stderr)
     check_render_size(size, args.yes, f"{args.config} data_overrides")
@@ -56,7 +56,7 @@ def _sweep_args(p: argparse.ArgumentParser) -> None:
                                     "sweep)"), "sweep")
     p.add_argument("--out", help="sweep folder; a rerun resumes and skips finished work; required unless "
                    "--print-config")
-    method_commands.add_print_config(p)
+    command_common.add_print_config(p)
     p.add_argument("--no-progress", action="store_true", help="no progress bars (log lines only)")
     p.add_argument("--engine", choices=["local", "ray"], default=None,
                    help="where renders and runs execute (overrides the config's engine): local processes, or Ray "
@@ -79,9 +79,9 @@ def run_sweep_command(args: argparse.Namespace) -> int:
     engine = getattr(args, "engine", None)
     cfg = load_sweep_config(preset, args.overrides, {"engine": engine} if engine else None)
     if args.print_config:
-        return method_commands.print_config(cfg)
-    method_commands.require(args, "--out")
-    method_commands.outside_datasets(args.out)  # before anything is written
+        return command_common.print_config(cfg)
+    command_common.require(args, "--out")
+    command_common.outside_datasets(args.out)  # before anything is written
     size = check_nested_configs(cfg, yes=True)  # its overrides' configs too, before the sweep's modules are imported
     if cfg.engine == "ray":  # refused before anything is said or written
         from corelib.cluster import import_ray

@@ -21,6 +21,7 @@ diverged (NaN/inf loss), 4 disk full, 5 a sweep's run failed twice (engine ray),
 
 A config is checked before torch is imported (seconds): a wrong key fails at once.
 
+``train`` lives in `study.train_command`, what the commands share in `study.command_common`.
 Subcommands are registered in `COMMANDS` as `corelib.cli.Command` (name, help, add_arguments,
 run), the one CLI style of `synth` and `mcdp`; a new one is one more entry. The ``mcdp`` console script is `study.cli.main`: these
 commands plus the study's ``sweep``.
@@ -37,6 +38,8 @@ from corelib import cli
 from corelib.atomic import atomic_write_json, check_writable
 from corelib.cli import Command
 from corelib.exitcodes import DIVERGED as EXIT_DIVERGED, USAGE as EXIT_USAGE
+from study.command_common import open_dataset, outside_datasets, require_split
+from study.train_command import train, train_arguments
 
 #: (module, class) of every error a user can cause, and of a diverged training
 USER_ERRORS = [("corelib.configlib", "ConfigError"), ("corelib.rundir", "FolderError"), ("synth.files", "DatasetError"),
@@ -58,160 +61,6 @@ def _check_metrics_target(out: Path) -> None:
     from corelib.rundir import check_output_file
 
     check_output_file(out, _is_metrics, "metrics file written by mcdp eval")
-
-
-def outside_datasets(out: str | Path, flag: str = "--out") -> None:
-    """An output inside a dataset would change it behind its manifest (and `synth verify` would not see it)."""
-    from corelib.rundir import FolderError
-    from synth.dataset import dataset_containing
-
-    inside = dataset_containing(out)
-    if inside is not None:
-        raise FolderError(f"{flag} {out} is inside the dataset {inside}; nothing was written: write outside it")
-
-
-def _open_dataset(path: str):
-    from synth.open import open_dataset
-
-    return open_dataset(path)
-
-
-def require_split(ds, data: str, split: str) -> list[str]:
-    """The sequences of `split`; an empty split is refused in one line (before a model is loaded)."""
-    from mcdp.runs import RunError
-    from synth.files import DatasetError
-
-    def filled(k: str) -> bool:
-        try:
-            return bool(ds.split(k))
-        except DatasetError:  # a nuScenes dataroot's empty official split
-            return False
-
-    seqs = ds.split(split)
-    if not seqs:
-        has = [k for k in ("train", "val", "test") if k != split and filled(k)]
-        raise RunError(f"dataset {data}: split {split!r} has no sequence, nothing to do (render more "
-                       f"dataset.sequences, or use --split {' / '.join(has) or '...'})")
-    return seqs
-
-
-# --------------------------------------------------------------------------- train
-def _train_args(p: argparse.ArgumentParser) -> None:
-    from corelib.presets import complete_presets
-
-    complete_presets(p.add_argument("preset", help="training preset YAML, e.g. configs/train/mcdp_m1.yaml (list: mcdp "
-                                    "presets train)"), "train")
-    p.add_argument("--method", help="a registered method (mcdp/methods/__init__.py) whose row's config values go "
-                   "under the preset, e.g. configs/train/tiny/base.yaml --method mcdp_m2 (a method needs no preset "
-                   "of its own)")
-    p.add_argument("--data", help="dataset folder (synth render output); required unless --print-config")
-    p.add_argument("--out", help="run folder; training resumes if it holds checkpoints/last.pt; required unless "
-                   "--print-config")
-    p.add_argument("--no-progress", action="store_true", help="no progress bar")
-    add_print_config(p)
-    p.add_argument("overrides", nargs="*", help="config overrides key=value, e.g. train.steps=100 model.bases=16")
-
-
-def add_print_config(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--print-config", action="store_true", help="print the resolved config (YAML, overrides "
-                   "applied) on stdout and exit 0; nothing is run or written")
-
-
-def print_config(cfg) -> int:
-    """The resolved config as YAML on stdout (``--print-config``); 0."""
-    import yaml
-
-    from corelib.configlib import config_to_dict
-
-    print(yaml.safe_dump(config_to_dict(cfg), sort_keys=False), end="")
-    return 0
-
-
-def require(args: argparse.Namespace, *flags: str) -> None:
-    """The flags a command needs unless ``--print-config`` (argparse's own wording, exit 2)."""
-    from corelib.configlib import ConfigError
-
-    missing = [f for f in flags if getattr(args, f.lstrip("-").replace("-", "_")) is None]
-    if missing:
-        raise ConfigError(f"the following arguments are required: {', '.join(missing)}")
-
-
-#: what `mcdp train` says when a method with bases starts without a pretraining (README, "Training on a CPU")
-NO_INIT_WARNING = ("mcdp train: warning: model.method={method} (a network with bases) starts from scratch: without "
-                   "model.init_from it tends to collapse to a constant depth; pretrain first (mcdp pretrain "
-                   "configs/pretrain/tiny.yaml --out pretrain/tiny) and pass model.init_from=pretrain/tiny/pretrained.pt")
-
-
-#: what `mcdp train` says when the dataset's val split holds no rig sample (`synth render` warned of it)
-NO_VAL_WARNING = ("mcdp train: warning: {data} has no val rig sample (an empty val split): no validation loss and no "
-                  "checkpoints/best.pt; checkpoints/last.pt is the result (render 3 or more dataset.sequences)")
-
-
-def method_row_defaults(name: str | None) -> dict | None:
-    """The config values of registered method ``name`` (its row's defaults), None for no name; a ConfigError
-    naming ``--method`` and the registered names for another."""
-    from corelib.configlib import ConfigError
-    from corelib.text import bounded
-    from mcdp.methods import METHODS
-
-    if name is None:
-        return None
-    if name not in METHODS:
-        raise ConfigError(f"--method {bounded(name, 80)}: not a registered method (registered: {', '.join(METHODS)})")
-    return dict(METHODS[name].defaults)
-
-
-def _train(args: argparse.Namespace) -> int:
-    from mcdp.config import RunConfig
-    from corelib.configlib import load_config
-    from corelib.logs import logger
-    from corelib.presets import preset_path
-
-    cfg = load_config(RunConfig, preset_path(args.preset, "train"), args.overrides,
-                      base=method_row_defaults(args.method))  # before torch is imported
-    if args.method is not None and cfg.model.method != method_row_defaults(args.method)["model.method"]:
-        from corelib.configlib import ConfigError
-
-        raise ConfigError(f"--method {args.method}: the preset sets model.method={cfg.model.method}, not this "
-                          "method's; give a preset that names no method (configs/train/base.yaml, "
-                          "configs/train/tiny/base.yaml)")
-    if args.print_config:
-        return print_config(cfg)
-    require(args, "--data", "--out")
-    outside_datasets(args.out)
-    check_writable(Path(args.out) / "run.json")
-    from mcdp.trainer import Trainer
-
-    ds = _open_dataset(args.data)
-    trainer = Trainer(cfg, ds, args.out, progress=not args.no_progress)
-    m, tc = cfg.model, cfg.train
-    n_params = sum(p.numel() for p in trainer.depth.parameters())
-    log = logger("mcdp.train")  # stderr and RUN/train.log (corelib.logs)
-    say = log.info if trainer.dist.is_main else (lambda *a, **k: None)  # torchrun: rank 0 speaks
-    ranks = f", {trainer.dist.world} ranks (torchrun; global batch)" if trainer.dist.enabled else ""
-    say(
-        f"mcdp train: method={m.method} bases={trainer.depth.n_out} refine_steps={m.refine_steps} "
-        f"neighbours={m.neighbours} "
-        f"lambda={cfg.loss.consistency_weight} scale={cfg.scale.source}"
-        + (" [ORACLE: uses ground-truth median scale]" if cfg.scale.oracle else ""))
-    say(
-        f"  {len(ds.camera_names)} cameras, {len(trainer.train_set)} train / {len(trainer.val_set)} val rig samples, "
-        f"{tc.height}x{tc.width}, batch {tc.batch_size}{ranks}, depth net {n_params / 1e6:.2f} M params, "
-        f"device {trainer.device}, precision {tc.precision}"
-        + (f", resuming at step {trainer.step}" if trainer.step else ""))
-    if trainer.dist.is_main and trainer.step == 0 and m.init_from is None and trainer.depth.has_bases:
-        log.warning(NO_INIT_WARNING.format(method=m.method))
-    no_val = len(trainer.val_set) == 0
-    if no_val and trainer.dist.is_main:
-        log.warning(NO_VAL_WARNING.format(data=args.data))
-    try:
-        summary = trainer.train()
-        val = "no val split, no best.pt" if no_val else f"best val loss {summary['best_val']:.4f}"
-        say(f"mcdp train: step {summary['steps']} ({summary['trained']} this run), {val}, checkpoints in "
-            f"{Path(args.out) / 'checkpoints'}")
-    finally:
-        trainer.close()
-    return 0
 
 
 # --------------------------------------------------------------------------- eval
@@ -266,7 +115,7 @@ def _eval(args: argparse.Namespace) -> int:
     from mcdp.predict import Predictor, run_record
     from mcdp.runs import RunError, rig_differences
 
-    ds = _open_dataset(args.data)
+    ds = open_dataset(args.data)
     if not ds.has_depth:
         raise RunError(f"dataset {args.data} has no ground-truth depth (manifest has_depth=false); eval needs it")
     seqs = require_split(ds, args.data, args.split)
@@ -330,7 +179,7 @@ def _predict(args: argparse.Namespace) -> int:
     if args.out is not None:
         outside_datasets(args.out)
         check_writable(Path(args.out) / "predict.json")
-    ds = _open_dataset(args.data)
+    ds = open_dataset(args.data)
     require_split(ds, args.data, args.split)
     pred = Predictor(args.run, ds, args.checkpoint, args.device)
     samples = [(s, f) for s in ds.split(args.split) for f in range(0, ds.n_frames(s), args.stride)]
@@ -400,7 +249,7 @@ def _presets(args: argparse.Namespace) -> int:
 
 # --------------------------------------------------------------------------- main
 COMMANDS: list[Command] = [
-    Command("train", "train a model (resumes if RUN has a checkpoint)", _train_args, _train),
+    Command("train", "train a model (resumes if RUN has a checkpoint)", train_arguments, train),
     Command("eval", "evaluate a run on a split -> metrics.json and per-camera tables", _eval_args, _eval),
     Command("predict", "write depth grids, EXR depth and optional PLY for a split", _predict_args, _predict),
     Command("presets", "list the presets in configs/ (train, sweep, pretrain, data)", _presets_args, _presets),

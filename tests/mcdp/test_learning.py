@@ -139,16 +139,16 @@ def test_the_trainer_warns_naming_the_step_when_depth_collapses(ds, tmp_path, ca
     try:
         mask = torch.ones(1, 6, 1, 64, 96)
         tr.step = 5  # within the grace steps a constant start is not a collapse
-        tr.check_spread({("depth", "init", 0): torch.full((6, 1, 64, 96), 10.0)}, {"mask": mask})
+        tr.check_spread({("depth", "init", 0): torch.full((6, 1, 64, 96), 10.0)}, mask)
         assert "WARNING" not in capsys.readouterr().err
         tr.collapse_guard.streak = 0
         near = {("depth", "init", 0): torch.full((6, 1, 64, 96), 0.1)}
         for step in range(150, 154):  # a streak shorter than COLLAPSE_STREAK: no warning yet
             tr.step = step
-            tr.check_spread(near, {"mask": mask})
+            tr.check_spread(near, mask)
         assert "WARNING" not in capsys.readouterr().err
         tr.step = 154
-        tr.check_spread(near, {"mask": mask})
+        tr.check_spread(near, mask)
         err = capsys.readouterr().err
         assert "WARNING step 154: depth collapsed" in err and "min_depth" in err
         assert tr.spread["collapsed"]

@@ -7,7 +7,8 @@ from pathlib import Path
 import pytest
 
 import mcdp.trainer  # noqa: F401  torch before the in-process GL renderer (tests/mcdp/test_cli.py says why)
-from study.method_commands import NO_INIT_WARNING, main
+from study.method_commands import main
+from study.train_command import NO_INIT_WARNING
 
 TINY = Path(__file__).resolve().parents[2] / "configs" / "train" / "tiny"
 WARNING_START = NO_INIT_WARNING.split("{")[0]

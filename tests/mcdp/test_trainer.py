@@ -181,7 +181,7 @@ def test_the_val_loss_is_the_steps_own_final_stage_loss(ds, tmp_path, one_thread
     tr = Trainer(cfg_of("mcdp_m1", "train.steps=1"), ds, tmp_path / "run", progress=False, tensorboard=False)
     try:
         i = tr.val_indices()[0]
-        val = validation_loss(tr, [i])
+        val, _ = validation_loss(tr.system, tr.val_set, [i], tr.step, tr.dist, tr.device)
         tr.depth.eval()
         tr.pose.eval()
         with torch.no_grad():
