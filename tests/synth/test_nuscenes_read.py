@@ -1,4 +1,4 @@
-"""`synth.nuscenes_read`: our export read back through the devkit gives the source dataset's rig, poses,
+"""`synth.nuscenes.read`: our export read back through the devkit gives the source dataset's rig, poses,
 splits and frames; its LiDAR depth agrees with the exact depth; metrics on the export equal the source's
 metrics on the same LiDAR pixels; broken dataroots fail with one line naming the token / file / channel."""
 from __future__ import annotations
@@ -21,8 +21,8 @@ from mcdp.evaluate import EvalConfig, evaluate  # noqa: E402
 from mcdp.predict import Predictor  # noqa: E402
 from synth.open import open_dataset  # noqa: E402
 from synth.files import DatasetError, read_png  # noqa: E402
-from synth.nuscenes_export import export_nuscenes  # noqa: E402
-from synth.nuscenes_read import NO_MASKS, RIG_ORDER, NuScenesDataset, open_nuscenes  # noqa: E402
+from synth.nuscenes.export import export_nuscenes  # noqa: E402
+from synth.nuscenes.read import NO_MASKS, RIG_ORDER, NuScenesDataset, open_nuscenes  # noqa: E402
 
 VERSION = "v1.0-synth"
 TINY_TRAIN = Path(__file__).resolve().parents[2] / "configs" / "train" / "tiny" / "mono2.yaml"

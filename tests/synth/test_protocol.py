@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 
 from synth.dataset import Dataset
-from synth.nuscenes_read import RIG_ORDER, NuScenesDataset
+from synth.nuscenes.read import RIG_ORDER, NuScenesDataset
 from synth.protocol import Camera, DatasetReader
 from synth.rig import CameraSpec
 from tests.mcdp.test_evaluate import FakeDataset
@@ -40,7 +40,7 @@ def nuscenes_dataset() -> NuScenesDataset:
                            2.0, masks, "none", True, "half")
 
 
-READERS = {"synth.dataset.Dataset": synth_dataset, "synth.nuscenes_read.NuScenesDataset": nuscenes_dataset,
+READERS = {"synth.dataset.Dataset": synth_dataset, "synth.nuscenes.read.NuScenesDataset": nuscenes_dataset,
            "tests' FakeDataset": FakeDataset}
 
 

@@ -17,7 +17,7 @@ Layout written (and nothing outside ``NS_ROOT``)::
       mcdp_synth/splits.json            {train, val, test: [scene names]} (our sequence ids)
       mcdp_synth/masks/<CHANNEL>.png    self-occlusion masks (255 = scene, 0 = ego body)
       mcdp_synth/depth/<CHANNEL>/<seq>__<CHANNEL>__<timestamp_us>.depth.exr   exact z-depth (copied bytes)
-      lidarseg/<version>/*.bin, mcdp_synth/labels/...  a dataset's labels (`synth.nuscenes_lidarseg`)
+      lidarseg/<version>/*.bin, mcdp_synth/labels/...  a dataset's labels (`synth.nuscenes.lidarseg`)
 
 Conventions: calibrated_sensor is sensor -> ego (translation, rotation quaternion [w, x, y, z]),
 ego_pose is ego -> global; our camera frame is OpenCV like nuScenes'. ``camera_intrinsic`` is the
@@ -47,8 +47,8 @@ from synth.dataset import is_plain_name
 from synth.open import open_dataset
 from synth.files import DatasetError, read_json, read_png, write_json, write_png
 from synth.lidar import LidarConfig, luma
-from synth.nuscenes_lidarseg import LIDARSEG_DIR, ExportLabels
-from synth.nuscenes_tables import rotation_to_quaternion
+from synth.nuscenes.lidarseg import LIDARSEG_DIR, ExportLabels
+from synth.nuscenes.tables import rotation_to_quaternion
 
 FORMAT = "mcdp-synth-nuscenes-export"
 FORMAT_VERSION = 1

@@ -35,7 +35,7 @@ import numpy as np
 
 from synth.files import DatasetError, read_image, read_json, read_png, regular_file, within
 from synth.label_reader import NoLabels
-from synth.nuscenes_tables import (EXPORT_DIR, check_intrinsic, get_record, lidar_xyz, load_tables, pose_matrix,
+from synth.nuscenes.tables import (EXPORT_DIR, check_intrinsic, get_record, lidar_xyz, load_tables, pose_matrix,
                                    read_splits, resolve_version, view_points)
 from synth.rig import CameraSpec
 from synth.sizes import shared_size, size_keys

@@ -1,4 +1,4 @@
-"""The labels of the nuScenes export (`synth.nuscenes_export`): lidarseg for the LiDAR and the image labels beside.
+"""The labels of the nuScenes export (`synth.nuscenes.export`): lidarseg for the LiDAR and the image labels beside.
 
 A dataset with semantic labels (`ds.label_kinds`) exports, besides what docs/NUSCENES.md lists::
 
@@ -25,7 +25,7 @@ import numpy as np
 from corelib.atomic import atomic_write_bytes
 from synth.files import DatasetError, frame_stem
 from synth.lidar import LidarConfig, labelled_sweep, simulate_sweep
-from synth.nuscenes_tables import EXPORT_DIR
+from synth.nuscenes.tables import EXPORT_DIR
 LIDARSEG_DIR = "lidarseg"
 #: nuScenes-lidarseg's categories in the order of their ``index`` (nuscenes.utils.color_map.get_colormap)
 NUSCENES_CLASSES = (

@@ -79,7 +79,7 @@ def _diagnose_key_error(root: Path, version: str, exc: KeyError) -> str:
 
 
 class PlainTables:
-    """The part of the devkit's ``NuScenes`` that `synth.nuscenes_read` uses, from the JSON tables alone:
+    """The part of the devkit's ``NuScenes`` that `synth.nuscenes.read` uses, from the JSON tables alone:
     ``sensor``, ``scene``, ``get(table, token)``, ``dataroot``, ``version``, and the reverse index the
     devkit adds (``sample_data["channel"]``, ``sample["data"][channel]`` = the key-frame sample_data)."""
 
@@ -197,7 +197,7 @@ def rotation_matrix(q: np.ndarray) -> np.ndarray:
 
 def rotation_to_quaternion(R: np.ndarray) -> list[float]:
     """Unit quaternion [w, x, y, z] (nuScenes / pyquaternion order) of a 3x3 rotation, w >= 0: the inverse of
-    `rotation_matrix` (`synth.nuscenes_export` writes calibrated_sensor and ego_pose with it)."""
+    `rotation_matrix` (`synth.nuscenes.export` writes calibrated_sensor and ego_pose with it)."""
     R = np.asarray(R, np.float64)
     tr = R[0, 0] + R[1, 1] + R[2, 2]
     if tr > 0:
