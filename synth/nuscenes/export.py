@@ -48,7 +48,7 @@ from synth.open import open_dataset
 from synth.files import DatasetError, read_json, read_png, write_json, write_png
 from synth.lidar import LidarConfig, luma
 from synth.nuscenes.lidarseg import LIDARSEG_DIR, ExportLabels
-from synth.nuscenes.tables import rotation_to_quaternion
+from synth.nuscenes.geometry import rotation_to_quaternion
 
 FORMAT = "mcdp-synth-nuscenes-export"
 FORMAT_VERSION = 1

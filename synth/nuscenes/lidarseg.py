@@ -25,8 +25,8 @@ import numpy as np
 from corelib.atomic import atomic_write_bytes
 from synth.files import DatasetError, frame_stem
 from synth.lidar import LidarConfig, labelled_sweep, simulate_sweep
-from synth.nuscenes.tables import EXPORT_DIR
-LIDARSEG_DIR = "lidarseg"
+from synth.nuscenes.layout import EXPORT_DIR, LIDARSEG_DIR
+
 #: nuScenes-lidarseg's categories in the order of their ``index`` (nuscenes.utils.color_map.get_colormap)
 NUSCENES_CLASSES = (
     "noise", "animal", "human.pedestrian.adult", "human.pedestrian.child", "human.pedestrian.construction_worker",

@@ -35,8 +35,9 @@ import numpy as np
 
 from synth.files import DatasetError, read_image, read_json, read_png, regular_file, within
 from synth.label_reader import NoLabels
-from synth.nuscenes.tables import (EXPORT_DIR, check_intrinsic, get_record, lidar_xyz, load_tables, pose_matrix,
-                                   read_splits, resolve_version, view_points)
+from synth.nuscenes.geometry import check_intrinsic, lidar_xyz, pose_matrix, view_points
+from synth.nuscenes.layout import EXPORT_DIR
+from synth.nuscenes.tables import get_record, load_tables, read_splits, resolve_version
 from synth.rig import CameraSpec
 from synth.sizes import shared_size, size_keys
 

@@ -1,12 +1,12 @@
-"""The tables of a nuScenes dataroot through the official devkit: finding the version folder, loading
-it with errors that name the broken record and token, and the train / val / test scene lists.
+"""The tables of a nuScenes dataroot: recognising one (`is_nuscenes_root`), finding its version folder,
+loading it through the official devkit with errors that name the broken record and token, and the
+train / val / test scene lists.
 
 Without the devkit (an environment with the ``viz`` extra: rerun-sdk needs numpy >= 2, nuscenes-devkit
-1.2.0 numpy < 2) `load_tables` reads the tables the reader uses as plain JSON (`PlainTables`: the same
-records, with the devkit's ``sample["data"]`` / ``sample_data["channel"]`` reverse index), so
-`synth view` can record a dataroot; the official splits still need the devkit. Beside them, nuScenes'
-rotation convention both ways: `rotation_matrix` and `pose_matrix` (the reader), `rotation_to_quaternion` (the
-export).
+1.2.0 numpy < 2) `load_tables` reads the tables the reader uses as plain JSON
+(`synth.nuscenes.plain.PlainTables`: the same records, with the devkit's ``sample["data"]`` /
+``sample_data["channel"]`` reverse index), so `synth view` can record a dataroot; the official splits
+still need the devkit.
 
 Example::
 
@@ -15,15 +15,12 @@ Example::
 """
 from __future__ import annotations
 
-import math
 from pathlib import Path
 
-import numpy as np
-
 from synth.files import DatasetError, read_json, regular_file, within
+from synth.nuscenes.layout import SPLITS_FILE
+from synth.nuscenes.plain import PlainTables
 
-
-EXPORT_DIR = "mcdp_synth"
 INSTALL_HINT = "install the extra: pip install -e '.[nuscenes]'"
 
 
@@ -78,36 +75,6 @@ def _diagnose_key_error(root: Path, version: str, exc: KeyError) -> str:
     return f"{root / version}: the devkit could not index the tables: no record with token {exc}"
 
 
-class PlainTables:
-    """The part of the devkit's ``NuScenes`` that `synth.nuscenes.read` uses, from the JSON tables alone:
-    ``sensor``, ``scene``, ``get(table, token)``, ``dataroot``, ``version``, and the reverse index the
-    devkit adds (``sample_data["channel"]``, ``sample["data"][channel]`` = the key-frame sample_data)."""
-
-    TABLES = ("sensor", "calibrated_sensor", "ego_pose", "scene", "sample", "sample_data")
-
-    def __init__(self, root: Path, version: str) -> None:
-        self.dataroot, self.version = str(root), version
-        self._by_token: dict[str, dict[str, dict]] = {}
-        for name in self.TABLES:
-            f = root / version / f"{name}.json"
-            rows = read_json(f, root, f"the {name} table")
-            if not isinstance(rows, list) or not all(isinstance(r, dict) and "token" in r for r in rows):
-                raise DatasetError(f"{f}: must be a list of records with a token")
-            setattr(self, name, rows)
-            self._by_token[name] = {r["token"]: r for r in rows}
-        for sd in self.sample_data:
-            cs = self.get("calibrated_sensor", sd["calibrated_sensor_token"])
-            sd["channel"] = self.get("sensor", cs["sensor_token"])["channel"]
-        for s in self.sample:
-            s["data"] = {}
-        for sd in self.sample_data:
-            if sd.get("is_key_frame"):
-                self.get("sample", sd["sample_token"])["data"][sd["channel"]] = sd["token"]
-
-    def get(self, table: str, token) -> dict:
-        return self._by_token[table][token]  # KeyError for a missing token, as the devkit
-
-
 def load_tables(root: Path, version: str):
     """The devkit's ``NuScenes`` object of `root`'s `version` (`PlainTables` without the devkit);
     DatasetError naming the broken record."""
@@ -148,7 +115,7 @@ def get_record(nusc, table: str, token, who: str) -> dict:
 def read_splits(root: Path, scenes: list[str], version: str) -> tuple[dict[str, list[str]], str]:
     """(train / val / test scene names, their source): ``mcdp_synth/splits.json`` if the dataroot has one,
     else the devkit's official splits of the scenes present (test = val where there is no test scene)."""
-    f = root / EXPORT_DIR / "splits.json"
+    f = root / SPLITS_FILE
     if f.exists() or f.is_symlink():
         sp = read_json(f, root, "the splits")
         if not isinstance(sp, dict) or not all(isinstance(v, list) for v in sp.values()):
@@ -158,11 +125,11 @@ def read_splits(root: Path, scenes: list[str], version: str) -> tuple[dict[str, 
                 if s not in scenes:
                     raise DatasetError(f"{f}: splits.{name} names scene {str(s)[:60]!r}, which is not in "
                                        f"{version}/scene.json")
-        return {k: list(v) for k, v in sp.items()}, f"{EXPORT_DIR}/splits.json"
+        return {k: list(v) for k, v in sp.items()}, SPLITS_FILE
     try:
         from nuscenes.utils.splits import create_splits_scenes
     except ImportError:
-        raise DatasetError(f"{root}: no {EXPORT_DIR}/splits.json, and the official splits come from the devkit; "
+        raise DatasetError(f"{root}: no {SPLITS_FILE}, and the official splits come from the devkit; "
                            f"{INSTALL_HINT}") from None
 
     official = create_splits_scenes()
@@ -175,107 +142,3 @@ def read_splits(root: Path, scenes: list[str], version: str) -> tuple[dict[str, 
         test = list(pick["val"])
         source += " (test = val: this dataroot has no test scene)"
     return {"train": pick["train"], "val": pick["val"], "test": test}, source
-
-
-# ---------------------------------------------------------------- the devkit's arithmetic, with or without it
-def rotation_matrix(q: np.ndarray) -> np.ndarray:
-    """3x3 rotation of a quaternion [w, x, y, z] (normalised first): pyquaternion's ``rotation_matrix``,
-    or the same formula where pyquaternion (a devkit dependency) is not installed."""
-    try:
-        from pyquaternion import Quaternion
-    except ImportError:  # pyquaternion's arithmetic step by step, so both give the same bits
-        q = np.array(q, dtype=float)
-        ss = np.dot(q, q)
-        if not abs(1.0 - ss) < 1e-14 and ss > 0:
-            q = q / np.sqrt(ss)
-        w, x, y, z = q
-        qm = np.array([[w, -x, -y, -z], [x, w, -z, y], [y, z, w, -x], [z, -y, x, w]])
-        qb = np.array([[w, -x, -y, -z], [x, w, z, -y], [y, -z, w, x], [z, y, -x, w]])
-        return np.dot(qm, qb.conj().transpose())[1:][:, 1:]
-    return Quaternion(q).rotation_matrix
-
-
-def rotation_to_quaternion(R: np.ndarray) -> list[float]:
-    """Unit quaternion [w, x, y, z] (nuScenes / pyquaternion order) of a 3x3 rotation, w >= 0: the inverse of
-    `rotation_matrix` (`synth.nuscenes.export` writes calibrated_sensor and ego_pose with it)."""
-    R = np.asarray(R, np.float64)
-    tr = R[0, 0] + R[1, 1] + R[2, 2]
-    if tr > 0:
-        s = 2.0 * math.sqrt(tr + 1.0)
-        q = [0.25 * s, (R[2, 1] - R[1, 2]) / s, (R[0, 2] - R[2, 0]) / s, (R[1, 0] - R[0, 1]) / s]
-    elif R[0, 0] > R[1, 1] and R[0, 0] > R[2, 2]:
-        s = 2.0 * math.sqrt(1.0 + R[0, 0] - R[1, 1] - R[2, 2])
-        q = [(R[2, 1] - R[1, 2]) / s, 0.25 * s, (R[0, 1] + R[1, 0]) / s, (R[0, 2] + R[2, 0]) / s]
-    elif R[1, 1] > R[2, 2]:
-        s = 2.0 * math.sqrt(1.0 + R[1, 1] - R[0, 0] - R[2, 2])
-        q = [(R[0, 2] - R[2, 0]) / s, (R[0, 1] + R[1, 0]) / s, 0.25 * s, (R[1, 2] + R[2, 1]) / s]
-    else:
-        s = 2.0 * math.sqrt(1.0 + R[2, 2] - R[0, 0] - R[1, 1])
-        q = [(R[1, 0] - R[0, 1]) / s, (R[0, 2] + R[2, 0]) / s, (R[1, 2] + R[2, 1]) / s, 0.25 * s]
-    q = np.asarray(q)
-    q = q / np.linalg.norm(q)
-    if q[0] < 0:
-        q = -q
-    return [float(x) for x in q]
-
-
-MAX_FOCAL_PX = 1e5  # a focal length above this (a 0.06 deg field of view at 100 px) is an error in the table
-
-
-def check_intrinsic(K: np.ndarray, where: str) -> np.ndarray:
-    """`K` when it is a pinhole camera_intrinsic: 3x3, finite, fx and fy in (0, `MAX_FOCAL_PX`], last row
-    [0, 0, 1]; else DatasetError naming `where` (the table and token) and the value."""
-    if K.shape != (3, 3):
-        raise DatasetError(f"{where}: camera_intrinsic must be 3x3, got shape {K.shape}")
-    if not np.isfinite(K).all():
-        raise DatasetError(f"{where}: camera_intrinsic holds a non-finite value (NaN or inf)")
-    for name, f in (("fx", K[0, 0]), ("fy", K[1, 1])):
-        if not 0 < f <= MAX_FOCAL_PX:
-            raise DatasetError(f"{where}: camera_intrinsic {name} = {float(f):.6g} px; a focal length must be in "
-                               f"(0, {MAX_FOCAL_PX:.0e}] px")
-    if not np.allclose(K[2], [0.0, 0.0, 1.0], rtol=0, atol=1e-9):
-        raise DatasetError(f"{where}: camera_intrinsic's last row must be [0, 0, 1]")
-    return K
-
-
-def pose_matrix(rotation, translation, where: str) -> np.ndarray:
-    """4x4 of a nuScenes pose record (rotation [w, x, y, z], translation); DatasetError naming `where`."""
-    try:
-        q = np.asarray(rotation, np.float64)
-        t = np.asarray(translation, np.float64)
-        if q.shape != (4,) or t.shape != (3,) or not (np.isfinite(q).all() and np.isfinite(t).all()) or \
-                not abs(np.linalg.norm(q) - 1.0) < 1e-3:
-            raise ValueError
-    except (TypeError, ValueError):
-        raise DatasetError(f"{where}: rotation must be a unit quaternion [w, x, y, z] and translation 3 finite "
-                           "numbers") from None
-    T = np.eye(4)
-    T[:3, :3] = rotation_matrix(q)
-    T[:3, 3] = t
-    return T
-
-
-def lidar_xyz(path: Path) -> np.ndarray:
-    """(3, N) float32 x, y, z of a LIDAR_TOP ``.bin`` (5 float32 per point): the devkit's
-    ``LidarPointCloud.from_file``, or the same read without the devkit."""
-    regular_file(path)
-    try:
-        from nuscenes.utils.data_classes import LidarPointCloud
-    except ImportError:
-        if not str(path).endswith(".bin"):
-            raise AssertionError(f"Unsupported filetype {path}") from None
-        return np.fromfile(str(path), dtype=np.float32).reshape((-1, 5))[:, :3].T
-    return LidarPointCloud.from_file(str(path)).points[:3]
-
-
-def view_points(pc: np.ndarray, K: np.ndarray) -> np.ndarray:
-    """(2, N) pixel coordinates of camera-frame points (3, N): the devkit's ``view_points(..., normalize=True)``
-    or the same product without the devkit."""
-    try:
-        from nuscenes.utils.geometry_utils import view_points
-    except ImportError:  # the devkit's arithmetic step by step, so both give the same bits
-        pad = np.eye(4)
-        pad[:3, :3] = K
-        uvw = np.dot(pad, np.concatenate((pc, np.ones((1, pc.shape[1])))))[:3, :]
-        return (uvw / uvw[2:3, :].repeat(3, 0).reshape(3, pc.shape[1]))[:2]
-    return view_points(pc, K, normalize=True)[:2]
