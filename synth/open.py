@@ -20,7 +20,7 @@ from synth.files import DatasetError
 
 
 def open_dataset(path: str | Path, verify: bool = False):
-    """The dataset at ``path`` (`synth.dataset.Dataset` or `synth.nuscenes.read.NuScenesDataset`), or a
+    """The dataset at ``path`` (`synth.dataset.Dataset` or `synth.nuscenes.dataset.NuScenesDataset`), or a
     `DatasetError` naming the folder; ``verify=True`` also checks every file's sha256 (rendered datasets only:
     a nuScenes dataroot has no checksums)."""
     root = Path(path)

@@ -22,7 +22,9 @@ from mcdp.predict import Predictor  # noqa: E402
 from synth.open import open_dataset  # noqa: E402
 from synth.files import DatasetError, read_png  # noqa: E402
 from synth.nuscenes.export import export_nuscenes  # noqa: E402
-from synth.nuscenes.read import NO_MASKS, RIG_ORDER, NuScenesDataset, open_nuscenes  # noqa: E402
+from synth.nuscenes.dataset import NuScenesDataset  # noqa: E402
+from synth.nuscenes.layout import NUSCENES_CAMERAS  # noqa: E402
+from synth.nuscenes.read import NO_MASKS, open_nuscenes  # noqa: E402
 
 VERSION = "v1.0-synth"
 TINY_TRAIN = Path(__file__).resolve().parents[2] / "configs" / "train" / "tiny" / "mono2.yaml"
@@ -59,7 +61,7 @@ def test_open_dataset_detects_the_dataroot(ns_root):
 
 def test_rig_poses_splits_frames_match_the_source(pair):
     ns, src = pair
-    assert ns.camera_names == src.camera_names == list(RIG_ORDER)
+    assert ns.camera_names == src.camera_names == list(NUSCENES_CAMERAS)
     assert ns.neighbours == src.neighbours
     assert (ns.width, ns.height, ns.fps) == (src.width, src.height, src.fps)
     for a, b in zip(ns.cameras, src.cameras):
@@ -157,7 +159,7 @@ def test_cli_eval_on_the_dataroot_records_lidar_ground_truth(ns_root, run, tmp_p
     assert "ground truth: lidar" in capsys.readouterr().out
     m = json.loads(out.read_text())
     assert m["ground_truth"]["kind"] == "lidar" and m["ground_truth"]["min_depth"] == 0.1
-    assert m["cameras"] == list(RIG_ORDER) and m["n_samples"] == 4
+    assert m["cameras"] == list(NUSCENES_CAMERAS) and m["n_samples"] == 4
 
 
 def test_cli_trains_on_the_dataroot(ns_root, tmp_path, capsys):
