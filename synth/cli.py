@@ -148,7 +148,7 @@ def main(argv: list[str] | None = None) -> int:
     from corelib.configlib import ConfigError
     from synth.files import DatasetError, OutputFolderError
     from synth.gl_context import RenderBackendError
-    from synth.nuscenes.export import ExportError
+    from synth.nuscenes.layout import ExportError
 
     rules = [((ConfigError, DatasetError, OutputFolderError, ExportError, ValueError), exitcodes.USAGE, "error"),
              ((RenderBackendError,), exitcodes.NO_BACKEND, "error"),

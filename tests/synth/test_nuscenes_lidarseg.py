@@ -18,8 +18,9 @@ from pyquaternion import Quaternion  # noqa: E402
 
 from corelib.hashing import sha256_file  # noqa: E402
 from synth.lidar import LidarConfig, labelled_sweep, luma, simulate_sweep  # noqa: E402
-from synth.nuscenes.export import TABLES, export_nuscenes  # noqa: E402
+from synth.nuscenes.export import export_nuscenes  # noqa: E402
 from synth.nuscenes.lidarseg import NUSCENES_CLASSES, nuscenes_index  # noqa: E402
+from synth.nuscenes.records import TABLES  # noqa: E402
 from synth.open import open_dataset  # noqa: E402
 
 VERSION = "v1.0-synth"
