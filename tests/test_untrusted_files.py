@@ -182,15 +182,6 @@ def test_eval_on_a_dataset_with_a_fifo_image_exits_2_naming_it(tiny_dataset, tmp
     assert str(p) in err and "FIFO" in err
 
 
-@pytest.fixture(scope="module")
-def ns_root(tiny_dataset, tmp_path_factory):
-    from synth.nuscenes.export import export_nuscenes
-
-    out = tmp_path_factory.mktemp("ns32") / "root"
-    export_nuscenes(tiny_dataset, out, version="v1.0-synth")
-    return out
-
-
 def _ns_copy(ns_root, tmp_path) -> Path:
     root = tmp_path / "ns"
     shutil.copytree(ns_root, root, symlinks=True)

@@ -33,13 +33,6 @@ from synth.nuscenes.records import TABLES  # noqa: E402
 VERSION = "v1.0-synth"
 
 
-@pytest.fixture(scope="module")
-def ns_root(tiny_dataset, tmp_path_factory):
-    out = tmp_path_factory.mktemp("ns") / "root"
-    export_nuscenes(tiny_dataset, out, version=VERSION)
-    return out
-
-
 def _load(root, version=VERSION):
     """NuScenes(...) with stdout and every Python warning captured."""
     buf = io.StringIO()

@@ -27,13 +27,6 @@ VERSION = "v1.0-synth"
 
 
 @pytest.fixture(scope="module")
-def ns_root(tiny_dataset, tmp_path_factory):
-    out = tmp_path_factory.mktemp("nsl") / "root"
-    export_nuscenes(tiny_dataset, out, version=VERSION)
-    return out
-
-
-@pytest.fixture(scope="module")
 def nusc(ns_root):
     return NuScenes(version=VERSION, dataroot=str(ns_root), verbose=False)
 

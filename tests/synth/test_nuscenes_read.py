@@ -21,7 +21,6 @@ from mcdp.evaluate import EvalConfig, evaluate  # noqa: E402
 from mcdp.predict import Predictor  # noqa: E402
 from synth.open import open_dataset  # noqa: E402
 from synth.files import DatasetError, read_png  # noqa: E402
-from synth.nuscenes.export import export_nuscenes  # noqa: E402
 from synth.nuscenes.dataset import NuScenesDataset  # noqa: E402
 from synth.nuscenes.layout import NUSCENES_CAMERAS  # noqa: E402
 from synth.nuscenes.read import NO_MASKS, open_nuscenes  # noqa: E402
@@ -29,13 +28,6 @@ from synth.nuscenes.read import NO_MASKS, open_nuscenes  # noqa: E402
 VERSION = "v1.0-synth"
 TINY_TRAIN = Path(__file__).resolve().parents[2] / "configs" / "train" / "tiny" / "mono2.yaml"
 JPEG_MEAN_ABS = 4.0  # mean |JPEG - PNG| per channel (0..255) at quality 95 on the tiny images (measured ~1.9)
-
-
-@pytest.fixture(scope="module")
-def ns_root(tiny_dataset, tmp_path_factory):
-    out = tmp_path_factory.mktemp("nsread") / "root"
-    export_nuscenes(tiny_dataset, out, version=VERSION)
-    return out
 
 
 @pytest.fixture(scope="module")
