@@ -43,7 +43,7 @@ def main(argv=None) -> int:
     from mcdp.trainer import Trainer
     from synth.config import load_data_config
     from synth.open import open_dataset
-    from synth.nuscenes_export import export_nuscenes
+    from synth.nuscenes.export import export_nuscenes
     from synth.render import render_dataset
 
     tmp = Path(args.keep) if args.keep else Path(tempfile.mkdtemp())

@@ -148,7 +148,7 @@ def main(argv: list[str] | None = None) -> int:
     from corelib.configlib import ConfigError
     from synth.files import DatasetError, OutputFolderError
     from synth.gl_context import RenderBackendError
-    from synth.nuscenes_export import ExportError
+    from synth.nuscenes.layout import ExportError
 
     rules = [((ConfigError, DatasetError, OutputFolderError, ExportError, ValueError), exitcodes.USAGE, "error"),
              ((RenderBackendError,), exitcodes.NO_BACKEND, "error"),
@@ -210,7 +210,7 @@ def _export(args) -> int:
     from corelib.configlib import ConfigError, build_config, parse_overrides
     from synth.lidar import LidarConfig
     from synth.dataset import dataset_containing
-    from synth.nuscenes_export import export_nuscenes
+    from synth.nuscenes.export import export_nuscenes
 
     if dataset_containing(args.out) is not None:
         raise ConfigError(f"--out {args.out} is inside the dataset {dataset_containing(args.out)}; export outside it")

@@ -213,7 +213,7 @@ def dataset_containing(path: str | Path) -> Path | None:
     """The dataset folder (manifest.json beside rig.json) or nuScenes dataroot (`is_nuscenes_root`) that one
     of `path`'s parent folders is, or None: an output named inside one would change it behind its manifest
     or tables (every writer checks this before it writes anything)."""
-    from synth.nuscenes_tables import is_nuscenes_root
+    from synth.nuscenes.tables import is_nuscenes_root
 
     for parent in Path(path).resolve().parents:
         if ((parent / MANIFEST).is_file() and (parent / "rig.json").is_file()) or is_nuscenes_root(parent):

@@ -63,6 +63,17 @@ def tiny_dataset_without_labels(tiny_dataset, tmp_path_factory):
 
 
 @pytest.fixture(scope="module")
+def ns_root(tiny_dataset, tmp_path_factory):
+    """The tiny dataset exported as a nuScenes dataroot (version v1.0-synth), once per test module: tests
+    read it, or change a copy of it."""
+    from synth.nuscenes.export import export_nuscenes
+
+    out = tmp_path_factory.mktemp("ns") / "root"
+    export_nuscenes(tiny_dataset, out, version="v1.0-synth")
+    return out
+
+
+@pytest.fixture(scope="module")
 def local_ray():
     """A private local Ray (2 CPUs, no dashboard) for one test module, shut down and removed after it.
 

@@ -182,15 +182,6 @@ def test_eval_on_a_dataset_with_a_fifo_image_exits_2_naming_it(tiny_dataset, tmp
     assert str(p) in err and "FIFO" in err
 
 
-@pytest.fixture(scope="module")
-def ns_root(tiny_dataset, tmp_path_factory):
-    from synth.nuscenes_export import export_nuscenes
-
-    out = tmp_path_factory.mktemp("ns32") / "root"
-    export_nuscenes(tiny_dataset, out, version="v1.0-synth")
-    return out
-
-
 def _ns_copy(ns_root, tmp_path) -> Path:
     root = tmp_path / "ns"
     shutil.copytree(ns_root, root, symlinks=True)
@@ -198,7 +189,7 @@ def _ns_copy(ns_root, tmp_path) -> Path:
 
 
 def _read_all_ns(root: Path, seq: str) -> None:
-    from synth.nuscenes_read import open_nuscenes
+    from synth.nuscenes.read import open_nuscenes
 
     ds = open_nuscenes(root)
     ds.read_rgb(seq, "CAM_FRONT", 0)
@@ -213,7 +204,7 @@ NS_FILES = ["v1.0-synth/sample_data.json", "v1.0-synth/calibrated_sensor.json", 
 @pytest.mark.parametrize("rel", NS_FILES)
 def test_every_nuscenes_reader_refuses_a_special_file_or_a_link_out_naming_it(ns_root, tmp_path, alarm, rel, kind):
     from synth.files import DatasetError
-    from synth.nuscenes_read import open_nuscenes
+    from synth.nuscenes.read import open_nuscenes
 
     root = _ns_copy(ns_root, tmp_path)
     ds = open_nuscenes(root)
@@ -228,7 +219,7 @@ def test_every_nuscenes_reader_refuses_a_special_file_or_a_link_out_naming_it(ns
 
 def test_a_version_folder_linked_out_of_the_dataroot_is_refused(ns_root, tmp_path):
     from synth.files import DatasetError
-    from synth.nuscenes_read import open_nuscenes
+    from synth.nuscenes.read import open_nuscenes
 
     root = _ns_copy(ns_root, tmp_path)
     _plant(root / "v1.0-synth", "link", tmp_path)
@@ -274,7 +265,7 @@ def _set_k(i, j, v):
 ])
 def test_a_nuscenes_calibration_that_is_not_a_camera_is_refused_naming_table_and_token(ns_root, tmp_path, edit, what):
     from synth.files import DatasetError
-    from synth.nuscenes_read import open_nuscenes
+    from synth.nuscenes.read import open_nuscenes
 
     root = _ns_copy(ns_root, tmp_path)
     token = _edit_calib(root, "CAM_FRONT_LEFT", edit)

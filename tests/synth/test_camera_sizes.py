@@ -152,8 +152,8 @@ def test_training_evaluation_prediction_and_preview_read_each_camera_at_its_size
 
 
 def test_the_nuscenes_export_writes_and_reads_back_each_channels_size(renders, tmp_path):
-    from synth.nuscenes_export import export_nuscenes
-    from synth.nuscenes_read import open_nuscenes
+    from synth.nuscenes.export import export_nuscenes
+    from synth.nuscenes.read import open_nuscenes
 
     out = tmp_path / "ns"
     export_nuscenes(renders["mixed"], out, lidar=None)

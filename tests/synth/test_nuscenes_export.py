@@ -25,17 +25,12 @@ from corelib.hashing import sha256_file  # noqa: E402
 from synth.open import open_dataset  # noqa: E402
 from synth.files import read_depth_exr, read_png  # noqa: E402
 from synth.lidar import LidarConfig  # noqa: E402
-from synth.nuscenes_export import (ExportError, NUSCENES_CAMERAS, TABLES, export_nuscenes,  # noqa: E402
-                                   rotation_to_quaternion)
+from synth.nuscenes.export import export_nuscenes  # noqa: E402
+from synth.nuscenes.geometry import rotation_to_quaternion  # noqa: E402
+from synth.nuscenes.layout import NUSCENES_CAMERAS, ExportError  # noqa: E402
+from synth.nuscenes.records import TABLES  # noqa: E402
 
 VERSION = "v1.0-synth"
-
-
-@pytest.fixture(scope="module")
-def ns_root(tiny_dataset, tmp_path_factory):
-    out = tmp_path_factory.mktemp("ns") / "root"
-    export_nuscenes(tiny_dataset, out, version=VERSION)
-    return out
 
 
 def _load(root, version=VERSION):

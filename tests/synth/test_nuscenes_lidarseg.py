@@ -1,4 +1,4 @@
-"""The nuScenes export's labels (`synth.nuscenes_lidarseg`): lidarseg that the official devkit loads and draws, a
+"""The nuScenes export's labels (`synth.nuscenes.lidarseg`): lidarseg that the official devkit loads and draws, a
 class per LiDAR point that agrees with the geometry and the camera it came from, the image labels as side files,
 and a dataset without labels exported exactly as before."""
 from __future__ import annotations
@@ -18,18 +18,12 @@ from pyquaternion import Quaternion  # noqa: E402
 
 from corelib.hashing import sha256_file  # noqa: E402
 from synth.lidar import LidarConfig, labelled_sweep, luma, simulate_sweep  # noqa: E402
-from synth.nuscenes_export import TABLES, export_nuscenes  # noqa: E402
-from synth.nuscenes_lidarseg import NUSCENES_CLASSES, nuscenes_index  # noqa: E402
+from synth.nuscenes.export import export_nuscenes  # noqa: E402
+from synth.nuscenes.lidarseg import NUSCENES_CLASSES, nuscenes_index  # noqa: E402
+from synth.nuscenes.records import TABLES  # noqa: E402
 from synth.open import open_dataset  # noqa: E402
 
 VERSION = "v1.0-synth"
-
-
-@pytest.fixture(scope="module")
-def ns_root(tiny_dataset, tmp_path_factory):
-    out = tmp_path_factory.mktemp("nsl") / "root"
-    export_nuscenes(tiny_dataset, out, version=VERSION)
-    return out
 
 
 @pytest.fixture(scope="module")

@@ -1,4 +1,4 @@
-"""`synth.nuscenes_read`: our export read back through the devkit gives the source dataset's rig, poses,
+"""`synth.nuscenes.read`: our export read back through the devkit gives the source dataset's rig, poses,
 splits and frames; its LiDAR depth agrees with the exact depth; metrics on the export equal the source's
 metrics on the same LiDAR pixels; broken dataroots fail with one line naming the token / file / channel."""
 from __future__ import annotations
@@ -21,19 +21,13 @@ from mcdp.evaluate import EvalConfig, evaluate  # noqa: E402
 from mcdp.predict import Predictor  # noqa: E402
 from synth.open import open_dataset  # noqa: E402
 from synth.files import DatasetError, read_png  # noqa: E402
-from synth.nuscenes_export import export_nuscenes  # noqa: E402
-from synth.nuscenes_read import NO_MASKS, RIG_ORDER, NuScenesDataset, open_nuscenes  # noqa: E402
+from synth.nuscenes.dataset import NuScenesDataset  # noqa: E402
+from synth.nuscenes.layout import NUSCENES_CAMERAS  # noqa: E402
+from synth.nuscenes.read import NO_MASKS, open_nuscenes  # noqa: E402
 
 VERSION = "v1.0-synth"
 TINY_TRAIN = Path(__file__).resolve().parents[2] / "configs" / "train" / "tiny" / "mono2.yaml"
 JPEG_MEAN_ABS = 4.0  # mean |JPEG - PNG| per channel (0..255) at quality 95 on the tiny images (measured ~1.9)
-
-
-@pytest.fixture(scope="module")
-def ns_root(tiny_dataset, tmp_path_factory):
-    out = tmp_path_factory.mktemp("nsread") / "root"
-    export_nuscenes(tiny_dataset, out, version=VERSION)
-    return out
 
 
 @pytest.fixture(scope="module")
@@ -59,7 +53,7 @@ def test_open_dataset_detects_the_dataroot(ns_root):
 
 def test_rig_poses_splits_frames_match_the_source(pair):
     ns, src = pair
-    assert ns.camera_names == src.camera_names == list(RIG_ORDER)
+    assert ns.camera_names == src.camera_names == list(NUSCENES_CAMERAS)
     assert ns.neighbours == src.neighbours
     assert (ns.width, ns.height, ns.fps) == (src.width, src.height, src.fps)
     for a, b in zip(ns.cameras, src.cameras):
@@ -157,7 +151,7 @@ def test_cli_eval_on_the_dataroot_records_lidar_ground_truth(ns_root, run, tmp_p
     assert "ground truth: lidar" in capsys.readouterr().out
     m = json.loads(out.read_text())
     assert m["ground_truth"]["kind"] == "lidar" and m["ground_truth"]["min_depth"] == 0.1
-    assert m["cameras"] == list(RIG_ORDER) and m["n_samples"] == 4
+    assert m["cameras"] == list(NUSCENES_CAMERAS) and m["n_samples"] == 4
 
 
 def test_cli_trains_on_the_dataroot(ns_root, tmp_path, capsys):

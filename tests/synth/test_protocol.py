@@ -12,7 +12,8 @@ import numpy as np
 import pytest
 
 from synth.dataset import Dataset
-from synth.nuscenes_read import RIG_ORDER, NuScenesDataset
+from synth.nuscenes.dataset import NuScenesDataset
+from synth.nuscenes.layout import NUSCENES_CAMERAS
 from synth.protocol import Camera, DatasetReader
 from synth.rig import CameraSpec
 from tests.mcdp.test_evaluate import FakeDataset
@@ -35,12 +36,12 @@ def synth_dataset() -> Dataset:
 def nuscenes_dataset() -> NuScenesDataset:
     frames = {"scene-1": [{"sample_token": "s0", "scene_token": "t0", "timestamp_s": 0.0, "T_world_ego": np.eye(4),
                            "cams": {}}]}
-    masks = {n: np.ones((H, W), bool) for n in RIG_ORDER}
-    return NuScenesDataset(Path("ns"), "v1.0-test", _cameras(RIG_ORDER), frames, {"train": ["scene-1"]}, "test",
+    masks = {n: np.ones((H, W), bool) for n in NUSCENES_CAMERAS}
+    return NuScenesDataset(Path("ns"), "v1.0-test", _cameras(NUSCENES_CAMERAS), frames, {"train": ["scene-1"]}, "test",
                            2.0, masks, "none", True, "half")
 
 
-READERS = {"synth.dataset.Dataset": synth_dataset, "synth.nuscenes_read.NuScenesDataset": nuscenes_dataset,
+READERS = {"synth.dataset.Dataset": synth_dataset, "synth.nuscenes.dataset.NuScenesDataset": nuscenes_dataset,
            "tests' FakeDataset": FakeDataset}
 
 

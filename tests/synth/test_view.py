@@ -262,8 +262,8 @@ def test_a_nuscenes_dataroot_records_its_lidar_sweep_in_the_world_frame(tiny_dat
     recorded by `synth view`: world/lidar holds `lidar_points_world` of each frame at that frame's time."""
     from synth.cli import main
     from synth.open import open_dataset
-    from synth.nuscenes_export import export_nuscenes
-    from synth.nuscenes_read import NuScenesDataset
+    from synth.nuscenes.export import export_nuscenes
+    from synth.nuscenes.dataset import NuScenesDataset
 
     root = tmp_path / "ns"
     export_nuscenes(tiny_dataset, root, version="v1.0-synth")

@@ -1,4 +1,4 @@
-"""The labels of the nuScenes export (`synth.nuscenes_export`): lidarseg for the LiDAR and the image labels beside.
+"""The labels of the nuScenes export (`synth.nuscenes.export`): lidarseg for the LiDAR and the image labels beside.
 
 A dataset with semantic labels (`ds.label_kinds`) exports, besides what docs/NUSCENES.md lists::
 
@@ -25,8 +25,8 @@ import numpy as np
 from corelib.atomic import atomic_write_bytes
 from synth.files import DatasetError, frame_stem
 from synth.lidar import LidarConfig, labelled_sweep, simulate_sweep
-from synth.nuscenes_tables import EXPORT_DIR
-LIDARSEG_DIR = "lidarseg"
+from synth.nuscenes.layout import EXPORT_DIR, LIDARSEG_DIR
+
 #: nuScenes-lidarseg's categories in the order of their ``index`` (nuscenes.utils.color_map.get_colormap)
 NUSCENES_CLASSES = (
     "noise", "animal", "human.pedestrian.adult", "human.pedestrian.child", "human.pedestrian.construction_worker",
