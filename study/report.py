@@ -40,9 +40,10 @@ from study.classes import format_classes
 from study.reach import format_reach
 from study.verdicts import format_verdicts
 from study.results import (BASELINE, PRIOR_LABEL, REF_LABEL, SCALE_LABEL, YARDSTICKS, fmt_diff, method_agg,
-                           paired_difference, verdict_word, yardstick_agg, yardstick_row)
+                           paired_difference, row_evaluations, verdict_word, yardstick_agg,
+                           yardstick_row)
 from study.results import fmt_num as _num
-from study.variants import Evaluation
+from study.variants import TRAINED, Evaluation
 
 
 def write_all(results: dict, out: str | Path) -> None:
@@ -110,8 +111,9 @@ def format_report(results: dict, plots: list[str]) -> str:
     """The sweep's report.md: setup, summary and verdicts, one section per overlap, time per stage, plots."""
     cams = None
     for r in results["rows"]:
-        if r.get("metrics"):
-            cams = list(r["metrics"]["dep_con"]["per_camera"])
+        trained = row_evaluations(r).get(TRAINED)
+        if trained:
+            cams = list(trained["metrics"]["dep_con"]["per_camera"])
             break
     L = _setup_section(results)
     primary = format_primary(results)
