@@ -15,6 +15,7 @@ import math
 import time
 from typing import Any
 
+from mcdp.methods import baseline
 from mcdp.metrics import METRIC_NAMES
 from study.variants import CUT, ORACLE, ORACLE_OVL, SPREAD, TRAINED, VARIANTS, Evaluation
 
@@ -60,8 +61,9 @@ def verdict_word(pd: dict, floor: float = 0.0) -> str:
     return VERDICT_WORD[pd["differs"]]
 
 
-#: the method every other one is compared with (paired differences, the "vs Mono2" columns of the report)
-BASELINE = "mono2"
+#: the method every other one is compared with (paired differences, the "vs Mono2" columns of the report): the
+#: registry's row with ``role="baseline"`` (`mcdp.methods.baseline`)
+BASELINE = baseline()
 INERT_M = 0.01  # a refinement whose refined depth differs from its init stage by < 1 cm on average is inert
 
 
