@@ -249,15 +249,17 @@ def distance_lines(results: dict) -> list[tuple[str, tuple, str]]:
     """The lines of propagation_by_distance.png, (name, (a, b), line style), each drawn as a − b per band, the sign
     of every figure (below 0 = better): each mechanism − Mono2, a reading network as trained − cut, and the
     ORACLE-local yardstick filled − emptied."""
-    from study.reach import LOCAL
+    from mcdp.methods import reading, short_label
+    from study.reach import local
 
     have = {Evaluation.of(f) for f in results["flat"]}
-    lines = [(f"{label(m)} − Mono2", (m, "mono2"), "-") for m in ("fsm", "mcdp_m2", "mcdp_local")
-             if Evaluation(m) in have and Evaluation("mono2") in have]
-    lines += [(f"{label(m)}: as trained − cut", (m, Evaluation(m, CUT)), "--") for m in ("mcdp_m2", "mcdp_local")
+    mech, loc = reading("mechanism"), local()
+    lines = [(f"{label(m)} − {label(BASELINE)}", (m, BASELINE), "-") for m in mech
+             if Evaluation(m) in have and Evaluation(BASELINE) in have]
+    lines += [(f"{label(m)}: as trained − cut", (m, Evaluation(m, CUT)), "--") for m in mech
               if Evaluation(m, CUT) in have]
-    if Evaluation(LOCAL, CUT) in have:
-        lines.append(("ORACLE-local (yardstick): filled − emptied", (LOCAL, Evaluation(LOCAL, CUT)), ":"))
+    if loc is not None and Evaluation(loc, CUT) in have:
+        lines.append((f"{short_label(loc)} (yardstick): filled − emptied", (loc, Evaluation(loc, CUT)), ":"))
     return lines
 
 

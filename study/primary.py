@@ -31,7 +31,8 @@ from __future__ import annotations
 import math
 
 from study.power import mde, nested, tost
-from study.reach import band_names
+from mcdp.methods import baseline, reading, short_label
+from study.reach import band_names, lcon_pairs, local
 from study.results import flat_of
 from study.variants import CUT, SPREAD, Evaluation
 
@@ -42,7 +43,6 @@ PRIMARY_OVERLAP = 0.10
 #: the copy test's bound: ORACLE-local filled / Mono2, median abs_rel on the overlap pixels
 COPY_MAX = 0.5
 SCALINGS = ("median", "none", "rig_median")
-BASE, LOCAL = "mono2", "oracle_local"
 
 
 def world_of(results: dict):
@@ -94,10 +94,17 @@ def _mean_of(results: dict, o: float, ev, key: str) -> float:
     return sum(v) / len(v) if v else math.nan
 
 
+def has_control(results: dict) -> bool:
+    """Whether the sweep has the positive control: a run of the local yardstick (``reach`` "local")."""
+    loc = local()
+    return loc is not None and _has(results, loc)
+
+
 def copy_test(results: dict) -> list[dict]:
     """Per overlap: ORACLE-local filled and Mono2 on the overlap pixels at every scaling, their ratio and
     whether the median-scaled ratio is at most `COPY_MAX`; [] without both rows."""
-    if not (_has(results, LOCAL) and _has(results, BASE)):
+    loc, base_m = local(), baseline()
+    if not (loc is not None and _has(results, loc) and _has(results, base_m)):
         return []
     out = []
     for d in results["data"]:
@@ -105,7 +112,7 @@ def copy_test(results: dict) -> list[dict]:
         row = {"overlap": o}
         for sc in SCALINGS:
             key = f"{sc}.overlap.abs_rel"
-            filled, base = _mean_of(results, o, LOCAL, key), _mean_of(results, o, BASE, key)
+            filled, base = _mean_of(results, o, loc, key), _mean_of(results, o, base_m, key)
             row[sc] = (filled, base, filled / base if base > 0 else math.nan)
         ratio = row["median"][2]
         row["passes"] = bool(math.isfinite(ratio) and ratio <= COPY_MAX)
@@ -123,19 +130,22 @@ def comparisons(results: dict, o: float = PRIMARY_OVERLAP) -> list[tuple[str, st
     """The primary comparisons present: (id, name, a, b, region) with a - b = the gain (positive helps); a and
     b are (evaluation, column prefix) and region a column suffix's region (``non_overlap`` or a band)."""
     out = []
-    for m, name in (("mcdp_m2", "MCDP (m = 2)"), ("mcdp_local", "MCDP-local")):
+    base, loc = baseline(), local()
+    for m in reading("mechanism"):
         if _has(results, Evaluation(m, CUT)):
-            out.append(("a", f"{name} inference-time propagation (cut - as trained)", Evaluation(m, CUT),
+            out.append(("a", f"{short_label(m)} inference-time propagation (cut - as trained)", Evaluation(m, CUT),
                         Evaluation(m), "non_overlap"))
-    if _has(results, Evaluation("mcdp_m2", CUT)) and _has(results, Evaluation("mcdp_m2_nocon", CUT)):
-        out.append(("b", "L_con training-time propagation (w/o L_con cut - with L_con cut)",
-                    Evaluation("mcdp_m2_nocon", CUT), Evaluation("mcdp_m2", CUT), "non_overlap"))
-    if _has(results, Evaluation(LOCAL, CUT)):
-        out.append(("c", "positive control: ORACLE-local emptied - filled", Evaluation(LOCAL, CUT),
-                    Evaluation(LOCAL), "non_overlap"))
-    if _has(results, Evaluation(BASE, SPREAD)):
-        out.append(("c", "hand-built propagator: Mono2 - Mono2 corrected from the overlap's ground truth",
-                    Evaluation(BASE), Evaluation(BASE, SPREAD), "non_overlap"))
+    for t, m in lcon_pairs():
+        if _has(results, Evaluation(m, CUT)) and _has(results, Evaluation(t, CUT)):
+            out.append(("b", "L_con training-time propagation (w/o L_con cut - with L_con cut)",
+                        Evaluation(t, CUT), Evaluation(m, CUT), "non_overlap"))
+    if loc is not None and _has(results, Evaluation(loc, CUT)):
+        out.append(("c", f"positive control: {short_label(loc)} emptied - filled", Evaluation(loc, CUT),
+                    Evaluation(loc), "non_overlap"))
+    if _has(results, Evaluation(base, SPREAD)):
+        b = short_label(base)
+        out.append(("c", f"hand-built propagator: {b} - {b} corrected from the overlap's ground truth",
+                    Evaluation(base), Evaluation(base, SPREAD), "non_overlap"))
     return out
 
 
@@ -193,7 +203,7 @@ def format_primary(results: dict, o: float = PRIMARY_OVERLAP) -> str:
     """Markdown: the copy test, then the primary comparisons with power, bounds and scalings, the variance split,
     the control and the hand-built propagator by distance band, and how much of each yardstick the mechanisms
     recover; '' for a sweep without the positive control (ORACLE-local): the propagation experiment's section only."""
-    if not _has(results, LOCAL):  # the propagation experiment is the sweep with the positive control
+    if not has_control(results):  # the propagation experiment is the sweep with the positive control
         return ""
     comps = comparisons(results, o)
     ct = copy_test(results)
@@ -246,11 +256,11 @@ def format_primary(results: dict, o: float = PRIMARY_OVERLAP) -> str:
     band_comps = [(cid, name, a, b) for cid, name, a, b, _ in comps if cid == "c"]
     if bands and band_comps:
         add(f"### (c) by distance from the overlap, overlap {o:.2f} (bands in fractions of the image width)\n")
-        add("| band | Mono2 abs_rel | " + " | ".join(f"{name.split(':')[0]} (median) | MDE 80 % | none | rig_median"
+        add(f"| band | {short_label(baseline())} abs_rel | " + " | ".join(f"{name.split(':')[0]} (median) | MDE 80 % | none | rig_median"
                                                   for _, name, _, _ in band_comps) + " |")
         add("|---|---|" + "---|---|---|---|" * len(band_comps))
         for band in bands:
-            base = _mean_of(results, o, BASE, f"median.band.{band}.abs_rel")
+            base = _mean_of(results, o, baseline(), f"median.band.{band}.abs_rel")
             cells = []
             for _, _, a, b in band_comps:
                 m = measure(results, o, a, b, band)

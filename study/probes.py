@@ -33,10 +33,44 @@ from __future__ import annotations
 import numpy as np
 import torch
 
-from study.variants import CUT, TRAINED
+from study.variants import CUT, TRAINED, VARIANTS
 
-#: the variants a probe runs (the ORACLE ones are extra stages of the as-trained probe)
+#: the variants a `Probed` runs (the ORACLE ones are extra stages of the as-trained probe)
 PROBED = (TRAINED, CUT)
+
+
+def trained_probe(pred, oracle_range, earlier: dict) -> "Probed":
+    """The probe of variant ``trained``: as trained, with the ORACLE stages; it keeps its depths (<= 64 MiB),
+    which the cut evaluation of a network that reads its neighbours is compared with."""
+    return Probed(pred, oracle_range=oracle_range, keep=True)
+
+
+def cut_probe(pred, oracle_range, earlier: dict) -> "Probed | None":
+    """The probe of variant ``cut``: only for a network whose depth reads its neighbours at inference
+    (``uses_neighbours``: MCDP's refinement, the cross-view attention of `mcdp.methods.surround`,
+    ORACLE-local's input), compared with the as-trained probe."""
+    return Probed(pred, CUT, reference=earlier.get(TRAINED)) if pred.network.uses_neighbours else None
+
+
+def run_probes(pred, oracle_range: tuple[float, float], evaluate, log=lambda line: None) -> dict[str, dict]:
+    """The probe loop: every variant with a probe of its own (`study.variants.VARIANTS` order) that applies to
+    the run, each a pass ``evaluate(probe.predict)`` -> its metrics with ``refinement``; {variant: metrics}
+    (`study.variants.entries_of` makes the run's {variant: entry} of them)."""
+    probes: dict = {}
+    out: dict[str, dict] = {}
+    for v in VARIANTS.values():
+        if v.probe is None:
+            continue
+        probe = v.resolved("probe")(pred, oracle_range, dict(probes))
+        if probe is None:
+            continue
+        # the ORACLE variants ride on the as-trained pass as its extra stages (a `Probed`'s)
+        extra = [s for s in probe.stages if s in VARIANTS and s != v.name] if isinstance(probe, Probed) else []
+        log(f"{v.name}: {v.doc}" + (f" (+ {', '.join(extra)})" if extra else ""))
+        probes[v.name] = probe
+        out[v.name] = evaluate(probe.predict)
+        out[v.name]["refinement"] = probe.refinement
+    return out
 
 
 def cut_inputs(inp):

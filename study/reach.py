@@ -21,14 +21,45 @@ from __future__ import annotations
 
 import math
 
+from mcdp.methods import baseline, label, nocon_twins, reading, short_label
 from study.results import flat_of, fmt_diff, mean_std, paired_columns
 from study.variants import CUT, ORACLE, ORACLE_OVL, SPREAD, Evaluation
 
 NON = "median.non_overlap.abs_rel"
-#: mechanisms whose inference-time propagation is reported (as trained vs cut), in this order
-READERS = ("mcdp_m2", "mcdp_m2_nocon", "mcdp_local", "surround")
-LOCAL = "oracle_local"
-GLOBAL_OF = "mcdp_m2"  # the run whose bases give the global yardstick
+#: the name of the local yardstick's headroom in `quantities` starts so
+LOCAL_HEAD = "local headroom"
+
+
+def local_headroom(q: dict[str, dict], empty: dict) -> dict:
+    """The local yardstick's headroom among `quantities`, or ``empty``."""
+    return next((pd for name, pd in q.items() if name.startswith(LOCAL_HEAD)), empty)
+
+
+def readers() -> list[str]:
+    """The rows whose inference-time propagation is reported (as trained vs cut), in this order: each mechanism
+    (``reach`` "mechanism", `mcdp.methods.Method`), followed by its twins trained without L_con, then the other
+    readers (``reach`` "reader")."""
+    out: list[str] = []
+    for m in reading("mechanism"):
+        out += [m] + [t for t in nocon_twins(m) if t not in out]
+    return out + [m for m in reading("reader") if m not in out]
+
+
+def local() -> str | None:
+    """The local yardstick's row (``reach`` "local"), or None."""
+    return next(iter(reading("local")), None)
+
+
+def global_of() -> str | None:
+    """The row whose bases give the global yardstick (``reach`` "global"), or None."""
+    return next(iter(reading("global")), None)
+
+
+def lcon_pairs() -> list[tuple[str, str]]:
+    """(twin trained without L_con, the row with it) of every row that has such a twin (``nocon_of``)."""
+    from mcdp.methods import METHODS
+
+    return [(m.name, m.nocon_of) for m in METHODS.values() if m.nocon_of is not None]
 
 
 def band_names(results: dict) -> list[str]:
@@ -57,29 +88,31 @@ def quantities(results: dict, o: float, key: str = NON) -> dict[str, dict]:
     """Every paired quantity of the section at one overlap on one column (`key`), by name; a gain is positive
     when it helps (headrooms and gains are 'worse - better')."""
     q: dict[str, dict] = {}
-    if _has(results, Evaluation(GLOBAL_OF, ORACLE_OVL)):
+    base, loc, glob = baseline(), local(), global_of()
+    if glob is not None and _has(results, Evaluation(glob, ORACLE_OVL)):
         init_key = "init." + key if key == NON else None
         if init_key:
-            q["global headroom (init - ORACLE-overlap weights)"] = paired(results, o, (GLOBAL_OF, init_key),
-                                                                         (Evaluation(GLOBAL_OF, ORACLE_OVL), key))
-            q["all-pixel headroom (init - ORACLE weights)"] = paired(results, o, (GLOBAL_OF, init_key),
-                                                                    (Evaluation(GLOBAL_OF, ORACLE), key))
-            q["MCDP (m = 2) refinement gain (init - final)"] = paired(results, o, (GLOBAL_OF, init_key),
-                                                                     (GLOBAL_OF, key))
-    if _has(results, Evaluation("mono2", SPREAD)):
-        q["hand-built propagator (Mono2 - Mono2 corrected from the overlap's ground truth)"] = paired(
-            results, o, ("mono2", key), (Evaluation("mono2", SPREAD), key))
-    if _has(results, _cut(LOCAL)):
-        q["local headroom (ORACLE-local emptied - filled)"] = paired(results, o, (_cut(LOCAL), key), (LOCAL, key))
-    for m in READERS:
+            q["global headroom (init - ORACLE-overlap weights)"] = paired(results, o, (glob, init_key),
+                                                                         (Evaluation(glob, ORACLE_OVL), key))
+            q["all-pixel headroom (init - ORACLE weights)"] = paired(results, o, (glob, init_key),
+                                                                    (Evaluation(glob, ORACLE), key))
+            q[f"{short_label(glob)} refinement gain (init - final)"] = paired(results, o, (glob, init_key),
+                                                                             (glob, key))
+    if _has(results, Evaluation(base, SPREAD)):
+        q[f"hand-built propagator ({label(base)} - {label(base)} corrected from the overlap's ground truth)"] = \
+            paired(results, o, (base, key), (Evaluation(base, SPREAD), key))
+    if loc is not None and _has(results, _cut(loc)):
+        q[f"{LOCAL_HEAD} ({short_label(loc)} emptied - filled)"] = paired(results, o, (_cut(loc), key), (loc, key))
+    for m in readers():
         if _has(results, _cut(m)):
             q[f"{m}: inference-time (cut - as trained)"] = paired(results, o, (_cut(m), key), (m, key))
-    if _has(results, _cut("mcdp_m2")) and _has(results, _cut("mcdp_m2_nocon")):
-        q["L_con: training-time (w/o L_con cut - with L_con cut)"] = paired(
-            results, o, (_cut("mcdp_m2_nocon"), key), (_cut("mcdp_m2"), key))
-    for m in ("fsm", "mcdp_m2", "mcdp_local"):
-        if _has(results, m) and _has(results, "mono2"):
-            q[f"{m}: vs Mono2 (Mono2 - {m})"] = paired(results, o, ("mono2", key), (m, key))
+    pairs = [(t, m) for t, m in lcon_pairs() if _has(results, _cut(m)) and _has(results, _cut(t))]
+    for t, m in pairs:
+        q[("" if len(pairs) == 1 else f"{m}: ") + "L_con: training-time (w/o L_con cut - with L_con cut)"] = paired(
+            results, o, (_cut(t), key), (_cut(m), key))
+    for m in reading("mechanism"):
+        if _has(results, m) and _has(results, base):
+            q[f"{m}: vs {label(base)} ({label(base)} - {m})"] = paired(results, o, (base, key), (m, key))
     return q
 
 
@@ -104,7 +137,8 @@ def _propagation(name: str) -> bool:
 def format_reach(results: dict, label) -> str:
     """Markdown: yardsticks, both kinds of propagation, fraction recovered, the distance table; '' when the
     sweep has no run with the instruments (no ORACLE-overlap stage and no ORACLE-local run)."""
-    if not (_has(results, Evaluation(GLOBAL_OF, ORACLE_OVL)) or _has(results, LOCAL)):
+    glob, loc = global_of(), local()
+    if not ((glob is not None and _has(results, Evaluation(glob, ORACLE_OVL))) or (loc is not None and _has(results, loc))):
         return ""
     L: list[str] = []
     add = L.append
@@ -126,7 +160,7 @@ def format_reach(results: dict, label) -> str:
     for d in results["data"]:
         o = d["overlap"]
         q = quantities(results, o)
-        head = q.get("local headroom (ORACLE-local emptied - filled)", {})
+        head = local_headroom(q, {})
         add(f"**Overlap {o:.2f}** (measured {d['measured']['measured_mean']:.3f})\n")
         add("| quantity | non-overlap px | recovered (of local headroom) |")
         add("|---|---|---|")
@@ -146,28 +180,29 @@ def format_reach(results: dict, label) -> str:
 
 
 def _band_table(results: dict, bands: list[str], key_of: str) -> list[str]:
-    """The band table of column `key_of` (``{b}``: the band): Mono2's value and each mechanism's gain."""
-    cols = [(n, q) for n, q in (("MCDP (m = 2) cut - trained", ("mcdp_m2", "cut")),
-                                 ("MCDP-local cut - trained", ("mcdp_local", "cut")),
-                                 ("ORACLE-local emptied - filled", (LOCAL, "cut")),
-                                 ("propagator: Mono2 - corrected", ("mono2", "spread")),
-                                 ("Mono2 - FSM", ("fsm", "mono2")), ("Mono2 - MCDP (m = 2)", ("mcdp_m2", "mono2")),
-                                 ("Mono2 - MCDP-local", ("mcdp_local", "mono2")))
+    """The band table of column `key_of` (``{b}``: the band): the baseline's value and each mechanism's gain."""
+    base, loc, mech = baseline(), local(), reading("mechanism")
+    b = short_label(base)
+    cols = ([(f"{short_label(m)} cut - trained", (m, "cut")) for m in mech]
+            + ([(f"{short_label(loc)} emptied - filled", (loc, "cut"))] if loc is not None else [])
+            + [(f"propagator: {b} - corrected", (base, "spread"))]
+            + [(f"{b} - {short_label(m)}", (m, "base")) for m in mech])
+    cols = [(n, q) for n, q in cols
             if _has(results, _cut(q[0]) if q[1] == "cut" else Evaluation(q[0], SPREAD) if q[1] == "spread" else q[0])]
-    L = ["| overlap | band | Mono2 abs_rel | " + " | ".join(n for n, _ in cols) + " |",
+    L = [f"| overlap | band | {b} abs_rel | " + " | ".join(n for n, _ in cols) + " |",
          "|---|---|---|" + "---|" * len(cols)]
     for d in results["data"]:
         o = d["overlap"]
-        for b in bands:
-            key = key_of.format(b=b)
-            mono = mean_std([f.get(key, math.nan) for f in flat_of(results, o, "mono2")])
+        for band in bands:
+            key = key_of.format(b=band)
+            mono = mean_std([f.get(key, math.nan) for f in flat_of(results, o, base)])
             cells = []
             for _, (m, kind) in cols:
                 pd = (paired(results, o, (_cut(m), key), (m, key)) if kind == "cut"
                       else paired(results, o, (m, key), (Evaluation(m, SPREAD), key)) if kind == "spread"
-                      else paired(results, o, ("mono2", key), (m, key)))
+                      else paired(results, o, (base, key), (m, key)))
                 cells.append(_cell(pd))
-            L.append(f"| {o:.2f} | {b} | {mono['mean']:.4f} | " + " | ".join(cells) + " |")
+            L.append(f"| {o:.2f} | {band} | {mono['mean']:.4f} | " + " | ".join(cells) + " |")
     return L + [""]
 
 
@@ -183,7 +218,7 @@ def format_in_words(results: dict) -> str:
     for d in results["data"]:
         o = d["overlap"]
         q = quantities(results, o)
-        head = q.get("local headroom (ORACLE-local emptied - filled)", {"n": 0})
+        head = local_headroom(q, {"n": 0})
         glob = q.get("global headroom (init - ORACLE-overlap weights)", {"n": 0})
         L.append(f"- overlap {o:.2f}: local headroom {_cell(head)} ({_word(head)}), global headroom {_cell(glob)} "
                  f"({_word(glob)})")

@@ -38,11 +38,12 @@ from study.primary import format_primary
 from study.propagation import format_propagation
 from study.classes import format_classes
 from study.reach import format_reach
+from study.recorded import fallback_note, run_configs
 from study.verdicts import format_verdicts
-from study.results import (BASELINE, PRIOR_LABEL, REF_LABEL, SCALE_LABEL, YARDSTICKS, fmt_diff, method_agg,
-                           paired_difference, verdict_word, yardstick_agg, yardstick_row)
+from study.results import (BASELINE, PRIOR_LABEL, REF_LABEL, SCALE_LABEL, YARDSTICKS, method_agg, row_evaluations,
+                           yardstick_agg, yardstick_row)
 from study.results import fmt_num as _num
-from study.variants import Evaluation
+from study.variants import TRAINED, Evaluation
 
 
 def write_all(results: dict, out: str | Path) -> None:
@@ -110,8 +111,9 @@ def format_report(results: dict, plots: list[str]) -> str:
     """The sweep's report.md: setup, summary and verdicts, one section per overlap, time per stage, plots."""
     cams = None
     for r in results["rows"]:
-        if r.get("metrics"):
-            cams = list(r["metrics"]["dep_con"]["per_camera"])
+        trained = row_evaluations(r).get(TRAINED)
+        if trained:
+            cams = list(trained["metrics"]["dep_con"]["per_camera"])
             break
     L = _setup_section(results)
     primary = format_primary(results)
@@ -145,17 +147,18 @@ def _in_sweep(path: str) -> str:
     return "/".join(parts[len(parts) - 1 - parts[::-1].index("pretrain"):]) if "pretrain" in parts else path
 
 
-def warm_start_line(methods: list[str]) -> str:
+def warm_start_line(methods: list[str], configs: dict | None = None) -> str:
     """Which part of the shared pretraining each of the sweep's methods starts from (`mcdp.warmstart`: a
     network with bases takes the n basis channels, one without them the mono head) and which of their
     layers start fresh (the pretraining has neither MCDP's weight networks nor SurroundDepth's cross-view
-    blocks), naming only the sweep's own methods (all registered: `study.stages` builds runs from them).
-    Read from each network's declared members (``has_bases``, ``fresh_layers``), never from its name."""
+    blocks), naming only the sweep's own methods (all registered). Read from each network's declared members
+    (``has_bases``, ``fresh_layers``), never from its name, at each method's run config (``configs``:
+    `study.recorded.run_configs`; by default the registry's defaults)."""
     mono, bases, fresh = [], [], []
     for m in methods:
         net = network_class(METHODS[m])  # the network's class: what it is made of, not what it is called
         (bases if net.has_bases else mono).append(label(m))
-        layers = net.fresh_layers(model_config(METHODS[m]))
+        layers = net.fresh_layers((configs or {}).get(m) or model_config(METHODS[m]))
         if layers:
             fresh.append(f"{label(m)}'s {layers}")
     parts = []
@@ -204,11 +207,12 @@ def _setup_section(results: dict) -> list[str]:
                         "sample"))
     pre = results.get("pretrain")
     if pre:
+        configs, fallback = run_configs(results)
         add(f"- every run starts from one shared self-supervised pretraining (no ground truth; its own world: "
             f"`{' '.join(cfg['pretrain']['data_overrides'])}`): `{_in_sweep(pre['weights'])}` in the sweep folder, "
             f"config hash `{pre['config_hash'][:12]}`, "
             f"{pre['step']} steps, render {_sec(pre.get('render_s'))} s + train {_sec(pre.get('train_s'))} s; "
-            + warm_start_line(methods))
+            + warm_start_line(methods, configs) + fallback_note([label(m) for m in fallback]))
     else:
         add("- every (overlap, method, seed) is trained from scratch on its own dataset; no pretraining is shared "
             "between overlaps or methods")

@@ -15,6 +15,7 @@ import math
 import time
 from typing import Any
 
+from mcdp.methods import baseline
 from mcdp.metrics import metric_names
 from study.variants import CUT, ORACLE, ORACLE_OVL, SPREAD, TRAINED, VARIANTS, Evaluation
 
@@ -22,7 +23,8 @@ from study.variants import CUT, ORACLE, ORACLE_OVL, SPREAD, TRAINED, VARIANTS, E
 SCALE_LABEL = {"none": "metric", "median": "median", "rig_median": "rig median"}
 
 
-def _f(x) -> float:
+def number(x) -> float:
+    """``x`` as a float, NaN for anything that is not a number (a missing record, None)."""
     return float(x) if isinstance(x, (int, float)) and x is not None else float("nan")
 
 
@@ -60,57 +62,53 @@ def verdict_word(pd: dict, floor: float = 0.0) -> str:
     return VERDICT_WORD[pd["differs"]]
 
 
-#: the method every other one is compared with (paired differences, the "vs Mono2" columns of the report)
-BASELINE = "mono2"
+#: the method every other one is compared with (paired differences, the "vs Mono2" columns of the report): the
+#: registry's row with ``role="baseline"`` (`mcdp.methods.baseline`)
+BASELINE = baseline()
 INERT_M = 0.01  # a refinement whose refined depth differs from its init stage by < 1 cm on average is inert
 
 
+#: the keys a row of results written before ``row["evaluations"]`` held its evaluations under: {variant: (metrics
+#: key, refinement key)}, and the as-trained init stage under ``metrics_init`` (`row_evaluations`)
+LEGACY_ROW_KEYS = {TRAINED: ("metrics", "refinement"), CUT: ("metrics_cut", "refinement_cut"),
+                   ORACLE: ("metrics_oracle", None), ORACLE_OVL: ("metrics_oracle_overlap", None),
+                   SPREAD: ("metrics_oracle_spread", None)}
+
+
+def row_evaluations(row: dict) -> dict[str, dict]:
+    """A run's evaluations, {variant: entry} (`study.variants.entries_of`): ``row["evaluations"]``, or for a row
+    written before it (its legacy keys, `LEGACY_ROW_KEYS`: the one reader of them) the same entries."""
+    if "evaluations" in row:
+        return row["evaluations"]
+    out: dict[str, dict] = {}
+    for variant, (mk, rk) in LEGACY_ROW_KEYS.items():
+        if row.get(mk):
+            out[variant] = {"metrics": row[mk], **({"refinement": row.get(rk)} if rk else {})}
+    if TRAINED in out and row.get("metrics_init"):
+        out[TRAINED]["init"] = row["metrics_init"]
+    return out
+
+
 def flat_rows(row: dict) -> list[dict[str, Any]]:
-    """A run's CSV rows, one per evaluation (`study.variants`): as trained, and where evaluated, with its
-    neighbours cut at inference (variant ``cut``) and its bases at weights fitted to ground truth (``oracle``,
-    ``oracle_overlap``: ORACLE yardsticks)."""
-    base = flat_row(row)
+    """A run's CSV rows, one per evaluation (`study.variants`, in `VARIANTS` order): as trained, and where
+    evaluated, e.g. with its neighbours cut at inference (variant ``cut``) and its bases at weights fitted to
+    ground truth (``oracle``, ``oracle_overlap``: ORACLE yardsticks); each variant's ``columns`` adds its own."""
+    evs = row_evaluations(row)
+    base = flat_row({**row, "metrics": evs.get(TRAINED, {}).get("metrics")})
     base["variant"] = TRAINED
-    ref = row.get("refinement") or {}
-    base["refine.weight_move"] = _f(ref.get("weight_move"))
-    base["refine.depth_change_m"] = _f(ref.get("depth_change_m"))
-    base["refine.oracle_weight_move"] = _f(ref.get("oracle_weight_move"))
-    if math.isfinite(base["refine.depth_change_m"]):
-        base["refine.inert"] = bool(base["refine.depth_change_m"] < INERT_M)
     out = [base]
-    extra = {}
-    if row.get("metrics_init"):
-        init = flat_row({"metrics": row["metrics_init"]})
-        for k in ("median.mean.abs_rel", "median.overlap.abs_rel", "median.non_overlap.abs_rel"):
-            base[f"init.{k}"] = init.get(k, float("nan"))
-        base["refine.gain"] = base["init.median.mean.abs_rel"] - base.get("median.mean.abs_rel", float("nan"))
-    if row.get("metrics_oracle"):
-        orc = flat_row({"metrics": row["metrics_oracle"]})
-        base["oracle.median.mean.abs_rel"] = orc.get("median.mean.abs_rel", float("nan"))
-        init = base.get("init.median.mean.abs_rel", base.get("median.mean.abs_rel", float("nan")))
-        gap = init - base["oracle.median.mean.abs_rel"]
-        base["refine.headroom"] = gap
-        base["refine.headroom_closed"] = ((init - base.get("median.mean.abs_rel", float("nan"))) / gap
-                                          if gap > 1e-9 else float("nan"))
-        extra[ORACLE] = orc
-    if row.get("metrics_oracle_overlap"):
-        extra[ORACLE_OVL] = flat_row({"metrics": row["metrics_oracle_overlap"]})
-    if row.get("metrics_oracle_spread"):
-        extra[SPREAD] = flat_row({"metrics": row["metrics_oracle_spread"]})
-    if row.get("metrics_cut"):
-        cut = flat_row({"metrics": row["metrics_cut"]})
-        rc = row.get("refinement_cut") or {}
-        cut["refine.weight_move"] = _f(rc.get("weight_move"))
-        cut["refine.depth_change_m"] = _f(rc.get("depth_change_m"))
-        base["cut.depth_change_m"] = _f(rc.get("cut_change_m"))  # mean |as trained - cut| depth, metres
-        extra[CUT] = cut
-    for variant in (CUT, ORACLE, ORACLE_OVL, SPREAD):
-        if variant in extra:
-            e = extra[variant]
+    for name, variant in VARIANTS.items():
+        entry = evs.get(name, {} if name == TRAINED else None)  # a run without metrics: its NaN refine columns
+        if entry is None:
+            continue
+        own = base if name == TRAINED else flat_row({"metrics": entry["metrics"]})
+        if variant.columns is not None:
+            variant.resolved("columns")(base, own, entry)
+        if name != TRAINED:
             for k in ("overlap", "method", "seed", "status", "steps", "checkpoint_step"):
-                e[k] = base.get(k)
-            e["variant"] = variant
-            out.append(e)
+                own[k] = base.get(k)
+            own["variant"] = name
+            out.append(own)
     return out
 
 
@@ -127,22 +125,22 @@ def flat_row(row: dict) -> dict[str, Any]:
             continue
         for region in ("mean", "overlap", "non_overlap"):
             for k in metric_names():
-                out[f"{sc}.{region}.{k}"] = _f(m[sc][region].get(k))
+                out[f"{sc}.{region}.{k}"] = number(m[sc][region].get(k))
         for cam, v in m[sc]["per_camera_abs_rel"].items():
-            out[f"{sc}.camera.{cam}.abs_rel"] = _f(v)
+            out[f"{sc}.camera.{cam}.abs_rel"] = number(v)
         for band, v in m[sc].get("bands", {}).items():  # distance to the overlap (mcdp.evaluate)
-            out[f"{sc}.band.{band}.abs_rel"] = _f(v.get("abs_rel"))
+            out[f"{sc}.band.{band}.abs_rel"] = number(v.get("abs_rel"))
         for key, name in (("classes", "class"), ("motion", "motion"), ("road_bands", "road_band")):  # labels
             for region, v in m[sc].get(key, {}).items():
-                out[f"{sc}.{name}.{region}.abs_rel"] = _f(v.get("abs_rel"))
+                out[f"{sc}.{name}.{region}.abs_rel"] = number(v.get("abs_rel"))
         for kind, v in m[sc].get("holes", {}).items():
-            out[f"{sc}.holes.{kind}"] = _f(v)
-    out["dep_con.mean"] = _f(m["dep_con"]["mean"])
-    out["spread.ratio"] = _f(m.get("spread", {}).get("ratio"))
+            out[f"{sc}.holes.{kind}"] = number(v)
+    out["dep_con.mean"] = number(m["dep_con"]["mean"])
+    out["spread.ratio"] = number(m.get("spread", {}).get("ratio"))
     for cam, v in m["dep_con"]["per_camera"].items():
-        out[f"dep_con.camera.{cam}"] = _f(v)
+        out[f"dep_con.camera.{cam}"] = number(v)
     for pair, v in m["dep_con"]["per_pair"].items():
-        out[f"dep_con.pair.{pair}"] = _f(v)
+        out[f"dep_con.pair.{pair}"] = number(v)
     return out
 
 

@@ -13,7 +13,8 @@ from corelib.configlib import ConfigError, config_hash, config_to_dict
 from corelib.version import code_version, warn_other_code
 from study.cleanup import remove_best, remove_last, removed_line, trim_pretraining
 from study.config import SPLIT, SweepConfig, eval_config_for, overlap_key, run_config_for
-from study.records import Counters, finite, read_json, summarize_metrics, write_json  # noqa: F401 (re-exported)
+from study.records import Counters, finite, read_json, write_json  # noqa: F401 (re-exported)
+from study.variants import CUT, ORACLE, ORACLE_OVL, SPREAD, TRAINED, VARIANTS, entries_of
 
 
 STATUS = "sweep_status.json"
@@ -37,9 +38,21 @@ def pretrain_stage(cfg: SweepConfig, sweep_dir: Path, progress: bool, log) -> di
 EVAL_PROTOCOL = "as-trained+cut+cut-change+oracle-weights+oracle-overlap+bands+labels"
 
 
+#: the variants `EVAL_PROTOCOL` evaluates; one registered beyond them (`study.variants`) is part of the eval key
+PROTOCOL_VARIANTS = (TRAINED, CUT, ORACLE, ORACLE_OVL, SPREAD)
+
+
 def _eval_key(run_hash: str, step: int, eval_cfg: dict, data_hash: str, checkpoint: str, ckpt_name: str) -> str:
-    return config_hash({"run": run_hash, "step": step, "eval": eval_cfg, "data": data_hash, "checkpoint": checkpoint,
-                        "file": ckpt_name, "protocol": EVAL_PROTOCOL})
+    key = {"run": run_hash, "step": step, "eval": eval_cfg, "data": data_hash, "checkpoint": checkpoint,
+           "file": ckpt_name, "protocol": EVAL_PROTOCOL}
+    more = [v for v in VARIANTS if v not in PROTOCOL_VARIANTS]
+    return config_hash({**key, "variants": more} if more else key)
+
+
+def metrics_path(run_dir: Path, variant: str) -> Path:
+    """The metrics file of one pass of a run's evaluation: ``metrics_test.json`` as trained (it names the eval
+    key that says every pass is complete), ``metrics_test_<variant>.json`` for another pass."""
+    return Path(run_dir) / (f"metrics_{SPLIT}.json" if variant == TRAINED else f"metrics_{SPLIT}_{variant}.json")
 
 
 def run_dir_for(sweep_dir: Path, overlap: float, method: str, seed: int) -> Path:
@@ -59,11 +72,12 @@ def run_stage(cfg: SweepConfig, overlap: float, data: dict, method: str, seed: i
     run = _Run(cfg, overlap, data, method, seed, rcfg, rhash, run_dir, status,
                f"[sweep] overlap {overlap:.2f} {method} seed {seed}", counters, log, progress)
     row: dict[str, Any] = {"overlap": overlap, "method": method, "seed": seed, "run_dir": str(run_dir),
-                           "preset": str(preset), "run_config_hash": rhash, "status": "ok"}
+                           "preset": str(preset), "run_config_hash": rhash, "run_config": config_to_dict(rcfg),
+                           "status": "ok"}
     run.ds = open_dataset(data["path"])
     if not _train(run, row):
         return row  # diverged: the row says so
-    metrics, metrics_cut, key = _evaluate(run, row)
+    passes, key = _evaluate(run, row)
     removed = []
     if not cfg.keep_last:
         # (its log line of a kept file only when remove_best, which says it too, does not run)
@@ -74,7 +88,7 @@ def run_stage(cfg: SweepConfig, overlap: float, data: dict, method: str, seed: i
         removed += gone
     if removed:
         log(f"{run.tag}: {removed_line(removed)}; its evaluation is in {run_dir / f'metrics_{SPLIT}.json'}")
-    _fill_row(row, run.status, metrics, metrics_cut, key)
+    _fill_row(row, run.status, passes)
     log(_row_line(run.tag, row))
     return row
 
@@ -164,96 +178,90 @@ def _train(run: _Run, row: dict) -> bool:
     return True
 
 
-def _evaluate(run: _Run, row: dict) -> tuple[dict, dict | None, str]:
-    """Evaluate the run's checkpoint (or reuse the metrics of the same eval key); (metrics, metrics_cut, key)."""
+def _evaluate(run: _Run, row: dict) -> tuple[dict[str, dict], str]:
+    """Evaluate the run's checkpoint (or reuse the metrics of the same eval key); ({variant: metrics of its pass}
+    (`study.probes.run_probes`), key)."""
     from mcdp.predict import run_record
     from mcdp.runs import find_checkpoint, rig_differences
 
     cfg, run_dir, status = run.cfg, run.run_dir, run.status
-    metrics_path = run_dir / f"metrics_{SPLIT}.json"
-    cut_path = run_dir / f"metrics_{SPLIT}_cut.json"
     ecfg = eval_config_for(cfg)
     # keep_best: false removed the evaluated checkpoint: its name is the recorded one (by name, as in remove_last)
     removed = bool(status.get("best_removed"))
     ckpt_name = Path(status.get("checkpoint") or "").name if removed else find_checkpoint(run_dir, cfg.checkpoint).name
     key = _eval_key(run.rhash, int(status.get("steps", -1)), config_to_dict(cfg.eval), run.data["config_hash"],
                     cfg.checkpoint, ckpt_name)
-    metrics = read_json(metrics_path)
-    metrics_cut = read_json(cut_path)
+    metrics = read_json(metrics_path(run_dir, TRAINED))
     if metrics is not None and metrics.get("sweep", {}).get("eval_key") == key and status.get("eval_key") == key:
         run.counters.bump("eval_skipped")
         row.update(eval_s=status.get("eval_s", float("nan")), eval_skipped=True)
         run.log(f"{run.tag}: evaluated already, skipped")
-        return metrics, metrics_cut, key
+        passes = {TRAINED: metrics}
+        for v in VARIANTS.values():
+            m = read_json(metrics_path(run_dir, v.name)) if v.probe is not None and v.name != TRAINED else None
+            if m is not None and m.get("sweep", {}).get("eval_key") == key:  # a pass of this eval key
+                passes[v.name] = m
+        return passes, key
     if removed:
         raise ConfigError(f"{run_dir}: its evaluation is out of date (the sweep's eval settings, checkpoint or this "
                           f"code's evaluation changed) and its checkpoint checkpoints/{ckpt_name} was removed after "
                           f"it was evaluated (keep_best: false), so it cannot be evaluated again; delete {run_dir} "
                           "to retrain it, or use a new --out")
     t0 = time.perf_counter()
-    metrics, metrics_cut, pred = evaluate_run(cfg, run_dir, run.ds, ecfg, run.progress, run.log, run.tag)
+    passes, pred = evaluate_run(cfg, run_dir, run.ds, ecfg, run.progress, run.log, run.tag)
+    metrics = passes[TRAINED]
     metrics["run"] = run_record(pred, run_dir, run.data["path"], rig_differences(run_dir, run.ds))
     metrics["sweep"] = {"eval_key": key, "overlap": run.overlap, "method": run.method, "seed": run.seed}
-    if metrics_cut is not None:
-        metrics_cut["sweep"] = {**metrics["sweep"], "cut": True}
-        write_json(cut_path, metrics_cut)
-    write_json(metrics_path, metrics)  # last: it names the eval key that says both are complete
+    for name, m in passes.items():
+        if name != TRAINED:
+            m["sweep"] = {**metrics["sweep"], "variant": name}
+            write_json(metrics_path(run_dir, name), m)
+    write_json(metrics_path(run_dir, TRAINED), metrics)  # last: it names the eval key that says all are complete
     eval_s = time.perf_counter() - t0
     run.status = {**status, "eval_key": key, "eval_s": eval_s, "checkpoint": metrics["run"]["checkpoint"],
                   "checkpoint_step": metrics["run"]["step"]}
     write_json(run.status_path, run.status)
     run.counters.bump("evaluated")
     row.update(eval_s=eval_s, eval_skipped=False)
-    return metrics, metrics_cut, key
+    return passes, key
 
 
-def _fill_row(row: dict, status: dict, metrics: dict, metrics_cut: dict | None, key: str) -> None:
-    """The row's checkpoint and the numbers the report reads: every stage's, the cut's (of this eval key)."""
+def _fill_row(row: dict, status: dict, passes: dict[str, dict]) -> None:
+    """The row's checkpoint and the numbers the report reads: its evaluations, {variant: entry}
+    (`study.variants.entries_of`)."""
     row["checkpoint"] = status.get("checkpoint")
     row["checkpoint_step"] = status.get("checkpoint_step")
-    row["oracle"] = bool(metrics.get("run", {}).get("oracle", False))
-    row["metrics"] = summarize_metrics(metrics)
-    row["refinement"] = metrics.get("refinement")
-    if "init" in metrics["stages"] and len(metrics["stages"]) > 2:
-        row["metrics_init"] = summarize_metrics(metrics, "init")
-    if "oracle" in metrics["stages"]:
-        row["metrics_oracle"] = summarize_metrics(metrics, "oracle")
-    if "oracle_overlap" in metrics["stages"]:
-        row["metrics_oracle_overlap"] = summarize_metrics(metrics, "oracle_overlap")
-    if "oracle_spread" in metrics["stages"]:
-        row["metrics_oracle_spread"] = summarize_metrics(metrics, "oracle_spread")
-    if metrics_cut is not None and metrics_cut.get("sweep", {}).get("eval_key") == key:
-        row["metrics_cut"] = summarize_metrics(metrics_cut)
-        row["refinement_cut"] = metrics_cut.get("refinement")
+    row["oracle"] = bool(passes[TRAINED].get("run", {}).get("oracle", False))
+    row["evaluations"] = entries_of(passes)
 
 
 def _row_line(tag: str, row: dict) -> str:
     """The run's log line: abs_rel, Dep Con, how much the refinement acted, the cut, the ORACLE weights."""
-    m = row["metrics"]
-    r = row["refinement"] or {}
+    ev = row["evaluations"]
+    m = ev[TRAINED]["metrics"]
+    r = ev[TRAINED].get("refinement") or {}
     return (f"{tag}: abs_rel metric {m['none']['mean']['abs_rel']:.4f}, median {m['median']['mean']['abs_rel']:.4f}, "
             f"dep_con {m['dep_con']['mean']:.4f}"
             + (f"; refinement |w - 1/n| {r['weight_move']:.4f}, |refined - init| {r['depth_change_m']:.3f} m"
                if r.get("weight_move") == r.get("weight_move") and "weight_move" in r else "")
-            + (f"; cut median {row['metrics_cut']['median']['mean']['abs_rel']:.4f}, |trained - cut| "
-               f"{(row.get('refinement_cut') or {}).get('cut_change_m', float('nan')):.4f} m"
-               if "metrics_cut" in row else "")
-            + (f"; ORACLE weights median {row['metrics_oracle']['median']['mean']['abs_rel']:.4f}"
-               if "metrics_oracle" in row else ""))
+            + (f"; cut median {ev[CUT]['metrics']['median']['mean']['abs_rel']:.4f}, |trained - cut| "
+               f"{(ev[CUT].get('refinement') or {}).get('cut_change_m', float('nan')):.4f} m" if CUT in ev else "")
+            + (f"; ORACLE weights median {ev[ORACLE]['metrics']['median']['mean']['abs_rel']:.4f}"
+               if ORACLE in ev else ""))
 
 
 def evaluate_run(cfg: SweepConfig, run_dir: Path, ds, ecfg, progress: bool, log, tag: str):
-    """Evaluate one run's checkpoint: as trained (+ the ORACLE-weights stages of a run with bases),
-    and, for a network whose depth uses the neighbours at inference (``uses_neighbours``: MCDP's refinement,
-    the cross-view attention of `mcdp.methods.surround`, ORACLE-local's input), a second time with its neighbours
-    cut at inference (`study.probes`).
+    """Evaluate one run's checkpoint as every variant that applies to it (`study.variants`: as trained with the
+    ORACLE stages of a run with bases, with its neighbours cut for a network that reads them, ...;
+    `study.probes.run_probes`).
 
-    Returns (metrics, metrics_cut or None, the run's `mcdp.predict.Predictor`); ``metrics["refinement"]`` /
-    ``metrics_cut["refinement"]`` record how much the refinement acted.
+    Returns ({variant: metrics of its pass, with ``refinement``}, the run's `mcdp.predict.Predictor`).
     """
     import torch
 
+    from mcdp.evaluate import evaluate
     from mcdp.predict import Predictor
+    from study.probes import run_probes
 
     pred = Predictor(run_dir, ds, cfg.checkpoint, cfg.device)
     threads_before = torch.get_num_threads()
@@ -262,32 +270,14 @@ def evaluate_run(cfg: SweepConfig, run_dir: Path, ds, ecfg, progress: bool, log,
         # default in each of `jobs` processes at once (oversubscribed: an evaluate-only rerun of the CPU sweep,
         # 2 jobs on 2 cores, took a median 147 s per MCDP (m = 2) evaluation against 46 s right after training)
         torch.set_num_threads(pred.cfg.train.threads)
+    log(f"{tag}: evaluating {pred.ckpt_path.name} (step {pred.step}) on the {SPLIT} split")
     try:
-        metrics, metrics_cut = _evaluate_both(ds, ecfg, progress, log, tag, pred)
-        return metrics, metrics_cut, pred
+        passes = run_probes(pred, (ecfg.min_depth, ecfg.max_depth),
+                            lambda predict: evaluate(ds, predict, SPLIT, ecfg, progress=progress),
+                            lambda line: log(f"{tag}: evaluating {line}"))
+        return passes, pred
     finally:
         torch.set_num_threads(threads_before)
-
-
-def _evaluate_both(ds, ecfg, progress: bool, log, tag: str, pred):
-    """`evaluate_run` once the predictor and the thread count are set."""
-    from mcdp.evaluate import evaluate
-    from study.probes import CUT, Probed
-
-    # keep=True: its depths (<= 64 MiB) are what the cut evaluation of a network that reads its neighbours
-    # is compared with
-    trained = Probed(pred, oracle_range=(ecfg.min_depth, ecfg.max_depth), keep=True)
-    log(f"{tag}: evaluating {pred.ckpt_path.name} (step {pred.step}) on the {SPLIT} split"
-        + (" (+ ORACLE weights of its bases)" if trained.oracle_weights else ""))
-    metrics = evaluate(ds, trained.predict, SPLIT, ecfg, progress=progress)
-    metrics["refinement"] = trained.refinement
-    metrics_cut = None
-    if pred.network.uses_neighbours:
-        cut = Probed(pred, CUT, reference=trained)
-        log(f"{tag}: evaluating it again with the neighbours cut at inference")
-        metrics_cut = evaluate(ds, cut.predict, SPLIT, ecfg, progress=progress)
-        metrics_cut["refinement"] = cut.refinement
-    return metrics, metrics_cut
 
 
 #: why a checkpoint was removed (`mcdp.checkpoint_files.record_removed`; `mcdp eval` on the run prints it)

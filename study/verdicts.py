@@ -29,9 +29,9 @@ def format_verdicts(results: dict, label) -> str:
     """Markdown: the section ``## Verdicts``."""
     L = ["## Verdicts\n", "Every verdict of this report; the sections below give the numbers they read. A method is "
          "better or worse than Mono2 only where the paired 95 % interval excludes 0.\n"]
-    from study.primary import LOCAL, headline
+    from study.primary import has_control, headline
 
-    if any(f.get("method") == LOCAL for f in results.get("flat", [])):
+    if has_control(results):
         L.append(f"- **Primary comparisons** (the section above): {headline(results)}.")
     L += mechanism_lines(results, label)
     L += ["", "Against the yardsticks (abs_rel, mean over seeds) and, in metric scaling, Mono2 (paired over seeds):\n",

@@ -25,6 +25,12 @@ hashed, so runs that set nothing keep their hashes (`corelib.configlib.added_key
 A method's own inputs: the `mcdp.inputs.Field`s its network declares (``DepthNetwork.inputs``);
 `fields_of` is what a run's data reader fills.
 
+A report reads a method through its row and network class, never its name: ``has_bases`` and
+``fresh_layers(model_config(row))`` (`study.report.warm_start_line`), and the row's report flags: ``role``
+(the paired ``baseline``, a ``method`` or a ``yardstick``), ``short`` (its label in a table column),
+``nocon_of`` (the row it is trained without L_con) and ``reach`` (what `study.reach`, `study.primary` and
+the distance figure read of it); tests/study/test_method_rows.py registers a toy mechanism that reaches them.
+
 To add a method: write its network (its loss terms, params class and input fields with it) in one
 module, then add one line to `METHODS` below (or call `register` from your own code before training;
 `unregister` removes it, e.g. in a test's teardown: tests/mcdp/test_toy_method.py does all of this)::
@@ -56,6 +62,24 @@ class Method:
     #: the pydantic class of the method's own parameters (the run config's ``method_params`` section), or its
     #: "module:name", or None (then ``method_params`` must stay empty)
     params: type[BaseModel] | str | None = None
+    #: what the row is in a report (`study`): "baseline" (the row every other is paired against: the paired
+    #: figure, the "vs" columns; `baseline`), "method", or "yardstick" (reads ground truth: an ORACLE)
+    role: str = "method"
+    #: a shorter label where the report names it in a table's column or a comparison (default: ``label``)
+    short: str = ""
+    #: the name of the row this one is trained without L_con (its twin): the training-time propagation of
+    #: L_con is this row's cut minus that row's cut (`study.reach`, `study.primary`)
+    nocon_of: str | None = None
+    #: what the report's reach section reads of the row (`study.reach`): "mechanism" (a propagation mechanism
+    #: the experiment tests: its gain over the baseline, and, evaluated cut, its propagation at inference, in
+    #: the tables, the distance figure and the primary comparisons), "reader" (only its propagation at
+    #: inference), "global" (its bases give the global yardstick, variant ``oracle_overlap``), "local" (the local
+    #: yardstick: its cut empties the ground truth it is given)
+    reach: tuple[str, ...] = ()
+
+    @property
+    def short_label(self) -> str:
+        return self.short or self.label
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "defaults", {"model.method": self.name, **dict(self.defaults)})
@@ -98,31 +122,31 @@ def unregister(name: str) -> Method:
 
 for _m in (
     Method("mono2", "Mono2", {"model.refine_steps": 0, "loss.consistency_weight": 0.0},
-           "mcdp.methods.depth_bases:MonoDepthModel"),
+           "mcdp.methods.depth_bases:MonoDepthModel", role="baseline"),
     Method("fsm", "FSM", {"model.refine_steps": 0, "loss.consistency_weight": 0.0},
-           "mcdp.methods.fsm:FsmDepthModel", params="mcdp.methods.fsm:FsmParams"),
+           "mcdp.methods.fsm:FsmDepthModel", params="mcdp.methods.fsm:FsmParams", reach=("mechanism",)),
     Method("surround", "SurroundDepth", {"model.refine_steps": 0,
                                          "loss.consistency_weight": 0.0}, "mcdp.methods.surround:SurroundDepthModel",
-           params="mcdp.methods.surround:SurroundParams"),
+           params="mcdp.methods.surround:SurroundParams", reach=("reader",)),
     Method("mcdp_m0", "MCDP (m = 0)", {"model.method": "mcdp", "model.refine_steps": 0,
                                        "loss.consistency_weight": PAPER_LAMBDA}),
     Method("mcdp_m1_nocon", "MCDP (w/o L_con, m = 1)", {"model.method": "mcdp", "model.refine_steps": 1,
-                                                         "loss.consistency_weight": 0.0}),
+                                                         "loss.consistency_weight": 0.0}, nocon_of="mcdp_m1"),
     Method("mcdp_m1", "MCDP (m = 1)", {"model.method": "mcdp", "model.refine_steps": 1,
                                        "loss.consistency_weight": PAPER_LAMBDA}),
     Method("mcdp_m2", "MCDP (m = 2)", {"model.method": "mcdp", "model.refine_steps": 2,
-                                       "loss.consistency_weight": PAPER_LAMBDA}),
+                                       "loss.consistency_weight": PAPER_LAMBDA}, reach=("mechanism", "global")),
     # the training-time propagation baseline of mcdp_m2: the same network trained without L_con
     Method("mcdp_m2_nocon", "MCDP (w/o L_con, m = 2)", {"model.method": "mcdp", "model.refine_steps": 2,
-                                                         "loss.consistency_weight": 0.0}),
+                                                         "loss.consistency_weight": 0.0}, nocon_of="mcdp_m2"),
     # per-pixel basis weights fed the neighbours' warped features and depth: built to propagate locally
     Method("mcdp_local", "MCDP-local (m = 2)", {"model.refine_steps": 2,
                                                 "loss.consistency_weight": PAPER_LAMBDA},
-           "mcdp.methods.local:LocalDepthModel"),
+           "mcdp.methods.local:LocalDepthModel", short="MCDP-local", reach=("mechanism",)),
     # a yardstick, not a method: Mono2 + the ground-truth depth of the overlap pixels as input (filled / emptied)
     Method("oracle_local", "ORACLE-local (GT overlap input)", {"model.refine_steps": 0,
                                                               "loss.consistency_weight": 0.0},
-           "mcdp.methods.oracle_local:OracleLocalModel"),
+           "mcdp.methods.oracle_local:OracleLocalModel", role="yardstick", short="ORACLE-local", reach=("local",)),
 ):
     register(_m)
 
@@ -132,6 +156,25 @@ PAPER_METHODS = ("mono2", "mcdp_m0", "mcdp_m1_nocon", "mcdp_m1", "mcdp_m2")
 
 def names() -> list[str]:
     return list(METHODS)
+
+
+def baseline() -> str:
+    """The name of the row every other is paired against (``role="baseline"``, the first such)."""
+    return next(m.name for m in METHODS.values() if m.role == "baseline")
+
+
+def reading(what: str) -> list[str]:
+    """The names of the rows whose ``reach`` holds ``what`` (`Method.reach`), table order."""
+    return [m.name for m in METHODS.values() if what in m.reach]
+
+
+def nocon_twins(name: str) -> list[str]:
+    """The names of the rows that are row ``name`` trained without L_con (``nocon_of``), table order."""
+    return [m.name for m in METHODS.values() if m.nocon_of == name]
+
+
+def short_label(name: str) -> str:
+    return METHODS[name].short_label if name in METHODS else name
 
 
 def label(name: str) -> str:
