@@ -241,3 +241,11 @@ def test_fsm_reads_its_weights_from_the_loss_context():
         cfg, FsmParams(spatial_weight=w), poses, directed_pairs([(0, 1)]), 0)) for w in (0.1, 0.2)}
     assert float(terms[0.1]["fsm/spatial"]) > 0
     assert float(terms[0.2]["fsm/spatial"]) == pytest.approx(2 * float(terms[0.1]["fsm/spatial"]), rel=1e-6)
+
+
+def test_a_row_is_a_yardstick_exactly_when_its_network_reads_ground_truth():
+    """Two sources must agree: the row's ``role`` (what the report calls it) and its network's declared input
+    fields (``reads_ground_truth()``: what it is given); a network that reads ground truth is never a method."""
+    for name, row in methods.METHODS.items():
+        reads = methods.network_class(row).reads_ground_truth()
+        assert (row.role == "yardstick") == reads, name
