@@ -175,27 +175,13 @@ def test_flat_road_depth_matches_the_ground_plane_analytically():
 
 
 # --------------------------------------------------------------------------- shared pretraining
-def _fake_pretraining(path: Path, bases: int = 8, mono_head: bool = True) -> dict:
-    from mcdp.methods.mcdp import DepthModel
-    from mcdp.warmstart import FORMAT, VERSION
-    from corelib.configlib import config_to_dict
-
-    cfg = cfg_of("mcdp_m0", f"model.bases={bases}", f"model.mono_head={str(mono_head).lower()}")
-    torch.manual_seed(123)
-    model = DepthModel(cfg.model)
-    sd = model.state_dict()
-    torch.save({"format": FORMAT, "version": VERSION, "config_hash": "abc", "model": config_to_dict(cfg.model),
-                "depth_model": sd, "step": 7}, path)
-    return sd
-
-
-def test_warm_start_copies_the_trunk_and_the_matching_head(tmp_path):
+def test_warm_start_copies_the_trunk_and_the_matching_head(tmp_path, fake_pretraining):
     from mcdp.methods.mcdp import DepthModel, MonoDepthModel
     from corelib.hashing import sha256_file
     from mcdp.warmstart import warm_start
 
     p = tmp_path / "pretrained.pt"
-    src = _fake_pretraining(p)
+    src = fake_pretraining(p)
     mono = MonoDepthModel(cfg_of("mono2").model)
     rec = warm_start(mono, p)
     assert rec["sha256"] == sha256_file(p) and rec["step"] == 7 and rec["path"] == str(p.resolve())
@@ -217,12 +203,12 @@ def test_warm_start_copies_the_trunk_and_the_matching_head(tmp_path):
     ("model.bases=4", "decoder.dispconv"),
     ("model.scales=2", None),
 ])
-def test_warm_start_refuses_another_architecture_naming_the_layer(tmp_path, override, needle):
+def test_warm_start_refuses_another_architecture_naming_the_layer(tmp_path, override, needle, fake_pretraining):
     from mcdp.methods.mcdp import DepthModel
     from mcdp.warmstart import WarmStartError, warm_start
 
     p = tmp_path / "pretrained.pt"
-    _fake_pretraining(p)
+    fake_pretraining(p)
     model = DepthModel(cfg_of("mcdp_m2", override).model)
     if needle is None:  # fewer scales: a subset of the layers, which fits
         warm_start(model, p)
@@ -231,7 +217,7 @@ def test_warm_start_refuses_another_architecture_naming_the_layer(tmp_path, over
         warm_start(model, p)
 
 
-def test_warm_start_refuses_files_that_are_not_a_pretraining(tmp_path):
+def test_warm_start_refuses_files_that_are_not_a_pretraining(tmp_path, fake_pretraining):
     from mcdp.methods.mcdp import MonoDepthModel
     from mcdp.warmstart import WarmStartError, warm_start
 
@@ -247,7 +233,7 @@ def test_warm_start_refuses_files_that_are_not_a_pretraining(tmp_path):
     with pytest.raises(WarmStartError, match="mcdp-pretrain"):
         warm_start(model, other)
     nohead = tmp_path / "nohead.pt"
-    _fake_pretraining(nohead, mono_head=False)
+    fake_pretraining(nohead, mono_head=False)
     with pytest.raises(WarmStartError, match="mono head"):
         warm_start(model, nohead)
 

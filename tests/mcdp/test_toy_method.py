@@ -4,6 +4,8 @@ evaluator or the study. The toy trains warm-started from a pretraining, its own 
 moves the gradient by its own weight, and ``mcdp eval`` / ``mcdp predict`` run on it."""
 from __future__ import annotations
 
+import importlib.util
+import sys
 from pathlib import Path
 
 import pytest
@@ -13,7 +15,13 @@ from corelib.configlib import config_to_dict, load_config
 from mcdp import methods
 from mcdp.config import RunConfig
 from mcdp.data import collate
-from tests.mcdp.toy_method import ToyDepth, ToyParams
+
+# the toy's module, imported from its file as a user's own module would be (tests/ is no package on sys.path);
+# in sys.modules as an import puts it (pydantic resolves ToyParams' annotations there)
+_spec = importlib.util.spec_from_file_location("toy_method", Path(__file__).with_name("toy_method.py"))
+toy_method = sys.modules.setdefault("toy_method", importlib.util.module_from_spec(_spec))
+_spec.loader.exec_module(toy_method)
+ToyDepth, ToyParams = toy_method.ToyDepth, toy_method.ToyParams
 
 ROOT = Path(__file__).resolve().parents[2]
 TINY = ROOT / "configs" / "train" / "tiny"
