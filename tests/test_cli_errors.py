@@ -205,6 +205,7 @@ def test_no_opengl_back_end_is_exit_6_in_exactly_the_commands_the_readme_names(w
     assert res.returncode == 0, res.stderr[-2000:]  # no OpenGL in a preview: not in the table's row, rightly
 
 
+@pytest.mark.slow  # a long command started as a subprocess, signalled once it works
 @pytest.mark.parametrize("argv, started", [
     (SYNTH + ["render", "configs/data/tiny.yaml", "--out", "{tmp}/big", "dataset.frames=400", "--no-progress"],
      "synth render: "),
