@@ -53,6 +53,26 @@ def flow_dataset(tmp_path_factory):
 
 
 @pytest.fixture(scope="session")
+def _mono2_run_once(tiny_dataset, tmp_path_factory):
+    from study.method_commands import main
+
+    run = tmp_path_factory.mktemp("mono2") / "run"
+    assert main(["train", str(ROOT / "configs" / "train" / "tiny" / "mono2.yaml"), "--data", str(tiny_dataset),
+                 "--out", str(run), "--no-progress", "train.steps=1"]) == 0
+    return run
+
+
+@pytest.fixture
+def mono2_run(_mono2_run_once, tmp_path):
+    """``tmp_path / "run"``: the run folder of `mcdp train configs/train/tiny/mono2.yaml --data TINY_DATASET
+    train.steps=1`, trained once per session (per xdist worker) and copied for each test (a run to evaluate,
+    predict from or refuse; never one whose training is under test)."""
+    import shutil
+
+    return Path(shutil.copytree(_mono2_run_once, tmp_path / "run", symlinks=True))
+
+
+@pytest.fixture(scope="session")
 def tiny_dataset_without_labels(tiny_dataset, tmp_path_factory):
     """A copy of the tiny dataset as rendered before labels existed: its manifest has no labels record (the
     label files stay, unread)."""
