@@ -15,12 +15,11 @@ from pathlib import Path
 
 import pytest
 
-pytestmark = pytest.mark.slow  # minutes of training, rendering or processes: `pytest -m "not slow"` skips it
-
 ROOT = Path(__file__).resolve().parents[1]
 VIZ_TESTS = ["tests/synth/test_view.py", "tests/synth/test_gltf_export.py", "tests/mcdp/test_recording.py"]
 
 
+@pytest.mark.slow  # the viz tests in .venv-viz, a pytest of their own
 def test_viz_tests_pass_in_the_viz_environment():
     if all(importlib.util.find_spec(m) is not None for m in ("rerun", "trimesh")):
         pytest.skip("this interpreter has the viz extra: the viz tests run directly in this session")

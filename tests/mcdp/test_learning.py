@@ -9,8 +9,6 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-
-pytestmark = pytest.mark.slow  # minutes of training, rendering or processes: `pytest -m "not slow"` skips it
 import torch
 import torch.nn.functional as F
 
@@ -93,6 +91,7 @@ def test_pixels_out_of_view_score_their_identity_error_and_never_less():
 
 
 # --------------------------------------------------------------------------- overfit one rig
+@pytest.mark.slow  # training
 @pytest.mark.parametrize("seed", [0, 1, 2])
 def test_overfitting_one_rig_lowers_its_loss_and_spreads_the_depth(ds, one_thread, seed):
     """mono2, odometry scale, one rig sample, 60 Adam steps at lr 3e-4: the loss of that rig falls
@@ -238,6 +237,7 @@ def test_warm_start_refuses_files_that_are_not_a_pretraining(tmp_path, fake_pret
         warm_start(model, nohead)
 
 
+@pytest.mark.slow  # training
 def test_pretrain_is_cached_by_its_config_hash_and_refuses_foreign_folders(tmp_path, capsys):
     from study.cli import main  # the mcdp console script: train / eval / predict + pretrain and sweep
 
