@@ -23,6 +23,12 @@ from synth.label_reader import NoLabels  # noqa: E402
 ROOT = Path(__file__).resolve().parents[1]
 TINY = ROOT / "configs" / "data" / "tiny.yaml"
 
+# Under pytest-xdist (`pytest -n 2 --dist loadfile`, the README's command: a module's tests on one worker, so its
+# module-scoped fixtures are made once) the workers share the cores: one torch thread each (the tiny presets train
+# on one thread already; this holds the rest, e.g. a predictor, to it too).
+if os.environ.get("PYTEST_XDIST_WORKER"):
+    torch.set_num_threads(1)
+
 
 @pytest.fixture(scope="session")
 def tiny_config():

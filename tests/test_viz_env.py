@@ -3,7 +3,8 @@
 rerun-sdk 0.41 requires numpy >= 2 and nuscenes-devkit 1.2.0 numpy < 2, so `scripts/setup.sh --test`
 installs [viz] into a second environment, ``.venv-viz``. When this interpreter lacks the extra and
 ``.venv-viz`` exists, this test runs the viz test modules there, so the README's test command
-(``.venv/bin/python -m pytest -q``) covers them; where this interpreter has the extra they run directly."""
+(``.venv/bin/python -m pytest -q -n 2 --dist loadfile``) covers them; where this interpreter has the extra they
+run directly."""
 from __future__ import annotations
 
 import importlib.util
