@@ -1,7 +1,7 @@
 #!/usr/bin/env bash
 # Set up mcdp-synth on a fresh Debian 12 machine: system GL libraries, a virtualenv in .venv,
 # and the package with its pinned dependencies. Safe to run again (idempotent).
-#   bash scripts/setup.sh          # the package + pytest
+#   bash scripts/setup.sh          # the package + pytest and pytest-xdist (the tests run on two workers)
 #   bash scripts/setup.sh --test   # + the optional extras the test suite exercises: nuscenes-devkit
 #                                  #   (which pins numpy < 2) and Ray in .venv, and a second environment
 #                                  #   .venv-viz with [viz] (rerun-sdk 0.41 requires numpy >= 2); the main

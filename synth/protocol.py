@@ -2,7 +2,7 @@
 viewer (`synth.view`, which `mcdp predict --rrd` records through) read from a dataset, and nothing more.
 
 Implemented by `synth.dataset.Dataset` (a rendered dataset), `synth.nuscenes.dataset.NuScenesDataset` (a
-nuScenes dataroot) and the tests' fake (tests/mcdp/test_evaluate.py); tests/synth/test_protocol.py checks
+nuScenes dataroot) and the tests' fake (tests/conftest.py); tests/synth/test_protocol.py checks
 all three. A reader may have more (`Dataset.manifest`, `read_bytes`, `NuScenesDataset.lidar_points_world`,
 ...), but a consumer that takes any dataset reads only these members; it reads an extra only after `format`
 says which reader it has (``ds.format == "synth"``: the manifest, ``read_bytes``; ``"nuscenes"``: the LiDAR

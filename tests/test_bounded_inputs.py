@@ -57,6 +57,7 @@ def tiny_run(tiny_dataset, tmp_path_factory) -> Path:
     return run
 
 
+@pytest.mark.slow  # whole commands (train, predict, export) as subprocesses on a tmpfs
 @pytest.mark.parametrize("command", ["train", "predict", "export"])
 def test_a_disk_full_from_the_start_names_the_file_exit_4(tiny_dataset, tmp_path, small_disk, command, request):
     """A real tmpfs, full before the command starts: the first write is the output folder's lock file."""

@@ -28,8 +28,6 @@ from pathlib import Path
 
 import pytest
 
-from tests.conftest import default_signals
-
 ROOT = Path(__file__).resolve().parents[1]
 TINY_TRAIN = "configs/train/tiny/mono2.yaml"
 LONG = "x" * 300  # longer than any common file system's 255 bytes per name
@@ -207,13 +205,14 @@ def test_no_opengl_back_end_is_exit_6_in_exactly_the_commands_the_readme_names(w
     assert res.returncode == 0, res.stderr[-2000:]  # no OpenGL in a preview: not in the table's row, rightly
 
 
+@pytest.mark.slow  # a long command started as a subprocess, signalled once it works
 @pytest.mark.parametrize("argv, started", [
     (SYNTH + ["render", "configs/data/tiny.yaml", "--out", "{tmp}/big", "dataset.frames=400", "--no-progress"],
      "synth render: "),
     (MCDP + ["train", TINY_TRAIN, "--data", "{data}", "--out", "{tmp}/long", "train.steps=100000", "--no-progress"],
      "  6 cameras"),
 ], ids=["synth-render", "mcdp-train"])
-def test_sigint_to_the_command_alone_is_exit_130_in_one_line(work, tmp_path, argv, started):
+def test_sigint_to_the_command_alone_is_exit_130_in_one_line(work, tmp_path, argv, started, default_signals):
     fill = {"tmp": str(tmp_path), "data": str(work["data"])}
     argv = [a.format(**fill) for a in argv]
     proc = subprocess.Popen(argv, preexec_fn=default_signals, cwd=ROOT, env={**os.environ, "OMP_NUM_THREADS": "1"},

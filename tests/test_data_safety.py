@@ -200,12 +200,10 @@ def test_a_full_disk_while_checkpointing_keeps_the_last_checkpoint_and_training_
 
 
 # --------------------------------------------------------------------------- eval --out
-def test_eval_refuses_to_overwrite_a_file_that_is_not_its_metrics(tiny_dataset, tmp_path, capsys):
+def test_eval_refuses_to_overwrite_a_file_that_is_not_its_metrics(tiny_dataset, tmp_path, capsys, mono2_run):
     from study.method_commands import main
 
-    run = tmp_path / "run"
-    assert main(["train", str(TINY_TRAIN / "mono2.yaml"), "--data", str(tiny_dataset), "--out", str(run),
-                 "--no-progress", "train.steps=1"]) == 0
+    run = mono2_run  # trained once, copied here (conftest)
     mine = tmp_path / "notes.json"
     mine.write_text('{"my": "notes"}')
     ev = ["eval", str(run), "--data", str(tiny_dataset), "--no-progress", "--out"]

@@ -18,8 +18,6 @@ from pathlib import Path
 
 import pytest
 
-from tests.conftest import default_signals
-
 ROOT = Path(__file__).resolve().parents[1]
 pytestmark = [pytest.mark.skipif(not sys.platform.startswith("linux"), reason="PR_SET_PDEATHSIG is Linux-only"),
               pytest.mark.slow]  # processes killed and waited for: `pytest -m "not slow"` skips it
@@ -53,8 +51,8 @@ def _alive(pids: list[int]) -> list[int]:
     return [p for p in pids if (st := _stat(p)) is not None and st[1] != "Z"]
 
 
-def _kill_parent_and_check(argv: list[str], n_workers: int, sig: int, tmp_path: Path, wait_s: float = 240,
-                           ready: str | None = None) -> None:
+def _kill_parent_and_check(argv: list[str], n_workers: int, sig: int, tmp_path: Path, default_signals,
+                           wait_s: float = 240, ready: str | None = None) -> None:
     """Start ``argv``; once ``n_workers`` spawned children run (and stderr says ``ready`` that many times:
     the workers of the stage under test, not an earlier stage's), signal the parent only; it exits (130
     after SIGINT) and every one of those workers is gone."""
@@ -87,10 +85,10 @@ def _kill_parent_and_check(argv: list[str], n_workers: int, sig: int, tmp_path: 
 
 
 @pytest.mark.parametrize("sig", [signal.SIGKILL, signal.SIGTERM, signal.SIGHUP, signal.SIGINT])
-def test_render_workers_die_with_the_render(tmp_path, sig):
+def test_render_workers_die_with_the_render(tmp_path, sig, default_signals):
     argv = [sys.executable, "-m", "synth.cli", "render", "configs/data/tiny.yaml", "--out", str(tmp_path / "d"),
             "--workers", "2", "--no-progress", "dataset.sequences=6", "dataset.frames=200"]
-    _kill_parent_and_check(argv, 3, sig, tmp_path)  # the progress queue's manager + 2 workers
+    _kill_parent_and_check(argv, 3, sig, tmp_path, default_signals)  # the progress queue's manager + 2 workers
 
 
 SWEEP = ["pretrain=null", "methods=[mono2]", "overlaps=[0.2]", "seeds=[0,1]", "jobs=2", "preview=false",
@@ -114,9 +112,10 @@ def sweep_data(tmp_path_factory):
 
 
 @pytest.mark.parametrize("sig", [signal.SIGKILL, signal.SIGTERM, signal.SIGHUP, signal.SIGINT])
-def test_sweep_run_workers_die_with_the_sweep(sweep_data, tmp_path, sig):
+def test_sweep_run_workers_die_with_the_sweep(sweep_data, tmp_path, sig, default_signals):
     shutil.copytree(sweep_data, tmp_path / "s")
     argv = [sys.executable, "-m", "study.cli", "sweep", "configs/sweep/ci.yaml", "--out", str(tmp_path / "s"),
             "--no-progress", *SWEEP]
-    _kill_parent_and_check(argv, 2, sig, tmp_path, wait_s=600, ready="training 100000 steps")  # the runs' workers
+    _kill_parent_and_check(argv, 2, sig, tmp_path, default_signals, wait_s=600,
+                           ready="training 100000 steps")  # the runs' workers
     assert "overlap_0.20: dataset" in (tmp_path / "err").read_text() and "reused" in (tmp_path / "err").read_text()

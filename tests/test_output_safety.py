@@ -234,14 +234,12 @@ def test_outputs_inside_a_dataset_are_refused(data, tmp_path, capsys, tree_hash)
     assert tree_hash(data) == before
 
 
-def test_predict_refuses_a_folder_of_another_dataset_or_run(tiny_dataset, data, tmp_path, capsys):
+def test_predict_refuses_a_folder_of_another_dataset_or_run(tiny_dataset, data, tmp_path, capsys, mono2_run):
     import json
 
     from study.method_commands import main as mcdp_main
 
-    run = tmp_path / "run"
-    assert mcdp_main(["train", str(ROOT / "configs" / "train" / "tiny" / "mono2.yaml"), "--data", str(tiny_dataset),
-                      "--out", str(run), "--no-progress", "train.steps=1"]) == 0
+    run = mono2_run  # trained once, copied here (conftest)
     pred = tmp_path / "pred"
     argv = ["predict", str(run), "--out", str(pred), "--max-samples", "1", "--data"]
     assert mcdp_main(argv + [str(tiny_dataset)]) == 0
@@ -257,14 +255,12 @@ def test_predict_refuses_a_folder_of_another_dataset_or_run(tiny_dataset, data, 
 
 
 # --------------------------------------------------------------------------- 10: eval on another rig
-def test_eval_on_another_rig_warns_and_records_the_difference(tiny_dataset, tmp_path, capsys):
+def test_eval_on_another_rig_warns_and_records_the_difference(tiny_dataset, tmp_path, capsys, mono2_run):
     import json
 
     from study.method_commands import main as mcdp_main
 
-    run = tmp_path / "run"
-    assert mcdp_main(["train", str(ROOT / "configs" / "train" / "tiny" / "mono2.yaml"), "--data", str(tiny_dataset),
-                      "--out", str(run), "--no-progress", "train.steps=1"]) == 0
+    run = mono2_run  # trained once, copied here (conftest)
     assert len(json.loads((run / "run.json").read_text())["rig"]) == 6
     other = tmp_path / "wide"
     assert synth_main(["render", str(TINY), "--out", str(other), "--no-progress", "rig.overlap=0.5"]) == 0

@@ -22,6 +22,8 @@ import subprocess
 import sys
 from pathlib import Path
 
+import pytest
+
 ROOT = Path(__file__).resolve().parents[1]
 VENV = Path(sys.executable).parent.parent
 #: the viz environment: this checkout's, else the one beside the environment running the test (a worktree's)
@@ -96,6 +98,7 @@ def test_every_heavy_readme_line_says_how_long_and_how_much():
                 assert re.search(r"\d\s*(s|min|h)\b", comment) and re.search(r"\d\s*[MG]B\b", comment), (cmd, comment)
 
 
+@pytest.mark.slow  # every README command as a subprocess, a smoke sweep among them (~100 s)
 def test_the_readme_blocks_run_in_order_from_an_empty_folder(tmp_path):
     for name in ("configs", "benchmarks", "scripts"):
         (tmp_path / name).symlink_to(ROOT / name, target_is_directory=True)

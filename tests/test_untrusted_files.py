@@ -165,12 +165,10 @@ def test_every_synth_reader_refuses_a_file_larger_than_its_bound_before_reading_
     assert resource.getrusage(resource.RUSAGE_SELF).ru_maxrss - before < 512 * 2**10  # KiB: nothing was read
 
 
-def test_eval_on_a_dataset_with_a_fifo_image_exits_2_naming_it(tiny_dataset, tmp_path, capsys, alarm):
+def test_eval_on_a_dataset_with_a_fifo_image_exits_2_naming_it(tiny_dataset, tmp_path, capsys, alarm, mono2_run):
     from study.method_commands import main
 
-    run = tmp_path / "run"
-    assert main(["train", str(ROOT / "configs/train/tiny/mono2.yaml"), "--data", str(tiny_dataset), "--out",
-                 str(run), "--no-progress", "train.steps=1"]) == 0
+    run = mono2_run  # trained once, copied here (conftest)
     d = tmp_path / "data"
     shutil.copytree(tiny_dataset, d)
     seq = json.loads((d / "manifest.json").read_text())["splits"]["test"][0]
@@ -275,12 +273,11 @@ def test_a_nuscenes_calibration_that_is_not_a_camera_is_refused_naming_table_and
     assert "calibrated_sensor.json" in msg and token in msg and what in msg and len(msg.splitlines()) == 1, msg
 
 
-def test_eval_on_a_dataroot_with_a_zero_focal_length_exits_2_in_one_line(ns_root, tiny_dataset, tmp_path, capsys):
+def test_eval_on_a_dataroot_with_a_zero_focal_length_exits_2_in_one_line(ns_root, tiny_dataset, tmp_path, capsys,
+                                                                         mono2_run):
     from study.method_commands import main
 
-    run = tmp_path / "run"
-    assert main(["train", str(ROOT / "configs/train/tiny/mono2.yaml"), "--data", str(tiny_dataset), "--out",
-                 str(run), "--no-progress", "train.steps=1"]) == 0
+    run = mono2_run  # trained once, copied here (conftest)
     root = _ns_copy(ns_root, tmp_path)
     token = _edit_calib(root, "CAM_BACK", _set_k(0, 0, 0.0))
     capsys.readouterr()
@@ -306,13 +303,12 @@ def test_sweep_and_pretrain_refuse_an_out_inside_a_dataset_before_writing(tiny_d
     assert tree_hash(d) == before
 
 
-def test_every_writer_refuses_an_out_inside_a_nuscenes_dataroot(ns_root, tiny_dataset, tmp_path, capsys, tree_hash):
+def test_every_writer_refuses_an_out_inside_a_nuscenes_dataroot(ns_root, tiny_dataset, tmp_path, capsys, tree_hash,
+                                                                mono2_run):
     from study.cli import main
     from synth.cli import main as synth_main
 
-    run = tmp_path / "run"
-    assert main(["train", str(ROOT / "configs/train/tiny/mono2.yaml"), "--data", str(tiny_dataset), "--out",
-                 str(run), "--no-progress", "train.steps=1"]) == 0
+    run = mono2_run  # trained once, copied here (conftest)
     root = _ns_copy(ns_root, tmp_path)
     before = tree_hash(root)
     inner = root / "samples"
@@ -426,13 +422,11 @@ def test_worker_lost_is_exit_1_in_one_line(capsys):
 
 
 # --------------------------------------------------------------------------- finding 9: choices first
-def test_eval_refuses_an_unknown_stage_before_evaluating(tiny_dataset, tmp_path, capsys, monkeypatch):
+def test_eval_refuses_an_unknown_stage_before_evaluating(tiny_dataset, tmp_path, capsys, monkeypatch, mono2_run):
     import mcdp.evaluate
     from study.method_commands import main
 
-    run = tmp_path / "run"
-    assert main(["train", str(ROOT / "configs/train/tiny/mono2.yaml"), "--data", str(tiny_dataset), "--out",
-                 str(run), "--no-progress", "train.steps=1"]) == 0
+    run = mono2_run  # trained once, copied here (conftest)
 
     def never(*a, **k):
         raise AssertionError("evaluated before the stage was checked")

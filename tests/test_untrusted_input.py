@@ -62,14 +62,12 @@ def test_a_manifest_name_that_is_not_plain_is_refused_naming_the_field(tree_hash
     assert tree_hash(tmp_path) == before
 
 
-def test_mcdp_predict_refuses_a_manifest_whose_sequence_leaves_the_root(tiny_dataset, tmp_path, capsys):
+def test_mcdp_predict_refuses_a_manifest_whose_sequence_leaves_the_root(tiny_dataset, tmp_path, capsys, mono2_run):
     from study.method_commands import main
 
     d = _copy(tiny_dataset, tmp_path)
     _edit_manifest(d, lambda m: _rename_seq(m, "../outside/x"))
-    run = tmp_path / "run"  # a run trained on the clean copy
-    assert main(["train", str(TINY_TRAIN / "mono2.yaml"), "--data", str(tiny_dataset), "--out", str(run),
-                 "--no-progress", "train.steps=1"]) == 0
+    run = mono2_run  # a run trained on the clean copy
     capsys.readouterr()
     assert main(["predict", str(run), "--data", str(d), "--out", str(tmp_path / "pred")]) == 2
     assert "sequence name" in capsys.readouterr().err
@@ -191,7 +189,8 @@ def test_train_refuses_a_folder_of_the_users_own_files(tree_hash, tiny_dataset, 
 
 
 @pytest.mark.parametrize("command", ["predict", "sweep"])
-def test_predict_and_sweep_refuse_a_folder_of_the_users_own_files(tree_hash, tiny_dataset, tmp_path, capsys, command):
+def test_predict_and_sweep_refuse_a_folder_of_the_users_own_files(tree_hash, tiny_dataset, tmp_path, capsys, command,
+                                                                  request):
     from study.cli import main  # the `mcdp` console script: mcdp's commands + the study's sweep
 
     mine = tmp_path / "mine"
@@ -199,9 +198,7 @@ def test_predict_and_sweep_refuse_a_folder_of_the_users_own_files(tree_hash, tin
     (mine / "notes.txt").write_text("mine")
     before = tree_hash(mine)
     if command == "predict":
-        run = tmp_path / "run"
-        assert main(["train", str(TINY_TRAIN / "mono2.yaml"), "--data", str(tiny_dataset), "--out", str(run),
-                     "--no-progress", "train.steps=1"]) == 0
+        run = request.getfixturevalue("mono2_run")  # trained once, copied here (conftest)
         args = ["predict", str(run), "--data", str(tiny_dataset), "--out", str(mine)]
     else:
         args = ["sweep", str(ROOT / "configs/sweep/ci.yaml"), "--out", str(mine), "--no-progress"]

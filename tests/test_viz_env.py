@@ -3,7 +3,8 @@
 rerun-sdk 0.41 requires numpy >= 2 and nuscenes-devkit 1.2.0 numpy < 2, so `scripts/setup.sh --test`
 installs [viz] into a second environment, ``.venv-viz``. When this interpreter lacks the extra and
 ``.venv-viz`` exists, this test runs the viz test modules there, so the README's test command
-(``.venv/bin/python -m pytest -q``) covers them; where this interpreter has the extra they run directly."""
+(``.venv/bin/python -m pytest -q -n 2 --dist loadfile``) covers them; where this interpreter has the extra they
+run directly."""
 from __future__ import annotations
 
 import importlib.util
@@ -15,12 +16,11 @@ from pathlib import Path
 
 import pytest
 
-pytestmark = pytest.mark.slow  # minutes of training, rendering or processes: `pytest -m "not slow"` skips it
-
 ROOT = Path(__file__).resolve().parents[1]
 VIZ_TESTS = ["tests/synth/test_view.py", "tests/synth/test_gltf_export.py", "tests/mcdp/test_recording.py"]
 
 
+@pytest.mark.slow  # the viz tests in .venv-viz, a pytest of their own
 def test_viz_tests_pass_in_the_viz_environment():
     if all(importlib.util.find_spec(m) is not None for m in ("rerun", "trimesh")):
         pytest.skip("this interpreter has the viz extra: the viz tests run directly in this session")

@@ -22,13 +22,12 @@ def test_frame_cache_returns_the_disk_pixels_and_respects_its_bound(ds):
     assert np.array_equal(big.rgb(seq, 0), nocache.rgb(seq, 0))
 
 
-def test_each_camera_is_resized_from_its_own_size_and_its_K_scaled_by_its_own_factors():
+def test_each_camera_is_resized_from_its_own_size_and_its_K_scaled_by_its_own_factors(fake_dataset):
     """Cameras of different sizes (rig.cameras.<CAM>.width): every camera reaches the training size, and
     each K is diag(sx, sy, 1) K with that camera's own factors (here the aspect changes too)."""
     from mcdp.data import RigDataset, scaled_K
-    from tests.mcdp.test_evaluate import FakeDataset
 
-    fake = FakeDataset(scale=(1, 2))  # CAM_FRONT 16x12, CAM_FRONT_RIGHT 32x24
+    fake = fake_dataset(scale=(1, 2))  # CAM_FRONT 16x12, CAM_FRONT_RIGHT 32x24
     h, w = 6, 16
     r = RigReader(fake, h, w)
     assert r.rgb("s_train", 0).shape == (2, 3, h, w) and r.mask.shape == (2, 1, h, w)

@@ -10,8 +10,6 @@ import sys
 from pathlib import Path
 
 import pytest
-
-pytestmark = pytest.mark.slow  # minutes of training, rendering or processes: `pytest -m "not slow"` skips it
 import torch
 
 from study.method_commands import main
@@ -44,6 +42,7 @@ def two_rank_run(tiny_dataset, tmp_path_factory):
     return out, proc
 
 
+@pytest.mark.slow  # torchrun processes / training
 def test_two_ranks_train_and_rank_0_writes_a_checkpoint_eval_reads(two_rank_run, tiny_dataset, capsys):
     out, proc = two_rank_run
     ckpt = load_checkpoint(out / "checkpoints" / "last.pt")
@@ -54,6 +53,7 @@ def test_two_ranks_train_and_rank_0_writes_a_checkpoint_eval_reads(two_rank_run,
     assert (out / "metrics_test.json").is_file()
 
 
+@pytest.mark.slow  # torchrun processes / training
 def test_two_ranks_match_one_process_of_the_same_global_batch(two_rank_run, tiny_dataset, tmp_path, one_thread):
     """Same samples, same augmentation, gradients averaged by DDP; the one difference is that each rank's
     BatchNorm normalises its own half of the batch (there is no SyncBatchNorm on CPU). Measured on the
@@ -68,6 +68,7 @@ def test_two_ranks_match_one_process_of_the_same_global_batch(two_rank_run, tiny
         assert abs(v2[step] - v1[step]) <= 0.05 * v1[step], (step, v1[step], v2[step])
 
 
+@pytest.mark.slow  # torchrun processes / training
 def test_resume_under_torchrun_is_exact_and_another_world_size_resumes(two_rank_run, tiny_dataset, tmp_path, capsys,
                                                                       one_thread):
     out, _ = two_rank_run
@@ -111,6 +112,7 @@ def test_precision_is_resolved_per_device():
         resolve_precision("fp16", cpu)
 
 
+@pytest.mark.slow  # torchrun processes / training
 def test_bf16_autocast_trains_on_cpu(tiny_dataset, tmp_path, one_thread):
     from corelib.configlib import load_config
     from mcdp.config import RunConfig

@@ -1,8 +1,6 @@
 """Tests for mcdp.evaluate on a fake two-camera dataset with an analytic wall (no rendering)."""
 import json
 import math
-from dataclasses import asdict, dataclass
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -13,89 +11,8 @@ from mcdp import tables as T
 from mcdp.metrics import metric_names
 from synth.label_reader import NoLabels
 
-H, W, F_PX, Z_WALL, SHIFT_PX = 12, 16, 20.0, 10.0, 3
-
-
-@dataclass
-class FakeCamera:
-    name: str
-    width: int
-    height: int
-    K: np.ndarray
-    T_ego_cam: np.ndarray
-    hfov_deg: float
-    yaw_deg: float
-
-    def to_json(self):
-        return {k: v.tolist() if isinstance(v, np.ndarray) else v for k, v in asdict(self).items()}
-
-
-class FakeDataset(NoLabels):
-    format = "fake"
-    """A `synth.protocol.DatasetReader` (tests/synth/test_protocol.py checks it): two forward cameras,
-    j = i shifted right.
-
-    The wall is fronto-parallel at z = 10 m for both cameras and the baseline gives an
-    exact 3-pixel disparity, so the z-buffered splat of the true depth is exact.
-    The bottom row of both cameras is ego body (mask False).
-    ``scale``: the cameras' image sizes, as multiples of W x H (the same field of view: K scaled with
-    them; a camera of twice the size sees the wall at a disparity of 6 of its pixels, as exact).
-    """
-
-    def __init__(self, n_frames=4, scale=(1, 1)):
-        R = np.array([[0.0, 0, 1], [-1, 0, 0], [0, -1, 0]])  # OpenCV camera axes in the ego frame
-        T0 = np.eye(4)
-        T0[:3, :3] = R
-        T0[:3, 3] = [1.0, 0.0, 1.5]
-        T1 = T0.copy()
-        T1[1, 3] = -SHIFT_PX * Z_WALL / F_PX  # to the right
-        hfov = math.degrees(2 * math.atan(W / 2 / F_PX))
-        self.cameras = [FakeCamera(n, W * s, H * s, np.array([[F_PX * s, 0, W * s / 2], [0, F_PX * s, H * s / 2],
-                                                              [0, 0, 1.0]]), T, hfov, 0.0)
-                        for n, T, s in zip(("CAM_FRONT", "CAM_FRONT_RIGHT"), (T0, T1), scale)]
-        self.camera_names = [c.name for c in self.cameras]
-        self._hw = {c.name: (c.height, c.width) for c in self.cameras}  # each camera's images at its own size
-        self.neighbours = [(0, 1)]
-        self._n = n_frames
-        self.depth_reads = []
-        self.root = Path("fake")
-        self.fps = 10.0
-        self.has_depth = True
-        self.ground_truth = {"kind": "unknown"}
-
-    @property
-    def sequences(self):
-        return ["s0", "s1", "s_train"]
-
-    def split(self, name):
-        return {"train": ["s_train"], "val": [], "test": ["s0", "s1"]}[name]
-
-    def n_frames(self, seq):
-        return self._n
-
-    def ego(self, seq):
-        return [{"timestamp_s": f / self.fps, "T_world_ego": np.eye(4).tolist()} for f in range(self._n)]
-
-    def T_world_ego(self, seq):
-        return np.stack([np.eye(4)] * self._n)
-
-    def rgb_path(self, seq, cam_name, frame):
-        return self.root / seq / cam_name / f"{frame:06d}.png"
-
-    def depth_path(self, seq, cam_name, frame):
-        return self.root / seq / cam_name / f"{frame:06d}.depth.exr"
-
-    def read_rgb(self, seq, cam_name, frame):
-        return np.full((*self._hw[cam_name], 3), 128, np.uint8)
-
-    def read_depth(self, seq, cam_name, frame):
-        self.depth_reads.append((seq, cam_name, frame))
-        return np.full(self._hw[cam_name], Z_WALL, dtype=np.float32)
-
-    def mask(self, cam_name):
-        m = np.ones(self._hw[cam_name], bool)
-        m[-1, :] = False
-        return m
+#: the geometry of the fake dataset (tests/conftest.py's FakeDataset, the `fake_dataset` fixture; checked below)
+H, W, Z_WALL, SHIFT_PX = 12, 16, 10.0, 3
 
 
 def perfect(seq, frame):
@@ -107,8 +24,9 @@ def run(ds, fn, **cfg):
     return E.evaluate(ds, fn, "test", E.EvalConfig(**cfg), progress=False)
 
 
-def test_layout_and_perfect_prediction():
-    ds = FakeDataset()
+def test_layout_and_perfect_prediction(fake_dataset):
+    ds = fake_dataset()
+    assert (ds.H, ds.W, ds.Z_WALL, ds.SHIFT_PX) == (H, W, Z_WALL, SHIFT_PX)  # the sizes this module's tests use
     m = run(ds, perfect)
     assert m["split"] == "test" and m["n_samples"] == 4  # 2 sequences x frames 1, 2 (ends skipped)
     assert m["cameras"] == ["CAM_FRONT", "CAM_FRONT_RIGHT"]
@@ -139,8 +57,8 @@ def test_layout_and_perfect_prediction():
     json.dumps(m)  # serialisable
 
 
-def test_double_depth_none_vs_median():
-    m = run(FakeDataset(), lambda s, f: {"init": np.full((2, H, W), 2 * Z_WALL, np.float32)})
+def test_double_depth_none_vs_median(fake_dataset):
+    m = run(fake_dataset(), lambda s, f: {"init": np.full((2, H, W), 2 * Z_WALL, np.float32)})
     fin = m["stages"]["final"]
     assert fin["none"]["mean"]["abs_rel"] == pytest.approx(1.0)
     assert fin["none"]["mean"]["a3"] == 0.0
@@ -148,14 +66,14 @@ def test_double_depth_none_vs_median():
     assert fin["rig_median"]["mean"]["abs_rel"] == pytest.approx(0.0, abs=1e-7)
 
 
-def test_rig_median_differs_from_median_and_dep_con_hand_value():
+def test_rig_median_differs_from_median_and_dep_con_hand_value(fake_dataset):
     def fn(seq, frame):
         d = np.full((2, H, W), Z_WALL, np.float32)
         d[0] *= 2.0
         d[1] *= 4.0
         return {"init": d}
 
-    fin = run(FakeDataset(), fn)["stages"]["final"]
+    fin = run(fake_dataset(), fn)["stages"]["final"]
     assert fin["none"]["per_camera"]["CAM_FRONT"]["abs_rel"] == pytest.approx(1.0)
     assert fin["none"]["per_camera"]["CAM_FRONT_RIGHT"]["abs_rel"] == pytest.approx(3.0)
     assert fin["none"]["mean"]["abs_rel"] == pytest.approx(2.0)  # mean of the per-camera values
@@ -170,41 +88,41 @@ def test_rig_median_differs_from_median_and_dep_con_hand_value():
     assert fin["dep_con"]["mean"] == pytest.approx(2.0)
 
 
-def test_overlap_split_separates_regions():
+def test_overlap_split_separates_regions(fake_dataset):
     # error only in the columns of CAM_FRONT that CAM_FRONT_RIGHT cannot see (0..2)
     def fn(seq, frame):
         d = np.full((2, H, W), Z_WALL, np.float32)
         d[0, :, :SHIFT_PX] = 2 * Z_WALL
         return {"init": d}
 
-    r = run(FakeDataset(), fn)["stages"]["final"]["none"]
+    r = run(fake_dataset(), fn)["stages"]["final"]["none"]
     assert r["overlap_per_camera"]["CAM_FRONT"]["abs_rel"] == pytest.approx(0.0, abs=1e-7)
     assert r["non_overlap_per_camera"]["CAM_FRONT"]["abs_rel"] == pytest.approx(1.0)
     assert r["per_camera"]["CAM_FRONT"]["abs_rel"] == pytest.approx(3 / 16)
     assert r["per_camera"]["CAM_FRONT_RIGHT"]["abs_rel"] == pytest.approx(0.0, abs=1e-7)
 
 
-def test_frame_stride_and_skip_ends():
-    ds = FakeDataset(n_frames=6)
+def test_frame_stride_and_skip_ends(fake_dataset):
+    ds = fake_dataset(n_frames=6)
     assert run(ds, perfect, frame_stride=2)["n_samples"] == 4  # frames 1, 3 of 0..5
     assert run(ds, perfect, skip_ends=False)["n_samples"] == 12
 
 
-def test_errors():
+def test_errors(fake_dataset):
     with pytest.raises(ValueError, match="upsample"):
-        run(FakeDataset(), lambda s, f: {"init": np.ones((2, H, W // 2), np.float32)})
+        run(fake_dataset(), lambda s, f: {"init": np.ones((2, H, W // 2), np.float32)})
     with pytest.raises(ValueError, match="Ncam=2"):
-        run(FakeDataset(), lambda s, f: {"init": np.ones((3, H, W), np.float32)})
+        run(fake_dataset(), lambda s, f: {"init": np.ones((3, H, W), np.float32)})
     with pytest.raises(ValueError, match="max_depth"):
         E.EvalConfig(min_depth=10.0, max_depth=5.0)
     with pytest.raises(ValueError, match="frame_stride"):
         E.EvalConfig(frame_stride=0)
     with pytest.raises(ValueError, match="no frame"):
-        E.evaluate(FakeDataset(), perfect, "val", progress=False)
+        E.evaluate(fake_dataset(), perfect, "val", progress=False)
 
 
-def test_format_tables():
-    m = run(FakeDataset(), perfect)
+def test_format_tables(fake_dataset):
+    m = run(fake_dataset(), perfect)
     txt = T.format_tables(m)
     for s in ("scaling: none", "scaling: median", "scaling: rig_median", "CAM_FRONT_RIGHT", "abs_rel",
               "non_overlap", "Dep Con", "CAM_FRONT->CAM_FRONT_RIGHT"):
@@ -213,15 +131,19 @@ def test_format_tables():
         T.format_tables(m, "nope")
 
 
-class RampDataset(FakeDataset):
-    """Depth rises with the row (5 m at the top ... 16 m at the bottom), all sequences alike."""
+@pytest.fixture
+def ramp_dataset(fake_dataset):
+    """The fake whose depth rises with the row (5 m at the top ... 16 m at the bottom), all sequences alike."""
 
-    def read_depth(self, seq, cam_name, frame):
-        return np.repeat(np.linspace(5.0, 16.0, H, dtype=np.float32)[:, None], W, axis=1)
+    class RampDataset(fake_dataset):
+        def read_depth(self, seq, cam_name, frame):
+            return np.repeat(np.linspace(5.0, 16.0, H, dtype=np.float32)[:, None], W, axis=1)
+
+    return RampDataset()
 
 
-def test_constant_depth_reference_hand_values():
-    ds = RampDataset()
+def test_constant_depth_reference_hand_values(ramp_dataset):
+    ds = ramp_dataset
     g = np.linspace(5.0, 16.0, H)[:-1]  # the bottom row is ego body: never counted
     g = np.repeat(g[:, None], W, axis=1).ravel()
     c = P.median_gt_depth(ds, "train")
@@ -236,17 +158,17 @@ def test_constant_depth_reference_hand_values():
     assert m2["stages"]["final"]["none"]["mean"]["abs_rel"] == pytest.approx(np.mean(np.abs(3 * c - g) / g))
 
 
-def test_constant_depth_reference_errors():
+def test_constant_depth_reference_errors(ramp_dataset):
     with pytest.raises(ValueError, match="depth_m"):
-        P.constant_depth_predictor(RampDataset(), 0.0)
+        P.constant_depth_predictor(ramp_dataset, 0.0)
     with pytest.raises(ValueError, match="no ground-truth pixel"):
-        P.median_gt_depth(RampDataset(), "train", E.EvalConfig(min_depth=50.0, max_depth=80.0))
+        P.median_gt_depth(ramp_dataset, "train", E.EvalConfig(min_depth=50.0, max_depth=80.0))
 
 
-def test_cameras_of_different_sizes_are_scored_each_at_its_own_size():
+def test_cameras_of_different_sizes_are_scored_each_at_its_own_size(fake_dataset):
     """rig.cameras.<CAM>.width: CAM_FRONT_RIGHT at twice CAM_FRONT's size (the same field of view); the
     prediction is a list of one depth map per camera, each at its camera's size."""
-    ds = FakeDataset(scale=(1, 2))
+    ds = fake_dataset(scale=(1, 2))
     assert [(c.width, c.height) for c in ds.cameras] == [(W, H), (2 * W, 2 * H)]
 
     def fn(seq, frame):
@@ -268,7 +190,7 @@ def test_cameras_of_different_sizes_are_scored_each_at_its_own_size():
         run(ds, lambda s, f: {"init": np.ones((2, H, W), np.float32)})  # one size for both: refused, named
 
 
-def test_a_toy_metric_is_one_entry_in_the_metrics_table(monkeypatch):
+def test_a_toy_metric_is_one_entry_in_the_metrics_table(monkeypatch, fake_dataset):
     """A metric is one `mcdp.metrics.Metric` row: with a toy one added to `METRICS` (and nothing else), the
     evaluation scores it in every scaling and region, the printed tables give it a column, and the trainer's
     validation pools it; its value is the one its term defines (here mean |log10 g - log10 p|)."""
@@ -278,7 +200,7 @@ def test_a_toy_metric_is_one_entry_in_the_metrics_table(monkeypatch):
     toy = M.Metric("log10", lambda x: np.abs(np.log10(x.g) - np.log10(x.p)))
     monkeypatch.setattr(M, "METRICS", M.METRICS + (toy,))
     assert M.metric_names()[-1] == "log10"
-    ds = FakeDataset()
+    ds = fake_dataset()
 
     def double(seq, frame):  # twice the wall's depth everywhere: log10 error log10(2) on every valid pixel
         return {"init": np.full((2, H, W), 2 * Z_WALL, np.float32)}

@@ -9,8 +9,6 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-
-pytestmark = pytest.mark.slow  # minutes of training, rendering or processes: `pytest -m "not slow"` skips it
 import torch
 import torch.nn.functional as F
 
@@ -93,6 +91,7 @@ def test_pixels_out_of_view_score_their_identity_error_and_never_less():
 
 
 # --------------------------------------------------------------------------- overfit one rig
+@pytest.mark.slow  # training
 @pytest.mark.parametrize("seed", [0, 1, 2])
 def test_overfitting_one_rig_lowers_its_loss_and_spreads_the_depth(ds, one_thread, seed):
     """mono2, odometry scale, one rig sample, 60 Adam steps at lr 3e-4: the loss of that rig falls
@@ -175,27 +174,13 @@ def test_flat_road_depth_matches_the_ground_plane_analytically():
 
 
 # --------------------------------------------------------------------------- shared pretraining
-def _fake_pretraining(path: Path, bases: int = 8, mono_head: bool = True) -> dict:
-    from mcdp.methods.depth_bases import DepthModel
-    from mcdp.warmstart import FORMAT, VERSION
-    from corelib.configlib import config_to_dict
-
-    cfg = cfg_of("mcdp_m0", f"model.bases={bases}", f"model.mono_head={str(mono_head).lower()}")
-    torch.manual_seed(123)
-    model = DepthModel(cfg.model)
-    sd = model.state_dict()
-    torch.save({"format": FORMAT, "version": VERSION, "config_hash": "abc", "model": config_to_dict(cfg.model),
-                "depth_model": sd, "step": 7}, path)
-    return sd
-
-
-def test_warm_start_copies_the_trunk_and_the_matching_head(tmp_path):
+def test_warm_start_copies_the_trunk_and_the_matching_head(tmp_path, fake_pretraining):
     from mcdp.methods.depth_bases import DepthModel, MonoDepthModel
     from corelib.hashing import sha256_file
     from mcdp.warmstart import warm_start
 
     p = tmp_path / "pretrained.pt"
-    src = _fake_pretraining(p)
+    src = fake_pretraining(p)
     mono = MonoDepthModel(cfg_of("mono2").model)
     rec = warm_start(mono, p)
     assert rec["sha256"] == sha256_file(p) and rec["step"] == 7 and rec["path"] == str(p.resolve())
@@ -217,12 +202,12 @@ def test_warm_start_copies_the_trunk_and_the_matching_head(tmp_path):
     ("model.bases=4", "decoder.dispconv"),
     ("model.scales=2", None),
 ])
-def test_warm_start_refuses_another_architecture_naming_the_layer(tmp_path, override, needle):
+def test_warm_start_refuses_another_architecture_naming_the_layer(tmp_path, override, needle, fake_pretraining):
     from mcdp.methods.depth_bases import DepthModel
     from mcdp.warmstart import WarmStartError, warm_start
 
     p = tmp_path / "pretrained.pt"
-    _fake_pretraining(p)
+    fake_pretraining(p)
     model = DepthModel(cfg_of("mcdp_m2", override).model)
     if needle is None:  # fewer scales: a subset of the layers, which fits
         warm_start(model, p)
@@ -231,7 +216,7 @@ def test_warm_start_refuses_another_architecture_naming_the_layer(tmp_path, over
         warm_start(model, p)
 
 
-def test_warm_start_refuses_files_that_are_not_a_pretraining(tmp_path):
+def test_warm_start_refuses_files_that_are_not_a_pretraining(tmp_path, fake_pretraining):
     from mcdp.methods.depth_bases import MonoDepthModel
     from mcdp.warmstart import WarmStartError, warm_start
 
@@ -247,11 +232,12 @@ def test_warm_start_refuses_files_that_are_not_a_pretraining(tmp_path):
     with pytest.raises(WarmStartError, match="mcdp-pretrain"):
         warm_start(model, other)
     nohead = tmp_path / "nohead.pt"
-    _fake_pretraining(nohead, mono_head=False)
+    fake_pretraining(nohead, mono_head=False)
     with pytest.raises(WarmStartError, match="mono head"):
         warm_start(model, nohead)
 
 
+@pytest.mark.slow  # training
 def test_pretrain_is_cached_by_its_config_hash_and_refuses_foreign_folders(tmp_path, capsys):
     from study.cli import main  # the mcdp console script: train / eval / predict + pretrain and sweep
 

@@ -1,4 +1,6 @@
 """MCDP-local (`mcdp.methods.local`): per-pixel basis weights, the neighbours' warped depth, and the contract."""
+from pathlib import Path
+
 import torch
 
 from corelib.configlib import load_config
@@ -9,7 +11,7 @@ from mcdp.methods.base import combine_bases
 from mcdp.methods.local import LocalDepthModel, LocalWeightNet
 from mcdp.networks import WeightNet
 
-from tests.mcdp.test_refinement import TINY
+TINY = Path(__file__).resolve().parents[2] / "configs" / "train" / "tiny"
 
 
 def test_head_on_a_constant_map_equals_the_pooled_head():

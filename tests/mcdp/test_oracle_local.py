@@ -1,5 +1,6 @@
 """ORACLE-local (`mcdp.methods.oracle_local`): the overlap's ground truth as input, filled and emptied."""
 import copy
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -11,11 +12,11 @@ from mcdp.truth import overlap_truth, overlap_truth_at
 from mcdp.predict import Predictor
 from study.probes import CUT, Probed
 
-from tests.mcdp.test_refinement import NoNeighbours, _frame, trained, untrained
+TINY = Path(__file__).resolve().parents[2] / "configs" / "train" / "tiny"
 
 
-def test_overlap_input_is_the_ground_truth_on_the_overlap_and_empty_without_neighbours(ds):
-    seq, f = _frame(ds)
+def test_overlap_input_is_the_ground_truth_on_the_overlap_and_empty_without_neighbours(ds, no_neighbours, eval_frame):
+    seq, f = eval_frame
     masks = [np.asarray(ds.mask(n), bool) for n in ds.camera_names]
     maps = overlap_truth(ds, masks, seq, f)
     assert sum(int((m > 0).sum()) for m in maps) > 0  # the tiny rig overlaps
@@ -23,14 +24,15 @@ def test_overlap_input_is_the_ground_truth_on_the_overlap_and_empty_without_neig
         gt = ds.read_depth(seq, name, f)
         on = m > 0
         assert np.array_equal(m[on], gt[on].astype(np.float32))  # the ground truth itself, where it is given
-    lone = NoNeighbours(ds)
+    lone = no_neighbours(ds)
     assert all(not (m > 0).any() for m in overlap_truth(lone, masks, seq, f))
     assert not overlap_truth_at(lone, masks, seq, f, (16, 24)).any()
 
 
-def test_filled_differs_from_emptied_and_emptied_is_the_cut(ds, tmp_path, one_thread):
+def test_filled_differs_from_emptied_and_emptied_is_the_cut(ds, tmp_path, one_thread, trained, no_neighbours,
+                                                            eval_frame):
     run = trained(ds, tmp_path / "o", "oracle_local")
-    seq, f = _frame(ds)
+    seq, f = eval_frame
     net = Predictor(run, ds, device="cpu")
     filled, emptied = Probed(net), Probed(net, CUT)
     assert net.network.reads_ground_truth() and net.network.uses_neighbours
@@ -40,7 +42,7 @@ def test_filled_differs_from_emptied_and_emptied_is_the_cut(ds, tmp_path, one_th
     assert np.array_equal(a["init"], net.predict(seq, f)["init"])  # as trained = the predictor alone
     assert not np.allclose(a["init"], b["init"])
     # emptied = the same network given an all-zero overlap input (what a camera without neighbours gets)
-    lone = Predictor(run, NoNeighbours(ds), device="cpu")
+    lone = Predictor(run, no_neighbours(ds), device="cpu")
     with torch.no_grad():
         lone.network.given_encoder.weight.copy_(net.network.given_encoder.weight)
     assert np.array_equal(lone.predict(seq, f)["init"], b["init"])
@@ -52,7 +54,6 @@ def _oracle_and_mono2(given_std: float = 0.0):
     from corelib.configlib import load_config
     from mcdp.config import RunConfig
     from mcdp.methods import build_network
-    from tests.mcdp.test_refinement import TINY
 
     with torch.random.fork_rng():
         torch.manual_seed(0)
@@ -204,7 +205,7 @@ def test_the_copy_test_scores_exactly_the_hinted_pixels(ds):
     assert st["non_overlap"]["abs_rel"] > 0.5
 
 
-def test_an_oracle_local_network_passes_the_copy_test(ds, tmp_path, one_thread):
+def test_an_oracle_local_network_passes_the_copy_test(ds, tmp_path, one_thread, untrained):
     """End to end: an ORACLE-local network (random, given-depth layers far from zero) predicted as the sweep evaluates it
     (`study.probes`) scores ~0 abs_rel (scaling none) on the evaluation's overlap pixels, not elsewhere."""
     from mcdp.evaluate import evaluate

@@ -45,7 +45,8 @@ def run(tiny_dataset, tmp_path_factory):
     return run
 
 
-def test_predict_rrd_holds_every_stage_beside_the_ground_truth(run, tiny_dataset, tmp_path, one_thread):
+def test_predict_rrd_holds_every_stage_beside_the_ground_truth(run, tiny_dataset, tmp_path, one_thread,
+                                                              check_blueprint):
     from mcdp.predict import Predictor
     from mcdp.recording import abs_rel_image
     from synth.open import open_dataset
@@ -75,8 +76,6 @@ def test_predict_rrd_holds_every_stage_beside_the_ground_truth(run, tiny_dataset
             pts = dict(ents[f"/world/ego/pred/{stage}/points"])[t]
             colors = np.asarray(pts["Points3D:colors"], np.uint32)
             assert len(colors) == len(pts["Points3D:positions"]) and len(np.unique(colors)) > 10  # the RGB's
-    from tests.synth.test_view import check_blueprint
-
     check_blueprint(out, ds.cameras, ["RGB", "depth (ground truth)", "depth init", "depth refine1"])
     assert "/world/scene/static" in ents and "/world/ego/body" in ents
     assert [t for t, _ in ents["/world/trajectory"]] == [times[0]]  # one sequence: its trajectory, at its start

@@ -20,67 +20,26 @@ ROOT = Path(__file__).resolve().parents[2]
 TINY = ROOT / "configs" / "train" / "tiny"
 
 
-def trained(ds, run: Path, preset: str, *overrides: str) -> Path:
-    cfg = load_config(RunConfig, TINY / f"{preset}.yaml", ["train.steps=1", "train.val_every=1", *overrides])
-    tr = Trainer(cfg, ds, run, progress=False, tensorboard=False)
-    try:
-        tr.train()
-    finally:
-        tr.close()
-    return run
-
-
-def untrained(ds, path: Path, preset: str, *overrides: str) -> Predictor:
-    """The predictor of a randomly initialised (seed 0) network of a tiny preset, from a checkpoint written at
-    ``path``: what a trained run's predictor is, without the training (the probe's plumbing, fast)."""
-    from corelib.configlib import config_to_dict
-    from mcdp.methods import build_network, method_params
-    from mcdp.runs import CHECKPOINT_VERSION, atomic_torch_save
-
-    cfg = load_config(RunConfig, TINY / f"{preset}.yaml", list(overrides))
-    with torch.random.fork_rng():
-        torch.manual_seed(0)
-        net = build_network(cfg.model, method_params(cfg))
-    atomic_torch_save({"version": CHECKPOINT_VERSION, "step": 0, "config": config_to_dict(cfg),
-                       "depth_model": net.state_dict(), "cameras": list(ds.camera_names)}, path)
-    return Predictor(None, ds, checkpoint=str(path), device="cpu")
-
-
-class NoNeighbours:
-    """The dataset with an empty neighbour table (a rig whose cameras do not overlap)."""
-
-    def __init__(self, ds):
-        self._ds = ds
-        self.neighbours = []
-
-    def __getattr__(self, name):
-        return getattr(self._ds, name)
-
-
 def probe(run, ds, variant=TRAINED, **kw) -> Probed:
     """The run's predictor evaluated as one variant of the overlap experiment (`study.probes`)."""
     return Probed(Predictor(run, ds, device="cpu"), variant, **kw)
 
 
-def _frame(ds):
-    seq = ds.split("test")[0]
-    return seq, 1
-
-
-def test_cut_equals_normal_for_mono2(ds, tmp_path, one_thread):
+def test_cut_equals_normal_for_mono2(ds, tmp_path, one_thread, trained, eval_frame):
     run = trained(ds, tmp_path / "m", "mono2")
-    seq, f = _frame(ds)
+    seq, f = eval_frame
     a = Predictor(run, ds, device="cpu").predict(seq, f)
     b = probe(run, ds, CUT).predict(seq, f)
     assert list(a) == list(b) == ["init"]
     assert np.array_equal(a["init"], b["init"])
 
 
-def test_cut_equals_normal_without_neighbours_and_differs_with_them(ds, tmp_path, one_thread):
+def test_cut_equals_normal_without_neighbours_and_differs_with_them(ds, tmp_path, one_thread, trained, no_neighbours,
+                                                                    eval_frame):
     # a last layer far from zero: the weight network's output depends on what the neighbours show
     run = trained(ds, tmp_path / "m1", "mcdp_m1", "model.weight_init_std=1.0")
-    seq, f = _frame(ds)
-    lone = NoNeighbours(ds)
+    seq, f = eval_frame
+    lone = no_neighbours(ds)
     a = Predictor(run, lone, device="cpu").predict(seq, f)
     b = probe(run, lone, CUT).predict(seq, f)
     for st in ("init", "refine1"):
@@ -98,10 +57,10 @@ def test_cut_equals_normal_without_neighbours_and_differs_with_them(ds, tmp_path
     assert full.refinement["depth_change_m"] > 0
 
 
-def test_refinement_record_of_a_method_without_refinement(ds, tmp_path, one_thread):
+def test_refinement_record_of_a_method_without_refinement(ds, tmp_path, one_thread, trained, eval_frame):
     run = trained(ds, tmp_path / "m", "mono2")
     p = probe(run, ds)
-    p.predict(*_frame(ds))
+    p.predict(*eval_frame)
     assert p.refinement["images"] == len(ds.camera_names)
     assert np.isnan(p.refinement["weight_move"]) and np.isnan(p.refinement["depth_change_m"])
 
@@ -134,16 +93,17 @@ def test_oracle_weights_keep_uniform_without_valid_pixels():
     assert torch.allclose(wts, torch.full((2, 4), 0.25))
 
 
-def test_oracle_stage_is_extra_and_labelled(ds, tmp_path, one_thread):
+def test_oracle_stage_is_extra_and_labelled(ds, tmp_path, one_thread, trained, eval_frame):
     run = trained(ds, tmp_path / "m1", "mcdp_m1")
     p = probe(run, ds, oracle_range=(0.5, 80.0))
-    out = p.predict(*_frame(ds))
+    out = p.predict(*eval_frame)
     assert list(out) == ["init", "refine1", "final", "oracle", "oracle_overlap"]
     assert np.array_equal(out["final"], out["refine1"])
     assert p.refinement["oracle_weight_move"] > 0
 
 
-def test_the_propagator_is_an_extra_stage_of_a_network_that_reads_no_other_camera(ds, tmp_path, one_thread):
+def test_the_propagator_is_an_extra_stage_of_a_network_that_reads_no_other_camera(ds, tmp_path, one_thread, untrained,
+                                                                                  eval_frame):
     """oracle_spread (the hand-built propagator): after "final" (= the network's last stage, not the propagator)
     in the as-trained probe of a network that reads no other camera, given an ORACLE range; the ground truth on
     the overlap pixels, the prediction corrected from them elsewhere. Not in a cut probe, nor for a network that
@@ -156,7 +116,7 @@ def test_the_propagator_is_an_extra_stage_of_a_network_that_reads_no_other_camer
     assert not mono.network.uses_neighbours
     p = Probed(mono, oracle_range=rng)
     assert p.stages == ["init", "final", "oracle_spread"]
-    seq, f = _frame(ds)
+    seq, f = eval_frame
     out = p.predict(seq, f)
     assert list(out) == p.stages
     plain = mono.predict(seq, f)["init"]

@@ -5,6 +5,8 @@ moves the gradient by its own weight, and ``mcdp eval`` / ``mcdp predict`` run o
 from __future__ import annotations
 
 import dataclasses
+import importlib.util
+import sys
 from pathlib import Path
 
 import pytest
@@ -14,7 +16,14 @@ from corelib.configlib import config_to_dict, load_config
 from mcdp import methods
 from mcdp.config import RunConfig
 from mcdp.data import collate
-from tests.mcdp.toy_method import EGO_SPEED, ToyDepth, ToyInputDepth, ToyParams
+
+# the toy's module, imported from its file as a user's own module would be (tests/ is no package on sys.path);
+# in sys.modules as an import puts it (pydantic resolves ToyParams' annotations there)
+_spec = importlib.util.spec_from_file_location("toy_method", Path(__file__).with_name("toy_method.py"))
+toy_method = sys.modules.setdefault("toy_method", importlib.util.module_from_spec(_spec))
+_spec.loader.exec_module(toy_method)
+ToyDepth, ToyParams = toy_method.ToyDepth, toy_method.ToyParams
+EGO_SPEED, ToyInputDepth = toy_method.EGO_SPEED, toy_method.ToyInputDepth
 
 ROOT = Path(__file__).resolve().parents[2]
 TINY = ROOT / "configs" / "train" / "tiny"

@@ -42,12 +42,10 @@ def test_stderr_lines_stay_as_before_and_the_warning_comes_once(tiny_dataset, tm
     assert WARNING_START not in capsys.readouterr().err
 
 
-def test_no_warning_with_init_from_nor_for_mono2(tiny_dataset, tmp_path, capsys, one_thread):
-    from tests.mcdp.test_learning import _fake_pretraining
-
+def test_no_warning_with_init_from_nor_for_mono2(tiny_dataset, tmp_path, capsys, one_thread, fake_pretraining):
     assert _train("mono2", tiny_dataset, tmp_path / "mono") == 0
     assert WARNING_START not in capsys.readouterr().err
-    _fake_pretraining(tmp_path / "pretrained.pt")
+    fake_pretraining(tmp_path / "pretrained.pt")
     assert _train("mcdp_m1", tiny_dataset, tmp_path / "warm", f"model.init_from={tmp_path / 'pretrained.pt'}") == 0
     err = capsys.readouterr().err
     assert WARNING_START not in err and "mcdp train: method=mcdp" in err

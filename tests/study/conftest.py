@@ -49,3 +49,28 @@ def mini_sweep(tmp_path_factory) -> MiniSweep:
         rc = study_cli.main(["sweep", str(CI), "--out", str(out), *MINI])
     assert rc == 0, err.getvalue()[-3000:]
     return MiniSweep(out, err.getvalue(), json.loads((out / "results.json").read_text()), list(MINI))
+
+
+def _write_dataset(out: Path, h: str, target: float, **extra) -> None:
+    """A finished dataset's rig.json and manifest.json at `out` (two 8x6 cameras, 3 sequences of 3 frames, no
+    image): its config hash `h`, its overlap `target`, and `extra` manifest keys (None: left out)."""
+    cams = ["CAM_A", "CAM_B"]
+    out.mkdir(parents=True)
+    eye = [[1, 0, 0, 0], [0, 1, 0, 0], [0, 0, 1, 0], [0, 0, 0, 1]]
+    rig = {"cameras": [{"name": n, "width": 8, "height": 6, "K": [[4, 0, 4], [0, 4, 3], [0, 0, 1]], "T_ego_cam": eye,
+                        "hfov_deg": 90.0, "yaw_deg": 0.0} for n in cams], "neighbours": [[0, 1]]}
+    overlap = {"target": target, "mode": "spacing", "per_pair_measured": {
+        "CAM_A-CAM_B": {"target": target, "measured": 0.2}, "CAM_B-CAM_A": {"target": -0.1, "measured": 0.0}}}
+    manifest = {"schema_version": 1, "generator": "mcdp-synth", "cameras": cams,
+                "image_size": {"width": 8, "height": 6}, "fps": 10,
+                "splits": {"train": ["seq_0000", "seq_0001"], "val": [], "test": ["seq_0002"]},
+                "sequences": {f"seq_000{i}": {"frames": 3} for i in range(3)}, "files": {}, "config_hash": h,
+                "overlap": overlap, **{k: v for k, v in extra.items() if v is not None}}
+    (out / "rig.json").write_text(json.dumps(rig))
+    (out / "manifest.json").write_text(json.dumps(manifest))
+
+
+@pytest.fixture
+def write_dataset():
+    """`write_dataset(out, config_hash, overlap, **manifest_keys)`: a rendered dataset's records, no images."""
+    return _write_dataset

@@ -1,6 +1,8 @@
 """The report's section by class group and motion (study/classes.py), from results alone."""
 from __future__ import annotations
 
+import re
+
 from study.classes import format_classes, has_classes
 
 
@@ -23,10 +25,16 @@ def test_the_section_pairs_each_method_with_mono2_by_class_and_says_when_movers_
     text = format_classes(_results(0.6, 0.05), label)
     assert "| road | 0.400 | 0.101 | -0.020 ± 0.000 * |" in text
     assert "MCDP (m = 2) - Mono2" in text and "comparisons, uncorrected" in text
-    assert "60.0 % of moving vehicles' pixels beyond 2x their depth (parked: 5.0 %" in text
-    assert "**collapses**" in text
-    calm = format_classes(_results(0.02, 0.01), label)
-    assert "does not collapse" in calm and "**collapses**" not in calm
+    # one line per method on its moving vehicles: the share beyond 2x their depth, the parked ones', the pixels
+    # and runs it rests on (the numbers, in order), and the verdict
+    for moving_hole, parked_hole, verdict in ((0.6, 0.05, "**collapses**"), (0.02, 0.01, "does not collapse")):
+        movers = [ln for ln in format_classes(_results(moving_hole, parked_hole), label).splitlines()
+                  if ln.startswith("- ") and "moving" in ln]
+        assert [ln.split(":")[0] for ln in movers] == ["- Mono2", "- MCDP (m = 2)"], movers
+        for ln in movers:
+            numbers = re.findall(r"(?<!\w)\d+(?:\.\d+)?", ln.split(":", 1)[1])  # 60.0 % ... 2x ... 5.0 %; 300 ... 3
+            assert numbers == [f"{100 * moving_hole:.1f}", "2", f"{100 * parked_hole:.1f}", "300", "3"], ln
+            assert ln.endswith(verdict) or f": {verdict} " in ln, ln
 
 
 def test_no_section_without_labels():

@@ -26,15 +26,14 @@ def test_code_version_is_the_package_version_and_a_source_digest():
     assert v.startswith(mcdp.__version__ + "+src.") and len(v.rsplit(".", 1)[1]) == 12 and v == code_version()
 
 
-def test_a_dataset_made_by_other_code_is_reused_with_one_warning(tmp_path):
-    from tests.study.test_stages import _write_dataset
+def test_a_dataset_made_by_other_code_is_reused_with_one_warning(tmp_path, write_dataset):
     from study.worlds import render_stage
 
     cfg = load_sweep_config(CI)
     o = cfg.overlaps[0]
     for version, warned in ((OLD, 1), (code_version(), 0), (None, 0)):
         out = tmp_path / str(version) / "data" / overlap_key(o)
-        _write_dataset(out, config_hash(data_config_for(cfg, o)), o, code_version=version)
+        write_dataset(out, config_hash(data_config_for(cfg, o)), o, code_version=version)
         lines: list[str] = []
         counters = Counters()
         rec = render_stage(cfg, o, out.parents[1], counters, lines.append, False)

@@ -9,8 +9,6 @@ from pathlib import Path
 
 import pytest
 
-pytestmark = pytest.mark.slow  # minutes of training, rendering or processes: `pytest -m "not slow"` skips it
-
 from study import cli as study_cli
 from study.reach import band_names, format_reach, paired, quantities
 from study.results import evaluations
@@ -33,6 +31,7 @@ def reach_sweep(tmp_path_factory, mini_sweep):
     return out, res
 
 
+@pytest.mark.slow  # a sweep of 12 runs (reach_sweep)
 def test_worlds_are_paired_with_seeds(reach_sweep):
     out, res = reach_sweep
     d = res["data"][0]
@@ -48,6 +47,7 @@ def test_worlds_are_paired_with_seeds(reach_sweep):
     assert d["reference"]["metrics"]["median"]["mean"]["abs_rel"] == pytest.approx(sum(ref) / 2)
 
 
+@pytest.mark.slow  # a sweep of 12 runs (reach_sweep)
 def test_every_instrument_is_in_the_results(reach_sweep):
     out, res = reach_sweep
     names = set(evaluations(res))
@@ -71,6 +71,7 @@ def test_every_instrument_is_in_the_results(reach_sweep):
             assert a == pytest.approx(b, rel=1e-9)
 
 
+@pytest.mark.slow  # a sweep of 12 runs (reach_sweep)
 def test_report_has_the_reach_section_and_figure(reach_sweep):
     out, res = reach_sweep
     text = (out / "report.md").read_text()

@@ -337,6 +337,7 @@ def test_the_smoke_sweep_keeps_no_checkpoint():
         != config_hash(sweep.SweepConfig(keep_last=False, keep_best=False))
 
 
+@pytest.mark.slow  # a whole sweep (the session's mini_sweep, conftest) and its reruns
 def test_keep_last_false_removes_last_pt_after_eval_and_refuses_to_extend(mini_sweep, tmp_path, capsys):
     out = tmp_path / "sweep"
     mini_sweep.copy_to(out, "data", "pretrain")  # the session's rendered overlap 0.50 and pretraining, reused
@@ -362,6 +363,7 @@ def test_keep_last_false_removes_last_pt_after_eval_and_refuses_to_extend(mini_s
     assert str(run) in err and "keep_last: false" in err and "cannot resume" in err
 
 
+@pytest.mark.slow  # a whole sweep (the session's mini_sweep, conftest) and its reruns
 def test_keep_best_false_removes_the_checkpoints_after_eval_and_a_rerun_skips_from_the_record(mini_sweep, tmp_path,
                                                                                             capsys):
     """ci.yaml's keep_best: false: each run keeps its numbers and a record of the checkpoints it had, not the

@@ -8,6 +8,7 @@ from pathlib import Path
 import pytest
 
 pytest.importorskip("ray")
+pytestmark = pytest.mark.slow  # a local Ray started, the tiny preset rendered twice: `pytest -m "not slow"` skips it
 
 from synth.cli import main as synth_main  # noqa: E402
 

@@ -76,64 +76,7 @@ def test_recording_verifies_and_holds_the_rig_of_rig_json(recording, tiny_datase
         np.testing.assert_allclose(np.asarray(tr["Transform3D:mat3x3"][0]).reshape(3, 3).T, T[:3, :3], atol=1e-6)
 
 
-def read_blueprint(path) -> dict[str, dict]:
-    """{entity path: {component: value}} of the blueprint store of `path` (`RrdReader.blueprints`)."""
-    from rerun.chunk import RrdReader
-
-    reader = RrdReader(path)
-    (store,) = reader.blueprints()
-    out: dict[str, dict] = {}
-    for chunk in reader.stream(store=store):
-        rb = chunk.to_record_batch()
-        for n in rb.schema.names:
-            if ":" in n:
-                out.setdefault(chunk.entity_path, {})[n] = rb.column(n).to_pylist()[-1]
-    return out
-
-
-def blueprint_views(bp: dict) -> dict[str, dict]:
-    """{view id: {"class", "origin", "name", "hidden": entity paths with EntityBehavior visible=False}}."""
-    views = {}
-    for path, comp in bp.items():
-        if "ViewBlueprint:class_identifier" in comp:
-            hidden = [p.split("/ViewContents/overrides/", 1)[1].rsplit("/visualizers", 1)[0] for p, c in bp.items()
-                      if p.startswith(path + "/ViewContents/overrides/") and c.get("EntityBehavior:visible") == [False]]
-            views[path.strip("/")] = {"class": comp["ViewBlueprint:class_identifier"][0],
-                                      "origin": comp["ViewBlueprint:space_origin"][0],
-                                      "name": (comp.get("ViewBlueprint:display_name") or [None])[0], "hidden": hidden}
-    return views
-
-
-def check_blueprint(path, cameras, tabs: list[str]) -> dict:
-    """The blueprint of `synth.view_blueprint`: one 3-D view of world hiding the cameras' depth and masks;
-    per tab a grid of one 2-D view per camera in ring order, the masks hidden; returns the views."""
-    from synth.view_blueprint import ring_order
-
-    bp = read_blueprint(path)
-    views = blueprint_views(bp)
-    (world,) = [v for v in views.values() if v["class"] == "3D"]
-    assert world["origin"] == "world"
-    names, cols = ring_order(cameras)
-    assert set(f"world/ego/{n}/{p}" for n in names for p in ("depth", "ego_mask", "overlap")) <= set(world["hidden"])
-    grids = {c["ContainerBlueprint:display_name"][0]: c for c in bp.values() if "ContainerBlueprint:grid_columns" in c}
-    assert sorted(grids) == sorted(tabs)
-    for tab, grid in grids.items():
-        assert grid["ContainerBlueprint:grid_columns"] == [cols]
-        order = [views[v]["origin"] for v in grid["ContainerBlueprint:contents"]]
-        assert order == [f"world/ego/{n}" for n in names], tab
-        for v in grid["ContainerBlueprint:contents"]:
-            o = views[v]["origin"]
-            assert {f"{o}/ego_mask", f"{o}/overlap"} <= set(views[v]["hidden"]), tab  # masks: toggles, off
-            if tab == "RGB":
-                assert f"{o}/rgb" not in views[v]["hidden"] and f"{o}/depth" in views[v]["hidden"]
-            if "labels" in tabs:  # the labels show in their own tab only (and not in the 3-D view)
-                labels = {f"{o}/semantic", f"{o}/flow"}
-                assert labels.isdisjoint(views[v]["hidden"]) if tab == "labels" else labels <= set(views[v]["hidden"])
-                assert labels <= set(world["hidden"])
-    return views
-
-
-def test_recording_carries_the_blueprint(recording, tiny_dataset):
+def test_recording_carries_the_blueprint(recording, tiny_dataset, check_blueprint):
     from synth.open import open_dataset
 
     ds = open_dataset(tiny_dataset)
@@ -176,7 +119,8 @@ def test_labels_are_a_segmentation_image_with_the_class_colours_and_flow_arrows(
             assert flows[t]["Arrows2D:class_ids"] == sem[v, u].tolist()
 
 
-def test_without_labels_the_recording_is_as_before(flow_dataset, tiny_dataset_without_labels, tmp_path):
+def test_without_labels_the_recording_is_as_before(flow_dataset, tiny_dataset_without_labels, tmp_path,
+                                                   check_blueprint):
     """The last frame has no forward flow: its arrows are cleared. A dataset without labels records no label
     entities and no labels tab."""
     from synth.cli import main
