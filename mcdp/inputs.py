@@ -105,17 +105,18 @@ class RigBatch:
     frame: torch.Tensor
     fields: dict[str, torch.Tensor] = field(default_factory=dict)
 
+    def _map(self, fn) -> "RigBatch":
+        """The same batch with ``fn`` applied to every tensor, the fields' too."""
+        core = (fn(getattr(self, f.name)) for f in dataclasses.fields(self) if f.name != "fields")
+        return RigBatch(*core, fields={k: fn(v) for k, v in self.fields.items()})
+
     def to(self, device, non_blocking: bool = False) -> "RigBatch":
         """The same batch on ``device``."""
-        def move(t):
-            return t.to(device, non_blocking=non_blocking)
-        return RigBatch(*(move(getattr(self, f.name)) for f in dataclasses.fields(self) if f.name != "fields"),
-                        fields={k: move(v) for k, v in self.fields.items()})
+        return self._map(lambda t: t.to(device, non_blocking=non_blocking))
 
     def pin_memory(self) -> "RigBatch":
         """The same batch in page-locked memory (the DataLoader calls this with ``pin_memory=True``, on CUDA)."""
-        return RigBatch(*(getattr(self, f.name).pin_memory() for f in dataclasses.fields(self) if f.name != "fields"),
-                        fields={k: v.pin_memory() for k, v in self.fields.items()})
+        return self._map(lambda t: t.pin_memory())
 
     def depth_input(self, nbr: torch.Tensor, declared: tuple[Field, ...] = (),
                     rgb: torch.Tensor | None = None) -> DepthInput:

@@ -56,9 +56,9 @@ def train(args: argparse.Namespace) -> int:
     from corelib.logs import logger
     from corelib.presets import preset_path
 
-    cfg = load_config(RunConfig, preset_path(args.preset, "train"), args.overrides,
-                      base=method_row_defaults(args.method))  # before torch is imported
-    if args.method is not None and cfg.model.method != method_row_defaults(args.method)["model.method"]:
+    row = method_row_defaults(args.method)
+    cfg = load_config(RunConfig, preset_path(args.preset, "train"), args.overrides, base=row)  # before torch
+    if row is not None and cfg.model.method != row["model.method"]:
         from corelib.configlib import ConfigError
 
         raise ConfigError(f"--method {args.method}: the preset sets model.method={cfg.model.method}, not this "

@@ -4,7 +4,6 @@ from __future__ import annotations
 import errno
 import math
 import os
-from dataclasses import asdict, dataclass
 from pathlib import Path
 
 import numpy as np
@@ -19,6 +18,7 @@ import torch.fx  # noqa: F401,E402
 import torchvision  # noqa: F401,E402
 
 from synth.label_reader import NoLabels  # noqa: E402
+from synth.rig import CameraSpec  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
 TINY = ROOT / "configs" / "data" / "tiny.yaml"
@@ -233,20 +233,6 @@ def small_disk():
 
 
 # --------------------------------------------------------------------------- a fake dataset (no rendering)
-@dataclass
-class FakeCamera:
-    name: str
-    width: int
-    height: int
-    K: np.ndarray
-    T_ego_cam: np.ndarray
-    hfov_deg: float
-    yaw_deg: float
-
-    def to_json(self):
-        return {k: v.tolist() if isinstance(v, np.ndarray) else v for k, v in asdict(self).items()}
-
-
 class FakeDataset(NoLabels):
     """A `synth.protocol.DatasetReader` (tests/synth/test_protocol.py checks it): two forward cameras,
     j = i shifted right (no rendering: tests/mcdp/test_evaluate.py scores it by hand; the `fake_dataset` fixture).
@@ -269,8 +255,8 @@ class FakeDataset(NoLabels):
         T1[1, 3] = -self.SHIFT_PX * self.Z_WALL / self.F_PX  # to the right
         H, W, F = self.H, self.W, self.F_PX
         hfov = math.degrees(2 * math.atan(W / 2 / F))
-        self.cameras = [FakeCamera(n, W * s, H * s, np.array([[F * s, 0, W * s / 2], [0, F * s, H * s / 2],
-                                                              [0, 0, 1.0]]), T, hfov, 0.0)
+        self.cameras = [CameraSpec(n, W * s, H * s, np.array([[F * s, 0, W * s / 2], [0, F * s, H * s / 2],
+                                                              [0, 0, 1.0]]), T, hfov, 0.0, 0.0)
                         for n, T, s in zip(("CAM_FRONT", "CAM_FRONT_RIGHT"), (T0, T1), scale)]
         self.camera_names = [c.name for c in self.cameras]
         self._hw = {c.name: (c.height, c.width) for c in self.cameras}  # each camera's images at its own size
