@@ -55,6 +55,7 @@ valid, e.g. a camera without neighbours has NaN overlap metrics)::
             "motion": {"static" | "moving": {7 metrics}},
             "holes": {"ratio": 2.0, "moving": float, "parked": float, "moving_pixels": int, ...},
             "road_bands": {band name: {7 metrics}},  # the road class alone, by distance to the overlap
+            "per_sequence": {region: {seq: {"sum": [per cam], "n": [per cam]}}},  # abs_rel (mcdp.per_sequence)
             "overlap_per_camera": {cam: {7 metrics}},                   # extra detail
             "non_overlap_per_camera": {cam: {7 metrics}}},
         "dep_con": {"mean": float,
@@ -84,6 +85,7 @@ from synth.protocol import DatasetReader
 
 from . import geometry
 from . import label_regions as LR
+from .per_sequence import per_sequence
 from .metrics import (
     metric_names,
     metric_terms,
@@ -269,7 +271,7 @@ def _score(preds: list, truth: _Truth, rig: _Rig, cfg: EvalConfig, acc: dict, dc
         dc_acc[(j, i)].append(dep_con(metric_preds[i], d_hat, truth.gts[i], truth.valids[i] & hit))
 
 
-def _summary(rig: _Rig, acc: dict, dc_acc: dict, spreads: list, holes: dict) -> dict:
+def _summary(rig: _Rig, acc: dict, dc_acc: dict, spreads: list, holes: dict, seqs: list) -> dict:
     """One stage's entry of metrics.json from its per-image values (means over images, then cameras)."""
     names, st = rig.names, {}
     for sc in SCALINGS:
@@ -282,6 +284,7 @@ def _summary(rig: _Rig, acc: dict, dc_acc: dict, spreads: list, holes: dict) -> 
             "overlap_per_camera": per["overlap"],
             "non_overlap_per_camera": per["non_overlap"],
             "bands": {name: _mean_dicts(per[b].values()) for b, name in zip(BANDS, BAND_NAMES)},
+            "per_sequence": per_sequence(acc[sc], seqs),
         }
         if rig.labels is not None:
             st[sc]["classes"] = {g: _mean_dicts(per[f"class_{g}"].values()) for g in LR.GROUPS}
@@ -372,7 +375,8 @@ def evaluate(
             preds = _as_stack(raw[stage], rig.names, rig.shapes, stage)
             _score(preds, truth, rig, cfg, acc[stage], dc_acc[stage], spread_acc[stage], hole_acc[stage])
 
-    out_stages = {stage: _summary(rig, acc[stage], dc_acc[stage], spread_acc[stage], hole_acc[stage])
+    seqs = [seq for seq, _ in samples]
+    out_stages = {stage: _summary(rig, acc[stage], dc_acc[stage], spread_acc[stage], hole_acc[stage], seqs)
                   for stage in stages}
     return {
         "split": split,

@@ -119,13 +119,10 @@ def _read_sweep(sweep: Path) -> tuple[bytes, dict, dict[str, bytes]]:
 
 def _build(name: str, results: dict, stage: Path, previews: list[str] | None) -> tuple[list[Path], str]:
     """results.csv and plots/ into ``stage``, and the report's text: nothing in docs/results/ yet."""
-    from study.plots import distance_plot, make_plots
-    from study.report import write_csv
+    from study.outputs import report_plots, write_csv
 
     write_csv(results, stage / "results.csv")
-    plots = make_plots(results, stage / "plots")
-    extra = distance_plot(results, stage / "plots")
-    plots += [extra] if extra is not None else []
+    plots = report_plots(results, stage / "plots")
     rel = [f"{name}/{p.relative_to(stage).as_posix()}" for p in plots]
     return plots, report_text(name, results, rel, previews)
 

@@ -38,6 +38,21 @@ class SweepEvalConfig(StrictModel):
         return self
 
 
+class SweepPlan(StrictModel):
+    """A plan stated in the preset before the run (issue 47): how many worlds the primary comparison needs and
+    where the group-sequential design looks first (`study.lcon`: O'Brien-Fleming bounds at both looks)."""
+
+    worlds: int = Field(ge=2, le=10_000)
+    first_look: int | None = Field(None, ge=2, le=10_000)
+    why: str = Field("", max_length=300)
+
+    @model_validator(mode="after")
+    def _look(self) -> "SweepPlan":
+        if self.first_look is not None and self.first_look >= self.worlds:
+            raise ValueError(f"plan.first_look ({self.first_look}) must be below plan.worlds ({self.worlds})")
+        return self
+
+
 class SweepConfig(StrictModel):
     """One overlap sweep; every default here, a preset lists what differs.
 
@@ -70,6 +85,8 @@ class SweepConfig(StrictModel):
         machine's cores); unused when ``RAY_ADDRESS`` names a cluster to join.
     device: training / inference device.
     preview: write a preview sheet of one rig at the smallest and largest overlap.
+    plan: the primary comparison's plan, stated before the run (`SweepPlan`: planned worlds, first look); the
+        report reads it (null: no plan, no sequential reading).
     pretrain: a shared self-supervised pretraining (`study.pretrain.PretrainConfig`) that every
         run starts from (``model.init_from``), made once into ``SWEEP/pretrain/<hash>/`` and
         reused by its config hash; null = every run from scratch.
@@ -111,6 +128,7 @@ class SweepConfig(StrictModel):
     preview: bool = True
     keep_last: bool = True
     keep_best: bool = added_key(True)
+    plan: SweepPlan | None = added_key(None)
     pretrain: PretrainConfig | None = None
 
     @model_validator(mode="after")

@@ -1,7 +1,7 @@
-"""Report of an overlap sweep: report.md, results.csv, results.json and plots from measured numbers.
+"""Report of an overlap sweep: report.md from measured numbers (`format_report`).
 
 `study.results.build_results` turns the sweep's per-run rows into one JSON-able dict;
-`write_all` writes::
+`study.outputs.write_all` writes::
 
     SWEEP/results.json    build_results' dict
     SWEEP/results.csv     one row per (overlap, method, variant, seed), every metric flattened (variant:
@@ -18,22 +18,19 @@ reported as worse, NaN stays NaN.
 
 Example::
 
-    python -c "import study.report as r, study.results as s; r.write_all(s.read_results('SWEEP/results.json'), 'SWEEP')"
+    python -c "import study.outputs as o, study.results as s; o.write_all(s.read_results('SWEEP/results.json'), 'SWEEP')"
     # (read_results: also a results.json written before the variant field; write_all writes it anew)
 """
 from __future__ import annotations
 
-import csv
-import io
 import math
 from pathlib import Path
 
-from corelib.atomic import atomic_write_json, atomic_write_text
 from mcdp.diagnostics import COLLAPSE_RATIO
 from mcdp.methods import METHODS, label, model_config, network_class
 from mcdp.metrics import metric_names
-from study.plots import distance_plot, make_plots
 from study.mechanisms import format_mechanisms
+from study.lcon import format_lcon
 from study.primary import format_primary
 from study.propagation import format_propagation
 from study.classes import format_classes
@@ -41,47 +38,9 @@ from study.reach import format_reach
 from study.recorded import fallback_note, run_configs
 from study.verdicts import format_verdicts
 from study.results import (BASELINE, PRIOR_LABEL, REF_LABEL, SCALE_LABEL, YARDSTICKS, method_agg, row_evaluations,
-                           yardstick_agg, yardstick_row)
+                           yardstick_agg)
 from study.results import fmt_num as _num
 from study.variants import TRAINED, Evaluation
-
-
-def write_all(results: dict, out: str | Path) -> None:
-    out = Path(out)
-    atomic_write_json(out / "results.json", results, allow_nan=True)
-    write_csv(results, out / "results.csv")
-    plots = make_plots(results, out / "plots")
-    extra = distance_plot(results, out / "plots")
-    plots += [extra] if extra is not None else []
-    atomic_write_text(out / "report.md", format_report(results, [p.relative_to(out).as_posix() for p in plots]))
-
-
-def write_csv(results: dict, path: Path) -> None:
-    flats = results["flat"]
-    meas = {d["overlap"]: d["measured"] for d in results["data"]}
-    keys: list[str] = []
-    for f in flats:
-        for k in f:
-            if k not in keys:
-                keys.append(k)
-    head = [k for k in ("overlap", "method", "variant", "seed") if k in keys]
-    keys = head + ["target_overlap", "measured_overlap"] + [k for k in keys if k not in head]
-    fh = io.StringIO(newline="")
-    with fh:
-        w = csv.DictWriter(fh, fieldnames=keys, restval="")
-        w.writeheader()
-        for f in flats:
-            m = meas.get(f["overlap"], {})
-            w.writerow({**f, "target_overlap": m.get("target"), "measured_overlap": m.get("measured_mean")})
-        for which, _, name in YARDSTICKS:  # the yardsticks, one row per overlap each
-            for d in results["data"]:
-                ref = yardstick_row(results, d["overlap"], which)
-                if ref:
-                    w.writerow({**{k: v for k, v in ref.items() if k in keys}, "overlap": d["overlap"],
-                                "method": name, "status": "reference",
-                                "target_overlap": d["measured"].get("target"),
-                                "measured_overlap": d["measured"].get("measured_mean")})
-        atomic_write_text(path, fh.getvalue())
 
 
 def _fmt(a: dict, digits: int = 3) -> str:
@@ -119,6 +78,9 @@ def format_report(results: dict, plots: list[str]) -> str:
     primary = format_primary(results)
     if primary:  # a sweep with named primary comparisons opens with them (the copy test first)
         L += [primary, ""]
+    lcon = format_lcon(results)[0]
+    if lcon:  # (b), L_con's training-time effect, read over worlds at one step (issue 47)
+        L += [lcon, ""]
     L += [format_verdicts(results, label), ""]  # the report's one verdict section
     L += _summary_section(results)
     for d in results["data"]:

@@ -105,8 +105,9 @@ def flat_rows(row: dict) -> list[dict[str, Any]]:
         if variant.columns is not None:
             variant.resolved("columns")(base, own, entry)
         if name != TRAINED:
-            for k in ("overlap", "method", "seed", "status", "steps", "checkpoint_step"):
-                own[k] = base.get(k)
+            for k in ("overlap", "method", "seed", "world", "status", "steps", "checkpoint_step"):
+                if k in base:
+                    own[k] = base[k]
             own["variant"] = name
             out.append(own)
     return out
@@ -117,6 +118,8 @@ def flat_row(row: dict) -> dict[str, Any]:
     out: dict[str, Any] = {k: row.get(k) for k in ("overlap", "method", "variant", "seed", "status", "steps",
                                                      "checkpoint_step", "train_s", "eval_s", "train_skipped",
                                                      "eval_skipped")}
+    if row.get("world") is not None:  # its data seed (rows written before issue 47 have none: `data_seeds`)
+        out["world"] = row["world"]
     m = row.get("metrics")
     if not m:
         return out

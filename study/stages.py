@@ -35,7 +35,7 @@ def pretrain_stage(cfg: SweepConfig, sweep_dir: Path, progress: bool, log) -> di
 
 
 #: what an evaluation measures; a change re-evaluates every cached run (labels: by class group and motion)
-EVAL_PROTOCOL = "as-trained+cut+cut-change+oracle-weights+oracle-overlap+bands+labels"
+EVAL_PROTOCOL = "as-trained+cut+cut-change+oracle-weights+oracle-overlap+bands+labels+per-sequence"
 
 
 #: the variants `EVAL_PROTOCOL` evaluates; one registered beyond them (`study.variants`) is part of the eval key
@@ -71,7 +71,8 @@ def run_stage(cfg: SweepConfig, overlap: float, data: dict, method: str, seed: i
     rhash = sweep_run_hash(rcfg, status)
     run = _Run(cfg, overlap, data, method, seed, rcfg, rhash, run_dir, status,
                f"[sweep] overlap {overlap:.2f} {method} seed {seed}", counters, log, progress)
-    row: dict[str, Any] = {"overlap": overlap, "method": method, "seed": seed, "run_dir": str(run_dir),
+    row: dict[str, Any] = {"overlap": overlap, "method": method, "seed": seed, "world": data.get("data_seed"),
+                           "run_dir": str(run_dir),
                            "preset": str(preset), "run_config_hash": rhash, "run_config": config_to_dict(rcfg),
                            "status": "ok"}
     run.ds = open_dataset(data["path"])

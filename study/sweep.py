@@ -52,7 +52,7 @@ from corelib.atomic import atomic_write_text
 from corelib.logs import logger
 from corelib.configlib import ConfigError, config_hash, config_to_dict, read_yaml
 from study.config import SPLIT, SweepConfig, check_nested_configs, overlap_key, world_of_seed, worlds_of
-from study.report import write_all
+from study.outputs import write_all
 from study.results import build_results
 from study.engines import run_all
 from study.progress import SweepProgress, fmt_duration

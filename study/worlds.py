@@ -170,3 +170,25 @@ def reference_stage(cfg: SweepConfig, d: dict, sweep_dir: Path, counters: Counte
             f"{r['metrics']['none']['mean']['abs_rel']:.4f}, median {r['metrics']['median']['mean']['abs_rel']:.4f}, "
             f"dep_con {r['metrics']['dep_con']['mean']:.4f}")
     return ref, prior
+
+
+def data_seeds(results: dict) -> dict[tuple[float, int], int]:
+    """{(overlap, training seed): the data seed of the world that seed trained on}, from the sweep's recorded
+    data (one world per overlap, or ``worlds: per_seed`` with ``seeds_per_world``), for results whose rows
+    predate their ``world`` field."""
+    cfg = results.get("sweep_config", {})
+    seeds = list(results.get("seeds", []))
+    per = int(cfg.get("seeds_per_world", 1) or 1)
+    out = {}
+    for d in results.get("data", []):
+        worlds = d.get("worlds")
+        for i, s in enumerate(seeds):
+            if not worlds:
+                if "data_seed" in d:
+                    out[d["overlap"], s] = d["data_seed"]
+                continue
+            w = s if per == 1 else i // per   # study.config.world_of_seed
+            rec = next((r for r in worlds if r.get("world") == w), None)
+            if rec is not None and "data_seed" in rec:
+                out[d["overlap"], s] = rec["data_seed"]
+    return out

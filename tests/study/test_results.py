@@ -137,12 +137,12 @@ def test_a_results_csv_written_before_the_variant_field_reads_as_its_current_twi
     same runs; in that one a cut evaluation's row has the registry name as method and variant "cut"."""
     import csv
 
-    from study.report import write_csv
+    from study.outputs import write_csv
 
     new = _current(json.loads((DATA / "results_v1.json").read_text()))
     write_csv(new, tmp_path / "results.csv")
     rows = list(csv.DictReader((tmp_path / "results.csv").open()))
-    assert list(rows[0])[:6] == ["overlap", "method", "variant", "seed", "target_overlap", "measured_overlap"]
+    assert list(rows[0])[:7] == ["overlap", "method", "variant", "seed", "world", "target_overlap", "measured_overlap"]
     cut = [r for r in rows if r["variant"] == CUT]
     assert {r["method"] for r in cut} == {"mcdp_m2", "surround"} and len(cut) == 8
     assert not any("@" in r["method"] for r in rows)

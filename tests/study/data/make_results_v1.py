@@ -17,7 +17,7 @@ import random
 from pathlib import Path
 
 from mcdp.metrics import metric_names
-from study.report import write_csv
+from study.outputs import write_csv
 from study.results import aggregate_flat, evaluation_names, flat_rows
 
 HERE = Path(__file__).resolve().parent

@@ -1,0 +1,244 @@
+"""The L_con question (issue 47; docs/results/lcon.md): does training with the consistency loss on a small
+overlap make depth better outside it?
+
+Primary comparison (b), named in the presets' headers before their runs: MCDP (w/o L_con) cut - MCDP cut,
+abs_rel on non-overlap pixels at `study.primary.PRIMARY_OVERLAP`, median scaling (with ``none`` and
+``rig_median`` beside it), **positive = L_con helps**, one training seed per world, **both arms scored at one
+pre-stated step** (the sweep's ``checkpoint: last``; a pair scored at two steps is said so). Read:
+
+- over worlds: the mean with its t interval, the MDE at 80 % power, TOST against `study.primary.DELTA`
+  (`study.power`), and Wilcoxon's signed-rank test with the Hodges-Lehmann estimate and interval
+  (`study.design.signed_rank`), so one outlying world cannot carry the verdict alone;
+- where the spread between worlds comes from: each world's bootstrap over its test sequences, the split into
+  test-sampling noise and heterogeneity, and outlying worlds (`study.variance`), with a forest plot;
+- the sweep's ``plan`` (planned worlds, the first look), stated before the run: the two-look O'Brien-Fleming
+  reading (`study.design.sequential_look`).
+
+Read from `study.results` only (a results.json with per-sequence records: `mcdp.per_sequence`).
+"""
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+from study.design import sequential_look, signed_rank, worlds_needed
+from study.power import mde, nested, tost
+from study.primary import DELTA, PRIMARY_OVERLAP, SCALINGS
+from study.reach import lcon_pairs
+from study.results import row_evaluations
+from study.worlds import data_seeds
+from study.variance import forest_plot, variance_split
+from study.variants import CUT
+
+REGION = "non_overlap"
+DRAWS = 2000
+
+
+def lcon_arms(results: dict) -> tuple[str, str] | None:
+    """(the row without L_con, the row with it) of the first L_con pair whose two rows the sweep trained."""
+    methods = set(results.get("methods", []))
+    for nocon, with_con in lcon_pairs():
+        if nocon in methods and with_con in methods:
+            return nocon, with_con
+    return None
+
+
+def _rows(results: dict, o: float, method: str) -> dict:
+    return {r["seed"]: r for r in results["rows"] if r["method"] == method and abs(r["overlap"] - o) < 1e-9
+            and r.get("status") == "ok"}
+
+
+def _world(row: dict, seeds: dict):
+    """The row's world: its data seed (recorded since issue 47, else from the sweep's data: `data_seeds`)."""
+    w = row.get("world")
+    return w if w is not None else seeds.get((row["overlap"], row["seed"]), row["seed"])
+
+
+def _figure(row: dict, sc: str, region: str = REGION) -> float:
+    m = (row_evaluations(row).get(CUT) or {}).get("metrics") or {}
+    v = ((m.get(sc) or {}).get(region) or {}).get("abs_rel")
+    return float(v) if isinstance(v, (int, float)) else math.nan
+
+
+def _per_seq(row: dict, sc: str, region: str = REGION):
+    m = (row_evaluations(row).get(CUT) or {}).get("metrics") or {}
+    return ((m.get(sc) or {}).get("per_sequence") or {}).get(region)
+
+
+def pairs(results: dict, o: float = PRIMARY_OVERLAP) -> list[dict]:
+    """Per world: {"world", "seed", "steps": (arm a's, arm b's scored step), "same_step", "d": {scaling: a - b}}."""
+    arms = lcon_arms(results)
+    if arms is None:
+        return []
+    ra, rb = _rows(results, o, arms[0]), _rows(results, o, arms[1])
+    seeds = data_seeds(results)
+    out = []
+    for s in sorted(set(ra) & set(rb)):
+        a, b = ra[s], rb[s]
+        steps = (a.get("checkpoint_step"), b.get("checkpoint_step"))
+        out.append({"world": _world(a, seeds), "seed": s, "steps": steps, "same_step": steps[0] == steps[1],
+                    "d": {sc: _figure(a, sc) - _figure(b, sc) for sc in SCALINGS}, "rows": (a, b)})
+    return out
+
+
+def world_means(ps: list[dict], sc: str) -> dict:
+    """{world: [its pairs' differences]} at one scaling (one pair per world unless seeds share a world)."""
+    out: dict = {}
+    for p in ps:
+        out.setdefault(p["world"], []).append(p["d"][sc])
+    return out
+
+
+def reading(ps: list[dict], sc: str) -> dict:
+    """(b) over the worlds at one scaling: nested (clustered by world), MDE, TOST, and the signed-rank test over the
+    world means."""
+    groups = world_means(ps, sc)
+    n = nested(groups)
+    n["mde80"] = mde(n["se"], n["df"]) if n["n_worlds"] >= 2 else math.nan
+    n["tost"] = tost(n["mean"], n["se"], n["df"], DELTA) if n["n_worlds"] >= 2 else {"p": math.nan,
+                                                                                      "equivalent": False}
+    n["rank"] = signed_rank([math.fsum(v) / len(v) for v in groups.values() if v])
+    return n
+
+
+def answer(n: dict) -> str:
+    """The one sentence that answers (b) at one scaling, by the primary test: helps / hurts beyond the interval,
+    equivalent within ±DELTA, or not resolved with its MDE."""
+    if n["n_worlds"] < 2:
+        return "not measured (fewer than 2 worlds)"
+    if n["differs"] == 1:
+        return f"L_con improves non-overlap depth by {n['mean']:+.4f} ± {n['ci95']:.4f}"
+    if n["differs"] == -1:
+        return f"L_con makes non-overlap depth worse by {-n['mean']:.4f} ± {n['ci95']:.4f}"
+    if n["tost"]["equivalent"]:
+        return f"equivalent to 0 within ±{DELTA:g} ({n['mean']:+.4f} ± {n['ci95']:.4f}, TOST p = {n['tost']['p']:.3f})"
+    return (f"not resolved with {n['n_worlds']} worlds ({n['mean']:+.4f} ± {n['ci95']:.4f}); detectable at "
+            f"{n['mde80']:.4f}")
+
+
+def split_of(ps: list[dict], sc: str, draws: int = DRAWS) -> dict | None:
+    """`study.variance.variance_split` of (b) at one scaling, or None without per-sequence records."""
+    worlds = {}
+    for p in ps:
+        a, b = (_per_seq(r, sc) for r in p["rows"])
+        if not (a and b) or p["world"] in worlds:  # no records, or seeds sharing a world: no per-world split
+            return None
+        worlds[p["world"]] = (a, b)
+    return variance_split(worlds, draws=draws) if len(worlds) >= 2 else None
+
+
+def _level(r: dict) -> str:
+    """The Hodges-Lehmann interval's exact level where the signed-rank distribution makes it other than 95 %
+    (few worlds: at n = 5 or fewer it is the Walsh averages' whole range, 100 %)."""
+    lv = r.get("ci_level", math.nan)
+    return f" ({100 * lv:.1f} %)" if math.isfinite(lv) and abs(lv - 0.95) > 0.0005 else ""
+
+
+def _f(x: float, d: int = 4) -> str:
+    return f"{x:+.{d}f}" if isinstance(x, (int, float)) and math.isfinite(x) else "—"
+
+
+def format_lcon(results: dict, plot_dir: Path | None = None, o: float = PRIMARY_OVERLAP) -> tuple[str, list]:
+    """Markdown of the L_con section for every overlap of the sweep (the primary one first), and the forest plots
+    written into ``plot_dir`` (their paths); ('', []) for a sweep without an L_con pair or without worlds."""
+    arms = lcon_arms(results)
+    cfg = results.get("sweep_config", {})
+    if arms is None or cfg.get("worlds") != "per_seed":
+        return "", []
+    overlaps = sorted(d["overlap"] for d in results["data"])
+    overlaps = [x for x in overlaps if abs(x - o) < 1e-9] + [x for x in overlaps if abs(x - o) >= 1e-9]
+    L, plots = [], []
+    add = L.append
+    add("## (b) L_con's training-time effect outside the overlap\n")
+    per = int(cfg.get("seeds_per_world", 1) or 1)
+    ck = cfg.get("checkpoint", "auto")
+    add("MCDP (w/o L_con, m = 2) cut - MCDP (m = 2) cut, abs_rel on non-overlap pixels, **positive = L_con helps**; "
+        + ("one training seed per world" if per == 1 else f"{per} training seeds per world, clustered by world (the "
+           "signed-rank test over the world means)") + "; "
+        + ("both arms of a world scored at one step, the end of the budget (`checkpoint: last`)" if ck == "last" else
+           f"each run scored at the checkpoint `{ck}` picks (`auto`: its own lowest validation loss, which for MCDP "
+           "(m = 2) includes λ·L_con and for the arm without it does not)")
+        + ". Over worlds: mean ± 95 % t interval, MDE at 80 % power, TOST against "
+        f"±{DELTA:g}, and Wilcoxon's signed-rank test with the Hodges-Lehmann estimate and its interval. Primary: "
+        f"overlap {o:.2f}, median scaling; every other overlap is exploratory.\n")
+    for ov in overlaps:
+        ps = pairs(results, ov)
+        if not ps:
+            continue
+        tag = "primary" if abs(ov - o) < 1e-9 else "exploratory"
+        n_w = len({p["world"] for p in ps})
+        add(f"### Overlap {ov:.2f} ({tag}): {n_w} worlds" + (f", {len(ps)} (world, seed) pairs" if len(ps) > n_w
+                                                               else "") + "\n")
+        mixed = [p for p in ps if not p["same_step"]]
+        add(("**Every pair scored at one step** (" + ", ".join(sorted({str(p['steps'][0]) for p in ps})) + ").\n")
+            if not mixed else f"**{len(mixed)} of {len(ps)} pairs were scored at two different steps**: "
+            + ", ".join(f"world {p['world']}: {p['steps'][0]} / {p['steps'][1]}" for p in mixed) + ".\n")
+        add("| scaling | mean ± 95 % | MDE 80 % | TOST p | Wilcoxon p | Hodges-Lehmann [95 %] | worlds > 0 | answer |")
+        add("|---|---|---|---|---|---|---|---|")
+        readings = {}
+        for sc in SCALINGS:
+            n = reading(ps, sc)
+            readings[sc] = n
+            r = n["rank"]
+            pos = sum(1 for v in world_means(ps, sc).values() if math.fsum(v) > 0)
+            add(f"| {sc} | {_f(n['mean'])} ± {n['ci95']:.4f} | {n['mde80']:.4f} | {n['tost']['p']:.3f} | "
+                f"{r['p']:.3f} | {_f(r['hl'])} [{_f(r['ci'][0])}, {_f(r['ci'][1])}]{_level(r)} | {pos} / {n['n_worlds']} | "
+                f"{answer(n)} |")
+        add("")
+        n = readings["median"]
+        if n["n_worlds"] >= 2 and math.isfinite(n["se"]):
+            sd = n["se"] * math.sqrt(n["n_worlds"])
+            add(f"Spread between worlds (median): sd {sd:.4f}; worlds for an MDE of {DELTA:g} at 80 % power at this "
+                f"spread: {worlds_needed(sd, DELTA)}.\n")
+        plan = cfg.get("plan") or {}
+        if abs(ov - o) < 1e-9 and plan.get("worlds"):
+            add(_looks(ps, plan))
+        sp = split_of(ps, "median")
+        if sp is not None:
+            add(_split_text(sp, ps))
+            if plot_dir is not None:
+                Path(plot_dir).mkdir(parents=True, exist_ok=True)
+                path = Path(plot_dir) / f"lcon_forest_{ov:.2f}.png"
+                r = n["rank"]
+                forest_plot(sp, path, f"(b) per world, overlap {ov:.2f}, median abs_rel, non-overlap px",
+                            hl=(r["hl"], *r["ci"]) if math.isfinite(r["hl"]) else None,
+                            xlabel="w/o L_con - with L_con (positive = L_con helps)")
+                plots.append(path)
+        add("| world | seed | steps (w/o / with) | " + " | ".join(SCALINGS) + " | median: 95 % over its test sequences |")
+        add("|---|---|---|" + "---|" * len(SCALINGS) + "---|")
+        for p in ps:
+            b = (sp or {}).get("per_world", {}).get(p["world"])
+            add(f"| {p['world']} | {p['seed']} | {p['steps'][0]} / {p['steps'][1]} | " + " | ".join(_f(p["d"][sc]) for sc in SCALINGS)
+                + f" | {('[' + _f(b['lo']) + ', ' + _f(b['hi']) + ']') if b else '—'} |")
+        add("")
+    return "\n".join(L), plots
+
+
+def _looks(ps: list[dict], plan: dict) -> str:
+    """The two-look reading of the plan stated before the run (median scaling)."""
+    planned, first = int(plan["worlds"]), int(plan.get("first_look") or 0)
+    ordered = sorted(ps, key=lambda p: p["seed"])
+    lines = [f"Plan stated before the run: {planned} worlds, O'Brien-Fleming looks at {first} and {planned} "
+             f"(`plan` in the preset; {plan.get('why', '')}).\n"]
+    for n_look, final in ((first, False), (planned, True)):
+        if not n_look or len(ordered) < n_look:
+            lines.append(f"- look at {n_look} worlds: not reached ({len(ordered)} worlds measured)")
+            continue
+        lk = sequential_look([p["d"]["median"] for p in ordered[:n_look]], planned, final, t1=first / planned)
+        lines.append(f"- look at {n_look} worlds: mean {_f(lk['mean'])}, t = {lk['t']:.2f} (df {lk['df']}), "
+                     f"p = {lk['p']:.4f} against the look's nominal level {lk['nominal']:.4f} (|z| ≥ "
+                     f"{lk['bound_z']:.3f}): " + ("**stop: beyond the bound**" if lk["stop"] else "continue"
+                                                 if not final else "not beyond the final bound"))
+    return "\n".join(lines) + "\n"
+
+
+def _split_text(sp: dict, ps: list[dict]) -> str:
+    n_seq = sorted({b["n_seq"] for b in sp["per_world"].values()})
+    out = (f"Where the spread comes from (median; bootstrap over each world's {'/'.join(map(str, n_seq))} test "
+           f"sequences, {DRAWS} draws, paired): between-world variance {sp['var_between']:.2e} = test-sampling noise "
+           f"{sp['var_noise']:.2e} ({100 * sp['noise_share']:.0f} %) + heterogeneity {sp['tau2']:.2e}. ")
+    if sp["outliers"]:
+        out += "Outlying worlds (|z| > 3, leave-one-out): " + ", ".join(f"{w} (z = {z:+.1f})" for w, z in sp["outliers"]) + "."
+    else:
+        out += "No outlying world (every leave-one-out |z| ≤ 3)."
+    return out + "\n"

@@ -1,0 +1,76 @@
+"""study/lcon.py: (b) read over worlds at one step, its answer sentence, the noise split and the looks; the world
+column of results.csv (study/outputs.py)."""
+import csv
+import json
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from study import lcon
+from study.outputs import write_csv
+from study.primary import DELTA
+from study.variants import CUT
+
+ROOT = Path(__file__).resolve().parents[2]
+
+
+def _metrics(value, seqs, rng, noise):
+    per = {}
+    for sc in ("none", "median", "rig_median"):
+        rec = {s: {"sum": [value + rng.normal(0, noise)], "n": [1]} for s in seqs}
+        mean = float(np.mean([r["sum"][0] for r in rec.values()]))
+        per[sc] = {"non_overlap": {"abs_rel": mean}, "per_sequence": {"non_overlap": rec}}
+    return per
+
+
+def _results(effects, steps=None, plan=None, noise=0.002):
+    rng = np.random.default_rng(0)
+    seqs = [f"seq_{k:03d}" for k in range(8)]
+    rows = []
+    for w, eff in enumerate(effects):
+        for method, v in (("mcdp_m2_nocon", 0.25 + eff), ("mcdp_m2", 0.25)):
+            step = (steps or {}).get((w, method), 200)
+            rows.append({"overlap": 0.1, "method": method, "seed": w, "world": 100 + w, "status": "ok",
+                         "checkpoint_step": step, "evaluations": {CUT: {"metrics": _metrics(v, seqs, rng, noise)}}})
+    return {"methods": ["mcdp_m2_nocon", "mcdp_m2"], "data": [{"overlap": 0.1}], "rows": rows,
+            "sweep_config": {"worlds": "per_seed", "checkpoint": "last", "plan": plan}}
+
+
+def test_a_pair_is_scored_at_one_step_and_said_so():
+    res = _results([0.01] * 4)
+    assert all(p["same_step"] and p["steps"] == (200, 200) for p in lcon.pairs(res))
+    text, _ = lcon.format_lcon(res)
+    assert "**Every pair scored at one step** (200)" in text
+    res = _results([0.01] * 4, steps={(2, "mcdp_m2"): 75})
+    text, _ = lcon.format_lcon(res)
+    assert "**1 of 4 pairs were scored at two different steps**: world 102: 200 / 75" in text
+
+
+def test_answer_follows_the_primary_test():
+    helps = lcon.reading(lcon.pairs(_results([0.010, 0.012, 0.011, 0.009, 0.013, 0.010])), "median")
+    assert lcon.answer(helps).startswith("L_con improves non-overlap depth by +0.0103 ± 0.0021")  # noise 0.002 per sequence
+    null = lcon.reading(lcon.pairs(_results([0.0005, -0.0004, 0.0002, -0.0001, 0.0003, -0.0002])), "median")
+    assert lcon.answer(null).startswith(f"equivalent to 0 within ±{DELTA:g}")
+    wide = lcon.reading(lcon.pairs(_results([0.03, -0.02, 0.01, -0.025])), "median")
+    assert lcon.answer(wide).startswith("not resolved with 4 worlds") and "detectable at" in lcon.answer(wide)
+
+
+def test_the_world_column_is_each_rows_world_and_the_split_is_in_the_section(tmp_path):
+    res = _results([0.01, 0.02, 0.0, 0.015, 0.005], plan={"worlds": 10, "first_look": 5, "why": "pilot"})
+    text, plots = lcon.format_lcon(res, tmp_path)
+    assert "test-sampling noise" in text and "heterogeneity" in text and len(plots) == 1 and plots[0].exists()
+    assert "look at 5 worlds" in text and "look at 10 worlds: not reached (5 worlds measured)" in text
+
+
+def test_results_csv_world_is_the_data_seed_each_run_trained_on(tmp_path):
+    """The committed propagation sweep: 3 worlds x 2 seeds (seeds 0, 1 on data seed 0, ...); its rows predate the
+    world field, so the column comes from the recorded data."""
+    res = json.loads((ROOT / "docs/results/propagation/results.json").read_text())
+    write_csv(res, tmp_path / "r.csv")
+    rows = [r for r in csv.DictReader((tmp_path / "r.csv").open()) if r["status"] != "reference"]
+    assert rows and {(r["seed"], r["world"]) for r in rows} == {("0", "0"), ("1", "0"), ("2", "1"), ("3", "1"),
+                                                                ("4", "2"), ("5", "2")}
+    for d in res["data"]:   # the data seed of each world's recorded render
+        assert [w["data_seed"] for w in d["worlds"]] == [0, 1, 2]
