@@ -242,3 +242,47 @@ def _split_text(sp: dict, ps: list[dict]) -> str:
     else:
         out += "No outlying world (every leave-one-out |z| ≤ 3)."
     return out + "\n"
+
+
+def selection_effect(last: dict, auto: dict, o: float = PRIMARY_OVERLAP) -> dict | None:
+    """The same runs read twice, every arm at the last step and each at its own `auto` checkpoint: per world the
+    steps and (b) (median scaling) both ways, the between-world variance each way, and the share of the `auto`
+    reading's variance that the selection added (1 - var_last / var_auto). None without common worlds."""
+    pl = {p["world"]: p for p in pairs(last, o)}
+    pa = {p["world"]: p for p in pairs(auto, o)}
+    common = [w for w in pl if w in pa]
+    if len(common) < 2:
+        return None
+
+    def var(xs: list[float]) -> float:
+        m = math.fsum(xs) / len(xs)
+        return math.fsum((x - m) ** 2 for x in xs) / (len(xs) - 1)
+
+    out = {"worlds": common, "per_world": {}}
+    for sc in SCALINGS:
+        dl = [pl[w]["d"][sc] for w in common]
+        da = [pa[w]["d"][sc] for w in common]
+        out[sc] = {"var_last": var(dl), "var_auto": var(da), "mean_last": math.fsum(dl) / len(dl),
+                   "mean_auto": math.fsum(da) / len(da)}
+        out[sc]["share_from_selection"] = (1.0 - out[sc]["var_last"] / out[sc]["var_auto"]
+                                           if out[sc]["var_auto"] > 0 else math.nan)
+    for w in common:
+        out["per_world"][w] = {"steps_auto": pa[w]["steps"], "steps_last": pl[w]["steps"],
+                               "d_auto": pa[w]["d"]["median"], "d_last": pl[w]["d"]["median"]}
+    return out
+
+
+def format_selection(sel: dict) -> str:
+    """Markdown: the same runs at one step and at each arm's own `auto` checkpoint."""
+    L = ["| world | auto steps (w/o / with) | (b) at auto | (b) at the last step |", "|---|---|---|---|"]
+    for w, r in sel["per_world"].items():
+        L.append(f"| {w} | {r['steps_auto'][0]} / {r['steps_auto'][1]} | {_f(r['d_auto'])} | {_f(r['d_last'])} |")
+    L.append("")
+    for sc in SCALINGS:
+        s = sel[sc]
+        L.append(f"- {sc}: mean {_f(s['mean_auto'])} at auto, {_f(s['mean_last'])} at the last step; between-world "
+                 f"variance {s['var_auto']:.2e} at auto, {s['var_last']:.2e} at the last step: the selection "
+                 + (f"added {100 * s['share_from_selection']:.0f} % of the auto reading's variance"
+                    if s["share_from_selection"] >= 0 else
+                    f"did not add variance (the last step's is {100 * -s['share_from_selection']:.0f} % larger)"))
+    return "\n".join(L) + "\n"

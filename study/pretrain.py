@@ -122,6 +122,8 @@ def run_pretrain(cfg: PretrainConfig, out: str | Path, progress: bool = True,
 
 
 def _pretrain(cfg: PretrainConfig, out: Path, dcfg, rcfg, h: str, progress: bool, log) -> dict:
+    import torch
+
     from mcdp.runs import atomic_torch_save
     from mcdp.trainer import Trainer
     from corelib.hashing import sha256_file
@@ -159,7 +161,10 @@ def _pretrain(cfg: PretrainConfig, out: Path, dcfg, rcfg, h: str, progress: bool
     atomic_torch_save(state, out / WEIGHTS)
     rec = {"config_hash": h, "sha256": sha256_file(out / WEIGHTS), "path": str((out / WEIGHTS).resolve()),
            "step": trainer.step, "render_s": render_s, "train_s": train_s,
-           "depth_spread": trainer.spread, "config": resolved, "code_version": code_version()}
+           "depth_spread": trainer.spread, "config": resolved, "code_version": code_version(),
+           # the kernels torch dispatched to (AVX2 / AVX512 / ...): the same config and code give other weights
+           # on a CPU of another kind, so two pretrainings with one config hash can differ (issue 47)
+           "cpu_capability": torch.backends.cpu.get_cpu_capability()}
     atomic_write_json(out / MARKER, rec)
     log(f"[pretrain] done: {out / WEIGHTS} (step {trainer.step}, render {render_s:.0f} s, train {train_s:.0f} s)")
     return rec

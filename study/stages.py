@@ -31,7 +31,8 @@ def pretrain_stage(cfg: SweepConfig, sweep_dir: Path, progress: bool, log) -> di
     rec = run_pretrain(cfg.pretrain, pdir, progress=progress, log=log)
     trim_pretraining(cfg, pdir / "run", int(rec["step"]), log)
     return {"weights": str(pdir / WEIGHTS), "config_hash": h, "sha256": rec["sha256"], "step": rec["step"],
-            "render_s": rec.get("render_s"), "train_s": rec.get("train_s"), "depth_spread": rec.get("depth_spread")}
+            "render_s": rec.get("render_s"), "train_s": rec.get("train_s"), "depth_spread": rec.get("depth_spread"),
+            "code_version": rec.get("code_version"), "cpu_capability": rec.get("cpu_capability")}
 
 
 #: what an evaluation measures; a change re-evaluates every cached run (labels: by class group and motion)
