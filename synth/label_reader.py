@@ -52,7 +52,7 @@ class NoLabels:
 
 
 class LabelReader:
-    """The label members of `synth.dataset.Dataset` (it supplies root, manifest, inside, _sized)."""
+    """The label members of `synth.dataset.Dataset` (it supplies root, manifest, inside, _size, _sized)."""
 
     @property
     def label_kinds(self) -> tuple[str, ...]:
@@ -103,7 +103,7 @@ class LabelReader:
             raise DatasetError(f"{self.root / seq}: forward flow exists for frames 0..{self.n_frames(seq) - 2}, "
                                f"not {frame}")
         p = self._label("flow", seq, cam, frame, "flow.exr")
-        flow = self._sized(read_flow_exr(p), p, "the flow map", cam)
+        flow = self._sized(read_flow_exr(p, self._size(cam)), p, "the flow map", cam)
         if not np.isfinite(flow).all():
             raise DatasetError(f"{p}: flow holds non-finite values")
         pv = self._label("flow", seq, cam, frame, "flow_valid.png")
