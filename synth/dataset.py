@@ -32,7 +32,7 @@ from pathlib import Path
 import numpy as np
 
 from synth.files import DatasetError, frame_stem, read_depth_exr, read_json, read_png, read_regular, within
-from synth.label_reader import LabelReader
+from synth.label_reader import LabelReader, check_labels_record
 from synth.rig import MAX_CAMERA_PX, CameraSpec
 from synth.sizes import camera_sizes, shared_size
 
@@ -254,6 +254,8 @@ def check_manifest_keys(manifest, mpath: Path) -> None:
         frames = info.get("frames") if isinstance(info, dict) else None
         if not isinstance(frames, int) or isinstance(frames, bool) or frames < 1:
             raise DatasetError(f"{mpath}: sequences.{str(seq)[:40]}.frames must be a positive integer")
+    if "labels" in manifest:
+        check_labels_record(manifest["labels"], mpath)
     for key in ("width", "height"):
         if not _pixels(manifest["image_size"].get(key)):
             raise DatasetError(f"{mpath}: image_size.{key} must be an integer in [1, {MAX_CAMERA_PX}] (a camera's "
