@@ -344,7 +344,8 @@ def _read_exr(path: str | Path, names: tuple[str, ...], what: str,
             raise DatasetError(f"{path}: its header claims {w}x{h} pixels, the camera's images are "
                                f"{size[0]}x{size[1]}; refused before decoding")
         if sorted(chans) != sorted(names):
-            shown = ", ".join(repr(c[:40]) for c in chans[:8]) + (f" and {len(chans) - 8} more" if len(chans) > 8 else "")
+            shown = ", ".join(repr(c[:40]) for c in chans[:8])
+            shown += f" and {len(chans) - 8} more" if len(chans) > 8 else ""
             raise DatasetError(f"{path}: has channel(s) {shown or 'none'}; a {what} has exactly "
                                f"{', '.join(repr(c) for c in names)}; refused before decoding")
         data.seek(0)
