@@ -12,7 +12,6 @@ to the constant-depth yardstick on each. Needs the `nuscenes` extra. Prints a ta
 """
 from __future__ import annotations
 
-import argparse
 import sys
 import tempfile
 import time
@@ -23,7 +22,9 @@ sys.path.insert(0, str(ROOT))
 
 
 def main(argv=None) -> int:
-    ap = argparse.ArgumentParser()
+    from corelib.cli import ArgumentParser  # its errors echo the user's words cut and escaped
+
+    ap = ArgumentParser()
     ap.add_argument("--sequences", type=int, default=40)
     ap.add_argument("--frames", type=int, default=10)
     ap.add_argument("--steps", type=int, default=300)

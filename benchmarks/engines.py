@@ -17,7 +17,6 @@ average before and after (other processes on the machine slow every column).
 """
 from __future__ import annotations
 
-import argparse
 import os
 import shutil
 import subprocess
@@ -90,7 +89,9 @@ def show_sweep(rows: list[tuple[str, float]], record: Path | None = None) -> str
 
 
 def main(argv=None) -> int:
-    ap = argparse.ArgumentParser()
+    from corelib.cli import ArgumentParser  # its errors echo the user's words cut and escaped
+
+    ap = ArgumentParser()
     ap.add_argument("--sequences", type=int, default=6)
     ap.add_argument("--frames", type=int, default=6)
     ap.add_argument("--ray-cpus", type=int, default=2)

@@ -15,7 +15,6 @@ sizes on disk, by kind).
 """
 from __future__ import annotations
 
-import argparse
 import statistics
 import sys
 import tempfile
@@ -65,7 +64,9 @@ def label_bytes(out: Path) -> dict[str, int]:
 
 
 def main(argv=None) -> int:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    from corelib.cli import ArgumentParser  # its errors echo the user's words cut and escaped
+
+    ap = ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--size", default="320x192")
     ap.add_argument("--sequences", type=int, default=2)
     ap.add_argument("--frames", type=int, default=10)

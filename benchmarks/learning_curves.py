@@ -41,6 +41,7 @@ from mcdp.trainer import Trainer  # noqa: E402
 from corelib.configlib import load_config  # noqa: E402
 from synth.open import open_dataset  # noqa: E402
 from benchmarks._table import show  # noqa: E402
+from corelib.text import bounded  # noqa: E402
 
 EVAL = EvalConfig(min_depth=0.5, max_depth=80.0, frame_stride=2, skip_ends=True)
 
@@ -66,7 +67,7 @@ def ensure_data(path: Path, sequences: int, frames: int, overrides: list[str]) -
         return
     cmd = [sys.executable, "-m", "synth.cli", "render", str(ROOT / "configs/data/tiny.yaml"), "--out", str(path),
            f"dataset.sequences={sequences}", f"dataset.frames={frames}", *overrides]
-    print("rendering:", " ".join(cmd), file=sys.stderr)
+    print("rendering:", bounded(" ".join(cmd)), file=sys.stderr)
     subprocess.run(cmd, check=True)
 
 
@@ -153,7 +154,9 @@ class SupervisedRun:
 
 
 def main(argv=None) -> int:
-    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    from corelib.cli import ArgumentParser  # its errors echo the user's words cut and escaped
+
+    ap = ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--data", required=True, type=Path)
     ap.add_argument("--preset", default=str(ROOT / "configs/train/tiny/mono2.yaml"))
     ap.add_argument("--steps", type=int, default=600)

@@ -14,7 +14,6 @@ the neighbour, no z-test: the definition before issue #11) from the same depth f
 """
 from __future__ import annotations
 
-import argparse
 import sys
 import tempfile
 from pathlib import Path
@@ -50,7 +49,9 @@ def frustum_only(path: Path) -> dict[str, float]:
 
 
 def main(argv=None) -> int:
-    ap = argparse.ArgumentParser()
+    from corelib.cli import ArgumentParser  # its errors echo the user's words cut and escaped
+
+    ap = ArgumentParser()
     ap.add_argument("--sequences", type=int, default=2)
     ap.add_argument("--frames", type=int, default=3)
     ap.add_argument("--width", type=int, default=320)

@@ -55,7 +55,9 @@ def weight_grads(system: SelfSupervisedSystem, batch: dict, stage: str) -> tuple
 
 
 def main(argv=None) -> None:
-    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    from corelib.cli import ArgumentParser  # its errors echo the user's words cut and escaped
+
+    ap = ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("run", type=Path)
     ap.add_argument("--data", required=True, type=Path)
     ap.add_argument("--split", default="train")
@@ -69,7 +71,9 @@ def main(argv=None) -> None:
     ckpt = load_checkpoint(find_checkpoint(args.run, args.checkpoint))
     cfg = config_from_checkpoint(ckpt, source=str(args.run))
     if cfg.model.method != "mcdp" or cfg.model.refine_steps < 1:
-        raise SystemExit(f"{args.run}: needs an MCDP run with refinement")
+        from corelib.text import bounded
+
+        raise SystemExit(bounded(f"{args.run}: needs an MCDP run with refinement"))
     ds = open_dataset(args.data)
     n_cam = len(ds.camera_names)
     lam = args.lam if args.lam is not None else (cfg.loss.consistency_weight or 1e-3)

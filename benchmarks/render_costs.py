@@ -15,7 +15,6 @@ Prints three tables (docs/results/render_throughput.md, "Why 0.85x cannot be rea
 """
 from __future__ import annotations
 
-import argparse
 import collections
 import contextlib
 import os
@@ -56,7 +55,9 @@ def thread_cpu() -> collections.Counter:
 
 
 def main(argv=None) -> int:
-    ap = argparse.ArgumentParser()
+    from corelib.cli import ArgumentParser  # its errors echo the user's words cut and escaped
+
+    ap = ArgumentParser()
     ap.add_argument("--size", default="320x192")
     ap.add_argument("--frames", type=int, default=10)
     ap.add_argument("--scenes", type=int, default=6)

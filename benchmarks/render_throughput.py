@@ -19,7 +19,6 @@ each column is the median (the ratios are medians of the R per-round ratios).
 """
 from __future__ import annotations
 
-import argparse
 import contextlib
 import resource
 import sys
@@ -83,7 +82,9 @@ def files_off():
 
 
 def main(argv=None) -> int:
-    ap = argparse.ArgumentParser()
+    from corelib.cli import ArgumentParser  # its errors echo the user's words cut and escaped
+
+    ap = ArgumentParser()
     ap.add_argument("--sequences", type=int, default=2)
     ap.add_argument("--frames", type=int, default=20)
     ap.add_argument("--renders", type=int, default=1000)

@@ -36,6 +36,7 @@ sys.path.insert(0, str(ROOT))
 from study.results import evaluations, method_agg, paired_difference, read_results  # noqa: E402
 from study.variants import CUT, ORACLE, Evaluation  # noqa: E402
 from benchmarks._table import markdown, show  # noqa: E402
+from corelib.text import bounded  # noqa: E402
 
 
 def link_tree(src: Path, dst: Path) -> None:
@@ -89,7 +90,7 @@ def run_variant(base: str, root: Path, source: Path | None, name: str, train: li
     with open(log, "a") as fh:
         rc = subprocess.call(args, cwd=ROOT, stdout=fh, stderr=subprocess.STDOUT)
     if rc != 0:
-        raise SystemExit(f"[variants] {name}: mcdp sweep exited {rc}; see {log}")
+        raise SystemExit(bounded(f"[variants] {name}: mcdp sweep exited {rc}; see {log}"))
     return out
 
 
@@ -157,7 +158,9 @@ def table(rows: list[tuple[str, dict]]) -> str:
 
 
 def main(argv=None) -> None:
-    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    from corelib.cli import ArgumentParser  # its errors echo the user's words cut and escaped
+
+    ap = ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--base", required=True, help="sweep preset every variant starts from")
     ap.add_argument("--root", required=True, type=Path, help="folder of the variants' sweeps")
     ap.add_argument("--source", type=Path, help="a sweep folder whose pretraining and datasets are shared")
@@ -190,7 +193,7 @@ def main(argv=None) -> None:
             continue
         link_methods = [m for m in link.strip().removeprefix("link=").split(",") if m]
         if not name or "/" in name or name.startswith("."):
-            raise SystemExit(f"--variant {v!r}: give 'NAME: overrides' with a plain NAME")
+            raise SystemExit(bounded(f"--variant {v!r}: give 'NAME: overrides' with a plain NAME", 300))
         out = args.root / name
         if not args.only_table:
             out = run_variant(args.base, args.root, args.source, name, rest.split(), args.set, link_methods)

@@ -10,7 +10,6 @@ of one step without start-up (imports, process group, model build). Prints a tab
 """
 from __future__ import annotations
 
-import argparse
 import os
 import subprocess
 import sys
@@ -33,7 +32,9 @@ def run(nproc: int, threads: int, steps: int, data: Path, out: Path, preset: str
 
 
 def main(argv=None) -> int:
-    ap = argparse.ArgumentParser()
+    from corelib.cli import ArgumentParser  # its errors echo the user's words cut and escaped
+
+    ap = ArgumentParser()
     ap.add_argument("--preset", default=str(ROOT / "configs/train/tiny/mono2.yaml"))
     ap.add_argument("--batch", type=int, default=2, help="global batch (rig samples)")
     ap.add_argument("--short", type=int, default=4)

@@ -183,7 +183,9 @@ def worker(preset: str, H: int, W: int, steps: int, device: str, threads: int = 
 
 
 def main(argv=None) -> int:
-    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    from corelib.cli import ArgumentParser  # its errors echo the user's words cut and escaped
+
+    ap = ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--sizes", nargs="+", default=["96x160", "192x320"], help="HxW training sizes")
     ap.add_argument("--presets", nargs="+", default=PRESETS)
     ap.add_argument("--rounds", type=int, default=3, help="interleaved rounds (median over rounds)")

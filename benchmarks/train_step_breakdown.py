@@ -142,7 +142,9 @@ def time_phases(preset: str, steps: int, threads: int) -> dict:
 
 
 def main(argv=None) -> int:
-    ap = argparse.ArgumentParser()
+    from corelib.cli import ArgumentParser  # its errors echo the user's words cut and escaped
+
+    ap = ArgumentParser()
     ap.add_argument("--presets", nargs="+", default=["mono2", "mcdp_m2"])
     ap.add_argument("--steps", type=int, default=5)
     ap.add_argument("--threads", type=int, default=1)

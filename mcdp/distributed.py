@@ -30,6 +30,8 @@ from corelib.configlib import ConfigError, env_int
 MAX_WORLD = 1 << 16
 #: what a malformed torchrun variable's error says to do
 TORCHRUN = "torchrun sets it; unset WORLD_SIZE for one process"
+#: what a RANK or LOCAL_RANK other than 0 in one process (WORLD_SIZE unset or 1) says to do
+ALONE = "WORLD_SIZE is unset or 1, one process of rank 0; unset it, or start the processes with torchrun"
 
 
 @dataclass
@@ -50,9 +52,12 @@ class Dist:
     @staticmethod
     def from_env() -> "Dist":
         """torchrun's variables, checked before anything starts: a value that is not an integer in range (a
-        rank outside the world too) or a missing rendezvous address is one ConfigError naming the variable."""
+        rank outside the world too, also in one process: ``WORLD_SIZE=1 RANK=1``, ``LOCAL_RANK=abc``) or a missing
+        rendezvous address is one ConfigError naming the variable."""
         world = env_int("WORLD_SIZE", 1, 1, MAX_WORLD, TORCHRUN)
-        if world <= 1:
+        if world <= 1:  # one process, rank 0: another rank was meant to have peers, and would train alone
+            env_int("RANK", 0, 0, 0, ALONE)
+            env_int("LOCAL_RANK", 0, 0, 0, ALONE)
             return Dist()
         for name in ("MASTER_ADDR", "MASTER_PORT"):
             if not os.environ.get(name):

@@ -16,7 +16,6 @@ docs/results/ are read (a link out of it, a FIFO, a device or a file over 1 MiB:
 """
 from __future__ import annotations
 
-import argparse
 import re
 import sys
 from pathlib import Path
@@ -26,6 +25,7 @@ RESULTS = ROOT / "docs" / "results"
 sys.path.insert(0, str(ROOT))
 
 from benchmarks._table import TableError, markdown, read_rows, read_text  # noqa: E402
+from corelib.text import bounded  # noqa: E402
 from corelib.atomic import atomic_write_text  # noqa: E402
 
 _PLACEHOLDER = re.compile(r"\{\{(table|output) +([\w.-]+)(?: +([lr]+))? *\}\}")
@@ -73,7 +73,9 @@ def bench_names(results: Path = RESULTS) -> list[str]:
 
 
 def main(argv=None) -> int:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    from corelib.cli import ArgumentParser  # its errors echo the user's words cut and escaped
+
+    ap = ArgumentParser(description=__doc__.splitlines()[0])
     which = ap.add_mutually_exclusive_group(required=True)
     which.add_argument("--name", help="docs/results/<name>.md from docs/results/<name>/")
     which.add_argument("--all", action="store_true", help="every docs/results/<name>/page.md")
@@ -82,7 +84,7 @@ def main(argv=None) -> int:
         try:
             text = page_text(name, RESULTS)
         except TableError as exc:
-            print(f"error: {exc}", file=sys.stderr)
+            print(f"publish_bench: error: {bounded(str(exc))}", file=sys.stderr)
             return 2
         atomic_write_text(RESULTS / f"{name}.md", text, fsync=False)
         print(f"wrote docs/results/{name}.md")

@@ -20,7 +20,6 @@ tables need the full results.json.
 """
 from __future__ import annotations
 
-import argparse
 import json
 import os
 import re
@@ -40,7 +39,10 @@ _PREVIEW = re.compile(r"preview_[\w.-]*\.png")
 #: the fields of a results.json the report is built from: (name, type of the value, type of each item)
 _FIELDS = (("overlaps", list, (int, float)), ("methods", list, str), ("seeds", list, int),
            ("evaluations", list, None), ("data", list, dict), ("rows", list, dict), ("flat", list, dict),
-           ("aggregate", list, dict), ("previews", list, str))
+           ("aggregate", list, dict), ("previews", list, str), ("sweep_config", dict, None),
+           ("sweep_config_hash", str, None), ("created", str, None), ("timing", dict, None), ("counters", dict, None))
+#: the keys of its ``sweep_config`` the report's setup section reads
+_CONFIG_KEYS = ("checkpoint", "overlap_mode", "data", "data_overrides", "train_presets_dir", "train_overrides", "eval")
 
 
 class PublishError(ValueError):
@@ -81,11 +83,17 @@ def check_results(raw: bytes, path: Path) -> dict:
         if field == "previews" and field not in obj:
             continue
         if not isinstance(obj.get(field), kind):
+            legacy = " (a schema-1 results.json, without the record of the sweep a report describes)" \
+                if "schema" not in obj and field not in obj else ""
             raise PublishError(f"{path}: field '{field}' is " + ("missing" if field not in obj else
-                               f"a {type(obj[field]).__name__}, not a {kind.__name__}") + "; not a sweep's results")
+                               f"a {type(obj[field]).__name__}, not a {kind.__name__}") + "; not a sweep's results"
+                               + legacy)
         bad = [i for i, v in enumerate(obj[field]) if item is not None and not isinstance(v, item)]
         if bad:
             raise PublishError(f"{path}: field '{field}[{bad[0]}]' is not a {getattr(item, '__name__', 'number')}")
+    missing = [k for k in _CONFIG_KEYS if k not in obj["sweep_config"]]
+    if missing:
+        raise PublishError(f"{path}: field 'sweep_config.{missing[0]}' is missing; not a sweep's results")
     for i, f in enumerate(obj["flat"]):
         for key in ("overlap", "method"):
             if key not in f:
@@ -172,20 +180,23 @@ def publish(name: str, sweep: Path | None) -> str:
 def main(argv=None) -> int:
     from corelib.atomic import file_error_message, is_user_file_error
     from corelib.readfile import ReadRefused
+    from corelib.text import bounded
 
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    from corelib.cli import ArgumentParser  # its errors echo the user's words cut and escaped
+
+    ap = ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--name", required=True, help="docs/results/<name>.md and docs/results/<name>/")
     ap.add_argument("--sweep", help="a sweep folder whose results.json (and rig previews) are published first")
     args = ap.parse_args(argv)
     try:
         print(publish(args.name, Path(args.sweep) if args.sweep else None))
     except (PublishError, ReadRefused) as exc:
-        print(f"publish_sweep: error: {exc}", file=sys.stderr)
+        print(f"publish_sweep: error: {bounded(str(exc))}", file=sys.stderr)
         return 2
     except OSError as exc:
         if not is_user_file_error(exc):
             raise
-        print(f"publish_sweep: error: {file_error_message(exc)}", file=sys.stderr)
+        print(f"publish_sweep: error: {bounded(file_error_message(exc))}", file=sys.stderr)
         return 2
     return 0
 

@@ -32,7 +32,7 @@ from pathlib import Path
 import numpy as np
 
 from synth.files import DatasetError, frame_stem, read_depth_exr, read_json, read_png, read_regular, within
-from synth.label_reader import LabelReader
+from synth.label_reader import LabelReader, check_labels_record
 from synth.rig import MAX_CAMERA_PX, CameraSpec
 from synth.sizes import camera_sizes, shared_size
 
@@ -125,10 +125,14 @@ class Dataset(LabelReader):
     def depth_path(self, seq: str, cam: str, frame: int) -> Path:
         return self.root / seq / cam / f"{frame_stem(frame)}.depth.exr"
 
-    def _sized(self, arr: np.ndarray, path: Path, what: str, cam: str) -> np.ndarray:
+    def _size(self, cam: str) -> tuple[int, int]:
+        """(width, height) of camera `cam`'s images; DatasetError for a camera the dataset lacks."""
         if cam not in self._sizes:
             raise DatasetError(f"{self.root}: no camera {str(cam)[:40]!r} (cameras {', '.join(self.camera_names)})")
-        w, h = self._sizes[cam]
+        return self._sizes[cam]
+
+    def _sized(self, arr: np.ndarray, path: Path, what: str, cam: str) -> np.ndarray:
+        w, h = self._size(cam)
         if arr.shape[:2] != (h, w):
             raise DatasetError(f"{path}: {what} is {arr.shape[1]}x{arr.shape[0]}, {cam}'s images are {w}x{h}")
         return arr
@@ -142,7 +146,7 @@ class Dataset(LabelReader):
         """(H, W) float32 z-depth in metres at the camera's size, 0 = no surface; finite and >= 0, else
         DatasetError."""
         p = self.inside(self.depth_path(seq, cam, frame))
-        d = self._sized(read_depth_exr(p), p, "the depth map", cam)
+        d = self._sized(read_depth_exr(p, self._size(cam)), p, "the depth map", cam)
         if not np.isfinite(d).all() or (d < 0).any():
             raise DatasetError(f"{p}: depth holds non-finite or negative values (the contract: finite, >= 0, "
                                "0 = no surface)")
@@ -250,6 +254,8 @@ def check_manifest_keys(manifest, mpath: Path) -> None:
         frames = info.get("frames") if isinstance(info, dict) else None
         if not isinstance(frames, int) or isinstance(frames, bool) or frames < 1:
             raise DatasetError(f"{mpath}: sequences.{str(seq)[:40]}.frames must be a positive integer")
+    if "labels" in manifest:
+        check_labels_record(manifest["labels"], mpath)
     for key in ("width", "height"):
         if not _pixels(manifest["image_size"].get(key)):
             raise DatasetError(f"{mpath}: image_size.{key} must be an integer in [1, {MAX_CAMERA_PX}] (a camera's "

@@ -8,10 +8,14 @@ Example::
 """
 from __future__ import annotations
 
+import contextlib
 import io
 import json
 import os
 import stat
+import sys
+import tempfile
+import threading
 from pathlib import Path
 
 import cv2
@@ -143,15 +147,17 @@ def write_png(path: str | Path, img: np.ndarray, compression: int = 3, fsync: bo
 
 
 def read_png(path: str | Path, gray: bool = False, depth16: bool = False) -> np.ndarray:
-    """(H, W, 3) uint8 RGB or (H, W) gray of a PNG file (``depth16``: (H, W) uint16, a 16-bit gray PNG such
-    as an instance map); a file of any other format (a JPEG under a .png name) is refused by its first
-    bytes, naming the file."""
+    """(H, W, 3) uint8 RGB or (H, W) gray of an 8-bit PNG file (``depth16``: (H, W) uint16, a 16-bit gray PNG
+    such as an instance map); a file of any other format (a JPEG under a .png name) is refused by its first
+    bytes, and a 16-bit PNG where 8 bits are the contract (a semantic map) by its header, naming the file."""
     path = Path(path)
     data = read_regular(path)
     if not data.startswith(PNG_SIGNATURE):
         kind = "a JPEG file" if data.startswith(b"\xff\xd8\xff") else "another format"
         raise DatasetError(f"{path}: not a readable PNG ({kind}: its first bytes are not the PNG signature)")
     _check_png_header(path, data)
+    if not depth16 and data[24] == 16:  # IHDR's bit depth: OpenCV would narrow it to 8 bits without a word
+        raise DatasetError(f"{path}: is a 16-bit PNG; the contract is an 8-bit {'gray' if gray else 'RGB'} PNG")
     flags = cv2.IMREAD_UNCHANGED if depth16 else cv2.IMREAD_GRAYSCALE if gray else cv2.IMREAD_COLOR
     img = cv2.imdecode(np.frombuffer(data, np.uint8), flags)
     if img is None:
@@ -166,7 +172,7 @@ def read_png(path: str | Path, gray: bool = False, depth16: bool = False) -> np.
 def _check_png_header(path: Path, data: bytes) -> None:
     """A PNG whose header (IHDR) claims a side above `MAX_CAMERA_PX` is refused before it is decoded: a small
     file may claim 30000 x 30000 pixels (gigabytes once decoded)."""
-    if data[12:16] != b"IHDR" or len(data) < 24:
+    if data[12:16] != b"IHDR" or len(data) < 26:  # through the bit depth and colour type
         raise DatasetError(f"{path}: not a readable PNG (no IHDR header)")
     w, h = int.from_bytes(data[16:20], "big"), int.from_bytes(data[20:24], "big")
     if not (0 < w <= MAX_CAMERA_PX and 0 < h <= MAX_CAMERA_PX):
@@ -179,6 +185,55 @@ JPEG_SIGNATURE = b"\xff\xd8\xff"
 IMAGE_SIGNATURES = {".png": (PNG_SIGNATURE, "PNG"), ".jpg": (JPEG_SIGNATURE, "JPEG"), ".jpeg": (JPEG_SIGNATURE, "JPEG")}
 
 
+#: the JPEG markers that start a frame header (SOF0..SOF15 but DHT C4, JPG C8, DAC CC): its size follows
+_JPEG_SOF = frozenset(range(0xC0, 0xD0)) - {0xC4, 0xC8, 0xCC}
+#: markers with no length field: TEM, RST0..RST7, SOI
+_JPEG_BARE = frozenset([0x01, *range(0xD0, 0xD9)])
+
+
+def _jpeg_size(data: bytes) -> tuple[int, int] | None:
+    """(width, height) of a JPEG's frame header (SOF), found by walking its marker segments; None when no frame
+    header comes before the scan (SOS), the end (EOI) or the end of the bytes."""
+    i = 2  # after SOI
+    while i + 4 <= len(data):
+        if data[i] != 0xFF:
+            return None
+        marker = data[i + 1]
+        if marker == 0xFF:  # a fill byte
+            i += 1
+            continue
+        if marker in _JPEG_BARE:
+            i += 2
+            continue
+        if marker in (0xD9, 0xDA):  # EOI, SOS: no frame header before the image data
+            return None
+        length = int.from_bytes(data[i + 2:i + 4], "big")
+        if marker in _JPEG_SOF:
+            if length < 8 or i + 9 > len(data):
+                return None
+            return int.from_bytes(data[i + 7:i + 9], "big"), int.from_bytes(data[i + 5:i + 7], "big")
+        if length < 2:
+            return None
+        i += 2 + length
+    return None
+
+
+def _check_jpeg_header(path: Path, data: bytes) -> None:
+    """A JPEG whose frame header (SOF) claims a side above `MAX_CAMERA_PX` (or 0: a height given later, by a DNL
+    marker), or that has no frame header, is refused before it is decoded: a 3 KB file may claim 32000 x 32000
+    pixels (gigabytes once decoded), the bound of `_check_png_header` and of the EXR readers."""
+    size = _jpeg_size(data)
+    if size is None:
+        raise DatasetError(f"{path}: not a readable JPEG (no frame header before its image data)")
+    w, h = size
+    if not (w and h):
+        raise DatasetError(f"{path}: its header claims {w}x{h} pixels (a size given later in the file); refused "
+                           "before decoding")
+    if not (w <= MAX_CAMERA_PX and h <= MAX_CAMERA_PX):
+        raise DatasetError(f"{path}: its header claims {w}x{h} pixels, above the {MAX_CAMERA_PX} px a camera's side "
+                           "may have; refused before decoding")
+
+
 def read_image(path: str | Path) -> np.ndarray:
     """(H, W, 3) uint8 RGB of a .png or .jpg file (a nuScenes dataroot's camera images) whose first bytes
     are those its name promises: a file of another format under that name is refused, naming the file."""
@@ -189,8 +244,7 @@ def read_image(path: str | Path) -> np.ndarray:
     data = read_regular(path)
     if not data.startswith(sig):
         raise DatasetError(f"{path}: not a readable {kind} (its first bytes are not the {kind} signature)")
-    if kind == "PNG":
-        _check_png_header(path, data)
+    (_check_png_header if kind == "PNG" else _check_jpeg_header)(path, data)
     img = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_COLOR)
     if img is None:
         raise DatasetError(f"{path}: not a readable {kind} (truncated or corrupt)")
@@ -217,29 +271,85 @@ def write_depth_exr(path: str | Path, depth: np.ndarray, fsync: bool = True) -> 
     atomic_write_bytes(path, _encode_exr({DEPTH_CHANNEL: depth}), fsync=fsync)
 
 
-def _exr_size(f) -> tuple[int, int]:
-    """(width, height) of the data window of an OpenEXR file object's header (nothing else is read)."""
+def _exr_header(f) -> tuple[int, int, list[str]]:
+    """(width, height, channel names) of an OpenEXR file object's header: its data window and channel list
+    (nothing else is read; OpenEXR's own messages silenced, `_quiet_fd2`)."""
     import OpenEXR
 
-    with OpenEXR.File(f, header_only=True) as exr:
-        lo, hi = exr.header()["dataWindow"]
-    return int(hi[0]) - int(lo[0]) + 1, int(hi[1]) - int(lo[1]) + 1
+    with _quiet_fd2(), OpenEXR.File(f, header_only=True) as exr:
+        header = exr.header()  # emptied when the file closes
+        lo, hi = header["dataWindow"]
+        names = [str(c.name) for c in header.get("channels", [])]
+        return int(hi[0]) - int(lo[0]) + 1, int(hi[1]) - int(lo[1]) + 1, names
 
 
-def _read_exr(path: str | Path, names: tuple[str, ...], what: str) -> list[np.ndarray]:
+def _exr_size(f) -> tuple[int, int]:
+    """(width, height) of the data window of an OpenEXR file object's header (nothing else is read)."""
+    return _exr_header(f)[:2]
+
+
+_FD2_LOCK = threading.Lock()
+
+
+@contextlib.contextmanager
+def _quiet_fd2():
+    """File descriptor 2 sent to a temporary file while OpenEXR runs: its C++ library writes its own lines about a
+    truncated or corrupt file there ("Warning: Exception raised reading pixel data ...", "EXR_ERR_BAD_CHUNK_LEADER
+    ..."), before the reader's one-line DatasetError says what is wrong. Whatever was written is written back to
+    stderr when the block succeeds and dropped when it fails (it is OpenEXR's account of that failure). The
+    descriptor is the process's: one block at a time (a lock)."""
+    with _FD2_LOCK:
+        saved = None
+        try:
+            sys.stderr.flush()
+            saved = os.dup(2)
+        except (OSError, ValueError, AttributeError):  # no stderr to keep quiet
+            pass
+        if saved is None:
+            yield
+            return
+        ok = False
+        try:
+            with tempfile.TemporaryFile() as tmp:
+                os.dup2(tmp.fileno(), 2)
+                try:
+                    yield
+                    ok = True
+                finally:
+                    os.dup2(saved, 2)
+                    if ok and tmp.tell():
+                        tmp.seek(0)
+                        os.write(2, tmp.read())
+        finally:
+            os.close(saved)
+
+
+def _read_exr(path: str | Path, names: tuple[str, ...], what: str,
+              size: tuple[int, int] | None = None) -> list[np.ndarray]:
     """The float32 (H, W) channels `names` of an OpenEXR file, all of one shape. The bytes are read by Python
-    (`read_regular`: a regular file, bounded; any file name) and decoded by OpenEXR once its header's size is
-    within bounds; DatasetError naming the file otherwise (`what`: "depth map", "flow map")."""
+    (`read_regular`: a regular file, bounded; any file name) and decoded by OpenEXR only once its header is
+    checked: a size within bounds (and equal to `size`, (width, height), the camera's, when given) and exactly
+    the channels `names` (a small file may claim 66 channels of 4096 x 4096: gigabytes once decoded).
+    DatasetError naming the file otherwise (`what`: "depth map", "flow map"); OpenEXR's own messages about a
+    corrupt file are silenced (`_quiet_fd2`)."""
     import OpenEXR
 
     data = io.BytesIO(read_regular(path))
     try:
-        w, h = _exr_size(data)  # the size it claims, before its pixels are decoded
+        w, h, chans = _exr_header(data)  # what it claims, before its pixels are decoded
         if not (0 < w <= MAX_CAMERA_PX and 0 < h <= MAX_CAMERA_PX):
             raise DatasetError(f"{path}: its header claims {w}x{h} pixels, above the {MAX_CAMERA_PX} px a camera's "
                                "side may have; refused before decoding")
+        if size is not None and (w, h) != tuple(size):
+            raise DatasetError(f"{path}: its header claims {w}x{h} pixels, the camera's images are "
+                               f"{size[0]}x{size[1]}; refused before decoding")
+        if sorted(chans) != sorted(names):
+            shown = ", ".join(repr(c[:40]) for c in chans[:8])
+            shown += f" and {len(chans) - 8} more" if len(chans) > 8 else ""
+            raise DatasetError(f"{path}: has channel(s) {shown or 'none'}; a {what} has exactly "
+                               f"{', '.join(repr(c) for c in names)}; refused before decoding")
         data.seek(0)
-        with OpenEXR.File(data) as f:
+        with _quiet_fd2(), OpenEXR.File(data) as f:
             ch = f.channels()
             missing = [c for c in names if c not in ch]
             if missing:
@@ -252,12 +362,14 @@ def _read_exr(path: str | Path, names: tuple[str, ...], what: str) -> list[np.nd
     except DatasetError:
         raise
     except Exception as exc:
-        raise DatasetError(f"{path}: not a readable EXR {what} ({exc})") from None
+        raise DatasetError(f"{path}: not a readable EXR {what}, truncated or corrupt ({exc})") from None
 
 
-def read_depth_exr(path: str | Path) -> np.ndarray:
-    """(H, W) float32 z-depth in metres, 0 = no surface (`_read_exr`)."""
-    return _read_exr(path, (DEPTH_CHANNEL,), "depth map")[0]
+def read_depth_exr(path: str | Path, size: tuple[int, int] | None = None) -> np.ndarray:
+    """(H, W) float32 z-depth in metres, 0 = no surface (`_read_exr`; `size`: the camera's (width, height), checked
+    in the header before decoding)."""
+    return _read_exr(path, (DEPTH_CHANNEL,), "depth map", size)[0]
+
 
 
 FLOW_CHANNELS = ("U", "V")
@@ -271,9 +383,10 @@ def write_flow_exr(path: str | Path, flow: np.ndarray, fsync: bool = True) -> No
     atomic_write_bytes(path, _encode_exr({c: flow[..., k] for k, c in enumerate(FLOW_CHANNELS)}), fsync=fsync)
 
 
-def read_flow_exr(path: str | Path) -> np.ndarray:
-    """(H, W, 2) float32 optical flow in pixels (du, dv) of a `write_flow_exr` file (`_read_exr`)."""
-    return np.stack(_read_exr(path, FLOW_CHANNELS, "flow map"), -1)
+def read_flow_exr(path: str | Path, size: tuple[int, int] | None = None) -> np.ndarray:
+    """(H, W, 2) float32 optical flow in pixels (du, dv) of a `write_flow_exr` file (`_read_exr`; `size`: the
+    camera's (width, height), checked in the header before decoding)."""
+    return np.stack(_read_exr(path, FLOW_CHANNELS, "flow map", size), -1)
 
 
 def stored_size(path: str | Path) -> tuple[int, int] | None:

@@ -19,6 +19,70 @@ import numpy as np
 from synth.files import DatasetError, frame_stem, read_flow_exr, read_json, read_png
 
 
+#: the label kinds a manifest's ``labels.kinds`` may list
+KINDS = ("semantic", "instance", "flow")
+#: the most classes a class table may hold: a semantic map is uint8
+MAX_CLASSES = 256
+#: the longest class or group name (characters)
+MAX_CLASS_NAME = 64
+#: the largest object id: an instance map is uint16
+MAX_INSTANCE_ID = 2**16 - 1
+
+
+def _short_name(v) -> bool:
+    return isinstance(v, str) and 0 < len(v) <= MAX_CLASS_NAME and v.isprintable()
+
+
+def check_labels_record(rec, mpath: Path) -> None:
+    """The manifest's ``labels`` (`synth.manifest.labels_record`): an object with ``kinds`` (a list of `KINDS`),
+    and with semantic labels a class table of at most `MAX_CLASSES` rows (a semantic map is uint8), each
+    {index (0, 1, ...), name and group (printable strings of at most `MAX_CLASS_NAME` characters), color ([r, g, b]
+    in 0..255)}; DatasetError naming the field otherwise."""
+    if not isinstance(rec, dict):
+        raise DatasetError(f"{mpath}: labels must be an object {{kinds, classes, ...}}, not a "
+                           f"{type(rec).__name__}")
+    extra = sorted(str(k)[:40] for k in rec if k not in ("kinds", "classes", *KINDS))
+    if extra:
+        raise DatasetError(f"{mpath}: labels has unknown key(s) {', '.join(map(repr, extra[:4]))} (it knows kinds, "
+                           f"classes, {', '.join(KINDS)})")
+    kinds = rec.get("kinds")
+    if not isinstance(kinds, list) or len(kinds) > len(KINDS) or not all(k in KINDS for k in kinds):
+        raise DatasetError(f"{mpath}: labels.kinds must be a list of {', '.join(KINDS)}, got {str(kinds)[:60]}")
+    if "semantic" not in kinds and "classes" not in rec:
+        return
+    table = rec.get("classes")
+    if not isinstance(table, list) or not 0 < len(table) <= MAX_CLASSES:
+        n = len(table) if isinstance(table, list) else type(table).__name__
+        raise DatasetError(f"{mpath}: labels.classes must list 1 to {MAX_CLASSES} classes (a semantic map is "
+                           f"uint8), got {n}")
+    for i, c in enumerate(table):
+        color = c.get("color") if isinstance(c, dict) else None
+        if not (isinstance(c, dict) and c.get("index") == i and not isinstance(c.get("index"), bool)
+                and _short_name(c.get("name")) and ("group" not in c or _short_name(c["group"]))
+                and isinstance(color, list) and len(color) == 3
+                and all(isinstance(v, int) and not isinstance(v, bool) and 0 <= v <= 255 for v in color)):
+            raise DatasetError(f"{mpath}: labels.classes[{i}] must be {{index: {i}, name, group (printable strings of "
+                               f"at most {MAX_CLASS_NAME} characters), color: [r, g, b] in 0..255}}, got "
+                               f"{str(c)[:80]}")
+
+
+def instance_ids(doc, path: Path) -> set[int]:
+    """The object ids of a sequence's instances.json (`synth.render`: {sequence, instances: [{id, class, moving,
+    ...}]}): each an integer in 1..`MAX_INSTANCE_ID` (an instance map is uint16, 0 = none), none twice;
+    DatasetError naming the file otherwise."""
+    rows = doc.get("instances") if isinstance(doc, dict) else None
+    if not isinstance(rows, list):
+        raise DatasetError(f"{path}: 'instances' must be a list")
+    ids: set[int] = set()
+    for k, r in enumerate(rows):
+        i = r.get("id") if isinstance(r, dict) else None
+        if not isinstance(i, int) or isinstance(i, bool) or not 0 < i <= MAX_INSTANCE_ID or i in ids:
+            raise DatasetError(f"{path}: instances[{k}].id must be an integer in 1..{MAX_INSTANCE_ID}, each once; got "
+                               f"{str(i)[:40]}")
+        ids.add(i)
+    return ids
+
+
 def lacks(root, kind: str) -> DatasetError:
     return DatasetError(f"{root}: has no {kind} labels (rendered before labels existed, or with "
                         f"labels.{kind}=false); render it again with labels.{kind}=true to get them")
@@ -52,7 +116,7 @@ class NoLabels:
 
 
 class LabelReader:
-    """The label members of `synth.dataset.Dataset` (it supplies root, manifest, inside, _sized)."""
+    """The label members of `synth.dataset.Dataset` (it supplies root, manifest, inside, _size, _sized)."""
 
     @property
     def label_kinds(self) -> tuple[str, ...]:
@@ -66,12 +130,8 @@ class LabelReader:
         """The class table (index, name, color, group) of the semantic maps ([] without them)."""
         if "semantic" not in self.label_kinds:
             return []
-        table = self.manifest["labels"].get("classes")
-        if not isinstance(table, list) or not all(isinstance(c, dict) and isinstance(c.get("name"), str)
-                                                 and c.get("index") == i for i, c in enumerate(table)):
-            raise DatasetError(f"{self.root / 'manifest.json'}: labels.classes must list index (0, 1, ...), name, "
-                               "color, group")
-        return table
+        check_labels_record(self.manifest["labels"], self.root / "manifest.json")
+        return self.manifest["labels"]["classes"]
 
     def _label(self, kind: str, seq: str, cam: str, frame: int, suffix: str) -> Path:
         if kind not in self.label_kinds:
@@ -103,7 +163,7 @@ class LabelReader:
             raise DatasetError(f"{self.root / seq}: forward flow exists for frames 0..{self.n_frames(seq) - 2}, "
                                f"not {frame}")
         p = self._label("flow", seq, cam, frame, "flow.exr")
-        flow = self._sized(read_flow_exr(p), p, "the flow map", cam)
+        flow = self._sized(read_flow_exr(p, self._size(cam)), p, "the flow map", cam)
         if not np.isfinite(flow).all():
             raise DatasetError(f"{p}: flow holds non-finite values")
         pv = self._label("flow", seq, cam, frame, "flow_valid.png")
@@ -113,7 +173,7 @@ class LabelReader:
         """The objects of sequence `seq`: id, class, moving (a mover's name and T_world_obj per frame)."""
         if "instance" not in self.label_kinds:
             raise lacks(self.root, "instance")
-        rows = read_json(self.inside(self.root / seq / "instances.json")).get("instances")
-        if not isinstance(rows, list):
-            raise DatasetError(f"{self.root / seq / 'instances.json'}: 'instances' must be a list")
-        return rows
+        p = self.inside(self.root / seq / "instances.json")
+        doc = read_json(p)
+        instance_ids(doc, p)
+        return doc["instances"]

@@ -1,6 +1,7 @@
 """What `synth verify` checks of a rendered dataset, beyond what every reader checks on open (`synth.dataset`):
 every file's sha256 against the manifest, each image's size from its header, every expected frame and label
-file listed, and the manifest and rig.json against the integrity record written with them.
+file listed, every object id of an instance map in its sequence's instances.json, and the manifest and rig.json
+against the integrity record written with them.
 
 Example::
 
@@ -11,11 +12,15 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Iterable
 
+import numpy as np
+
 from corelib.hashing import changed_sections, json_sha256, section_digests, sha256_file
 from synth.dataset import (INTEGRITY, MANIFEST, SCHEMA_VERSION, short_list, check_manifest_keys,
                            check_manifest_names, check_rig)
-from synth.files import MAX_READ_BYTES, DatasetError, frame_stem, read_json, within
+from synth.files import MAX_READ_BYTES, DatasetError, frame_stem, read_json, read_png, regular_file, within
+from synth.label_reader import instance_ids
 from synth.sizes import camera_sizes, size_problems
+
 _MANIFEST_DEPTH, _RIG_DEPTH = 2, 3  # "splits.train", "sequences.seq_0003"; "cameras[CAM_FRONT].K"
 
 
@@ -86,7 +91,7 @@ def verify_dataset(root: str | Path, progress: bool = False) -> list[str]:
     for rel, digest in items:
         p = root / rel
         if not p.is_file():
-            problems.append(f"{p}: missing")
+            problems.append(_absent(p))
         elif not p.resolve().is_relative_to(base):
             problems.append(f"{p}: is a link to {p.resolve()}, outside the dataset root")
         elif p.stat().st_size > MAX_READ_BYTES:  # refused by its size, never read to be hashed
@@ -112,4 +117,44 @@ def verify_dataset(root: str | Path, progress: bool = False) -> list[str]:
                     rel = f"{seq}/{cam}/{frame_stem(f)}{suffix}"
                     if rel not in files:
                         problems.append(f"{root / rel}: not listed in the manifest")
+    if "instance" in kinds:
+        problems += instance_problems(root, manifest)
+    return problems
+
+
+def _absent(p: Path) -> str:
+    """Why `p`, a listed file that is not a regular file, is a problem: missing, or there but of another kind (a
+    FIFO, a folder, ...: `synth.files.regular_file`'s words)."""
+    if not p.exists():
+        return f"{p}: missing"
+    try:
+        regular_file(p)
+    except DatasetError as exc:
+        return str(exc)
+    return f"{p}: not readable"
+
+
+def instance_problems(root: Path, manifest: dict) -> list[str]:
+    """Every listed instance map holding an object id its sequence's instances.json lacks (a problem naming the
+    map and up to 6 ids); an instances.json that is unreadable or whose ids are not 1..65535, each once (a problem
+    naming it). A map or table already reported (missing, altered) is read as it is, or skipped when unreadable."""
+    files, problems = manifest.get("files", {}), []
+    for seq in manifest.get("sequences", {}):
+        table = root / seq / "instances.json"
+        if not table.is_file():
+            continue  # reported above: missing, not a regular file, or not listed
+        try:
+            ids = instance_ids(read_json(within(root, table, "", "dataset root", "is a link to")), table)
+        except DatasetError as exc:
+            problems.append(str(exc))
+            continue
+        for rel in sorted(r for r in files if r.startswith(f"{seq}/") and r.endswith(".instance.png")):
+            p = root / rel
+            try:
+                found = np.unique(read_png(within(root, p, "", "dataset root", "is a link to"), depth16=True))
+            except DatasetError:
+                continue  # reported above (missing, a link out, altered) or by its checksum
+            unknown = [int(i) for i in found if i and int(i) not in ids]
+            if unknown:
+                problems.append(f"{p}: object id(s) {short_list([str(i) for i in unknown])} not in {table}")
     return problems

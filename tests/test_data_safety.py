@@ -112,9 +112,9 @@ CORRUPT = {
     "random-byte exr": ("depth", lambda p: p.write_bytes(os.urandom(500)), "not a readable EXR"),
     "half-float depth": ("depth", lambda p: _write_exr(p, {"Z": np.ones((64, 96), np.float16)}), "float16"),
     "depth of another shape": ("depth", lambda p: _write_exr(p, {"Z": np.ones((8, 8), np.float32)}),
-                               "the depth map is 8x8"),
+                               "its header claims 8x8 pixels, the camera's images are 96x64; refused before decoding"),
     "depth without a Z channel": ("depth", lambda p: _write_exr(p, {"R": np.ones((64, 96), np.float32)}),
-                                  "no 'Z' channel"),
+                                  "has channel(s) 'R'; a depth map has exactly 'Z'; refused before decoding"),
     "nan depth": ("depth", lambda p: _write_exr(p, {"Z": np.full((64, 96), np.nan, np.float32)}), "non-finite"),
 }
 

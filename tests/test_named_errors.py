@@ -5,6 +5,8 @@ the key or variable, exit 2, before anything is created.
 - ``WORLD_SIZE=abc``, ``RANK=abc``, a missing ``MASTER_ADDR`` (tracebacks), ``RANK=5`` with ``WORLD_SIZE=2``
   (hung waiting for its peers);
 - ``MCDP_EGL_DEVICE=abc`` (an int() error that did not name the variable).
+
+Round five (issue 49, item 8): ``LOCAL_RANK=abc`` and ``WORLD_SIZE=1 RANK=1`` ran silently as one process.
 """
 from __future__ import annotations
 
@@ -61,11 +63,18 @@ TORCHRUN_CASES = [
     ({"WORLD_SIZE": "2", "RANK": "0"}, "environment variable MASTER_ADDR is not set"),
     ({"WORLD_SIZE": "2", "RANK": "0", "MASTER_ADDR": "127.0.0.1", "MASTER_PORT": "x"},
      "environment variable MASTER_PORT='x' must be an integer"),
+    ({"LOCAL_RANK": "abc"}, "environment variable LOCAL_RANK='abc' must be an integer in [0, 0]; WORLD_SIZE is unset "
+                            "or 1, one process of rank 0"),
+    ({"WORLD_SIZE": "1", "RANK": "1"}, "environment variable RANK='1' must be an integer in [0, 0]; WORLD_SIZE is "
+                                       "unset or 1, one process of rank 0"),
+    ({"WORLD_SIZE": "2", "RANK": "1", "LOCAL_RANK": "abc", "MASTER_ADDR": "127.0.0.1", "MASTER_PORT": "29511"},
+     "environment variable LOCAL_RANK='abc' must be an integer in [0, 1]"),
 ]
 
 
 @pytest.mark.parametrize("env, says", TORCHRUN_CASES, ids=["world-abc", "rank-abc", "rank-5-of-2", "no-master-addr",
-                                                           "master-port-x"])
+                                                           "master-port-x", "local-rank-abc-alone",
+                                                           "rank-1-of-1", "local-rank-abc-of-2"])
 def test_a_malformed_torchrun_variable_is_one_line_naming_it(tiny_dataset, tmp_path, capsys, monkeypatch, env, says):
     from study.method_commands import main
 

@@ -9,7 +9,7 @@ A dataset with semantic labels (`ds.label_kinds`) exports, besides what docs/NUS
     mcdp_synth/lidarseg/<token>.classes.bin  uint8 per point, our own class (export.json labels.classes)
     mcdp_synth/labels/<CHANNEL>/<stem>.semantic.png / .instance.png   the dataset's label maps (bytes copied;
                                           the JPEG's stem)
-    mcdp_synth/labels/<seq>.instances.json   the sequence's object table (bytes copied)
+    mcdp_synth/labels/<seq>.instances.json   the sequence's object table (parsed and checked, bytes copied)
 
 A point's class is that of the camera pixel its hit lies nearest to (`synth.lidar.labelled_sweep`). Our classes
 map onto nuScenes' by name (`TO_NUSCENES`; a class not named there by its evaluation group), so the devkit's
@@ -97,6 +97,10 @@ class ExportLabels:
         ds, base = self.ds, self.ds.root / seq / cam / frame_stem(f)
         if seq not in self._seqs and self.instance:
             self._seqs.add(seq)
+            try:  # parsed and checked first (the manifest's bounds: `synth.files.read_json`), then copied
+                ds.instances(seq)
+            except DatasetError as exc:
+                raise self.error(str(exc)) from None
             self._copy(ds.root / seq / "instances.json", f"{EXPORT_DIR}/labels/{seq}.instances.json")
         try:
             self.sem[cam] = ds.read_semantic(seq, cam, f)
