@@ -43,8 +43,8 @@ def summarize_metrics(metrics: dict, stage: str = "final") -> dict:
         }
         if "bands" in st[sc]:  # metrics written before the distance bands have none
             out[sc]["bands"] = {b: dict(v) for b, v in st[sc]["bands"].items()}
-        if "per_sequence" in st[sc]:  # metrics written before it have none (mcdp.per_sequence: a bootstrap's input)
-            out[sc]["per_sequence"] = st[sc]["per_sequence"]
+        if stage == "final" and "per_sequence" in st[sc]:  # a pass's own result only (not its ORACLE stages); metrics
+            out[sc]["per_sequence"] = st[sc]["per_sequence"]  # written before it have none (a bootstrap's input)
         for key in ("classes", "motion", "road_bands", "holes"):  # a dataset with semantic labels only
             if key in st[sc]:
                 out[sc][key] = {k: (dict(v) if isinstance(v, dict) else v) for k, v in st[sc][key].items()}

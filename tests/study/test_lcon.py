@@ -74,3 +74,16 @@ def test_results_csv_world_is_the_data_seed_each_run_trained_on(tmp_path):
                                                                 ("4", "2"), ("5", "2")}
     for d in res["data"]:   # the data seed of each world's recorded render
         assert [w["data_seed"] for w in d["worlds"]] == [0, 1, 2]
+
+
+def test_the_lcon_presets_score_both_arms_at_one_step_and_state_their_plan():
+    """Rule 1 in the presets themselves: every L_con preset evaluates the last checkpoint; the main one states its
+    plan (planned worlds, first look at about half) before the run."""
+    from study.config import load_sweep_config
+
+    for name in ("cpu_lcon_pilot", "cpu_lcon", "cpu_lcon_overlaps"):
+        cfg = load_sweep_config(str(ROOT / f"configs/sweep/{name}.yaml"), [])
+        assert cfg.checkpoint == "last" and cfg.worlds == "per_seed" and cfg.seeds_per_world == 1, name
+        assert lcon.lcon_arms({"methods": cfg.methods}) == ("mcdp_m2_nocon", "mcdp_m2"), name
+    main = load_sweep_config(str(ROOT / "configs/sweep/cpu_lcon.yaml"), [])
+    assert main.plan.worlds == len(main.seeds) and main.plan.first_look == len(main.seeds) // 2
