@@ -66,6 +66,30 @@ def _pct(p: float) -> str:
     return "nan" if not math.isfinite(p) else f"{p:+.1f} %"
 
 
+_CHECKPOINT_WORDS = {"auto": "`auto` = each run's own lowest self-supervised val loss, else its last checkpoint",
+                     "best": "`best` = each run's own lowest self-supervised val loss",
+                     "last": "`last` = every run at the end of its budget, one step for all"}
+
+
+def _mixed_steps(results: dict) -> str:
+    """One paragraph when a paired comparison with the baseline was scored at two steps (a selection by each run's
+    own val loss): how many pairs, and why the report's paired differences are not re-read at one step."""
+    steps = {(r["overlap"], r["method"], r["seed"]): r.get("checkpoint_step") for r in results["rows"]}
+    base = BASELINE
+    pairs = [(k, v) for k, v in steps.items() if k[1] != base and (k[0], base, k[2]) in steps]
+    mixed = [k for k, v in pairs if v != steps[k[0], base, k[2]]]
+    if not mixed:
+        return ""
+    return (f"**{len(mixed)} of {len(pairs)} paired runs (each method against {label(base)}, same overlap and seed) "
+            "were scored at two different steps**: the checkpoint each run's own val loss picked, which for MCDP "
+            "with L_con includes λ·L_con and for the baseline does not (docs/results/lcon.md measures what such a "
+            "selection adds to the spread). Its paired differences are read as they were selected; "
+            + ("reading them at one step needs every run's last checkpoint, which this sweep removed after evaluation "
+               "(`keep_last: false`), so a rerun with `checkpoint: last` retrains.\n"
+               if not results["sweep_config"].get("keep_last", True) else
+               "a rerun with `checkpoint: last` reads them at one step (each run's last checkpoint was kept).\n"))
+
+
 def format_report(results: dict, plots: list[str]) -> str:
     """The sweep's report.md: setup, summary and verdicts, one section per overlap, time per stage, plots."""
     cams = None
@@ -144,8 +168,11 @@ def _setup_section(results: dict) -> list[str]:
     add("# Overlap sweep: MCDP vs Monodepth2 on synthetic six-camera data\n")
     add(f"Generated {results['created']} by `mcdp sweep`. Every number below was measured on the **test split** "
         "of each overlap's dataset; nothing was tuned on it (checkpoint selection: "
-        f"`{cfg['checkpoint']}` = lowest self-supervised val loss, else the last checkpoint; no ground truth "
+        + _CHECKPOINT_WORDS.get(cfg["checkpoint"], f"`{cfg['checkpoint']}`") + "; no ground truth "
         "in training or selection).\n")
+    mixed = _mixed_steps(results)
+    if mixed:
+        add(mixed)
     add("## Setup\n")
     add(f"- overlaps: {', '.join(f'{o:.2f}' for o in xs)} (`{cfg['overlap_mode']}` mode"
         + (": fixed intrinsics, yaw spacing solved, so the overlap is the only variable)" if cfg["overlap_mode"] == "spacing" else ")"))
