@@ -105,14 +105,14 @@ def answer(n: dict) -> str:
     """The one sentence that answers (b) at one scaling, by the primary test: helps / hurts beyond the interval,
     equivalent within ±DELTA, or not resolved with its MDE."""
     if n["n_worlds"] < 2:
-        return "not measured (fewer than 2 worlds)"
+        return "Not measured (fewer than 2 worlds)"
     if n["differs"] == 1:
         return f"L_con improves non-overlap depth by {n['mean']:+.4f} ± {n['ci95']:.4f}"
     if n["differs"] == -1:
         return f"L_con makes non-overlap depth worse by {-n['mean']:.4f} ± {n['ci95']:.4f}"
     if n["tost"]["equivalent"]:
-        return f"equivalent to 0 within ±{DELTA:g} ({n['mean']:+.4f} ± {n['ci95']:.4f}, TOST p = {n['tost']['p']:.3f})"
-    return (f"not resolved with {n['n_worlds']} worlds ({n['mean']:+.4f} ± {n['ci95']:.4f}); detectable at "
+        return f"Equivalent to 0 within ±{DELTA:g} ({n['mean']:+.4f} ± {n['ci95']:.4f}, TOST p = {n['tost']['p']:.3f})"
+    return (f"Not resolved with {n['n_worlds']} worlds ({n['mean']:+.4f} ± {n['ci95']:.4f}); detectable at "
             f"{n['mde80']:.4f}")
 
 

@@ -52,9 +52,9 @@ def test_answer_follows_the_primary_test():
     helps = lcon.reading(lcon.pairs(_results([0.010, 0.012, 0.011, 0.009, 0.013, 0.010])), "median")
     assert lcon.answer(helps).startswith("L_con improves non-overlap depth by +0.0103 ± 0.0021")  # noise 0.002 per sequence
     null = lcon.reading(lcon.pairs(_results([0.0005, -0.0004, 0.0002, -0.0001, 0.0003, -0.0002])), "median")
-    assert lcon.answer(null).startswith(f"equivalent to 0 within ±{DELTA:g}")
+    assert lcon.answer(null).startswith(f"Equivalent to 0 within ±{DELTA:g}")
     wide = lcon.reading(lcon.pairs(_results([0.03, -0.02, 0.01, -0.025])), "median")
-    assert lcon.answer(wide).startswith("not resolved with 4 worlds") and "detectable at" in lcon.answer(wide)
+    assert lcon.answer(wide).startswith("Not resolved with 4 worlds") and "detectable at" in lcon.answer(wide)
 
 
 def test_the_world_column_is_each_rows_world_and_the_split_is_in_the_section(tmp_path):
