@@ -76,7 +76,8 @@ def mechanism_lines(results: dict, label) -> list[str]:
                  + " (median-scaled abs_rel, all pixels, beyond the paired 95 % interval); less accurate than "
                  + "Mono2 (all pixels, either scaling): " + ("; ".join(worse) if worse else "none") + ".")
     both = {m: {**diffs[m], **metric[m]} for m in mech}
-    keys = [k for k, _ in KEYS] + [k for k, _ in METRIC_KEYS]
+    keys = [k for k in [k for k, _ in KEYS] + [k for k, _ in METRIC_KEYS]  # the measures the sweep recorded
+            if any(pd.get("n") for m in mech for pd in both[m][k].values())]
     n = sum(1 for m in mech for key in keys for o in both[m][key])
     hits = sum(1 for m in mech for key in keys for pd in both[m][key].values() if pd["differs"])
     L.append(f"- **Multiple comparisons**: these lines read {n} paired comparisons with Mono2 "
