@@ -2,8 +2,9 @@
 
 Read from `study.results` (nothing is computed from raw files): median-scaled abs_rel of the class groups
 (road, building, vehicle: parked / moving, vegetation, other) and of static / moving pixels
-(`mcdp.label_regions`), Mono2's value beside the constant-depth yardstick, every other method's difference to
-Mono2 paired over (world, seed) pairs (negative = better); then the "infinite depth" hole: the share of
+(`mcdp.label_regions`), Mono2's value beside the constant-depth yardstick, Mono2 − every other method, paired
+over (world, seed) pairs (positive = helps, the one sign of every page); where a method is better or worse
+beyond the interval, in words, with the number of distinct tests (rows that hold the same pixels count once); then the "infinite depth" hole: the share of
 moving vehicles' pixels predicted beyond twice their depth, against parked vehicles' (the same kind of
 object standing still) as the yardstick.
 """
@@ -52,15 +53,15 @@ def format_classes(results: dict, label) -> str:
         return ""
     methods = [m for m in results["methods"] if m != BASELINE]
     L = ["### By class group and motion (median-scaled abs_rel; the worlds' semantic labels)\n",
-         f"Each method - {label(BASELINE)} on the same class's pixels, paired over (world, seed) pairs (negative = "
-         "better; * = beyond the 95 % interval). Classes: the renderer's exact labels, vehicles split into parked "
+         f"{label(BASELINE)} - each method on the same class's pixels, paired over (world, seed) pairs (positive = "
+         "helps; * = beyond the 95 % interval). Classes: the renderer's exact labels, vehicles split into parked "
          "and moving; 'moving pixels' are every mover's, 'static pixels' the rest. Exploratory: "
          f"{len(ROWS) * len(methods) * len(results['data'])} comparisons, uncorrected.\n"]
     add = L.append
     for d in results["data"]:
         o = d["overlap"]
         add(f"**Overlap {o:.2f}**\n")
-        add(f"| pixels | constant (ref.) | {label(BASELINE)} | " + " | ".join(f"{label(m)} - {label(BASELINE)}"
+        add(f"| pixels | constant (ref.) | {label(BASELINE)} | " + " | ".join(f"{label(BASELINE)} - {label(m)}"
                                                                              for m in methods) + " |")
         add("|---|---|---|" + "---|" * len(methods))
         ref = yardstick_row(results, o, "reference")
@@ -68,10 +69,11 @@ def format_classes(results: dict, label) -> str:
             key = KEY.format(kind=kind, region=region)
             mono = mean_std([f.get(key, math.nan) for f in flat_of(results, o, BASELINE)])
             r = ref.get(key, math.nan)
-            cells = [_cell(paired_columns(results, o, (m, key), (BASELINE, key))) for m in methods]
+            cells = [_cell(paired_columns(results, o, (BASELINE, key), (m, key))) for m in methods]
             add(f"| {name} | {r:.3f} | " + (f"{mono['mean']:.3f}" if mono["n"] else "—") + " | "
                 + " | ".join(cells) + " |")
         add("")
+    add(class_verdicts(results, label))
     add("**Depth on moving objects** (median-scaled; the hole self-supervision digs where an object moves "
         "with the camera):\n")
     for d in results["data"]:
@@ -82,3 +84,49 @@ def format_classes(results: dict, label) -> str:
             L.extend(lines)
             add("")
     return "\n".join(L)
+
+
+def _pairs(results: dict, o: float, m: str, key: str) -> tuple:
+    """A comparison's per-pair values (seed, Mono2, method), rounded, so two rows over the same pixels compare equal."""
+    a = {f["seed"]: f.get(key) for f in flat_of(results, o, BASELINE)}
+    b = {f["seed"]: f.get(key) for f in flat_of(results, o, m)}
+    return tuple((s, round(a[s], 9), round(b[s], 9)) for s in sorted(a) if s in b
+                 and all(isinstance(x, (int, float)) and math.isfinite(x) for x in (a[s], b[s])))
+
+
+def class_verdicts(results: dict, label) -> str:
+    """The by-class table in words: per method, where it is better and where worse than Mono2 beyond the 95 %
+    interval, and how many distinct tests the table holds (a row over the same pixels as another, e.g. "vehicle",
+    "moving" and "moving pixels" when nothing is parked and only vehicles move, counts once), with the caveat."""
+    methods = [m for m in results["methods"] if m != BASELINE]
+    n_cells, seen = 0, set()
+    better: dict[str, list[str]] = {m: [] for m in methods}
+    worse: dict[str, list[str]] = {m: [] for m in methods}
+    for d in results["data"]:
+        o = d["overlap"]
+        for m in methods:
+            done: dict[tuple, str] = {}
+            for kind, region, name in ROWS:
+                key = KEY.format(kind=kind, region=region)
+                vals = _pairs(results, o, m, key)
+                if not vals:
+                    continue
+                n_cells += 1
+                seen.add((o, m, vals))
+                if vals in done:
+                    continue
+                done[vals] = name.strip()
+                same = [n.strip() for k, r, n in ROWS if _pairs(results, o, m, KEY.format(kind=k, region=r)) == vals]
+                pd = paired_columns(results, o, (BASELINE, key), (m, key))
+                where = f"{' = '.join(same)} at {o:.2f} ({fmt_diff(pd, 3)})"
+                if pd["differs"] > 0:
+                    better[m].append(where)
+                elif pd["differs"] < 0:
+                    worse[m].append(where)
+    lines = [f"In words (exploratory, {n_cells} comparisons, {len(seen)} distinct tests, uncorrected: at 95 % about "
+             f"{0.05 * len(seen):.1f} would fall beyond their interval by chance; rows joined by '=' hold the same "
+             "pixels):\n"]
+    for m in methods:
+        lines.append(f"- {label(m)}: better than {label(BASELINE)} on " + ("; ".join(better[m]) or "no class")
+                     + "; **worse** on " + ("; ".join(worse[m]) or "no class") + ".")
+    return "\n".join(lines) + "\n"

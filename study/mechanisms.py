@@ -3,13 +3,15 @@
 The paper's Table 1 rows are three ways of using the overlap: FSM (``fsm``: photometric constraints
 between cameras in training only), a SurroundDepth-style network (``surround``: geometry-free
 attention between cameras at inference) and MCDP (``mcdp_*``: geometry-aware refinement at
-inference). Mono2 uses no overlap at all, so *method − Mono2*, paired over seeds, is what a
-mechanism gains from the overlap at a given overlap; *as trained − cut* is what it takes from the
-other cameras at inference (0 by construction for a network that never reads them).
+inference). Mono2 uses no overlap at all, so *Mono2 − method*, paired over seeds, is what a
+mechanism gains from the overlap at a given overlap; *cut − as trained* is what it takes from the
+other cameras at inference (0 by construction for a network that never reads them). Every difference is a gain,
+worse minus better: positive = helps, the one sign of every page.
 
 Where a method is better than Mono2 (`from_which_overlap`): **at every overlap of the sweep**; **from overlap x
-on** when it is lower than Mono2 beyond the paired 95 % interval at x and at every larger overlap, at least two of
-them; **at x only** (or at x and y only) otherwise; **at no overlap of the sweep** when it is never lower. The
+on** when its gain over Mono2 is positive beyond the paired 95 % interval at x and at every larger overlap, at least two of
+them; **at x only** (or at x and y only) otherwise; **at no overlap of the sweep** when it never is; in a sweep of
+one overlap, **at overlap x**. The
 verdict lines themselves are in the report's one verdict section (`study.verdicts`). A row that reads ground truth
 (an ORACLE, `is_yardstick`) is a yardstick: it is in the table, never among the mechanisms' verdicts. Read from
 `study.results` only (nothing computed from raw files here).
@@ -19,11 +21,13 @@ from __future__ import annotations
 import math
 
 from study.results import (BASELINE, INERT_M, USE_FLOOR, evaluations, fmt_diff, method_agg, paired_difference,
-                           verdict_word)
+                           gain_word)
 from study.results import fmt_num as _num
 from study.variants import CUT, Evaluation
 
 #: (results key, column name) of the paired comparisons against Mono2
+#: `from_which_overlap` of a method better than Mono2 nowhere
+NOWHERE = "at no overlap of the sweep"
 KEYS = (("median.mean.abs_rel", "accuracy, all px"), ("median.overlap.abs_rel", "overlap px"),
         ("median.non_overlap.abs_rel", "non-overlap px"), ("dep_con.mean", "Dep Con (ratio)"))
 
@@ -32,22 +36,25 @@ def _pd(pd: dict, digits: int = 3, word: bool = False, floor: float = 0.0) -> st
     """'mean ± half-width', with its verdict word, or in bold when beyond the interval (and not below `floor`)."""
     s = fmt_diff(pd, digits)
     if word:
-        s += f": {verdict_word(pd, floor)}"
+        s += f": {gain_word(pd, floor)}"
     elif pd["differs"] and abs(pd["mean"]) >= floor:
         s = f"**{s}**"
     return s
 
 
 def from_which_overlap(diffs: dict[float, dict]) -> str:
-    """Where a method is better than Mono2, from {overlap: paired difference vs Mono2}: 'at every overlap of the
-    sweep', 'from overlap x on' (x and at least one larger overlap, every one of them), 'at x only' / 'at x and y
-    only', or 'at no overlap of the sweep'; then where it is worse, if anywhere."""
+    """Where a method is better than Mono2, from {overlap: its gain over Mono2 (Mono2 − method, positive =
+    helps)}: 'at every overlap of the sweep', 'from overlap x on' (x and at least one larger overlap, every one of
+    them), 'at x only' / 'at x and y only', 'at overlap x' when the sweep has that one overlap, or 'at no overlap
+    of the sweep'; then where it is worse, if anywhere."""
     xs = sorted(diffs)
-    better = [o for o in xs if diffs[o]["differs"] < 0]
-    worse = [o for o in xs if diffs[o]["differs"] > 0]
+    better = [o for o in xs if diffs[o]["differs"] > 0]
+    worse = [o for o in xs if diffs[o]["differs"] < 0]
     tail = "; worse at " + _overlaps(worse) if worse else ""
     if not better:
-        return "at no overlap of the sweep" + tail
+        return NOWHERE + tail
+    if len(xs) == 1:
+        return f"at overlap {xs[0]:.2f}" + tail
     if better == xs:
         return "at every overlap of the sweep" + tail
     if len(better) >= 2 and better == xs[len(xs) - len(better):]:
@@ -74,9 +81,9 @@ def is_yardstick(results: dict, m: str) -> bool:
 
 
 def paired_all(results: dict, methods: list[str]) -> tuple[dict, dict, dict]:
-    """Each method against Mono2 per overlap: ({method: {key of `KEYS`: {overlap: paired difference}}}, as trained
-    − cut ({method: {overlap: pd}}, reading methods only) and the mean depth change when cut ({method: {overlap:
-    m}})."""
+    """Each method against Mono2 per overlap, every difference a gain (worse minus better, positive = helps):
+    ({method: {key of `KEYS`: {overlap: Mono2 − method}}}, cut − as trained ({method: {overlap: pd}}, reading
+    methods only) and the mean depth change when cut ({method: {overlap: m}})."""
     evs = evaluations(results)
     diffs: dict[str, dict[str, dict[float, dict]]] = {m: {k: {} for k, _ in KEYS} for m in methods}
     cuts: dict[str, dict[float, dict]] = {m: {} for m in methods}
@@ -85,9 +92,9 @@ def paired_all(results: dict, methods: list[str]) -> tuple[dict, dict, dict]:
         o = d["overlap"]
         for m in methods:
             for key, _ in KEYS:
-                diffs[m][key][o] = paired_difference(results, o, m, BASELINE, key)
+                diffs[m][key][o] = paired_difference(results, o, BASELINE, m, key)
             if Evaluation(m, CUT) in evs:
-                cuts[m][o] = paired_difference(results, o, m, Evaluation(m, CUT), "median.mean.abs_rel")
+                cuts[m][o] = paired_difference(results, o, Evaluation(m, CUT), m, "median.mean.abs_rel")
                 change[m][o] = method_agg(results, o, m, "cut.depth_change_m").get("mean", math.nan)
     return diffs, cuts, change
 
@@ -103,7 +110,7 @@ def verdict_line(m: str, diffs: dict, cuts: dict, change: dict, label) -> str:
 
 
 def format_mechanisms(results: dict, label) -> str:
-    """Markdown: each method − Mono2 per overlap (accuracy, overlap / non-overlap px, Dep Con, cut) and
+    """Markdown: Mono2 − each method per overlap (accuracy, overlap / non-overlap px, Dep Con, cut) and
     the verdict lines; '' without Mono2 or a second method."""
     methods = [m for m in results["methods"] if m != BASELINE]
     if BASELINE not in results["methods"] or not methods:
@@ -111,13 +118,14 @@ def format_mechanisms(results: dict, label) -> str:
     evs = evaluations(results)
     L: list[str] = []
     add = L.append
-    add("## Which mechanism gains from the overlap? Each method − Mono2, paired over seeds\n")
+    add("## Which mechanism gains from the overlap? Mono2 − each method, paired over seeds\n")
     add("Mono2 uses no overlap; each other row uses it one way (FSM: photometric terms between cameras in "
         "training only; SurroundDepth: attention between cameras at inference; MCDP: warped neighbour features "
         "weighting depth bases at inference). Median-scaled abs_rel and Dep Con (the paper's ratio mean "
-        "|D − D̂| / D_gt), mean difference over seeds ± 95 % t half-width; **bold** = beyond the interval "
-        "(negative = better than Mono2). *As trained − cut* (all px) is what the network takes from the other "
-        "cameras at inference; for a network that never reads them it is 0 by construction.\n")
+        "|D − D̂| / D_gt), Mono2 − method, mean over seeds ± 95 % half-width" + interval_note(results) + "; "
+        "**bold** = beyond the interval; **positive = helps** (worse minus better, the page's one sign). *Cut − "
+        "as trained* (all px) is what the network takes from the other cameras at inference; for a network that "
+        "never reads them it is 0 by construction.\n")
     yard = [label(m) for m in methods if is_yardstick(results, m)]
     if yard:
         add(f"{_join(yard)} read{'s' if len(yard) == 1 else ''} ground truth: a yardstick of what the overlap could "
@@ -132,7 +140,7 @@ def format_mechanisms(results: dict, label) -> str:
     for d in results["data"]:
         o = d["overlap"]
         for m in methods:
-            add(f"- overlap {o:.2f}, {label(m)} − Mono2: "
+            add(f"- overlap {o:.2f}, Mono2 − {label(m)}: "
                 + "; ".join(f"{name} {_pd(diffs[m][key][o], 3, word=True)}" for key, name in KEYS))
     add("")
     return "\n".join(L)
@@ -142,7 +150,7 @@ def _table(results: dict, methods: list[str], evs: list[Evaluation], label, add)
     """The table (one row per overlap and method, through `add`); returns `paired_all`'s differences."""
     meas = {d["overlap"]: d["measured"]["measured_mean"] for d in results["data"]}
     add("| overlap | measured | Method | " + " | ".join(name for _, name in KEYS)
-        + " | as trained − cut | mean abs(trained − cut) depth, m |")
+        + " | cut − as trained | mean abs(trained − cut) depth, m |")
     add("|---|---|---|" + "---|" * (len(KEYS) + 2))
     diffs, cuts, change = paired_all(results, methods)
     for d in results["data"]:
@@ -161,20 +169,33 @@ def _table(results: dict, methods: list[str], evs: list[Evaluation], label, add)
 
 def _reads_others(cuts: dict[float, dict], change: dict[float, float]) -> str:
     """The verdict's clause on a network that reads the other cameras: how much cutting them moves its depth,
-    and whether its accuracy depends on them (as trained − cut per overlap: `cuts`; depth change: `change`)."""
+    and whether its accuracy depends on them (cut − as trained per overlap: `cuts`; depth change: `change`)."""
     used = [o for o, pd in sorted(cuts.items()) if pd["differs"] != 0 and abs(pd["mean"]) >= USE_FLOOR]
     moved = [v for v in change.values() if math.isfinite(v)]
     if not moved:
         depth = "how much cutting them changes its depth was not recorded"
     elif max(moved) < INERT_M:
-        depth = (f"**its depth barely reads the other cameras**: cutting them changes it by {min(moved):.4f} "
-                 f"to {max(moved):.4f} m on average (< {INERT_M * 100:.0f} cm: inert)")
+        depth = (f"**its depth barely reads the other cameras**: cutting them changes it by {_span(moved)} m on "
+                 f"average (< {INERT_M * 100:.0f} cm: inert)")
     else:
-        depth = (f"its depth reads the other cameras: cutting them changes it by {min(moved):.4f} to "
-                 f"{max(moved):.4f} m on average")
-    acc_use = ("and its accuracy with them differs from without (as trained − cut beyond the interval and >= "
+        depth = f"its depth reads the other cameras: cutting them changes it by {_span(moved)} m on average"
+    acc_use = ("and its accuracy with them differs from without (cut − as trained beyond the interval and >= "
                f"{USE_FLOOR}) at " + ", ".join(f"{o:.2f}" for o in used) if used else
                f"**{'and' if moved and max(moved) < INERT_M else 'but'} its accuracy does not depend on them** "
-               "(as trained − cut within the interval or below "
-               f"{USE_FLOOR} at every overlap)")
+               "(cut − as trained within the interval or below "
+               f"{USE_FLOOR} " + ("at every overlap)" if len(cuts) > 1 else f"at {_overlaps(sorted(cuts))})"))
     return f"{depth}, {acc_use}"
+
+
+def _span(values: list[float]) -> str:
+    """'a to b' of the values (4 decimals), or the one value when they all round to it."""
+    lo, hi = f"{min(values):.4f}", f"{max(values):.4f}"
+    return lo if lo == hi else f"{lo} to {hi}"
+
+
+def interval_note(results: dict) -> str:
+    """How the page's paired intervals are taken (`study.results.paired_columns`)."""
+    from study.results import clustered
+
+    return (" (clustered by world, as the primary comparisons: t over the world means)" if clustered(results)
+            else " (t over the seeds)")

@@ -1,6 +1,6 @@
 """The sweep's plots (matplotlib, Agg), every one read from `study.results`' dict:
 
-- paired_vs_mono2.png: each method − Mono2, paired over seeds, with its 95 % interval
+- paired_vs_mono2.png: Mono2 − each method, paired over seeds, with its 95 % interval
   (`study.results.paired_difference`, the numbers of the report's paired table and verdicts), per overlap:
   median-scaled abs_rel on all and on non-overlap pixels, and Dep Con; a filled marker is beyond the interval;
 - abs_rel_vs_overlap.png, dep_con_vs_overlap.png: the absolute numbers, the methods on their own axes and the
@@ -8,8 +8,8 @@
 - overlap_vs_non_overlap_abs_rel.png (one panel per method and scaling), measured_overlap.png;
   propagation_by_distance.png (`distance_plot`).
 
-One sign in every figure of a difference: a − b with b the reference (Mono2, the cut, the emptied input), below 0 =
-better.
+One sign in every figure of a difference, the pages' one: worse minus better (Mono2 − method, cut − as trained,
+emptied − filled), positive = helps.
 """
 from __future__ import annotations
 
@@ -206,15 +206,17 @@ def measured_figure(results: dict):
 
 
 def paired_series(results: dict) -> dict[str, dict[str, list[dict]]]:
-    """What paired_vs_mono2.png draws: {key of `PAIRED_KEYS`: {method: [`paired_difference` vs Mono2 per overlap]}}."""
-    return {key: {m: [paired_difference(results, o, m, BASELINE, key) for o in results["overlaps"]]
+    """What paired_vs_mono2.png draws: {key of `PAIRED_KEYS`: {method: [Mono2 − method per overlap]}}, the
+    `paired_difference` taken worse minus better as on every page: positive = helps."""
+    return {key: {m: [paired_difference(results, o, BASELINE, m, key) for o in results["overlaps"]]
                   for m in results["methods"] if m != BASELINE} for key, _ in PAIRED_KEYS}
 
 
 def paired_plot(results: dict, plot_dir: Path) -> Path | None:
-    """paired_vs_mono2.png: per panel of `PAIRED_KEYS`, each method − Mono2 per overlap with the 95 % t-interval
-    of the paired difference (`paired_difference`: same seed, same world); filled = beyond the interval, i.e. the
-    report's **lower (better)** / **higher (worse)**. None without Mono2 and a second method."""
+    """paired_vs_mono2.png: per panel of `PAIRED_KEYS`, Mono2 − each method per overlap (positive = helps, the
+    page's one sign) with the 95 % interval of the paired difference (`paired_difference`: same seed, same world;
+    clustered by world in a design with worlds); filled = beyond the interval, i.e. the report's **helps** /
+    **hurts**. None without Mono2 and a second method."""
     others = [m for m in results["methods"] if m != BASELINE]
     if BASELINE not in results["methods"] or not others:
         return None
@@ -237,29 +239,29 @@ def paired_plot(results: dict, plot_dir: Path) -> Path | None:
                 ax.plot([xi], [yi], "o", color=c, mfc=c if p["differs"] else "white", ms=6)
         ax.axhline(0.0, color="k", lw=0.8)
         unit = "abs_rel, median scaling" if key.startswith("median.") else "ratio"
-        _style(ax, name, f"{name} − Mono2 ({unit})", xs, x_axis(results))
-    fig.suptitle("Each method − Mono2, paired over seeds" + (" (one seed: no interval)" if one_seed else
-                 ", 95 % t-interval; < 0 = better than Mono2; filled = beyond the interval"), fontsize=11)
+        _style(ax, name, f"{name}: Mono2 − method ({unit}; > 0 = helps)", xs, x_axis(results))
+    fig.suptitle("Mono2 − each method, paired over seeds" + (" (one seed: no interval)" if one_seed else
+                 ", 95 % interval; positive = helps (better than Mono2); filled = beyond the interval"), fontsize=11)
     fig.tight_layout()
     _legend(fig, axes)
     return _save(plt, fig, plot_dir / "paired_vs_mono2.png")
 
 
 def distance_lines(results: dict) -> list[tuple[str, tuple, str]]:
-    """The lines of propagation_by_distance.png, (name, (a, b), line style), each drawn as a − b per band, the sign
-    of every figure (below 0 = better): each mechanism − Mono2, a reading network as trained − cut, and the
-    ORACLE-local yardstick filled − emptied."""
+    """The lines of propagation_by_distance.png, (name, (a, b), line style), each drawn as a − b per band, worse
+    minus better as on every page (positive = helps): Mono2 − each mechanism, a reading network cut − as trained,
+    and the ORACLE-local yardstick emptied − filled."""
     from mcdp.methods import reading, short_label
     from study.reach import local
 
     have = {Evaluation.of(f) for f in results["flat"]}
     mech, loc = reading("mechanism"), local()
-    lines = [(f"{label(m)} − {label(BASELINE)}", (m, BASELINE), "-") for m in mech
+    lines = [(f"{label(BASELINE)} − {label(m)}", (BASELINE, m), "-") for m in mech
              if Evaluation(m) in have and Evaluation(BASELINE) in have]
-    lines += [(f"{label(m)}: as trained − cut", (m, Evaluation(m, CUT)), "--") for m in mech
+    lines += [(f"{label(m)}: cut − as trained", (Evaluation(m, CUT), m), "--") for m in mech
               if Evaluation(m, CUT) in have]
     if loc is not None and Evaluation(loc, CUT) in have:
-        lines.append((f"{short_label(loc)} (yardstick): filled − emptied", (loc, Evaluation(loc, CUT)), ":"))
+        lines.append((f"{short_label(loc)} (yardstick): emptied − filled", (Evaluation(loc, CUT), loc), ":"))
     return lines
 
 
@@ -274,7 +276,7 @@ def robust_limit(values: list[float], floor: float = 0.005) -> float:
 
 def distance_figure(results: dict):
     """propagation_by_distance.png's figure, or None without bands or lines: per overlap (one panel each), a − b of
-    `distance_lines` by distance band (median-scaled abs_rel, below 0 = better) with 95 % intervals over the (world,
+    `distance_lines` by distance band (median-scaled abs_rel, positive = helps) with 95 % intervals over the (world,
     seed) pairs; each panel's range from `robust_limit`, a mean beyond it drawn at the edge with its value
     written; the legend below the panels, which use the full width."""
     from study.reach import band_names, paired
@@ -312,8 +314,8 @@ def distance_figure(results: dict):
                      fontsize=10)
         ax.set_xlabel("distance to the overlap (fraction of width)")
         ax.grid(alpha=0.3)
-    axes[0][0].set_ylabel("abs_rel difference (median scaling; < 0 better)")
-    fig.suptitle("By distance from the overlap: each difference a − b, below 0 = better (95 % intervals over the "
+    axes[0][0].set_ylabel("abs_rel gain (median scaling; > 0 = helps)")
+    fig.suptitle("By distance from the overlap: each gain a − b, worse minus better, positive = helps (95 % intervals over the "
                  "(world, seed) pairs)", fontsize=10)
     fig.tight_layout()
     _legend(fig, axes[0], ncol=min(len(lines), 3))

@@ -46,14 +46,10 @@ SCALINGS = ("median", "none", "rig_median")
 
 
 def world_of(results: dict):
-    """seed -> world id of the sweep (`study.config.world_of_seed`, from the recorded config); with one shared
-    world each seed is its own cluster (the intervals then cover the training seed only)."""
-    cfg = results.get("sweep_config", {})
-    seeds = list(results.get("seeds", []))
-    per = int(cfg.get("seeds_per_world", 1) or 1)
-    if cfg.get("worlds") != "per_seed" or per == 1:
-        return {s: s for s in seeds}
-    return {s: i // per for i, s in enumerate(seeds)}
+    """seed -> world id of the sweep (`study.results.world_of`)."""
+    from study.results import world_of as _world_of
+
+    return _world_of(results)
 
 
 def design(results: dict) -> str:
@@ -273,7 +269,8 @@ def format_primary(results: dict, o: float = PRIMARY_OVERLAP) -> str:
 
 def _recovered(measured: list) -> str:
     """How much of each yardstick's non-overlap gain each mechanism recovers (median scaling), only where the
-    yardstick's gain is positive beyond its interval."""
+    yardstick's gain is positive beyond its interval and the mechanism's own gain is beyond its interval (a share of
+    a gain the primary test does not resolve would say more than that test)."""
     yard = [(name.split(":")[0], m["median"]) for cid, name, m in measured if cid == "c"]
     mech = [(name, m["median"]) for cid, name, m in measured if cid in ("a", "b")]
     lines = []
@@ -282,7 +279,8 @@ def _recovered(measured: list) -> str:
             lines.append(f"- {yname}: its gain is not positive beyond its interval, so no share of it is given.")
             continue
         parts = [f"{name.split(' (')[0] if name.startswith('L_con') else name.split(' inference')[0]} "
-                 f"{100 * g['mean'] / y['mean']:.0f} %" for name, g in mech if g.get("n")]
+                 + (f"{100 * g['mean'] / y['mean']:.0f} %" if g["differs"] else "— (its gain is within its interval)")
+                 for name, g in mech if g.get("n")]
         lines.append(f"- of the {yname}'s gain ({y['mean']:+.4f}): " + (", ".join(parts) if parts else "—"))
     return ("Share of each yardstick's gain that a mechanism recovers (median scaling):\n\n" + "\n".join(lines) + "\n"
             if lines else "")

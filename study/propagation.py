@@ -6,9 +6,10 @@ the sweep evaluates the same checkpoint twice (`study.stages.evaluate_run`): as 
 its neighbours cut at inference (variant ``cut``, `study.variants`); and it fits the ORACLE weights of
 the run's own bases to ground truth (variant ``oracle``). Hence, per overlap and method, paired over seeds:
 
-- **propagation** = as trained - cut on NON-overlap pixels (median-scaled abs_rel; negative = the
-  neighbours help where they are not seen), **direct use** = the same on overlap pixels;
-- **refinement gain** = final - init stage of the same network;
+- **propagation** = cut - as trained on NON-overlap pixels (median-scaled abs_rel; positive = the
+  neighbours help where they are not seen: worse minus better, the one sign of every page), **direct use** = the
+  same on overlap pixels;
+- **refinement gain** = init - final stage of the same network (positive = the refinement helps);
 - **headroom closed** = (init - final) / (init - ORACLE): the fraction of what the bases could gain
   with perfect per-image weights that the weight networks found;
 - **acting**: mean |w - 1/n| of the refined weights and mean |refined - init| depth; a run whose
@@ -18,9 +19,10 @@ from __future__ import annotations
 
 import math
 
-from study.results import (INERT_M, USE_FLOOR, evaluations, flat_of, fmt_diff, method_agg, paired_difference,
-                           verdict_word)
+from study.results import (INERT_M, USE_FLOOR, evaluations, flat_of, fmt_diff, gain_word, method_agg,
+                           paired_columns, paired_difference)
 from study.results import fmt_num as _num
+from study.mechanisms import interval_note
 from study.variants import CUT, ORACLE, Evaluation
 
 def refined_methods(results: dict) -> list[str]:
@@ -30,25 +32,18 @@ def refined_methods(results: dict) -> list[str]:
 
 
 def _pd(pd: dict, digits: int = 3, floor: float = 0.0) -> str:
-    return f"{fmt_diff(pd, digits)}: {verdict_word(pd, floor)}"
+    return f"{fmt_diff(pd, digits)}: {gain_word(pd, floor)}"
 
 
 def _cut_diff(results: dict, o: float, m: str, key: str) -> dict:
-    return paired_difference(results, o, m, Evaluation(m, CUT), key)
+    """Cut - as trained: what reading the other cameras gains (positive = helps)."""
+    return paired_difference(results, o, Evaluation(m, CUT), m, key)
 
 
 def _self_diff(results: dict, o: float, m: str, a: str, b: str) -> dict:
-    """Paired over seeds: column a - column b of the same run (e.g. final - init)."""
-    fr = flat_of(results, o, m)
-    d = [f.get(a, math.nan) - f.get(b, math.nan) for f in fr]
-    d = [x for x in d if isinstance(x, float) and math.isfinite(x)]
-    from study.results import mean_std
-
-    ms = mean_std(d)
-    differs = 0
-    if math.isfinite(ms["mean"]) and math.isfinite(ms["ci95"]):
-        differs = -1 if ms["mean"] + ms["ci95"] < 0 else (1 if ms["mean"] - ms["ci95"] > 0 else 0)
-    return {"mean": ms["mean"], "ci95": ms["ci95"], "n": ms["n"], "differs": differs}
+    """Paired over seeds (clustered by world where the design has worlds): column a - column b of the same run
+    (e.g. init - final)."""
+    return paired_columns(results, o, (m, a), (m, b))
 
 
 def inert_runs(results: dict) -> list[str]:
@@ -72,7 +67,8 @@ def format_propagation(results: dict, label) -> str:
         "claims; on overlap pixels it is the direct use. **ORACLE** = the run's own bases at per-image weights "
         "fitted to ground truth (scale-invariant log error, 100 Adam steps on the n logits): the best its bases "
         "can express, a yardstick that reads ground truth. Median-scaled abs_rel; mean over seeds ± 95 % "
-        "t half-width; differences are paired over seeds.\n")
+        "t half-width; differences are paired over seeds" + interval_note(results) + " and taken worse minus "
+        "better: **positive = helps** (cut − as trained, init − final).\n")
     add("| overlap | Method | init | final | cut | ORACLE | headroom closed | mean abs(w − 1/n) | "
         "mean abs(refined − init) m | inert runs |")
     add("|---|---|---|---|---|---|---|---|---|---|")
@@ -103,11 +99,11 @@ def format_propagation(results: dict, label) -> str:
             direct = _cut_diff(results, o, m, "median.overlap.abs_rel")
             allp = _cut_diff(results, o, m, "median.mean.abs_rel")
             dc = _cut_diff(results, o, m, "dep_con.mean")
-            gain = _self_diff(results, o, m, "median.mean.abs_rel", "init.median.mean.abs_rel")
+            gain = _self_diff(results, o, m, "init.median.mean.abs_rel", "median.mean.abs_rel")
             closed = method_agg(results, o, m, "refine.headroom_closed")
-            refine = (f"; refinement final − init {_pd(gain, 4, USE_FLOOR)}; headroom closed {_num(closed['mean'], 2)}"
+            refine = (f"; refinement init − final {_pd(gain, 4, USE_FLOOR)}; headroom closed {_num(closed['mean'], 2)}"
                       if math.isfinite(gain["mean"]) else "")  # a network without an init stage: no refinement
-            add(f"- overlap {o:.2f}, {label(m)}: propagation (as trained − cut, non-overlap px) "
+            add(f"- overlap {o:.2f}, {label(m)}: propagation (cut − as trained, non-overlap px) "
                 f"{_pd(prop, 4, USE_FLOOR)}; direct use (overlap px) {_pd(direct, 4, USE_FLOOR)}; all px "
                 f"{_pd(allp, 4, USE_FLOOR)}; Dep Con (ratio) {_pd(dc, 4, USE_FLOOR)}" + refine)
     add("")

@@ -3,7 +3,8 @@ could give the rest of the image, the inference-time and training-time propagati
 against them, and all of it by distance from the overlap (docs/results/propagation.md).
 
 Read from `study.results` (nothing is computed from raw files). Median-scaled abs_rel throughout;
-differences are paired over (world, seed) pairs (`study.results.paired_difference`), negative = better.
+differences are paired over (world, seed) pairs (`study.results.paired_difference`, clustered by world in a
+design with worlds), each a gain: worse minus better, positive = helps.
 
 - **Yardstick, global** (variant ``oracle_overlap``, `study.variants`): a run's own bases at per-image
   weights fitted to the ground truth of the OVERLAP pixels only, scored on the non-overlap pixels: what
@@ -122,9 +123,10 @@ def _cell(pd: dict, digits: int = 4) -> str:
 
 def _frac(gain: dict, head: dict) -> str:
     """The gain as a share of the local headroom, only where that headroom is positive beyond its interval
-    (a share of a headroom that may be zero says nothing)."""
+    (a share of a headroom that may be zero says nothing) and the gain itself beyond its interval (a share of a
+    gain that may be zero says no more than the primary test does)."""
     g, h = gain.get("mean", math.nan), head.get("mean", math.nan)
-    if not (math.isfinite(g) and math.isfinite(h)) or head.get("differs") != 1:
+    if not (math.isfinite(g) and math.isfinite(h)) or head.get("differs") != 1 or not gain.get("differs"):
         return "—"
     return f"{100 * g / h:.0f} %"
 
@@ -144,18 +146,18 @@ def format_reach(results: dict, label) -> str:
     add = L.append
     add("## How far does the overlap reach? Yardsticks, two kinds of propagation, distance\n")
     add("Non-overlap pixels, median-scaled abs_rel; every number is a paired difference over (world, seed) pairs, "
-        "mean ± 95 % t half-width, **positive = helps** (worse minus better). The two yardsticks read ground truth "
+        "mean ± 95 % t half-width, **positive = helps** (worse minus better), as on the whole page. The two yardsticks read ground truth "
         "(ORACLE): *global* = MCDP (m = 2)'s own bases at per-image weights fitted on the overlap pixels only; "
         "*local* = Mono2's network given the overlap's ground-truth depth as input, filled vs emptied. "
         "*Recovered* = a propagation's gain as a share of the local headroom, given only where that headroom "
-        "is positive beyond its interval.\n")
+        "is positive beyond its interval and the gain itself is beyond its own.\n")
     seeds = results.get("seeds", [])
     worlds = results.get("sweep_config", {}).get("worlds", "shared")
     per = int(results.get("sweep_config", {}).get("seeds_per_world", 1) or 1)
     how = ("seeds on one shared world: the intervals cover the training seed only" if worlds != "per_seed" else
            "world k trained with seed k: the intervals cover the scene sample and the seed together" if per == 1 else
-           f"{len(seeds) // per} worlds x {per} seeds; exploratory: the t-intervals here treat the pairs as "
-           "independent, the primary comparisons above cluster them by world")
+           f"{len(seeds) // per} worlds x {per} seeds; every interval here is clustered by world, as the primary "
+           "comparisons' (t over the world means)")
     add(f"Pairs: {len(seeds)} ({how}).\n")
     for d in results["data"]:
         o = d["overlap"]

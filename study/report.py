@@ -57,9 +57,11 @@ def _fmt(a: dict, digits: int = 3) -> str:
 
 
 def _rel(x: float, ref: float) -> float:
+    """The relative gain of an error x over Mono2's ref, (ref - x) / ref in %: positive = helps, the one sign of
+    every page."""
     if not (math.isfinite(x) and math.isfinite(ref)) or ref == 0:
         return float("nan")
-    return (x - ref) / ref * 100.0
+    return (ref - x) / ref * 100.0
 
 
 def _pct(p: float) -> str:
@@ -254,7 +256,7 @@ def _summary_section(results: dict) -> list[str]:
     add = L.append
     add("## Summary: abs_rel vs overlap\n")
     for sc in ("none", "median"):
-        add(f"**{SCALE_LABEL[sc]} scaling** (abs_rel, lower is better; in brackets: change vs Mono2)\n")
+        add(f"**{SCALE_LABEL[sc]} scaling** (abs_rel, lower is better; in brackets: gain vs Mono2, (Mono2 − method) / Mono2, positive = helps)\n")
         add("| overlap | measured | " + " | ".join(label(m) for m in methods) + f" | {REF_LABEL} | {PRIOR_LABEL} |")
         add("|---|---|" + "---|" * (len(methods) + 2))
         for d in results["data"]:
@@ -302,7 +304,7 @@ def _overlap_section(results: dict, d: dict, cams: list[str] | None) -> list[str
     for k, v in mo["per_pair"].items():
         add(f"| {k} | {_num(v['target'])} | {_num(v['measured'])} |")
     add("")
-    add(f"**Table 1 layout** (test split; Δ = relative change of abs_rel vs Mono2, negative = better)\n")
+    add(f"**Table 1 layout** (test split; Δ = relative gain in abs_rel over Mono2, (Mono2 − method) / Mono2, positive = helps)\n")
     add("| Method | Scale | " + " | ".join(metric_names()) + " | Δ abs_rel |")
     add("|---|---|" + "---|" * (len(metric_names()) + 1))
     for sc in ("none", "median"):
@@ -318,7 +320,7 @@ def _overlap_section(results: dict, d: dict, cams: list[str] | None) -> list[str
                 + f" | {_pct(_rel(yardstick_agg(results, o, f'{sc}.mean.abs_rel', which)['mean'], ref))} |")
     add("")
     if cams:
-        add("**Table 2 layout: Dep Con per camera** (unscaled predictions, lower is better; Δ = mean vs Mono2)\n")
+        add("**Table 2 layout: Dep Con per camera** (unscaled predictions, lower is better; Δ = relative gain of the mean over Mono2, positive = helps)\n")
         add("| Method | " + " | ".join(cams) + " | mean | Δ mean |")
         add("|---|" + "---|" * (len(cams) + 2))
         ref = method_agg(results, o, BASELINE, "dep_con.mean")["mean"]
@@ -331,7 +333,7 @@ def _overlap_section(results: dict, d: dict, cams: list[str] | None) -> list[str
         add(f"| *{REF_LABEL}* | " + " | ".join(_fmt(yardstick_agg(results, o, f"dep_con.camera.{c}")) for c in cams)
             + f" | {_fmt(a)} | {_pct(_rel(a['mean'], ref))} |")
         add("")
-    add("**Overlap vs non-overlap pixels** (abs_rel; Δ vs Mono2 on the same region, negative = better)\n")
+    add("**Overlap vs non-overlap pixels** (abs_rel; Δ = relative gain over Mono2 on the same region, positive = helps)\n")
     add("| Method | Scale | overlap | non-overlap | Δ overlap | Δ non-overlap |")
     add("|---|---|---|---|---|---|")
     for sc in ("none", "median"):

@@ -30,6 +30,8 @@ def number(x) -> float:
 
 #: how a paired difference reads in the report (`paired_difference`'s ``differs``)
 VERDICT_WORD = {-1: "**lower (better)**", 1: "**higher (worse)**", 0: "no difference beyond the interval"}
+#: how a gain reads (a paired difference taken worse minus better, the one sign of every page: positive = helps)
+GAIN_WORD = {1: "**helps**", -1: "**hurts**", 0: "no difference beyond the interval"}
 
 
 def fmt_num(x, digits: int = 3) -> str:
@@ -60,6 +62,13 @@ def verdict_word(pd: dict, floor: float = 0.0) -> str:
     if pd["differs"] != 0 and abs(pd["mean"]) < floor:
         return f"beyond the interval but negligible (< {floor:g})"
     return VERDICT_WORD[pd["differs"]]
+
+
+def gain_word(pd: dict, floor: float = 0.0) -> str:
+    """GAIN_WORD of a gain (a paired difference taken worse minus better: positive = helps), as `verdict_word`."""
+    if pd["differs"] != 0 and abs(pd["mean"]) < floor:
+        return f"beyond the interval but negligible (< {floor:g})"
+    return GAIN_WORD[pd["differs"]]
 
 
 #: the method every other one is compared with (paired differences, the "vs Mono2" columns of the report): the
@@ -190,20 +199,60 @@ def paired_difference(results: dict, overlap: float, a: str | Evaluation, b: str
     return paired_columns(results, overlap, (a, key), (b, key))
 
 
+def world_of(results: dict) -> dict:
+    """seed -> world id of the sweep (`study.config.world_of_seed`, from the recorded config); with one shared
+    world, or one seed per world, each seed is its own cluster."""
+    cfg = results.get("sweep_config", {}) or {}
+    seeds = list(results.get("seeds", []))
+    per = int(cfg.get("seeds_per_world", 1) or 1)
+    if cfg.get("worlds") != "per_seed" or per == 1:
+        return {s: s for s in seeds}
+    return {s: i // per for i, s in enumerate(seeds)}
+
+
+def clustered(results: dict) -> bool:
+    """Whether the design nests several training seeds in each world (``worlds: per_seed``, ``seeds_per_world`` >
+    1): then every paired interval of the report is clustered by world (`paired_columns`)."""
+    ids = world_of(results)
+    return len(set(ids.values())) < len(ids)
+
+
 def paired_columns(results: dict, overlap: float, a: tuple[str | Evaluation, str],
                    b: tuple[str | Evaluation, str]) -> dict:
     """`paired_difference` of column a[1] of evaluation a[0] minus column b[1] of evaluation b[0] (e.g. a run's
-    init stage against its ORACLE-overlap row)."""
+    init stage against its ORACLE-overlap row). In a design with worlds (`clustered`) the interval is the primary
+    comparisons' one, clustered by world (`study.power.nested`: the mean of the world means, t with W - 1 degrees
+    of freedom), so no comparison of the page reads a narrower interval than the primary test; ``n`` is then the
+    number of (world, seed) pairs and ``sd`` the spread of the world means."""
     va = {f["seed"]: f.get(a[1]) for f in flat_of(results, overlap, a[0])}
     vb = {f["seed"]: f.get(b[1]) for f in flat_of(results, overlap, b[0])}
-    d = [va[s] - vb[s] for s in va if s in vb and all(isinstance(x, (int, float)) and math.isfinite(x)
-                                                      for x in (va[s], vb[s]))]
-    ms = mean_std(d)
-    mu, hw = ms["mean"], ms["ci95"]
+    keep = [s for s in va if s in vb and all(isinstance(x, (int, float)) and math.isfinite(x)
+                                             for x in (va[s], vb[s]))]
+    d = [va[s] - vb[s] for s in keep]
+    if clustered(results):
+        from study.power import nested
+
+        wo = world_of(results)
+        groups: dict = {}
+        for s, x in zip(keep, d):
+            groups.setdefault(wo.get(s, s), []).append(float(x))
+        ne = nested(groups)
+        means = [sum(v) / len(v) for v in groups.values() if v]
+        sd = mean_std(means)["std"]
+        mu, hw, n = ne["mean"], ne["ci95"], ne["n"]
+    else:
+        ms = mean_std(d)
+        mu, hw, n, sd = ms["mean"], ms["ci95"], ms["n"], ms["std"]
     differs = 0
     if math.isfinite(mu) and math.isfinite(hw):
         differs = -1 if mu + hw < 0 else (1 if mu - hw > 0 else 0)
-    return {"mean": mu, "ci95": hw, "n": ms["n"], "differs": differs, "sd": ms["std"]}
+    return {"mean": mu, "ci95": hw, "n": n, "differs": differs, "sd": sd}
+
+
+def gain(pd: dict) -> dict:
+    """The paired difference a - b read the other way round (b - a): a gain, positive = helps, when a was the
+    better one's error minus the worse one's."""
+    return dict(pd, mean=-pd["mean"], differs=-pd["differs"])
 
 
 def build_results(cfg, data: list[dict], rows: list[dict], counters: dict, total_s: float,

@@ -3,9 +3,11 @@ paired differences as the tables below it (`study.mechanisms.paired_all`, `study
 
 - the primary comparisons' headline, for a sweep that names them (`study.primary.headline`);
 - each mechanism against Mono2, where it is more accurate, on non-overlap pixels, more consistent, and what it
-  takes from the other cameras at inference; a row that reads ground truth (`study.mechanisms.is_yardstick`) is a
+  takes from the other cameras at inference; then the same in metric scaling (`METRIC_KEYS`), where it is better
+  and where worse, so every scaling the report tabulates for the methods stands in a verdict; a row that reads ground truth (`study.mechanisms.is_yardstick`) is a
   yardstick and stands in no verdict;
-- "In one line": where each mechanism is more accurate than Mono2 ("at 0.30 only", "from overlap 0.30 on");
+- "In one line": where each mechanism is more accurate than Mono2 ("at 0.30 only", "from overlap 0.30 on") and
+  where it is less accurate, in either scaling;
 - how many paired comparisons these verdicts rest on, each at 95 % and uncorrected, against how many a world
   without any difference would put beyond the interval by chance (5 %);
 - each method against the yardsticks (constant depth, flat-road prior) and, in metric scaling, Mono2.
@@ -17,18 +19,23 @@ from __future__ import annotations
 import math
 
 from mcdp.methods import label as method_label
-from study.mechanisms import KEYS, from_which_overlap, is_yardstick, paired_all, verdict_line
-from study.results import (BASELINE, SCALE_LABEL, fmt_diff, method_agg, paired_difference, verdict_word,
+from study.mechanisms import KEYS, NOWHERE, from_which_overlap, is_yardstick, paired_all, verdict_line
+from study.results import (BASELINE, SCALE_LABEL, fmt_diff, gain_word, method_agg, paired_difference,
                            yardstick_agg)
 
 #: the per-comparison level of every interval in the report
 ALPHA = 0.05
+#: (results key, name) of the metric-scaling comparisons with Mono2 that the verdicts read beside `KEYS`
+METRIC_KEYS = (("none.mean.abs_rel", "metric abs_rel, all px"), ("none.non_overlap.abs_rel", "metric, non-overlap px"))
 
 
 def format_verdicts(results: dict, label) -> str:
     """Markdown: the section ``## Verdicts``."""
-    L = ["## Verdicts\n", "Every verdict of this report; the sections below give the numbers they read. A method is "
-         "better or worse than Mono2 only where the paired 95 % interval excludes 0.\n"]
+    L = ["## Verdicts\n", "Every verdict of this report; the sections below give the numbers they read. They cover "
+         "both scalings the report tabulates for the methods, median-scaled and metric (unscaled) abs_rel, and Dep "
+         "Con (unscaled); the primary comparisons also read `rig_median`. Every difference is a gain, worse minus "
+         "better: positive = helps. A method is better or worse than Mono2 only where the paired 95 % interval "
+         "excludes 0.\n"]
     from study.primary import has_control, headline
 
     if has_control(results):
@@ -47,7 +54,10 @@ def mechanism_lines(results: dict, label) -> list[str]:
         return []
     mech = [m for m in methods if not is_yardstick(results, m)]
     diffs, cuts, change = paired_all(results, methods)
-    L = [verdict_line(m, diffs[m], cuts[m], change[m], label) for m in mech]
+    metric = {m: {key: {d["overlap"]: paired_difference(results, d["overlap"], BASELINE, m, key)
+                        for d in results["data"]} for key, _ in METRIC_KEYS} for m in mech}
+    L = [verdict_line(m, diffs[m], cuts[m], change[m], label)[:-1] + "; " + _metric_clause(metric[m]) + "."
+         for m in mech]
     yard = [label(m) for m in methods if m not in mech]
     if yard:
         L.append(f"- {', '.join(yard)}: reads ground truth, a yardstick, not a mechanism: in the tables only.")
@@ -55,16 +65,23 @@ def mechanism_lines(results: dict, label) -> list[str]:
         return L
     if mech:
         where = {m: from_which_overlap(diffs[m]["median.mean.abs_rel"]).split("; worse")[0] for m in mech}
-        better = [f"{label(m)} {w}" for m, w in where.items() if w != "at no overlap of the sweep"]
-        never = [label(m) for m, w in where.items() if w == "at no overlap of the sweep"]
+        better = [f"{label(m)} {w}" for m, w in where.items() if w != NOWHERE]
+        never = [label(m) for m, w in where.items() if w == NOWHERE]
+        worse = [f"{label(m)} at {_at(pds)} ({name})" for m in mech
+                 for key, name in (("median.mean.abs_rel", "median"), ("none.mean.abs_rel", "metric"))
+                 for pds in [diffs[m][key] if key in diffs[m] else metric[m][key]] if _at(pds)]
         L.append("- **In one line**: " + ("more accurate than Mono2: " + "; ".join(better) if better else
                                           "no mechanism is more accurate than Mono2 at any overlap")
                  + (f"; at no overlap: {', '.join(never)}" if better and never else "")
-                 + " (median-scaled abs_rel, all pixels, beyond the paired 95 % interval).")
-    n = sum(1 for m in mech for key, _ in KEYS for o in diffs[m][key])
-    hits = sum(1 for m in mech for key, _ in KEYS for pd in diffs[m][key].values() if pd["differs"])
+                 + " (median-scaled abs_rel, all pixels, beyond the paired 95 % interval); less accurate than "
+                 + "Mono2 (all pixels, either scaling): " + ("; ".join(worse) if worse else "none") + ".")
+    both = {m: {**diffs[m], **metric[m]} for m in mech}
+    keys = [k for k in [k for k, _ in KEYS] + [k for k, _ in METRIC_KEYS]  # the measures the sweep recorded
+            if any(pd.get("n") for m in mech for pd in both[m][k].values())]
+    n = sum(1 for m in mech for key in keys for o in both[m][key])
+    hits = sum(1 for m in mech for key in keys for pd in both[m][key].values() if pd["differs"])
     L.append(f"- **Multiple comparisons**: these lines read {n} paired comparisons with Mono2 "
-             f"({len(mech)} mechanism(s) x {len(results['data'])} overlap(s) x {len(KEYS)} measures), each at 95 % and "
+             f"({len(mech)} mechanism(s) x {len(results['data'])} overlap(s) x {len(keys)} measures), each at 95 % and "
              f"not corrected for the others: were no mechanism different from Mono2, about {ALPHA * n:.1f} of them would "
              f"fall beyond their interval by chance; {hits} do. A single 'at x only' is weak evidence on its own.")
     return L
@@ -101,11 +118,11 @@ def yardstick_lines(results: dict) -> str:
             if paired and sc == "none":
                 cells = []
                 for m in others:
-                    pa = paired_difference(results, o, m, BASELINE, f"{sc}.mean.abs_rel")
-                    pn = paired_difference(results, o, m, BASELINE, f"{sc}.non_overlap.abs_rel")
-                    cells.append(f"{method_label(m)} {fmt_diff(pa)}: {verdict_word(pa)} (non-overlap px "
-                                 f"{fmt_diff(pn)}: {verdict_word(pn)})")
-                lines.append(head + "each method − Mono2, paired over seeds: " + "; ".join(cells))
+                    pa = paired_difference(results, o, BASELINE, m, f"{sc}.mean.abs_rel")
+                    pn = paired_difference(results, o, BASELINE, m, f"{sc}.non_overlap.abs_rel")
+                    cells.append(f"{method_label(m)} {fmt_diff(pa)}: {gain_word(pa)} (non-overlap px "
+                                 f"{fmt_diff(pn)}: {gain_word(pn)})")
+                lines.append(head + "Mono2 − each method (positive = helps), paired over seeds: " + "; ".join(cells))
     if BASELINE not in methods:
         lines.append("- Mono2 is not part of this sweep: no comparison with it.")
     elif not others:
@@ -117,3 +134,21 @@ def yardstick_lines(results: dict) -> str:
         lines.append("- One training seed only: no paired interval, so no verdict against Mono2; differences smaller "
                      "than the seed-to-seed spread (unknown here) are not evidence either way.")
     return "\n".join(lines)
+
+
+def _at(pds: dict[float, dict]) -> str:
+    """The overlaps where a gain over Mono2 is negative beyond its interval (the method is worse), '' if none."""
+    return ", ".join(f"{o:.2f}" for o, pd in sorted(pds.items()) if pd["differs"] < 0)
+
+
+def _metric_clause(metric: dict[str, dict[float, dict]]) -> str:
+    """A mechanism's verdict in metric scaling: where it is better and where worse than Mono2, with the numbers of
+    every comparison beyond its interval (`METRIC_KEYS`: Mono2 − method, positive = helps)."""
+    parts = []
+    for key, name in METRIC_KEYS:
+        where = from_which_overlap(metric[key])
+        hits = [f"{fmt_diff(pd)} at {o:.2f}" for o, pd in sorted(metric[key].items()) if pd["differs"]]
+        parts.append(f"{name} more accurate {where}" + (f" ({', '.join(hits)})" if hits else ""))
+        if any(pd["differs"] < 0 for pd in metric[key].values()):
+            parts[-1] = "**" + parts[-1] + "**"
+    return "in metric scaling: " + "; ".join(parts)

@@ -39,7 +39,7 @@ def test_a_toy_method_is_in_the_paired_figure_and_the_reach_section_without_a_st
     res = _with_toy(read_results(PROP))
     series = paired_series(res)
     for key, _ in PAIRED_KEYS:
-        assert series[key]["toy"] == [paired_difference(res, o, "toy", BASELINE, key) for o in res["overlaps"]]
+        assert series[key]["toy"] == [paired_difference(res, o, BASELINE, "toy", key) for o in res["overlaps"]]
         assert series[key]["toy"] == series[key]["mcdp_local"]  # the same runs, the same numbers
     assert readers()[-2:] == ["toy", "surround"]  # the mechanisms (with their twins), then the other readers
     o = res["overlaps"][0]
@@ -48,7 +48,7 @@ def test_a_toy_method_is_in_the_paired_figure_and_the_reach_section_without_a_st
     assert q["toy: vs Mono2 (Mono2 - toy)"] == q["mcdp_local: vs Mono2 (Mono2 - mcdp_local)"]
     text = format_reach(res, methods.label)
     assert "Toy net cut - trained" in text and "Mono2 - Toy net" in text  # the band table's columns
-    assert [n for n, _, _ in distance_lines(res) if "Toy net" in n] == ["Toy net − Mono2", "Toy net: as trained − cut"]
+    assert [n for n, _, _ in distance_lines(res) if "Toy net" in n] == ["Mono2 − Toy net", "Toy net: cut − as trained"]
 
 
 def test_without_the_toy_the_reach_section_is_the_committed_one(toy):

@@ -49,7 +49,7 @@ def test_paired_figure_from_a_small_results(prop, tmp_path):
     for key, per_method in series.items():
         assert list(per_method) == ["mcdp_local"]
         for o, pd in zip(small["overlaps"], per_method["mcdp_local"]):
-            assert pd == paired_difference(prop, o, "mcdp_local", BASELINE, key)  # the report's numbers
+            assert pd == paired_difference(prop, o, BASELINE, "mcdp_local", key)  # the report's numbers: Mono2 − method
             assert pd["n"] == len(prop["seeds"]) == 6  # 3 worlds x 2 seeds
 
 
@@ -66,6 +66,9 @@ def test_make_plots_writes_the_paired_and_absolute_figures(prop, tmp_path):
 def test_results_csv_rebuilds_the_numbers_the_plots_read(prop):
     csv = results_from_csv(PROP / "results.csv")
     assert csv["overlaps"] == prop["overlaps"] and csv["methods"] == prop["methods"]
+    # results.csv holds no design (worlds x seeds): given the sweep's, its paired intervals are clustered by world
+    # as results.json's are (issue 49, item 10)
+    csv["sweep_config"] = {k: prop["sweep_config"].get(k) for k in ("worlds", "seeds_per_world")}
     assert csv["seeds"] == prop["seeds"]
     for o in prop["overlaps"]:
         for m in prop["methods"]:
@@ -122,17 +125,17 @@ def test_the_verdict_section_says_better_only_where_the_paired_interval_does(pro
     start = text.index("Against the yardsticks (abs_rel, mean over seeds)")
     sec = text[start:text.index("\n## ", start)]
     assert "beat Mono2" not in sec and "beats Mono2" not in sec  # no raw-mean comparison with Mono2
-    assert "each method − Mono2, paired over seeds" in sec
+    assert "Mono2 − each method (positive = helps), paired over seeds" in sec
     # the words follow the paired intervals (metric scaling, all and non-overlap pixels), whatever the data
-    from study.results import verdict_word
+    from study.results import gain_word as verdict_word
 
     from study.mechanisms import is_yardstick
 
-    words = [verdict_word(paired_difference(prop, o, m, BASELINE, f"none.{region}.abs_rel"))
+    words = [verdict_word(paired_difference(prop, o, BASELINE, m, f"none.{region}.abs_rel"))
              for o in prop["overlaps"] for m in prop["methods"] if m != BASELINE and not is_yardstick(prop, m)
              for region in ("mean", "non_overlap")]
-    assert sec.count("**lower (better)**") == words.count("**lower (better)**")
-    assert sec.count("**higher (worse)**") == words.count("**higher (worse)**")
+    assert sec.count("**helps**") == words.count("**helps**")
+    assert sec.count("**hurts**") == words.count("**hurts**")
     assert sec.count("no difference beyond the interval") == words.count("no difference beyond the interval")
     assert "paired over seeds: " in sec and "ORACLE-local (GT overlap input) -" not in sec  # a yardstick: no verdict
     headings = [ln for ln in text.splitlines() if ln.startswith("#") and "verdict" in ln.lower()]
@@ -142,7 +145,7 @@ def test_the_verdict_section_says_better_only_where_the_paired_interval_does(pro
 # --------------------------------------------------------------------------- issue 41, item 14: the figures
 def test_the_distance_figure_uses_its_canvas_one_sign_and_clips_a_wild_band(prop):
     """propagation_by_distance.png: the legend below the panels (it took the right 22 % of the canvas), every
-    line a − b with below 0 = better (it drew gains, above 0 = better, beside the paired figure's differences),
+    line a − b, worse minus better, positive = helps (issue 49: the pages' one sign),
     and a band whose mean is far out is drawn at the edge with its value written instead of setting the range."""
     import copy
 
@@ -152,16 +155,16 @@ def test_the_distance_figure_uses_its_canvas_one_sign_and_clips_a_wild_band(prop
     fig = distance_figure(prop)
     assert max(ax.get_position().x1 for ax in fig.axes) > 0.9
     names = [n for n, _, _ in distance_lines(prop)]
-    assert "MCDP (m = 2) − Mono2" in names and "MCDP (m = 2): as trained − cut" in names
-    assert "ORACLE-local (yardstick): filled − emptied" in names
+    assert "Mono2 − MCDP (m = 2)" in names and "MCDP (m = 2): cut − as trained" in names
+    assert "ORACLE-local (yardstick): emptied − filled" in names
     ax = fig.axes[0]
-    line = next(c for c in ax.containers if c.get_label() == "MCDP (m = 2) − Mono2").lines[0]
-    want = paired(prop, 0.1, ("mcdp_m2", "median.band.>0.35.abs_rel"), ("mono2", "median.band.>0.35.abs_rel"))
+    line = next(c for c in ax.containers if c.get_label() == "Mono2 − MCDP (m = 2)").lines[0]
+    want = paired(prop, 0.1, ("mono2", "median.band.>0.35.abs_rel"), ("mcdp_m2", "median.band.>0.35.abs_rel"))
     assert line.get_ydata()[-1] == pytest.approx(max(-ax.get_ylim()[1], min(ax.get_ylim()[1], want["mean"])), rel=0.06)
     wild = copy.deepcopy(prop)
     for f in wild["flat"]:
         if f["method"] == "mcdp_m2" and f["variant"] == "trained" and f["overlap"] == 0.1:
-            f["median.band.>0.35.abs_rel"] += 5.0
+            f["median.band.>0.35.abs_rel"] -= 5.0
     fig = distance_figure(wild)
     assert fig.axes[0].get_ylim()[1] < 0.05  # one band at +5 does not set the panel's range (the others: < 0.03)
     assert any(t.get_text().startswith("+5.0") for t in fig.axes[0].texts)
