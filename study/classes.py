@@ -12,7 +12,8 @@ from __future__ import annotations
 
 import math
 
-from study.results import BASELINE, flat_of, fmt_diff, mean_std, paired_columns, yardstick_row
+from study.paired import paired_columns
+from study.results import BASELINE, flat_of, fmt_diff, mean_std, yardstick_row
 
 KEY = "median.{kind}.{region}.abs_rel"
 ROWS = (("class", "road", "road"), ("class", "building", "building"), ("class", "vehicle", "vehicle"),

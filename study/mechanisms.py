@@ -20,8 +20,8 @@ from __future__ import annotations
 
 import math
 
-from study.results import (BASELINE, INERT_M, USE_FLOOR, evaluations, fmt_diff, method_agg, paired_difference,
-                           gain_word)
+from study.paired import paired_difference
+from study.results import BASELINE, INERT_M, USE_FLOOR, evaluations, fmt_diff, gain_word, method_agg
 from study.results import fmt_num as _num
 from study.variants import CUT, Evaluation
 
@@ -194,8 +194,8 @@ def _span(values: list[float]) -> str:
 
 
 def interval_note(results: dict) -> str:
-    """How the page's paired intervals are taken (`study.results.paired_columns`)."""
-    from study.results import clustered
+    """How the page's paired intervals are taken (`study.paired.paired_columns`)."""
+    from study.paired import clustered
 
     return (" (clustered by world, as the primary comparisons: t over the world means)" if clustered(results)
             else " (t over the seeds)")

@@ -1,7 +1,7 @@
 """The sweep's plots (matplotlib, Agg), every one read from `study.results`' dict:
 
 - paired_vs_mono2.png: Mono2 − each method, paired over seeds, with its 95 % interval
-  (`study.results.paired_difference`, the numbers of the report's paired table and verdicts), per overlap:
+  (`study.paired.paired_difference`, the numbers of the report's paired table and verdicts), per overlap:
   median-scaled abs_rel on all and on non-overlap pixels, and Dep Con; a filled marker is beyond the interval;
 - abs_rel_vs_overlap.png, dep_con_vs_overlap.png: the absolute numbers, the methods on their own axes and the
   yardsticks (constant depth, flat-road prior) on a panel of their own, so the methods are not squashed;
@@ -18,8 +18,8 @@ from pathlib import Path
 
 from mcdp.methods import label
 from study.mechanisms import KEYS
-from study.results import (BASELINE, PRIOR_LABEL, REF_LABEL, SCALE_LABEL, method_agg, paired_difference,
-                           yardstick_agg)
+from study.paired import paired_difference
+from study.results import BASELINE, PRIOR_LABEL, REF_LABEL, SCALE_LABEL, method_agg, yardstick_agg
 from study.variants import CUT, Evaluation
 
 XLABEL = "target overlap (fraction of hfov)"

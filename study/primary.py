@@ -46,8 +46,8 @@ SCALINGS = ("median", "none", "rig_median")
 
 
 def world_of(results: dict):
-    """seed -> world id of the sweep (`study.results.world_of`)."""
-    from study.results import world_of as _world_of
+    """seed -> world id of the sweep (`study.paired.world_of`)."""
+    from study.paired import world_of as _world_of
 
     return _world_of(results)
 

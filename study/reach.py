@@ -3,7 +3,7 @@ could give the rest of the image, the inference-time and training-time propagati
 against them, and all of it by distance from the overlap (docs/results/propagation.md).
 
 Read from `study.results` (nothing is computed from raw files). Median-scaled abs_rel throughout;
-differences are paired over (world, seed) pairs (`study.results.paired_difference`, clustered by world in a
+differences are paired over (world, seed) pairs (`study.paired.paired_difference`, clustered by world in a
 design with worlds), each a gain: worse minus better, positive = helps.
 
 - **Yardstick, global** (variant ``oracle_overlap``, `study.variants`): a run's own bases at per-image
@@ -23,7 +23,8 @@ from __future__ import annotations
 import math
 
 from mcdp.methods import baseline, label, nocon_twins, reading, short_label
-from study.results import flat_of, fmt_diff, mean_std, paired_columns
+from study.paired import paired_columns
+from study.results import flat_of, fmt_diff, mean_std
 from study.variants import CUT, ORACLE, ORACLE_OVL, SPREAD, Evaluation
 
 NON = "median.non_overlap.abs_rel"

@@ -20,8 +20,8 @@ import math
 
 from mcdp.methods import label as method_label
 from study.mechanisms import KEYS, NOWHERE, from_which_overlap, is_yardstick, paired_all, verdict_line
-from study.results import (BASELINE, SCALE_LABEL, fmt_diff, gain_word, method_agg, paired_difference,
-                           yardstick_agg)
+from study.paired import paired_difference
+from study.results import BASELINE, SCALE_LABEL, fmt_diff, gain_word, method_agg, yardstick_agg
 
 #: the per-comparison level of every interval in the report
 ALPHA = 0.05

@@ -22,6 +22,7 @@ import cv2
 import numpy as np
 
 from corelib.atomic import atomic_write_bytes, atomic_write_json
+from synth.image_headers import check_jpeg_header, check_png_header
 from synth.rig import MAX_CAMERA_PX
 
 DEPTH_CHANNEL = "Z"
@@ -155,7 +156,7 @@ def read_png(path: str | Path, gray: bool = False, depth16: bool = False) -> np.
     if not data.startswith(PNG_SIGNATURE):
         kind = "a JPEG file" if data.startswith(b"\xff\xd8\xff") else "another format"
         raise DatasetError(f"{path}: not a readable PNG ({kind}: its first bytes are not the PNG signature)")
-    _check_png_header(path, data)
+    check_png_header(path, data, DatasetError)
     if not depth16 and data[24] == 16:  # IHDR's bit depth: OpenCV would narrow it to 8 bits without a word
         raise DatasetError(f"{path}: is a 16-bit PNG; the contract is an 8-bit {'gray' if gray else 'RGB'} PNG")
     flags = cv2.IMREAD_UNCHANGED if depth16 else cv2.IMREAD_GRAYSCALE if gray else cv2.IMREAD_COLOR
@@ -169,69 +170,9 @@ def read_png(path: str | Path, gray: bool = False, depth16: bool = False) -> np.
     return img if gray else np.ascontiguousarray(img[:, :, ::-1])
 
 
-def _check_png_header(path: Path, data: bytes) -> None:
-    """A PNG whose header (IHDR) claims a side above `MAX_CAMERA_PX` is refused before it is decoded: a small
-    file may claim 30000 x 30000 pixels (gigabytes once decoded)."""
-    if data[12:16] != b"IHDR" or len(data) < 26:  # through the bit depth and colour type
-        raise DatasetError(f"{path}: not a readable PNG (no IHDR header)")
-    w, h = int.from_bytes(data[16:20], "big"), int.from_bytes(data[20:24], "big")
-    if not (0 < w <= MAX_CAMERA_PX and 0 < h <= MAX_CAMERA_PX):
-        raise DatasetError(f"{path}: its header claims {w}x{h} pixels, above the {MAX_CAMERA_PX} px a camera's side "
-                           "may have; refused before decoding")
-
-
 JPEG_SIGNATURE = b"\xff\xd8\xff"
 #: what an image file's name promises, by its suffix: the signature its first bytes must carry
 IMAGE_SIGNATURES = {".png": (PNG_SIGNATURE, "PNG"), ".jpg": (JPEG_SIGNATURE, "JPEG"), ".jpeg": (JPEG_SIGNATURE, "JPEG")}
-
-
-#: the JPEG markers that start a frame header (SOF0..SOF15 but DHT C4, JPG C8, DAC CC): its size follows
-_JPEG_SOF = frozenset(range(0xC0, 0xD0)) - {0xC4, 0xC8, 0xCC}
-#: markers with no length field: TEM, RST0..RST7, SOI
-_JPEG_BARE = frozenset([0x01, *range(0xD0, 0xD9)])
-
-
-def _jpeg_size(data: bytes) -> tuple[int, int] | None:
-    """(width, height) of a JPEG's frame header (SOF), found by walking its marker segments; None when no frame
-    header comes before the scan (SOS), the end (EOI) or the end of the bytes."""
-    i = 2  # after SOI
-    while i + 4 <= len(data):
-        if data[i] != 0xFF:
-            return None
-        marker = data[i + 1]
-        if marker == 0xFF:  # a fill byte
-            i += 1
-            continue
-        if marker in _JPEG_BARE:
-            i += 2
-            continue
-        if marker in (0xD9, 0xDA):  # EOI, SOS: no frame header before the image data
-            return None
-        length = int.from_bytes(data[i + 2:i + 4], "big")
-        if marker in _JPEG_SOF:
-            if length < 8 or i + 9 > len(data):
-                return None
-            return int.from_bytes(data[i + 7:i + 9], "big"), int.from_bytes(data[i + 5:i + 7], "big")
-        if length < 2:
-            return None
-        i += 2 + length
-    return None
-
-
-def _check_jpeg_header(path: Path, data: bytes) -> None:
-    """A JPEG whose frame header (SOF) claims a side above `MAX_CAMERA_PX` (or 0: a height given later, by a DNL
-    marker), or that has no frame header, is refused before it is decoded: a 3 KB file may claim 32000 x 32000
-    pixels (gigabytes once decoded), the bound of `_check_png_header` and of the EXR readers."""
-    size = _jpeg_size(data)
-    if size is None:
-        raise DatasetError(f"{path}: not a readable JPEG (no frame header before its image data)")
-    w, h = size
-    if not (w and h):
-        raise DatasetError(f"{path}: its header claims {w}x{h} pixels (a size given later in the file); refused "
-                           "before decoding")
-    if not (w <= MAX_CAMERA_PX and h <= MAX_CAMERA_PX):
-        raise DatasetError(f"{path}: its header claims {w}x{h} pixels, above the {MAX_CAMERA_PX} px a camera's side "
-                           "may have; refused before decoding")
 
 
 def read_image(path: str | Path) -> np.ndarray:
@@ -244,7 +185,7 @@ def read_image(path: str | Path) -> np.ndarray:
     data = read_regular(path)
     if not data.startswith(sig):
         raise DatasetError(f"{path}: not a readable {kind} (its first bytes are not the {kind} signature)")
-    (_check_png_header if kind == "PNG" else _check_jpeg_header)(path, data)
+    (check_png_header if kind == "PNG" else check_jpeg_header)(path, data, DatasetError)
     img = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_COLOR)
     if img is None:
         raise DatasetError(f"{path}: not a readable {kind} (truncated or corrupt)")

@@ -11,7 +11,8 @@ import pytest
 from mcdp import methods
 from study.plots import PAIRED_KEYS, distance_lines, paired_series
 from study.reach import format_reach, quantities, readers
-from study.results import BASELINE, paired_difference, read_results
+from study.paired import paired_difference
+from study.results import BASELINE, read_results
 
 ROOT = Path(__file__).resolve().parents[2]
 PROP = ROOT / "docs" / "results" / "propagation" / "results.json"

@@ -86,7 +86,7 @@ def test_propagation_reading_neighbours_has_one_sign_in_every_section():
 def test_paired_series_is_mono2_minus_method():
     """Item 9: the plot's data is Mono2 - method (the old one was method - Mono2)."""
     from study.plots import paired_series
-    from study.results import paired_difference
+    from study.paired import paired_difference
 
     res = _results("sweep_cpu")
     pd = paired_series(res)["dep_con.mean"]["mcdp_m2"][0]
@@ -97,7 +97,7 @@ def test_paired_series_is_mono2_minus_method():
 def test_every_interval_of_a_design_with_worlds_is_clustered():
     """Item 10: in a design with worlds every paired interval is the primary comparisons' clustered one."""
     from study.primary import paired_nested
-    from study.results import paired_columns
+    from study.paired import paired_columns
     from study.variants import CUT, Evaluation
 
     res = _results("propagation")
