@@ -18,6 +18,8 @@ from pydantic import Field, model_validator
 from scenes.config import SceneConfig
 from corelib.configlib import ConfigError, StrictModel, added_key, load_config
 from synth.rig import CameraConfig, RigConfig
+from synth.sensor import SensorConfig
+from synth.weather import WeatherConfig
 
 
 class DatasetConfig(StrictModel):
@@ -84,6 +86,10 @@ class DataConfig(StrictModel):
     # an added key: images and depth are those rendered without it, so every dataset's hash stays (a dataset
     # rendered before the labels says what it lacks when a command needs them)
     labels: LabelsConfig = added_key(default_factory=LabelsConfig)
+    # added keys (issue 48): off, the written image is the renderer's; on, only the RGB changes (the sensor
+    # acts on the formed image, `synth.sensor`; fog from the exact depth, `synth.weather`)
+    sensor: SensorConfig = added_key(default_factory=SensorConfig)
+    weather: WeatherConfig = added_key(default_factory=WeatherConfig)
 
 
 def load_data_config(path=None, overrides: Iterable[str] = ()) -> DataConfig:

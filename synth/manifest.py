@@ -101,7 +101,8 @@ def finalize(cfg: DataConfig, out: Path, rig: Rig) -> dict | None:
         kinds = [k for k in kinds if k in rec.get("labels", [])]  # a render resumed by older code: the common kinds
         files.update(rec["files"])
         sequences[rec["sequence"]] = {"frames": rec["frames"], "scene": rec["scene"],
-                                      "time_of_day": rec["time_of_day"]}
+                                      "time_of_day": rec["time_of_day"],
+                                      **{k: rec[k] for k in ("sensor", "weather") if k in rec}}  # drawn values
         fam = rec["scene"].get("family", "?")
         families[fam] = families.get(fam, 0) + 1
         for k, (a, b) in rec["overlap_counts"].items():

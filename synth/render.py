@@ -37,6 +37,7 @@ from synth.files import OutputFolderError, frame_stem, read_json, write_depth_ex
 from synth.lighting import draw_sequence_lighting, frame_gains
 from synth.manifest import (MARKER_DIR, RECORD, assign_splits, began_with, complete_sequences,  # noqa: F401
                             finalize, label_kinds, sequence_id)
+from synth.photometry import SequencePhotometry
 from synth.pipeline import FrameSink, LabelFrames, ScenePrefetch, build_sequence_scene
 from synth.rig import Rig, build_rig, ego_body_mesh
 
@@ -116,6 +117,7 @@ def render_sequence(cfg_dict: dict, out_dir: str, index: int, progress_queue=Non
     t_scene = time.perf_counter() - t0
     seq_light = draw_sequence_lighting(cfg.lighting, rig.names, np.random.default_rng(light_ss))
     flicker_rng = np.random.default_rng(flicker_ss)
+    photo = SequencePhotometry.for_sequence(cfg, index, rig, seq_light)  # None: the renderer's bytes
     from synth.files import read_png
     masks = {name: read_png(out / "masks" / f"{name}.png", gray=True) for name in rig.names}
     r = renderer_for(cfg)
@@ -130,12 +132,13 @@ def render_sequence(cfg_dict: dict, out_dir: str, index: int, progress_queue=Non
             gains = frame_gains(seq_light, flicker_rng)
             T_world_ego = scene.T_world_ego[f]
             depths = {}
-            for cam in rig.cameras:
+            for c, cam in enumerate(rig.cameras):
                 T_world_cam = T_world_ego @ cam.T_ego_cam
                 res = r.render(cam.K, T_world_cam, f, seq_light.light, gains[cam.name],
                                size=(cam.width, cam.height), labels=bool(kinds))
                 stem = frame_stem(f)
-                sink.png(f"{seq}/{cam.name}/{stem}.png", partial / cam.name / f"{stem}.png", res["rgb"],
+                rgb = res["rgb"] if photo is None else photo.apply(c, cam, f, res["rgb"], res["depth"], gains[cam.name])
+                sink.png(f"{seq}/{cam.name}/{stem}.png", partial / cam.name / f"{stem}.png", rgb,
                          cfg.render.png_compression)
                 sink.exr(f"{seq}/{cam.name}/{stem}.depth.exr", partial / cam.name / f"{stem}.depth.exr",
                          res["depth"])
@@ -144,7 +147,8 @@ def render_sequence(cfg_dict: dict, out_dir: str, index: int, progress_queue=Non
                     labels.add(cam, f, T_world_cam, res)
             sink.overlap(depths, masks, rig.cameras, rig.neighbours)
             frames_json.append({"frame": f, "timestamp_s": f / cfg.dataset.fps, "T_world_ego": T_world_ego.tolist(),
-                                "lighting": {"camera_gain": {k: list(v) for k, v in gains.items()}}})
+                                "lighting": {"camera_gain": {k: list(v) for k, v in gains.items()}},
+                                **(photo.frame_record() if photo is not None else {})})
             if progress_queue is not None:
                 progress_queue.put(1)
         files, counts = sink.results()
@@ -158,7 +162,8 @@ def render_sequence(cfg_dict: dict, out_dir: str, index: int, progress_queue=Non
         files[f"{seq}/instances.json"] = sha256_file(partial / "instances.json")
     record = {"sequence": seq, "index": index, "frames": cfg.dataset.frames, "files": files, "labels": kinds,
               "overlap_counts": counts, "scene": scene.info, "time_of_day": seq_light.time_of_day,
-              "seconds": time.perf_counter() - t0, "scene_seconds": t_scene}
+              "seconds": time.perf_counter() - t0, "scene_seconds": t_scene,
+              **(photo.record() if photo is not None else {})}
     write_json(partial / RECORD, record)
     os.sync()  # every file of the sequence on disk before the rename seals it
     os.replace(partial, final)

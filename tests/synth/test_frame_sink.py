@@ -19,6 +19,10 @@ TINY_FILES_DIGESTS = {
     # a Xeon with AMX (2026-12-02, the whole ego body); the AMX-less Xeon's digest (recorded at 2846b94)
     # predates the whole ego body and was dropped: that CPU skips until someone re-records it there
     "amx": "0588997009d5abf3c1f94d1e8bf476ab77cbd8650bd78925b815068b0f67ce5f",
+    # an AVX-512 Xeon without AMX (2026-12-04, rendered by e464e89, the code before the sensor model and fog): it
+    # holds the issue-48 knobs off to the renderer's bytes
+    "avx avx2 avx512_bf16 avx512_bitalg avx512_vbmi2 avx512_vnni avx512_vpopcntdq avx512bw avx512cd avx512dq "
+    "avx512f avx512ifma avx512vbmi avx512vl fma": "903dee223f3decfad387dceb9941600ceb6c6a02289b76079e0176e41f64b242",
 }
 
 
