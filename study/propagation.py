@@ -19,8 +19,8 @@ from __future__ import annotations
 
 import math
 
-from study.results import (INERT_M, USE_FLOOR, evaluations, flat_of, fmt_diff, gain_word, method_agg,
-                           paired_columns, paired_difference)
+from study.paired import paired_columns, paired_difference
+from study.results import INERT_M, USE_FLOOR, evaluations, flat_of, fmt_diff, gain_word, method_agg
 from study.results import fmt_num as _num
 from study.mechanisms import interval_note
 from study.variants import CUT, ORACLE, Evaluation
