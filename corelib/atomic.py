@@ -267,6 +267,31 @@ def atomic_write_json(path: str | Path, obj, fsync: bool = True, **dumps) -> Non
     atomic_write_text(path, json.dumps(obj, **dumps), fsync=fsync)
 
 
+def atomic_write_at(dir_fd: int, name: str, data: bytes, path: str | Path, fsync: bool = True) -> None:
+    """`atomic_write_bytes` of the file ``name`` in the open folder ``dir_fd`` (`corelib.nolinks.open_folder`:
+    reached without a link), its temporary file made there too (``O_EXCL | O_NOFOLLOW``); ``path`` is the
+    file's name in messages (`DiskFullError`, an OSError)."""
+    tmp = _tmp_name(Path(path)).name
+    try:
+        fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL | os.O_NOFOLLOW, 0o666, dir_fd=dir_fd)
+        with open(fd, "wb") as f:
+            f.write(data)
+            f.flush()
+            if fsync:
+                os.fsync(f.fileno())
+        os.replace(tmp, name, src_dir_fd=dir_fd, dst_dir_fd=dir_fd)
+    except BaseException as exc:
+        try:
+            os.unlink(tmp, dir_fd=dir_fd)
+        except OSError:
+            pass
+        if is_disk_full(exc) and not isinstance(exc, DiskFullError):
+            raise DiskFullError(path) from None
+        if isinstance(exc, OSError) and exc.errno is not None:
+            raise OSError(exc.errno, exc.strerror, str(path)) from None
+        raise
+
+
 @contextmanager
 def atomic_pipe(path: str | Path, fsync: bool = True) -> Iterator[str]:
     """For a library that writes a file by name from a thread of its own and cannot report a failed write

@@ -7,15 +7,30 @@ initializer of every such pool: on Linux the kernel sends the worker SIGKILL whe
 for any reason (``prctl(PR_SET_PDEATHSIG)``); a parent that is already gone when the worker starts
 makes it exit at once. Elsewhere it does nothing.
 
+Ctrl-C on a terminal reaches the workers too, and a worker that is still starting (importing torch) prints
+its own ``KeyboardInterrupt`` traceback. A pool's workers started inside `sigint_held` never see SIGINT; the
+parent ends them with `stop_pool` (its queued tasks cancelled by ``shutdown(cancel_futures=True)``, never
+by hand: a future cancelled by hand in a pool that then breaks makes the pool's own thread raise
+``InvalidStateError: CANCELLED``), and does not wait for their tasks.
+
 Example::
 
-    ProcessPoolExecutor(n, mp_context=ctx, initializer=die_with_parent, initargs=(os.getpid(),))
+    pool = ProcessPoolExecutor(n, mp_context=ctx, initializer=die_with_parent, initargs=(os.getpid(),))
+    try:
+        with sigint_held():
+            fut = pool.submit(job)
+        fut.result()
+    except KeyboardInterrupt:
+        stop_pool(pool)
+        raise
 """
 from __future__ import annotations
 
 import os
 import signal
 import sys
+from contextlib import contextmanager
+from typing import Iterator
 
 PR_SET_PDEATHSIG = 1
 
@@ -32,6 +47,31 @@ def die_with_parent(parent_pid: int) -> bool:
     if os.getppid() != parent_pid:  # the parent died before the signal was armed
         os._exit(1)
     return True
+
+
+@contextmanager
+def sigint_held() -> Iterator[None]:
+    """SIGINT blocked in this thread for the block: a process started in it (a pool's spawned worker, started
+    by ``submit``) inherits the blocked SIGINT through exec and never gets Ctrl-C, so it prints nothing
+    when its parent is interrupted; the parent ends it (`stop_pool`). A Ctrl-C that arrives during the
+    block is delivered to this process when the block ends (as ``KeyboardInterrupt``), not lost."""
+    if not hasattr(signal, "pthread_sigmask"):
+        yield
+        return
+    old = signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT})
+    try:
+        yield
+    finally:
+        signal.pthread_sigmask(signal.SIG_SETMASK, old)
+
+
+def stop_pool(pool) -> None:
+    """End a ``ProcessPoolExecutor`` now: ``shutdown(wait=False, cancel_futures=True)`` (the pool's own thread
+    cancels what is queued) and its workers terminated, their running tasks not waited for."""
+    workers = list((getattr(pool, "_processes", None) or {}).values())  # CPython's pid -> Process; shutdown drops it
+    pool.shutdown(wait=False, cancel_futures=True)
+    for proc in workers:
+        proc.terminate()
 
 
 def _init(parent_pid: int, then=None) -> None:

@@ -9,14 +9,16 @@ Two records beside the checkpoints:
 
 `removable` is the rule of every clean-up (a sweep's ``keep_last`` / ``keep_best: false``, the pretraining's
 trim): a file is deleted only when it is a regular file, reached without a symbolic link (neither
-``checkpoints/`` nor the file may be a link), whose sha256 is the one the run recorded when it wrote it. A file of
-the user's put under the same name, or a link, is kept, and the caller says so in one line.
+``checkpoints/`` nor the file may be a link, nor, given the ``root`` the run lies in (the sweep's folder), any
+folder between the root and the run: `corelib.nolinks`), whose sha256 is the one the run recorded when it wrote
+it. A file of the user's put under the same name, or a link, is kept, and the caller says so in one line; the
+removal record is written through the same descriptor, so it never lands outside the root either.
 
 Example::
 
-    ok, kept = removable(run_dir, ["best.pt", "last.pt"])   # {name: bytes}, {name: why it is kept}
-    record_removed(run_dir, {n: {"step": 2, "reason": "by ..."} for n in ok}, ok)
-    unlink_checkpoints(run_dir, ok)
+    ok, kept = removable(run_dir, ["best.pt", "last.pt"], root=sweep)   # {name: bytes}, {name: why it is kept}
+    record_removed(run_dir, {n: {"step": 2, "reason": "by ..."} for n in ok}, ok, root=sweep)
+    unlink_checkpoints(run_dir, ok, root=sweep)
 """
 from __future__ import annotations
 
@@ -26,7 +28,7 @@ import os
 import stat
 from pathlib import Path
 
-from corelib.atomic import atomic_write_json
+from corelib.atomic import atomic_write_at, atomic_write_json
 
 #: the record of the checkpoints deleted after use (`record_removed`)
 REMOVED = "removed.json"
@@ -40,9 +42,15 @@ class RecordError(ValueError):
     """A record in RUN/checkpoints/ that cannot be read or is not ours; the message names it."""
 
 
-def _open_folder(run_dir: str | Path) -> int:
-    """A descriptor of RUN/checkpoints/, opened without following a link (OSError when it is one)."""
-    return os.open(Path(run_dir) / "checkpoints", os.O_RDONLY | os.O_DIRECTORY | os.O_NOFOLLOW)
+def _open_folder(run_dir: str | Path, root: str | Path | None = None) -> int:
+    """A descriptor of RUN/checkpoints/, opened without following a link: neither checkpoints/ nor, given
+    ``root``, any folder from ``root`` down to it (`corelib.nolinks.open_folder`: `LinkRefused` names the link;
+    an OSError when checkpoints/ itself is one)."""
+    if root is None:
+        return os.open(Path(run_dir) / "checkpoints", os.O_RDONLY | os.O_DIRECTORY | os.O_NOFOLLOW)
+    from corelib.nolinks import open_folder
+
+    return open_folder(root, Path(run_dir) / "checkpoints")
 
 
 def _read_at(fd: int, name: str, limit: int) -> bytes | None:
@@ -123,13 +131,18 @@ def _sha256_at(fd: int, name: str) -> tuple[str, int] | str:
     return h.hexdigest(), n
 
 
-def removable(run_dir: str | Path, names) -> tuple[dict[str, int], dict[str, str]]:
+def removable(run_dir: str | Path, names, root: str | Path | None = None) -> tuple[dict[str, int], dict[str, str]]:
     """({name: bytes} of the ``names`` that may be deleted (module docstring), {name: why it is kept}) for
-    the files of ``names`` present in RUN/checkpoints/ (a name that is not there is in neither)."""
+    the files of ``names`` present in RUN/checkpoints/ (a name that is not there is in neither); with ``root``,
+    none when a folder between ``root`` and RUN/checkpoints/ is a link (each kept, the reason naming it)."""
+    from corelib.atomic import LinkRefused
+
     try:
-        fd = _open_folder(run_dir)
+        fd = _open_folder(run_dir, root)
     except FileNotFoundError:
         return {}, {}
+    except LinkRefused as exc:
+        return {}, {n: f"{exc.filename} is a symbolic link: nothing is deleted through it" for n in names}
     except OSError as exc:
         why = "a symbolic link" if Path(run_dir, "checkpoints").is_symlink() else (exc.strerror or str(exc))
         return {}, {n: f"checkpoints/ is {why}: nothing is deleted through it" for n in names}
@@ -161,10 +174,10 @@ def kept_line(kept: dict[str, str]) -> str:
     return "kept " + "; ".join(f"checkpoints/{n}: {why}" for n, why in kept.items())
 
 
-def unlink_checkpoints(run_dir: str | Path, names) -> None:
+def unlink_checkpoints(run_dir: str | Path, names, root: str | Path | None = None) -> None:
     """Delete RUN/checkpoints/``names`` (checked by `removable`), through a descriptor of the folder opened
-    without following a link."""
-    fd = _open_folder(run_dir)
+    without following a link (from ``root``, when given)."""
+    fd = _open_folder(run_dir, root)
     try:
         for n in names:
             st = os.stat(n, dir_fd=fd, follow_symlinks=False)
@@ -185,17 +198,24 @@ def removed_checkpoints(run_dir: str | Path) -> dict[str, dict]:
     return {k: v for k, v in files.items() if isinstance(v, dict)}
 
 
-def record_removed(run_dir: str | Path, files: dict[str, dict], sizes: dict[str, int]) -> None:
+def record_removed(run_dir: str | Path, files: dict[str, dict], sizes: dict[str, int],
+                   root: str | Path | None = None) -> None:
     """Append ``files`` ({name: {"step": int | None, "reason": the end of a sentence, "by ... once ..."}}), with
     their ``sizes``, to RUN/checkpoints/removed.json before the caller deletes them: an interruption between
     the two leaves a file that is still there, never a folder that looks whole without it. Every earlier
-    entry is kept (a record of an older layout, ``files`` only, becomes the first ``removals``)."""
-    rec = _record(run_dir, REMOVED)  # RecordError / OSError: the caller has not deleted anything
-    old = {k: v for k, v in (rec.get("files") or {}).items() if isinstance(v, dict)}
-    removals = rec.get("removals")
-    removals = list(removals) if isinstance(removals, list) else [{"file": k, **v} for k, v in old.items()]
-    for name, info in files.items():
-        entry = {"step": info.get("step"), "bytes": sizes.get(name), "reason": info.get("reason")}
-        old[name] = entry
-        removals.append({"file": name, **entry})
-    atomic_write_json(Path(run_dir) / "checkpoints" / REMOVED, {"files": old, "removals": removals})
+    entry is kept (a record of an older layout, ``files`` only, becomes the first ``removals``). Read and
+    written through one descriptor of RUN/checkpoints/ (from ``root``, when given: never through a link)."""
+    fd = _open_folder(run_dir, root)  # OSError (LinkRefused): the caller has not deleted anything
+    try:
+        rec = _read_record(fd, REMOVED)  # RecordError: likewise
+        old = {k: v for k, v in (rec.get("files") or {}).items() if isinstance(v, dict)}
+        removals = rec.get("removals")
+        removals = list(removals) if isinstance(removals, list) else [{"file": k, **v} for k, v in old.items()]
+        for name, info in files.items():
+            entry = {"step": info.get("step"), "bytes": sizes.get(name), "reason": info.get("reason")}
+            old[name] = entry
+            removals.append({"file": name, **entry})
+        atomic_write_at(fd, REMOVED, json.dumps({"files": old, "removals": removals}, indent=1).encode("utf-8"),
+                        Path(run_dir) / "checkpoints" / REMOVED)
+    finally:
+        os.close(fd)

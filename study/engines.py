@@ -70,39 +70,45 @@ def _merge(counters: Counters, c: dict) -> None:
 
 def _run_parallel(cfg: SweepConfig, todo: list, out: Path, counters: Counters, log,
                   init_from: str | None = None, on_done=lambda row: None) -> list[dict]:
-    """The runs ``cfg.jobs`` at a time in spawned processes (see the module docstring)."""
+    """The runs ``cfg.jobs`` at a time in spawned processes (see the module docstring). Ctrl-C (or SystemExit)
+    at any moment, even while a run is being submitted, ends the workers and returns at once
+    (`corelib.procs.stop_pool`); the workers never see the Ctrl-C themselves (`corelib.procs.sigint_held`)."""
     import multiprocessing as mp
     from concurrent.futures import ProcessPoolExecutor, as_completed
     from concurrent.futures.process import BrokenProcessPool
 
+    from corelib.procs import die_with_parent, lost_workers, sigint_held, stop_pool
+
     log(f"[sweep] {len(todo)} run(s), {cfg.jobs} at a time (one process each; progress bars off)")
     rows: list[dict | None] = [None] * len(todo)
-    from corelib.procs import die_with_parent
-
     # workers die with the sweep: SIGTERM, SIGHUP or kill -9 of this process leaves no run training
-    with ProcessPoolExecutor(max_workers=cfg.jobs, mp_context=mp.get_context("spawn"), initializer=die_with_parent,
-                             initargs=(os.getpid(),)) as pool:
-        futures = [pool.submit(_stage_job, cfg, d, method, seed, out, init_from) for d, method, seed in todo]
-        index = {fut: i for i, fut in enumerate(futures)}
+    pool = ProcessPoolExecutor(max_workers=cfg.jobs, mp_context=mp.get_context("spawn"), initializer=die_with_parent,
+                               initargs=(os.getpid(),))
+    try:
+        index = {}
+        for i, (d, method, seed) in enumerate(todo):
+            with sigint_held():  # a worker started here inherits SIGINT blocked: this process ends it
+                index[pool.submit(_stage_job, cfg, d, method, seed, out, init_from)] = i
+        for fut in as_completed(index):  # as they finish, for the progress; rows keep todo's order
+            row, c = fut.result()
+            rows[index[fut]] = row
+            _merge(counters, c)
+            on_done(row)
+    except (KeyboardInterrupt, SystemExit, BrokenProcessPool) as exc:
+        # nothing waited for (a run trains for minutes); the pool's own thread cancels what was queued
+        stop_pool(pool)
+        if isinstance(exc, BrokenProcessPool):  # a run's process died (kill -9, the OOM killer)
+            unfinished = [run_dir_for(out, d["overlap"], m, s).name for (d, m, s), r in zip(todo, rows) if r is None]
+            raise lost_workers("mcdp sweep", unfinished, "run(s)") from None
+        raise
+    except BaseException:  # a run failed: the sweep stops once the running runs end, the queued ones never start
         try:
-            for fut in as_completed(futures):  # as they finish, for the progress; rows keep todo's order
-                row, c = fut.result()
-                rows[index[fut]] = row
-                _merge(counters, c)
-                on_done(row)
-        except BaseException as exc:
-            for f in futures:
-                f.cancel()
-            if isinstance(exc, BrokenProcessPool):  # a run's process died (kill -9, the OOM killer)
-                from corelib.procs import lost_workers
-
-                unfinished = [run_dir_for(out, d["overlap"], m, s).name
-                              for (d, m, s), r in zip(todo, rows) if r is None]
-                raise lost_workers("mcdp sweep", unfinished, "run(s)") from None
-            if isinstance(exc, KeyboardInterrupt):  # SIGINT to this process alone: its workers did not get it,
-                for proc in mp.active_children():  # and leaving the with-block would wait for their runs to end
-                    proc.terminate()
+            pool.shutdown(wait=True, cancel_futures=True)
+        except BaseException:  # Ctrl-C while waiting for them
+            stop_pool(pool)
             raise
+        raise
+    pool.shutdown(wait=True)
     return rows  # type: ignore[return-value]
 
 

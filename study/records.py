@@ -19,7 +19,14 @@ def read_json(path: Path) -> dict | None:
         return None
 
 
-def write_json(path: Path, obj) -> None:
+def write_json(path: Path, obj, root: Path | None = None) -> None:
+    """``obj`` written whole to ``path``, its folders made; given ``root`` (the sweep's folder), never through a
+    link below it (`corelib.nolinks.write_json_in`: `corelib.atomic.LinkRefused` names the link)."""
+    if root is not None:
+        from corelib.nolinks import write_json_in
+
+        write_json_in(root, path, obj, indent=1, allow_nan=True)
+        return
     path.parent.mkdir(parents=True, exist_ok=True)
     atomic_write_json(path, obj, allow_nan=True)
 

@@ -1,6 +1,12 @@
 """The stages of one sweep: make the shared pretraining, and train + evaluate one (overlap, method, seed)
 run; each stage is skipped when its inputs' hashes are unchanged (module docstring of `study.sweep`).
 The worlds (render, measured overlap, yardsticks) are `study.worlds`.
+
+A run's files are written, and its checkpoints deleted, only inside the sweep's own folder: every folder from
+the sweep's down to the file is reached without following a link (`corelib.nolinks`). A run folder that is, or
+lies under, a symbolic link (``runs/``, ``runs/overlap_0.50/`` or the run's own folder linked to another
+sweep's, to reuse it) is read only: reused when its records match, with one line saying so, never cleaned up;
+one that would be trained or evaluated again is refused in one line naming the link.
 """
 from __future__ import annotations
 
@@ -29,7 +35,7 @@ def pretrain_stage(cfg: SweepConfig, sweep_dir: Path, progress: bool, log) -> di
     _, _, h = resolved_configs(cfg.pretrain)
     pdir = sweep_dir / "pretrain" / h[:12]
     rec = run_pretrain(cfg.pretrain, pdir, progress=progress, log=log)
-    trim_pretraining(cfg, pdir / "run", int(rec["step"]), log)
+    trim_pretraining(cfg, pdir / "run", int(rec["step"]), log, root=sweep_dir)
     return {"weights": str(pdir / WEIGHTS), "config_hash": h, "sha256": rec["sha256"], "step": rec["step"],
             "render_s": rec.get("render_s"), "train_s": rec.get("train_s"), "depth_spread": rec.get("depth_spread"),
             "code_version": rec.get("code_version"), "cpu_capability": rec.get("cpu_capability")}
@@ -64,6 +70,7 @@ def run_dir_for(sweep_dir: Path, overlap: float, method: str, seed: int) -> Path
 def run_stage(cfg: SweepConfig, overlap: float, data: dict, method: str, seed: int, sweep_dir: Path,
               counters: Counters, log, progress: bool, init_from: str | None = None) -> dict:
     """Train (or reuse / resume) and evaluate one (overlap, method, seed); returns its result row."""
+    from corelib.nolinks import linked_part
     from synth.open import open_dataset
 
     rcfg, preset = run_config_for(cfg, method, seed, init_from)
@@ -71,7 +78,8 @@ def run_stage(cfg: SweepConfig, overlap: float, data: dict, method: str, seed: i
     status = read_json(run_dir / STATUS) or {}
     rhash = sweep_run_hash(rcfg, status)
     run = _Run(cfg, overlap, data, method, seed, rcfg, rhash, run_dir, status,
-               f"[sweep] overlap {overlap:.2f} {method} seed {seed}", counters, log, progress)
+               f"[sweep] overlap {overlap:.2f} {method} seed {seed}", counters, log, progress,
+               root=Path(sweep_dir), linked=linked_part(sweep_dir, run_dir))
     row: dict[str, Any] = {"overlap": overlap, "method": method, "seed": seed, "world": data.get("data_seed"),
                            "run_dir": str(run_dir),
                            "preset": str(preset), "run_config_hash": rhash, "run_config": config_to_dict(rcfg),
@@ -81,13 +89,18 @@ def run_stage(cfg: SweepConfig, overlap: float, data: dict, method: str, seed: i
         return row  # diverged: the row says so
     passes, key = _evaluate(run, row)
     removed = []
-    if not cfg.keep_last:
-        # (its log line of a kept file only when remove_best, which says it too, does not run)
-        run.status, removed = remove_last(run_dir, run.status, run.status_path,
-                                           log if cfg.keep_best else (lambda _: None), run.tag)
-    if not cfg.keep_best:
-        run.status, gone = remove_best(run_dir, run.status, run.status_path, key, log, run.tag)
-        removed += gone
+    if run.linked is not None:  # another sweep's run, linked in to be reused: never cleaned up from here
+        log(f"{run.tag}: {_link_words(run)}: the run is read only, reused as it is; nothing is written or deleted "
+            "through the link" + ("" if cfg.keep_last and cfg.keep_best else
+                                  " (keep_last / keep_best: false are not applied to it)"))
+    else:
+        if not cfg.keep_last:
+            # (its log line of a kept file only when remove_best, which says it too, does not run)
+            run.status, removed = remove_last(run_dir, run.status, run.status_path,
+                                               log if cfg.keep_best else (lambda _: None), run.tag, root=run.root)
+        if not cfg.keep_best:
+            run.status, gone = remove_best(run_dir, run.status, run.status_path, key, log, run.tag, root=run.root)
+            removed += gone
     if removed:
         log(f"{run.tag}: {removed_line(removed)}; its evaluation is in {run_dir / f'metrics_{SPLIT}.json'}")
     _fill_row(row, run.status, passes)
@@ -122,10 +135,31 @@ class _Run:
     log: Any
     progress: bool
     ds: Any = None
+    root: Path | None = None    # the sweep's folder: the run's files are written only below it, never through a link
+    linked: Path | None = None  # the symbolic link (runs/, runs/overlap_*/ or the run's folder) it is reached through
 
     @property
     def status_path(self) -> Path:
         return self.run_dir / STATUS
+
+
+def _link_words(run: _Run) -> str:
+    """``SWEEP/runs/overlap_0.50 is a symbolic link (to /elsewhere)``: the link a read-only run is reached through."""
+    import os
+
+    try:
+        target = os.readlink(run.linked)
+    except OSError:
+        target = "?"
+    return f"{run.linked} is a symbolic link (to {target})"
+
+
+def _refuse_linked(run: _Run, what: str) -> None:
+    """A read-only run (reached through a link) that would be trained or evaluated again: one line naming the link."""
+    if run.linked is not None:
+        raise ConfigError(f"{run.run_dir}: {_link_words(run)}, and the run would be {what} again; the sweep writes "
+                          f"and deletes only inside its own folder {run.root}: copy the run into it instead of "
+                          "linking it, or remove the link")
 
 
 def _train(run: _Run, row: dict) -> bool:
@@ -140,6 +174,7 @@ def _train(run: _Run, row: dict) -> bool:
         run.log(f"{tag}: trained already ({status.get('steps')} steps), skipped")
         warn_other_code(f"run {run_dir}", status.get("code_version"), lambda line: run.log(f"{tag}: {line}"))
         return True
+    _refuse_linked(run, "trained")
     if status.get("data_hash") not in (None, data["config_hash"]):
         raise ConfigError(f"{run_dir} was trained on another dataset; delete it or use a new --out")
     if status.get("last_removed") and not (run_dir / "checkpoints" / "last.pt").exists():
@@ -163,7 +198,7 @@ def _train(run: _Run, row: dict) -> bool:
         run.log(f"{tag}: TRAINING DIVERGED: {exc}")
         run.counters.bump("diverged")
         write_json(run.status_path, {**status, "run_config_hash": rhash, "data_hash": data["config_hash"],
-                                      "trained": False, "diverged": str(exc)})
+                                      "trained": False, "diverged": str(exc)}, root=run.root)
         row.update(status="diverged", error=str(exc), train_s=time.perf_counter() - t0, train_skipped=False)
         return False
     finally:
@@ -175,7 +210,7 @@ def _train(run: _Run, row: dict) -> bool:
     run.status = {"run_config_hash": rhash, "data_hash": data["config_hash"], "trained": True,
                   "steps": summary["steps"], "train_s": train_s, "best_val": summary["best_val"],
                   "code_version": code_version()}
-    write_json(run.status_path, run.status)
+    write_json(run.status_path, run.status, root=run.root)
     row.update(train_s=train_s, train_skipped=False, steps=summary["steps"])
     return True
 
@@ -204,6 +239,7 @@ def _evaluate(run: _Run, row: dict) -> tuple[dict[str, dict], str]:
             if m is not None and m.get("sweep", {}).get("eval_key") == key:  # a pass of this eval key
                 passes[v.name] = m
         return passes, key
+    _refuse_linked(run, "evaluated")
     if removed:
         raise ConfigError(f"{run_dir}: its evaluation is out of date (the sweep's eval settings, checkpoint or this "
                           f"code's evaluation changed) and its checkpoint checkpoints/{ckpt_name} was removed after "
@@ -217,12 +253,12 @@ def _evaluate(run: _Run, row: dict) -> tuple[dict[str, dict], str]:
     for name, m in passes.items():
         if name != TRAINED:
             m["sweep"] = {**metrics["sweep"], "variant": name}
-            write_json(metrics_path(run_dir, name), m)
-    write_json(metrics_path(run_dir, TRAINED), metrics)  # last: it names the eval key that says all are complete
+            write_json(metrics_path(run_dir, name), m, root=run.root)
+    write_json(metrics_path(run_dir, TRAINED), metrics, root=run.root)  # last: its eval key says all are complete
     eval_s = time.perf_counter() - t0
     run.status = {**status, "eval_key": key, "eval_s": eval_s, "checkpoint": metrics["run"]["checkpoint"],
                   "checkpoint_step": metrics["run"]["step"]}
-    write_json(run.status_path, run.status)
+    write_json(run.status_path, run.status, root=run.root)
     run.counters.bump("evaluated")
     row.update(eval_s=eval_s, eval_skipped=False)
     return passes, key

@@ -124,3 +124,32 @@ def test_a_fifo_under_a_checkpoints_name_is_kept_without_blocking(tmp_path):
     os.mkfifo(run / "checkpoints" / "best.pt")
     ok, kept = removable(run, ["last.pt", "best.pt"])
     assert set(ok) == {"last.pt"} and "not a regular file" in kept["best.pt"]
+
+
+@pytest.mark.parametrize("linked", ["runs", "runs/overlap_0.50", "runs/overlap_0.50/mono2_s0"])
+def test_nothing_is_deleted_or_recorded_below_a_linked_folder_of_the_sweep(tmp_path, linked):
+    """Issue 49, item 1: given the sweep's folder as ``root``, a link at any level between it and checkpoints/
+    (not only checkpoints/ itself) keeps every file, the kept line naming the link, and no record is written."""
+    from corelib.atomic import LinkRefused
+
+    sweep, other = tmp_path / "sweep", tmp_path / "other"
+    rel = Path("runs/overlap_0.50/mono2_s0")
+    _write(other / rel, "best.pt", {"w": 1})
+    _write(other / rel, "last.pt", {"w": 2})
+    (sweep / linked).parent.mkdir(parents=True, exist_ok=True)
+    (sweep / linked).symlink_to(other / linked, target_is_directory=True)
+    run = sweep / rel
+    status, path = _status(run)  # written through the link by the test, as the other sweep left it
+    before = path.read_text()
+    lines: list[str] = []
+    _, removed = remove_best(run, status, path, "k", lines.append, "[t]", root=sweep)
+    trim_pretraining(SweepConfig(keep_last=False, keep_best=False), run, 2, lines.append, root=sweep)
+    assert removed == [] and sorted(p.name for p in (other / rel / "checkpoints").iterdir()) == \
+        ["best.pt", "last.pt", WRITTEN]
+    assert path.read_text() == before
+    assert lines and all(f"{sweep / linked} is a symbolic link: nothing is deleted through it" in ln
+                         for ln in lines), lines
+    assert removable(run, ["best.pt"]) == ({"best.pt": (other / rel / "checkpoints" / "best.pt").stat().st_size}, {})
+    with pytest.raises(LinkRefused):  # without root only checkpoints/ is guarded (above); with it, the whole way
+        record_removed(run, {"best.pt": {"step": 2, "reason": "x"}}, {"best.pt": 1}, root=sweep)
+    assert not (other / rel / "checkpoints" / REMOVED).exists()
