@@ -7,8 +7,9 @@ from pathlib import Path
 
 import pytest
 
+from study.paired import paired_difference
 from study.results import (SCHEMA, aggregate_flat, evaluations, evaluations_of, flat_rows, method_agg,
-                           paired_difference, read_results, t_halfwidth, upgrade_results)
+                           read_results, t_halfwidth, upgrade_results)
 from study.variants import CUT, TRAINED, Evaluation
 
 
