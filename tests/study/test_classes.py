@@ -23,8 +23,8 @@ def _results(moving_hole: float, parked_hole: float) -> dict:
 def test_the_section_pairs_each_method_with_mono2_by_class_and_says_when_movers_collapse():
     label = {"mono2": "Mono2", "mcdp_m2": "MCDP (m = 2)"}.get
     text = format_classes(_results(0.6, 0.05), label)
-    assert "| road | 0.400 | 0.101 | -0.020 ± 0.000 * |" in text
-    assert "MCDP (m = 2) - Mono2" in text and "comparisons, uncorrected" in text
+    assert "| road | 0.400 | 0.101 | +0.020 ± 0.000 * |" in text   # one sign per page: Mono2 - method, positive = helps
+    assert "Mono2 - MCDP (m = 2)" in text and "comparisons, uncorrected" in text
     # one line per method on its moving vehicles: the share beyond 2x their depth, the parked ones', the pixels
     # and runs it rests on (the numbers, in order), and the verdict
     for moving_hole, parked_hole, verdict in ((0.6, 0.05, "**collapses**"), (0.02, 0.01, "does not collapse")):

@@ -122,6 +122,7 @@ def test_seeds_per_world_at_its_default_keeps_the_sweep_hash():
         cfg = sweep.load_sweep_config(CI, [*args, "seeds_per_world=1"])
         before = config_to_dict(cfg)
         assert before.pop("seeds_per_world") == 1
+        assert before.pop("plan") is None  # an added key at its default (issue 47): not hashed
         if not args:
             assert before.pop("worlds") == "shared"  # at its default: not hashed either
         assert config_hash(cfg) == config_hash(sweep.load_sweep_config(CI, args)) == json_sha256(before)
