@@ -30,3 +30,79 @@ def test_dataset_page_states_each_labels_default_as_the_config_has_it():
     movers = next(ln for ln in text.splitlines() if ".movers.png" in ln)
     after = text.split(movers, 1)[1].split("\n", 2)[1]
     assert "labels.flow=true" in movers + after, "movers.png is written only with the flow"
+
+
+# --------------------------------------------------------------------------- help text, option spellings
+def _parsers():
+    """(prog, its build_parser parser) for `synth` and `mcdp` (every command, the study's included)."""
+    import study.cli
+    import study.method_commands
+    import synth.cli
+    from corelib.cli import build_parser
+
+    return [("synth", build_parser("synth", "", synth.cli.COMMANDS)),
+            ("mcdp", build_parser("mcdp", "", study.method_commands.COMMANDS + study.cli.COMMANDS))]
+
+
+def _subparsers(parser: argparse.ArgumentParser) -> dict:
+    return next(a for a in parser._actions if isinstance(a, argparse._SubParsersAction)).choices
+
+
+def test_every_option_of_every_command_has_help_text():
+    bare = []
+    for prog, parser in _parsers():
+        for name, sub in [("", parser)] + list(_subparsers(parser).items()):
+            for a in sub._actions:
+                if isinstance(a, argparse._SubParsersAction) or a.help == argparse.SUPPRESS:
+                    continue
+                if not (a.help or "").strip():
+                    bare.append(f"{prog} {name} {'/'.join(a.option_strings) or a.dest}".replace("  ", " "))
+    assert bare == []
+
+
+def test_render_help_names_the_labels(capsys):
+    from synth.cli import main
+
+    assert main(["render", "--help"]) == 0
+    text = " ".join(capsys.readouterr().out.split())
+    assert "labels" in text and "labels.flow=true" in text and "semantic" in text
+
+
+@pytest.mark.parametrize("command", [["preview", "DATA", "--out", "sheet.png"], ["view", "DATA", "--out", "a.rrd"]])
+@pytest.mark.parametrize("spelling", ["--seq", "--sequence"])
+def test_preview_and_view_take_both_spellings_of_the_sequence(command, spelling):
+    from corelib.cli import parse_command_line
+
+    parser = dict(_parsers())["synth"]
+    args = parse_command_line(parser, command + [spelling, "seq_00002"])
+    assert (args.sequence if command[0] == "preview" else args.seq) == "seq_00002"
+
+
+# --------------------------------------------------------------------------- mcdp eval's nan, explained
+def _metrics(vehicle: float, pair: float) -> dict:
+    from mcdp.metrics import metric_names
+
+    row = {k: 0.1 for k in metric_names()}
+    cams = ["CAM_FRONT", "CAM_BACK"]
+    none = {"per_camera": {c: row for c in cams}, "mean": row, "overlap": row, "non_overlap": row,
+            "classes": {"road": row, "vehicle": {k: vehicle for k in row}}, "motion": {"static": row},
+            "holes": {"ratio": 2.0, "moving": float("nan"), "moving_pixels": 0, "parked": 0.0, "parked_pixels": 5}}
+    dep_con = {"mean": 0.05, "per_camera": {"CAM_FRONT": 0.05, "CAM_BACK": 0.05},
+               "per_pair": {"CAM_FRONT->CAM_BACK": 0.05, "CAM_BACK->CAM_FRONT": pair}}
+    return {"split": "test", "n_samples": 2, "min_depth": 0.1, "max_depth": 80.0, "cameras": cams,
+            "stages": {"final": {"none": none, "dep_con": dep_con}}}
+
+
+def test_eval_tables_say_once_what_a_nan_means():
+    from mcdp.tables import NAN_DEP_CON, NAN_ROWS, format_tables
+
+    nan = float("nan")
+    clean = format_tables(_metrics(0.2, 0.05))
+    assert "nan:" not in clean                                  # no nan printed, no note
+    text = format_tables(_metrics(nan, nan)).splitlines()
+    assert any(ln.startswith("vehicle") and ln.split()[1] == "nan" for ln in text)
+    assert text.count(NAN_ROWS) == 1 and text.count(NAN_DEP_CON) == 1
+    assert text.index(NAN_ROWS) < text.index("Dep Con (unscaled predictions; lower is better)") < text.index(NAN_DEP_CON)
+    assert "absent from the split" in NAN_ROWS and "hit" in NAN_DEP_CON
+    only_pair = format_tables(_metrics(0.2, nan)).splitlines()
+    assert NAN_ROWS not in only_pair and only_pair[-1] == NAN_DEP_CON
