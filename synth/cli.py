@@ -98,12 +98,13 @@ def _outside_datasets(out: str) -> None:
 
 
 def _merge(args) -> int:
-    from synth.merge import merge_datasets
+    from corelib.text import bounded
+    from synth.merge import merge_datasets, merge_statement
 
     _outside_datasets(args.out)
 
     res = merge_datasets([Path(s) for s in args.shards], Path(args.out))
-    print(json.dumps(res))
+    print(bounded(merge_statement(res, Path(args.out))), file=sys.stdout if res["complete"] else sys.stderr)
     return 0 if res["complete"] else 1
 
 

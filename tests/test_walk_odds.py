@@ -78,6 +78,29 @@ def test_preview_and_view_take_both_spellings_of_the_sequence(command, spelling)
     assert (args.sequence if command[0] == "preview" else args.seq) == "seq_00002"
 
 
+# --------------------------------------------------------------------------- synth merge of an incomplete set
+def test_merge_of_an_incomplete_shard_set_says_so_in_one_named_line(tiny_dataset, tmp_path, capsys):
+    import shutil
+
+    from synth.cli import main
+
+    shard = tmp_path / "s0"
+    shutil.copytree(tiny_dataset, shard)
+    (shard / "manifest.json").unlink()            # a shard: no manifest, and one sequence not rendered here
+    shutil.rmtree(shard / "seq_00002")
+    out = tmp_path / "full"
+    assert main(["merge", "--out", str(out), str(shard)]) == 1
+    cap = capsys.readouterr()
+    lines = cap.err.strip().splitlines()
+    assert cap.out == "" and len(lines) == 1 and lines[0].startswith("synth merge: ")
+    assert "2 of 3 sequences" in lines[0] and "missing seq_00002" in lines[0] and "{" not in lines[0]
+    shutil.copytree(tiny_dataset / "seq_00002", tmp_path / "s1" / "seq_00002")  # the other shard's sequence
+    shutil.copytree(shard / ".synth", tmp_path / "s1" / ".synth")
+    shutil.copy(shard / "rig.json", tmp_path / "s1" / "rig.json")
+    assert main(["merge", "--out", str(out), str(tmp_path / "s1")]) == 0
+    assert capsys.readouterr().out.strip() == f"synth merge: {out}: complete, 3 sequences; manifest written"
+
+
 # --------------------------------------------------------------------------- mcdp eval's nan, explained
 def _metrics(vehicle: float, pair: float) -> dict:
     from mcdp.metrics import metric_names
