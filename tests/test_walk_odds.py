@@ -129,3 +129,42 @@ def test_eval_tables_say_once_what_a_nan_means():
     assert "absent from the split" in NAN_ROWS and "hit" in NAN_DEP_CON
     only_pair = format_tables(_metrics(0.2, nan)).splitlines()
     assert NAN_ROWS not in only_pair and only_pair[-1] == NAN_DEP_CON
+
+
+# --------------------------------------------------------------------------- synth verify on a nuScenes dataroot
+def test_verify_names_a_nuscenes_dataroot_and_checks_what_it_can(ns_root, tmp_path, capsys):
+    import shutil
+
+    from synth.cli import main
+    from synth.nuscenes.read import open_nuscenes
+    from synth.verify import verify_dataset
+
+    assert main(["verify", str(ns_root)]) == 0
+    out = capsys.readouterr().out
+    assert out.startswith(f"OK {ns_root}: a nuScenes dataroot (version v1.0-synth)") and "missing" not in out
+    ds = open_nuscenes(ns_root)
+    n = sum(ds.n_frames(s) for s in ds.sequences) * len(ds.camera_names)
+    assert n > 0 and "tables load" in out and f"{len(ds.sequences)} scenes, {n} camera images present" in out
+    assert "nuScenes dataroot" in verify_dataset(ns_root)[0]
+    broken = tmp_path / "root"
+    shutil.copytree(ns_root, broken)
+    gone = sorted((broken / "samples" / "CAM_BACK").iterdir())[0]
+    gone.unlink()
+    assert main(["verify", str(broken)]) == 1
+    err = capsys.readouterr().err.splitlines()
+    assert len(err) == 2 and err[0].startswith(f"FAIL {gone}: image file is missing")  # named by the reader
+    assert err[1] == f"synth verify: 1 problem(s) in {broken}, a nuScenes dataroot"
+
+
+# --------------------------------------------------------------------------- mcdp pretrain: done, then exit
+@pytest.mark.parametrize("argv", [None, ["presets"]])
+def test_a_console_script_freezes_its_heap_before_the_exit_and_a_caller_does_not(argv, monkeypatch):
+    import gc
+
+    from study.cli import main
+
+    frozen = []
+    monkeypatch.setattr(gc, "freeze", lambda: frozen.append(1))
+    monkeypatch.setattr("sys.argv", ["mcdp", "presets"])
+    assert main(argv) == 0
+    assert frozen == ([1] if argv is None else [])  # the shutdown's collections skip what the command left
