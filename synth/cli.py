@@ -253,6 +253,20 @@ def _verify(args) -> int:
 
     from corelib.text import bounded
 
+    from synth.nuscenes.tables import is_nuscenes_root
+
+    if is_nuscenes_root(args.data):  # no manifest: not "manifest.json: missing", but what a dataroot can be checked for
+        from synth.verify import verify_nuscenes
+
+        problems, summary = verify_nuscenes(args.data)
+        for p in problems:
+            print(f"FAIL {bounded(p)}", file=sys.stderr)
+        if problems:
+            print(f"synth verify: {len(problems)} problem(s) in {bounded(args.data)}, a nuScenes dataroot",
+                  file=sys.stderr)
+            return 1
+        print(f"OK {bounded(args.data)}: {summary}")
+        return 0
     problems = verify_dataset(args.data, progress=sys.stderr.isatty())
     if problems:
         for p in problems:

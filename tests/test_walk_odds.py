@@ -154,17 +154,3 @@ def test_verify_names_a_nuscenes_dataroot_and_checks_what_it_can(ns_root, tmp_pa
     err = capsys.readouterr().err.splitlines()
     assert len(err) == 2 and err[0].startswith(f"FAIL {gone}: image file is missing")  # named by the reader
     assert err[1] == f"synth verify: 1 problem(s) in {broken}, a nuScenes dataroot"
-
-
-# --------------------------------------------------------------------------- mcdp pretrain: done, then exit
-@pytest.mark.parametrize("argv", [None, ["presets"]])
-def test_a_console_script_freezes_its_heap_before_the_exit_and_a_caller_does_not(argv, monkeypatch):
-    import gc
-
-    from study.cli import main
-
-    frozen = []
-    monkeypatch.setattr(gc, "freeze", lambda: frozen.append(1))
-    monkeypatch.setattr("sys.argv", ["mcdp", "presets"])
-    assert main(argv) == 0
-    assert frozen == ([1] if argv is None else [])  # the shutdown's collections skip what the command left
