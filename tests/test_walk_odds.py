@@ -154,3 +154,64 @@ def test_verify_names_a_nuscenes_dataroot_and_checks_what_it_can(ns_root, tmp_pa
     err = capsys.readouterr().err.splitlines()
     assert len(err) == 2 and err[0].startswith(f"FAIL {gone}: image file is missing")  # named by the reader
     assert err[1] == f"synth verify: 1 problem(s) in {broken}, a nuScenes dataroot"
+
+
+# --------------------------------------------------------------------------- mcdp pretrain: done, then exit
+@pytest.mark.parametrize("argv", [None, ["presets"]])
+def test_a_console_script_freezes_its_heap_before_the_exit_and_a_caller_does_not(argv, monkeypatch):
+    import gc
+
+    from study.cli import main
+
+    frozen = []
+    monkeypatch.setattr(gc, "freeze", lambda: frozen.append(1))
+    monkeypatch.setattr("sys.argv", ["mcdp", "presets"])
+    assert main(argv) == 0
+    assert frozen == ([1] if argv is None else [])  # the shutdown's collections skip what the command left
+
+
+# --------------------------------------------------------------------------- preview: titles that fit, colour keys
+@pytest.mark.parametrize("title", ["CAM_FRONT_RIGHT", "CAM_BACK_LEFT", "mask (12% ego)", "flow (12.3 px)",
+                                   "a title of many words that no scale fits on one line"])
+def test_preview_titles_fit_a_96_pixel_tile(title):
+    import numpy as np
+
+    from synth.preview import _label
+
+    tile = _label(np.zeros((64, 96, 3), np.uint8), title)
+    lit = np.nonzero(tile.max(axis=(0, 2)) > 0)[0]
+    assert lit.size and lit.max() < 94            # nothing drawn into the right margin: the title is not cut
+    assert tile[-8:].max() == 0 or len(title) > 40   # one line for a camera's name
+
+
+def test_depth_bar_colours_its_ticks_as_the_depth_tiles_do():
+    import numpy as np
+
+    from synth.preview import BAR_TICKS_M, colorize_depth, depth_bar
+
+    bar, ticks = depth_bar(300)
+    assert sorted(ticks) == list(BAR_TICKS_M) and list(ticks.values()) == sorted(ticks.values(), reverse=True)  # far (left) to near
+    for d, x in ticks.items():
+        want = colorize_depth(np.array([[float(d)]]))[0, 0].astype(int)
+        assert np.abs(bar[5, x].astype(int) - want).max() <= 12, d
+
+
+def test_flow_key_hue_is_the_direction_and_the_sheet_carries_both_keys(flow_dataset, tmp_path):
+    import numpy as np
+    from PIL import Image
+
+    from synth.open import open_dataset
+    from synth.preview import depth_bar, flow_key, make_preview
+
+    key = flow_key(49).astype(int)
+    right, left, down = key[24, 46], key[24, 2], key[46, 24]
+    assert right[0] > 200 and right[1] < 80 and right[2] < 80      # to the right: red
+    assert left[0] < 80 and left[1] > 150 and left[2] > 150        # to the left: cyan
+    assert key[24, 24].max() < 30 and key[0, 0].max() == 0         # no length at the centre; outside: invalid
+    assert down[1] > down[2]                                       # down (v > 0): hue 90 deg, yellow-green
+    sheet = np.asarray(Image.open(make_preview(open_dataset(flow_dataset), tmp_path / "sheet.png")))
+    W = sheet.shape[1]
+    bar, _ = depth_bar(W - (48 + 150) - 70)                        # key_row's layout with a flow key
+    top = sheet.shape[0] - (48 + 14) + 14                          # the last row: 14 px of caption, then the keys
+    assert (sheet[top:top + bar.shape[0], 66:66 + bar.shape[1]] == bar).all()
+    assert (sheet[top:top + 48, W - 52:W - 4] == flow_key()).all()
