@@ -12,8 +12,19 @@ import numpy as np
 from mcdp.evaluate import SCALINGS
 from mcdp.metrics import metric_names
 
+#: what a ``nan`` means, said once under the tables that print one
+NAN_ROWS = ("nan: no valid ground-truth pixel of that row in the evaluated images (a class group or motion "
+            "absent from the split, a camera without overlap)")
+NAN_DEP_CON = ("nan: no valid ground-truth pixel of the target camera was hit by its neighbour's splatted "
+               "prediction in any image of the split")
+
+
+def _isnan(x) -> bool:
+    return x is None or (isinstance(x, float) and np.isnan(x))
+
+
 def _fmt(x: float) -> str:
-    return "   nan" if x is None or (isinstance(x, float) and np.isnan(x)) else f"{x:6.3f}"
+    return "   nan" if _isnan(x) else f"{x:6.3f}"
 
 
 def format_tables(metrics: dict, stage: str = "final") -> str:
@@ -61,6 +72,8 @@ def format_tables(metrics: dict, stage: str = "final") -> str:
             lines.append(f"movers beyond {h.get('ratio', 2.0):g}x their depth: {_fmt(h.get('moving'))} of "
                          f"{h.get('moving_pixels', 0)} moving-vehicle pixels (parked: {_fmt(h.get('parked'))} of "
                          f"{h.get('parked_pixels', 0)})")
+    if any(" nan" in line for line in lines[1:] if not line.startswith("movers beyond")):
+        lines.append(NAN_ROWS)
     dc = st.get("dep_con")
     if dc is not None:
         lines += ["", "Dep Con (unscaled predictions; lower is better)", f"{'camera':<{w}}   dep_con"]
@@ -72,4 +85,7 @@ def format_tables(metrics: dict, stage: str = "final") -> str:
             pw = max(len(p) for p in dc["per_pair"])
             for p, v in dc["per_pair"].items():
                 lines.append(f"  {p:<{pw}}   {_fmt(v)}")
+        if any(_isnan(v) for v in [dc["mean"], *dc["per_pair"].values(), *(dc["per_camera"].get(c, float("nan"))
+                                                                              for c in cams)]):
+            lines.append(NAN_DEP_CON)
     return "\n".join(lines)

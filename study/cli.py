@@ -28,7 +28,7 @@ def _pretrain_args(p: argparse.ArgumentParser) -> None:
     p.add_argument("--out", help="pretraining folder (reused when its config hash matches); required unless "
                    "--print-config")
     command_common.add_print_config(p)
-    p.add_argument("--no-progress", action="store_true")
+    p.add_argument("--no-progress", action="store_true", help="no progress bars (log lines only)")
     p.add_argument("--yes", action="store_true", help="start a pretraining whose render is larger than "
                    "synth.config.MAX_RENDER_BYTES (500 GB uncompressed) without refusing")
     p.add_argument("overrides", nargs="*", help="overrides of the pretraining config, e.g. 'train_overrides=[train.steps=50]'")

@@ -73,8 +73,9 @@ def _eval_args(p: argparse.ArgumentParser) -> None:
         "--checkpoint", default="auto", help="auto (best.pt by val loss, else last.pt) | best | last | path"
     )
     p.add_argument("--stage", default="final", help="stage whose tables are printed (all stages are saved)")
-    p.add_argument("--device", default="auto", choices=["auto", "cpu", "cuda"])
-    p.add_argument("--no-progress", action="store_true")
+    p.add_argument("--device", default="auto", choices=["auto", "cpu", "cuda"],
+                   help="where the network runs: auto = CUDA when available, else cpu (default auto)")
+    p.add_argument("--no-progress", action="store_true", help="no progress bar")
     p.add_argument("overrides", nargs="*", help="evaluation overrides eval.key=value, e.g. eval.max_depth=60")
 
 
@@ -153,12 +154,13 @@ def _predict_args(p: argparse.ArgumentParser) -> None:
     p.add_argument("--rrd", default=None, help="also (or only) a Rerun recording *.rrd: ground truth and every "
                    "stage's depth, points and abs_rel image (mcdp.recording; the viz extra: .venv-viz/bin/mcdp, "
                    "made by scripts/setup.sh --test)")
-    p.add_argument("--split", default="test", choices=["train", "val", "test"])
+    p.add_argument("--split", default="test", choices=["train", "val", "test"], help="split to predict (default test)")
     p.add_argument("--max-samples", type=int, default=None, help="at most this many rig samples")
     p.add_argument("--stride", type=int, default=1, help="every k-th frame")
     p.add_argument("--ply", action="store_true", help="also write a coloured PLY point cloud of the rig (ego frame)")
     p.add_argument("--checkpoint", default="auto", help="auto | best | last | path")
-    p.add_argument("--device", default="auto", choices=["auto", "cpu", "cuda"])
+    p.add_argument("--device", default="auto", choices=["auto", "cpu", "cuda"],
+                   help="where the network runs: auto = CUDA when available, else cpu (default auto)")
     p.add_argument("--no-progress", action="store_true", help="no progress bar (--rrd)")
 
 

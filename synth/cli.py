@@ -36,7 +36,7 @@ def _render_args(r: argparse.ArgumentParser) -> None:
     r.add_argument("--shard", default=None, help="K/N: render only sequences with index %% N == K")
     r.add_argument("--engine", default="local", choices=["local", "ray"], help="local: --workers processes; ray: one Ray task per sequence on a local Ray "
                    "(the machine's cores) or the cluster at RAY_ADDRESS (pip install -e '.[cluster]'; docs/SCALING.md)")
-    r.add_argument("--no-progress", action="store_true")
+    r.add_argument("--no-progress", action="store_true", help="no progress bar (log lines only)")
     r.add_argument("--yes", action="store_true", help="start a render larger than synth.config.MAX_RENDER_BYTES "
                    "(500 GB uncompressed) without refusing")
     r.set_defaults(overrides=[])
@@ -63,14 +63,15 @@ def _presets(args) -> int:
 
 
 def _verify_args(v: argparse.ArgumentParser) -> None:
-    v.add_argument("data")
+    v.add_argument("data", help="synth dataset folder (a nuScenes dataroot is named as one, its tables loaded)")
 
 
 def _preview_args(pv: argparse.ArgumentParser) -> None:
-    pv.add_argument("data")
+    pv.add_argument("data", help="finished synth dataset folder")
     pv.add_argument("--out", required=True, help="PNG file to write")
-    pv.add_argument("--sequence", default=None)
-    pv.add_argument("--frame", type=int, default=0)
+    pv.add_argument("--sequence", "--seq", dest="sequence", default=None, help="sequence id (default: the first); "
+                    "--seq as in synth view")
+    pv.add_argument("--frame", type=int, default=0, help="frame index in the sequence (default 0)")
 
 
 def _preview(args) -> int:
@@ -82,8 +83,9 @@ def _preview(args) -> int:
 
 
 def _merge_args(m: argparse.ArgumentParser) -> None:
-    m.add_argument("shards", nargs="+")
-    m.add_argument("--out", required=True)
+    m.add_argument("shards", nargs="+", help="shard folders rendered with one config (synth render --shard K/N)")
+    m.add_argument("--out", required=True, help="merged dataset folder (new, empty, or an earlier merge of these "
+                   "shards: a rerun adds what is new)")
 
 
 def _outside_datasets(out: str) -> None:
@@ -96,12 +98,13 @@ def _outside_datasets(out: str) -> None:
 
 
 def _merge(args) -> int:
-    from synth.merge import merge_datasets
+    from corelib.text import bounded
+    from synth.merge import merge_datasets, merge_statement
 
     _outside_datasets(args.out)
 
     res = merge_datasets([Path(s) for s in args.shards], Path(args.out))
-    print(json.dumps(res))
+    print(bounded(merge_statement(res, Path(args.out))), file=sys.stdout if res["complete"] else sys.stderr)
     return 0 if res["complete"] else 1
 
 
@@ -117,15 +120,17 @@ def _export_args(e: argparse.ArgumentParser) -> None:
     e.add_argument("--no-lidar", action="store_true", help="cameras only, no synthetic LIDAR_TOP")
     e.add_argument("--no-labels", action="store_true", help="leave the dataset's labels out (no lidarseg, no label "
                    "side files; docs/NUSCENES.md, 'Labels')")
-    e.add_argument("--jpeg-quality", type=int, default=95)
-    e.add_argument("--no-progress", action="store_true")
+    e.add_argument("--jpeg-quality", type=int, default=95, help="JPEG quality of the nuScenes images, 1..100 "
+                   "(default 95)")
+    e.add_argument("--no-progress", action="store_true", help="no progress bar")
     e.set_defaults(overrides=[])
 
 
 def _view_args(w: argparse.ArgumentParser) -> None:
     w.add_argument("data", help="finished synth dataset folder (or a nuScenes dataroot)")
     w.add_argument("--out", required=True, help="recording to write, *.rrd (new, or a recording written before)")
-    w.add_argument("--seq", default=None, help="sequence id (default: the first)")
+    w.add_argument("--seq", "--sequence", dest="seq", default=None, help="sequence id (default: the first); "
+                   "--sequence as in synth preview")
     w.add_argument("--frames", default=None, help="A:B, frames A..B-1 (default: all)")
     w.add_argument("--point-stride", type=int, default=2, help="every k-th pixel row and column in the point "
                    "cloud (default 2)")
@@ -248,6 +253,20 @@ def _verify(args) -> int:
 
     from corelib.text import bounded
 
+    from synth.nuscenes.tables import is_nuscenes_root
+
+    if is_nuscenes_root(args.data):  # no manifest: not "manifest.json: missing", but what a dataroot can be checked for
+        from synth.verify import verify_nuscenes
+
+        problems, summary = verify_nuscenes(args.data)
+        for p in problems:
+            print(f"FAIL {bounded(p)}", file=sys.stderr)
+        if problems:
+            print(f"synth verify: {len(problems)} problem(s) in {bounded(args.data)}, a nuScenes dataroot",
+                  file=sys.stderr)
+            return 1
+        print(f"OK {bounded(args.data)}: {summary}")
+        return 0
     problems = verify_dataset(args.data, progress=sys.stderr.isatty())
     if problems:
         for p in problems:
@@ -263,7 +282,10 @@ def _verify(args) -> int:
 
 #: the subcommands, in the one CLI style of `synth` and `mcdp` (`corelib.cli`)
 COMMANDS = [
-    Command("render", "render a dataset from a preset (+ key=value overrides)", _render_args, _render),
+    Command("render", "render a dataset from a preset (+ key=value overrides): per camera and frame RGB, depth and "
+            "the ego mask, and labels (semantic class and instance id maps by default; forward flow and the mover "
+            "mask with labels.flow=true; none with labels.semantic=false labels.instance=false; docs/DATASET.md)",
+            _render_args, _render),
     Command("info", "summary of a dataset: sequences, frames, splits, families, overlap per pair, image size, "
             "disk size", _info_args, _info),
     Command("presets", "list the data presets in configs/data", lambda p: None, _presets),

@@ -118,8 +118,20 @@ def merge_datasets(cfg_sources: list[Path], out: Path) -> dict:
         manifest = finalize(cfg, out, rig)
     finally:
         lock.release()
-    return {"complete": manifest is not None,
-            "sequences": len(complete_sequences(out, cfg.dataset.sequences)), "expected": cfg.dataset.sequences}
+    done = set(complete_sequences(out, cfg.dataset.sequences))
+    return {"complete": manifest is not None, "sequences": len(done), "expected": cfg.dataset.sequences,
+            "missing": [sequence_id(i) for i in range(cfg.dataset.sequences) if i not in done]}
+
+
+def merge_statement(res: dict, out: Path) -> str:
+    """One line on what `merge_datasets` returned (``res``): the dataset is complete, or which sequences it lacks."""
+    if res["complete"]:
+        return f"synth merge: {out}: complete, {res['sequences']} sequences; manifest written"
+    from synth.dataset import short_list
+
+    return (f"synth merge: {out}: incomplete, {res['sequences']} of {res['expected']} sequences; missing "
+            f"{short_list(res['missing'])}: merge the shards that hold them (synth render --shard K/N) into it; "
+            "no manifest yet")
 
 
 def _copy_sequence(src: Path, files: list[Path], out: Path, name: str) -> None:

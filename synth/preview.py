@@ -74,11 +74,87 @@ def colorize_depth(depth: np.ndarray, max_depth: float = 80.0) -> np.ndarray:
     return rgb
 
 
+#: a tile title's font: its largest and smallest scale (a title too wide at the smallest wraps at its spaces)
+TITLE_FONT, TITLE_SCALE, TITLE_MIN_SCALE = cv2.FONT_HERSHEY_SIMPLEX, 0.4, 0.25
+
+
+def fit_title(text: str, width: int) -> tuple[list[str], float]:
+    """The lines and font scale that fit `text` into a tile `width` pixels wide (4 px margins): the largest scale
+    down to `TITLE_MIN_SCALE` that fits on one line, else words wrapped at that scale."""
+    room = max(width - 8, 1)
+    wide = cv2.getTextSize(text, TITLE_FONT, TITLE_SCALE, 1)[0][0]
+    scale = max(TITLE_MIN_SCALE, min(TITLE_SCALE, TITLE_SCALE * room / max(wide, 1)))
+    lines: list[str] = []
+    for word in text.split(" "):
+        if lines and cv2.getTextSize(f"{lines[-1]} {word}", TITLE_FONT, scale, 1)[0][0] <= room:
+            lines[-1] += f" {word}"
+        else:
+            lines.append(word)
+    return lines, scale
+
+
 def _label(img: np.ndarray, text: str) -> np.ndarray:
     img = img.copy()
-    cv2.putText(img, text, (4, 14), cv2.FONT_HERSHEY_SIMPLEX, 0.4, (0, 0, 0), 3, cv2.LINE_AA)
-    cv2.putText(img, text, (4, 14), cv2.FONT_HERSHEY_SIMPLEX, 0.4, (255, 255, 255), 1, cv2.LINE_AA)
+    lines, scale = fit_title(text, img.shape[1])
+    step = int(round(30 * scale)) + 2
+    for k, line in enumerate(lines):
+        y = 4 + step * (k + 1) - 2
+        cv2.putText(img, line, (4, y), TITLE_FONT, scale, (0, 0, 0), 3, cv2.LINE_AA)
+        cv2.putText(img, line, (4, y), TITLE_FONT, scale, (255, 255, 255), 1, cv2.LINE_AA)
     return img
+
+
+#: the depths named under the depth colour bar (metres)
+BAR_TICKS_M = (1, 2, 5, 10, 20, 40, 80)
+
+
+def depth_bar(width: int, max_depth: float = 80.0, height: int = 30) -> tuple[np.ndarray, dict[float, int]]:
+    """The depth tiles' colour key: (height, `width`, 3) uint8, `colorize_depth`'s colours from far (left,
+    `max_depth`) to 1 m (right) with the depths of `BAR_TICKS_M` written under their columns; and {depth: column}."""
+    lo = 1.0 / max_depth
+    t = np.linspace(0.0, 1.0, width)
+    depth = 1.0 / (lo + t ** 2 * (1.0 - lo))  # colorize_depth's t = ((1/d - lo) / (1 - lo)) ** 0.5, inverted
+    img = np.full((height, width, 3), 32, np.uint8)
+    img[2:12] = colorize_depth(depth[None, :])[0]
+    ticks = {}
+    for d in BAR_TICKS_M:
+        if d <= max_depth:
+            x = int(np.argmin(np.abs(depth - d)))
+            ticks[d] = x
+            img[12:15, x] = 255
+            tw = cv2.getTextSize(f"{d}", TITLE_FONT, 0.3, 1)[0][0]
+            cv2.putText(img, f"{d}", (min(max(x - tw // 2, 0), width - tw), 24), TITLE_FONT, 0.3, (255, 255, 255), 1,
+                        cv2.LINE_AA)
+    return img, ticks
+
+
+def flow_key(size: int = 48) -> np.ndarray:
+    """The flow tiles' colour key: (`size`, `size`, 3) uint8, `colorize_flow` of a flow pointing away from the
+    centre (hue = direction, e.g. red = to the right; brightness = length, full at the rim)."""
+    from synth.preview_labels import colorize_flow
+
+    c = (size - 1) / 2.0
+    v, u = np.mgrid[0:size, 0:size].astype(np.float32) - c
+    valid = np.hypot(u, v) <= c
+    rgb, _ = colorize_flow(np.stack([u, v], axis=-1), valid)
+    return rgb
+
+
+def key_row(width: int, flow: bool) -> np.ndarray:
+    """The sheet's last row: the depth colour bar (metres) and, with flow tiles, the flow colour key."""
+    key = flow_key() if flow else None
+    room = width - (key.shape[1] + 150 if flow else 0)
+    bar, _ = depth_bar(max(room - 70, 64))
+    row = np.full((max(bar.shape[0], key.shape[0] if flow else 0) + 14, width, 3), 32, np.uint8)
+    cv2.putText(row, "depth (m)", (4, 12), TITLE_FONT, 0.35, (255, 255, 255), 1, cv2.LINE_AA)
+    bw = max(min(bar.shape[1], width - 66), 0)  # a sheet narrower than the bar: the bar cut at its edge
+    row[14:14 + bar.shape[0], 66:66 + bw] = bar[:, :bw]
+    if flow:
+        x = width - key.shape[1] - 4
+        row[14:14 + key.shape[0], x:x + key.shape[1]] = key
+        for k, line in enumerate(("flow: hue = direction", "brightness = length", "(full: the tile's px)")):
+            cv2.putText(row, line, (x - 146, 24 + 12 * k), TITLE_FONT, 0.3, (255, 255, 255), 1, cv2.LINE_AA)
+    return row
 
 
 def make_preview(ds: Dataset, out: str | Path, seq: str | None = None, frame: int = 0) -> Path:
@@ -111,6 +187,7 @@ def make_preview(ds: Dataset, out: str | Path, seq: str | None = None, frame: in
         rows.append(np.concatenate(tiles, axis=1))
     if "semantic" in ds.label_kinds:
         rows.append(legend(ds.classes, max(r.shape[1] for r in rows)))
+    rows.append(key_row(max(r.shape[1] for r in rows), "flow" in ds.label_kinds))
     w = max(r.shape[1] for r in rows)  # cameras of different sizes: a narrower row padded black on the right
     sheet = np.concatenate([np.pad(r, ((0, 0), (0, w - r.shape[1]), (0, 0))) for r in rows], axis=0)
     out.parent.mkdir(parents=True, exist_ok=True)

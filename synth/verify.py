@@ -67,6 +67,11 @@ def verify_dataset(root: str | Path, progress: bool = False) -> list[str]:
     root = Path(root)
     mpath = root / MANIFEST
     if not mpath.is_file():
+        from synth.nuscenes.tables import is_nuscenes_root
+
+        if is_nuscenes_root(root):
+            return [f"{mpath}: missing: {root} is a nuScenes dataroot, not a synth dataset (synth verify checks it as "
+                    "one: synth.verify.verify_nuscenes)"]
         return [f"{mpath}: missing"]
     try:
         manifest = read_json(within(root, mpath, "", "dataset root", "is a link to"))  # never through a link out
@@ -120,6 +125,29 @@ def verify_dataset(root: str | Path, progress: bool = False) -> list[str]:
     if "instance" in kinds:
         problems += instance_problems(root, manifest)
     return problems
+
+
+def verify_nuscenes(root: str | Path) -> tuple[list[str], str]:
+    """A nuScenes dataroot (`synth.nuscenes.tables.is_nuscenes_root`; it has no manifest or checksums): its tables
+    load with this project's reader (`synth.nuscenes.read.open_nuscenes`: every record it reads, the cameras and
+    splits) and every camera image of its frames is a regular file. Returns (problems, a summary of what was read)."""
+    from synth.nuscenes.read import open_nuscenes
+
+    try:
+        ds = open_nuscenes(root)
+    except DatasetError as exc:
+        return [str(exc)], ""
+    problems, n = [], 0
+    for seq in ds.sequences:
+        for cam in ds.camera_names:
+            for f in range(ds.n_frames(seq)):
+                p, n = ds.rgb_path(seq, cam, f), n + 1
+                if not p.is_file():
+                    problems.append(_absent(p))
+    summary = (f"a nuScenes dataroot (version {ds.version}): its tables load with mcdp-synth's nuScenes reader; "
+               f"{len(ds.sequences)} scenes, {n} camera images present; no checksums to verify (read it with "
+               "synth info / synth view / mcdp train, eval --data)")
+    return problems, summary
 
 
 def _absent(p: Path) -> str:

@@ -144,10 +144,13 @@ def test_training_evaluation_prediction_and_preview_read_each_camera_at_its_size
     rgbs = [ds.read_rgb(ds.sequences[0], n, 0) for n in ds.camera_names]
     assert depth_grid(rgbs, {"init": up}).shape == (2 * 64, 5 * 64 + 96, 3)
     sheet = make_preview(ds, tmp_path / "sheet.png")
+    from synth.preview import key_row
     from synth.preview_labels import legend
 
-    # 4 tiles + the class map per camera (default labels: no flow; the widest row: CAM_BACK's), the legend below
-    assert stored_size(sheet) == (5 * 96, 5 * 48 + 64 + legend(ds.classes, 5 * 96).shape[0])
+    # 4 tiles + the class map per camera (default labels: no flow; the widest row: CAM_BACK's), the legend and the
+    # depth colour bar below
+    assert stored_size(sheet) == (5 * 96, 5 * 48 + 64 + legend(ds.classes, 5 * 96).shape[0]
+                                  + key_row(5 * 96, flow=False).shape[0])
     assert "64x48, CAM_BACK 96x64" in format_info(dataset_info(renders["mixed"]))
 
 

@@ -7,7 +7,7 @@ import numpy as np
 from PIL import Image
 
 from synth.open import open_dataset
-from synth.preview import make_preview
+from synth.preview import key_row, make_preview
 from synth.preview_labels import colorize_classes, colorize_flow, legend
 
 
@@ -24,11 +24,13 @@ def test_labels_add_class_and_flow_tiles_and_a_legend_row(flow_dataset, tiny_dat
     seq = ds.sequences[0]
     before = _sheet(old, tmp_path / "old.png", seq=seq, frame=1)
     sheet = _sheet(ds, tmp_path / "new.png", seq=seq, frame=1)
-    assert before.shape == (6 * H, 4 * W, 3)
+    keys, keys_flow = key_row(4 * W, flow=False), key_row(6 * W, flow=True)  # the depth bar (and the flow key)
+    assert before.shape == (6 * H + keys.shape[0], 4 * W, 3)
     leg = legend(ds.classes, 6 * W)
-    assert sheet.shape == (6 * H + leg.shape[0], 6 * W, 3)  # two tiles more per camera, one row more
-    assert np.array_equal(sheet[:6 * H, :4 * W], before)  # the tiles of before, unchanged
-    assert np.array_equal(sheet[6 * H:], leg)
+    assert sheet.shape == (6 * H + leg.shape[0] + keys_flow.shape[0], 6 * W, 3)  # two tiles more per camera
+    assert np.array_equal(sheet[:6 * H, :4 * W], before[:6 * H])  # the tiles of before, unchanged
+    assert np.array_equal(sheet[6 * H:6 * H + leg.shape[0]], leg) and np.array_equal(before[6 * H:], keys)
+    assert np.array_equal(sheet[6 * H + leg.shape[0]:], keys_flow)
     for i, cam in enumerate(cams):  # the class tile below its caption: the class map in the table's colours
         want = colorize_classes(ds.read_semantic(seq, cam.name, 1), ds.classes)
         assert np.array_equal(sheet[i * H + 20:(i + 1) * H, 4 * W:5 * W], want[20:])
