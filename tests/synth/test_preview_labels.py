@@ -31,12 +31,12 @@ def test_labels_add_class_and_flow_tiles_and_a_legend_row(flow_dataset, tiny_dat
     assert np.array_equal(sheet[:6 * H, :4 * W], before[:6 * H])  # the tiles of before, unchanged
     assert np.array_equal(sheet[6 * H:6 * H + leg.shape[0]], leg) and np.array_equal(before[6 * H:], keys)
     assert np.array_equal(sheet[6 * H + leg.shape[0]:], keys_flow)
-    for i, cam in enumerate(cams):  # the class tile below its caption: the class map in the table's colours
+    for i, cam in enumerate(cams):  # the class tile below its caption (up to two lines): the class map in the table's colours
         want = colorize_classes(ds.read_semantic(seq, cam.name, 1), ds.classes)
-        assert np.array_equal(sheet[i * H + 20:(i + 1) * H, 4 * W:5 * W], want[20:])
+        assert np.array_equal(sheet[i * H + 32:(i + 1) * H, 4 * W:5 * W], want[32:])
         flow, valid = ds.read_flow(seq, cam.name, 1)
         rgb, _ = colorize_flow(flow, valid)
-        assert np.array_equal(sheet[i * H + 20:(i + 1) * H, 5 * W:6 * W], rgb[20:])
+        assert np.array_equal(sheet[i * H + 32:(i + 1) * H, 5 * W:6 * W], rgb[32:])
     last = _sheet(ds, tmp_path / "last.png", seq=seq, frame=ds.n_frames(seq) - 1)
     movers = ds.read_movers(seq, cams[0].name, ds.n_frames(seq) - 1)
     assert np.array_equal(last[20:H, 5 * W:6 * W, 0] == 255, movers[20:])
