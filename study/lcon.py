@@ -227,8 +227,9 @@ def _looks(ps: list[dict], plan: dict) -> str:
         lk = sequential_look([p["d"]["median"] for p in ordered[:n_look]], planned, final, t1=first / planned)
         lines.append(f"- look at {n_look} worlds: mean {_f(lk['mean'])}, t = {lk['t']:.2f} (df {lk['df']}), "
                      f"p = {lk['p']:.4f} against the look's nominal level {lk['nominal']:.4f} (|z| ≥ "
-                     f"{lk['bound_z']:.3f}): " + ("**stop: beyond the bound**" if lk["stop"] else "continue"
-                                                 if not final else "not beyond the final bound"))
+                     f"{lk['bound_z']:.3f}): " + (("**beyond the final bound**" if final else "**stop: beyond the bound**")
+                                                 if lk["stop"] else "continue" if not final else
+                                                 "not beyond the final bound"))
     return "\n".join(lines) + "\n"
 
 

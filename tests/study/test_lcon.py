@@ -87,3 +87,20 @@ def test_the_lcon_presets_score_both_arms_at_one_step_and_state_their_plan():
         assert lcon.lcon_arms({"methods": cfg.methods}) == ("mcdp_m2_nocon", "mcdp_m2"), name
     main = load_sweep_config(str(ROOT / "configs/sweep/cpu_lcon.yaml"), [])
     assert main.plan.worlds == len(main.seeds) and main.plan.first_look == len(main.seeds) // 2
+
+
+def test_the_readme_opens_with_the_committed_answer():
+    """The README's first sentence after its commands is the L_con page's answer, as the committed results give it."""
+    from study.results import read_results
+
+    res = read_results(ROOT / "docs/results/lcon_main/results.json")
+    n = lcon.reading(lcon.pairs(res), "median")
+    said = lcon.answer(n)
+    readme = " ".join((ROOT / "README.md").read_text().split())
+    page = (ROOT / "docs/results/lcon.md").read_text()
+    assert f"**{said}**" in page.splitlines()[2]
+    assert said.replace("L_con makes non-overlap depth", "L_con makes non-overlap depth") in readme
+    assert n["n_worlds"] == 14 and all(p["same_step"] for p in lcon.pairs(res))
+    rows = [r for r in res["rows"] if r["method"] in ("mcdp_m2", "mcdp_m2_nocon")]
+    seeds = {w["world"]: w["data_seed"] for w in res["data"][0]["worlds"]}
+    assert all(r["world"] == seeds[r["seed"]] for r in rows)   # the world column is the data seed it trained on
