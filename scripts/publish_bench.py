@@ -80,12 +80,14 @@ def main(argv=None) -> int:
     which.add_argument("--name", help="docs/results/<name>.md from docs/results/<name>/")
     which.add_argument("--all", action="store_true", help="every docs/results/<name>/page.md")
     args = ap.parse_args(argv)
-    for name in bench_names(RESULTS) if args.all else [args.name]:
+    pages = {}
+    for name in bench_names(RESULTS) if args.all else [args.name]:  # every page built and checked first ...
         try:
-            text = page_text(name, RESULTS)
+            pages[name] = page_text(name, RESULTS)
         except TableError as exc:
-            print(f"publish_bench: error: {bounded(str(exc))}", file=sys.stderr)
+            print(f"publish_bench: error: {bounded(str(exc))}; nothing was written", file=sys.stderr)
             return 2
+    for name, text in pages.items():  # ... then written: a bad later page leaves the earlier ones as they were
         atomic_write_text(RESULTS / f"{name}.md", text, fsync=False)
         print(f"wrote docs/results/{name}.md")
     return 0

@@ -200,3 +200,18 @@ def test_publish_bench_reads_only_regular_files_inside_docs_results(tmp_path, ca
     err = got.stderr.strip().splitlines()
     assert got.returncode == 2 and len(err) == 1 and str(named) in err[0], got.stderr
     assert "private" not in got.stdout + got.stderr and not (results / "doc.md").exists()
+
+
+def test_publish_bench_all_checks_every_page_before_writing_any(tmp_path, monkeypatch, capsys):
+    """Issue 49, item 8: `--all` wrote the earlier pages before refusing a later one; now a bad page leaves every
+    page as it was."""
+    pb = importlib.import_module("scripts.publish_bench")
+    for name, body in (("a_good", "# A\n\ntext\n"), ("b_bad", "# B\n\n{{not a placeholder}}\n")):
+        (tmp_path / name).mkdir()
+        (tmp_path / name / "page.md").write_text(body)
+    monkeypatch.setattr(pb, "RESULTS", tmp_path)
+    assert pb.main(["--all"]) == 2
+    assert "b_bad/page.md: line 3: not a placeholder" in capsys.readouterr().err
+    assert not (tmp_path / "a_good.md").exists()   # before: written, then b_bad refused
+    (tmp_path / "b_bad" / "page.md").write_text("# B\n\nfixed\n")
+    assert pb.main(["--all"]) == 0 and (tmp_path / "a_good.md").is_file() and (tmp_path / "b_bad.md").is_file()
