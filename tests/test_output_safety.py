@@ -7,6 +7,7 @@ message naming the file, and that nothing outside the command's own output chang
 """
 from __future__ import annotations
 
+
 import os
 import shutil
 from pathlib import Path
@@ -16,6 +17,7 @@ import numpy as np
 import pytest
 
 from synth.cli import main as synth_main
+from synth.preview import key_row
 
 ROOT = Path(__file__).resolve().parents[1]
 TINY = ROOT / "configs" / "data" / "tiny.yaml"
@@ -61,7 +63,8 @@ def test_preview_rewrites_its_own_sheet_and_refuses_a_user_png(data, tmp_path, c
     assert synth_main(["preview", str(data), "--out", str(sheet), "--frame", "1"]) == 0
     assert sheet.read_bytes() != first  # its own sheet: rewritten
     img = cv2.imread(str(sheet))
-    assert img.shape == (6 * 64 + 54, 5 * 96, 3)  # 6 cameras x 5 tiles of 96x64 (the class map), a legend
+    # 6 cameras x 5 tiles of 96x64 (the class map), a legend, the depth colour bar
+    assert img.shape == (6 * 64 + 54 + key_row(5 * 96, flow=False).shape[0], 5 * 96, 3)
     photo = tmp_path / "photo.png"
     cv2.imwrite(str(photo), np.zeros((8, 8, 3), np.uint8))
     held = photo.read_bytes()

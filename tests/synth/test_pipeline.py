@@ -1,4 +1,5 @@
 """Rendered datasets: contract, cross-camera consistency, masks, texture, determinism, shards, resume, bad input."""
+
 import json
 import shutil
 
@@ -12,6 +13,7 @@ from synth.verify import verify_dataset
 from synth.open import open_dataset
 from synth.files import DatasetError, read_depth_exr, write_depth_exr
 from synth.merge import merge_datasets
+from synth.preview import key_row
 from synth.render import OutputFolderError, render_dataset
 
 QUIET = dict(progress=False, log=lambda *a: None)
@@ -239,5 +241,5 @@ def test_preview_sheet(tiny_dataset, tmp_path):
     assert synth_main(["preview", str(tiny_dataset), "--out", str(tmp_path / "s.png")]) == 0
     img = cv2.imread(str(tmp_path / "s.png"))
     # tiny has the default labels (semantic, instance; no flow): the class tile more per camera, a legend (3 lines)
-    assert img.shape == (6 * 64 + 54, 5 * 96, 3)
+    assert img.shape == (6 * 64 + 54 + key_row(5 * 96, flow=False).shape[0], 5 * 96, 3)  # + the depth colour bar
     assert synth_main(["preview", str(tiny_dataset), "--out", str(tmp_path / "t.png"), "--frame", "99"]) == 2

@@ -111,6 +111,7 @@ def test_an_added_key_at_its_default_keeps_every_hash():
     d = config_to_dict(cfg)
     assert d["rig"]["cameras"] == {} and d["rig"]["overlap_target"] == "angle"
     del d["rig"]["cameras"], d["rig"]["overlap_target"], d["labels"]  # labels: added with issue 40, all on
+    del d["sensor"], d["weather"]  # the sensor model and fog (issue 48): every knob off by default
     assert d["scene"]["family_weights"] == {"urban": 1.0, "residential": 1.0, "highway": 1.0}
     d["scene"]["family_weights"] = [1.0, 1.0, 1.0]  # hashed in its positional form of old (SceneConfig.hashed_form)
     assert config_hash(cfg) == json_sha256(d)
@@ -120,7 +121,7 @@ def test_an_added_key_at_its_default_keeps_every_hash():
     bd = config_to_dict(back)
     assert bd["rig"]["cameras"]["CAM_BACK"]["width"] is None and bd["rig"]["cameras"]["CAM_BACK"]["height"] is None
     del bd["rig"]["cameras"]["CAM_BACK"]["width"], bd["rig"]["cameras"]["CAM_BACK"]["height"]
-    del bd["rig"]["overlap_target"], bd["labels"]
+    del bd["rig"]["overlap_target"], bd["labels"], bd["sensor"], bd["weather"]
     bd["scene"]["family_weights"] = [1.0, 1.0, 1.0]
     assert config_hash(back) == json_sha256(bd)
     assert config_hash(load_config(DataConfig, None, ["rig.overlap_target=pixels"])) != config_hash(cfg)
@@ -129,7 +130,7 @@ def test_an_added_key_at_its_default_keeps_every_hash():
 
     s = SweepConfig()
     sd = config_to_dict(s)
-    del sd["worlds"], sd["keep_best"], sd["seeds_per_world"]  # all added later, with defaults that change nothing
+    del sd["worlds"], sd["keep_best"], sd["seeds_per_world"], sd["plan"]  # all added later, defaults that change nothing
     assert config_hash(s) == json_sha256(sd) != config_hash(SweepConfig(worlds="per_seed"))
     assert config_hash(SweepConfig(worlds="per_seed", seeds=[0, 1], seeds_per_world=2)) \
         != config_hash(SweepConfig(worlds="per_seed", seeds=[0, 1]))
