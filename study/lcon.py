@@ -28,7 +28,7 @@ from study.reach import lcon_pairs
 from study.results import row_evaluations
 from study.worlds import data_seeds
 from study.variance import forest_plot, variance_split
-from study.variants import CUT
+from study.variants import cut
 
 REGION = "non_overlap"
 DRAWS = 2000
@@ -55,13 +55,13 @@ def _world(row: dict, seeds: dict):
 
 
 def _figure(row: dict, sc: str, region: str = REGION) -> float:
-    m = (row_evaluations(row).get(CUT) or {}).get("metrics") or {}
+    m = (row_evaluations(row).get(cut()) or {}).get("metrics") or {}
     v = ((m.get(sc) or {}).get(region) or {}).get("abs_rel")
     return float(v) if isinstance(v, (int, float)) else math.nan
 
 
 def _per_seq(row: dict, sc: str, region: str = REGION):
-    m = (row_evaluations(row).get(CUT) or {}).get("metrics") or {}
+    m = (row_evaluations(row).get(cut()) or {}).get("metrics") or {}
     return ((m.get(sc) or {}).get("per_sequence") or {}).get(region)
 
 
