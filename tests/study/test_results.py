@@ -81,7 +81,7 @@ def test_the_warm_start_line_reads_the_network_not_its_name():
 
 
 def test_a_report_names_the_pretraining_inside_its_sweep_folder_not_by_a_machines_path():
-    from study.report import _in_sweep
+    from study.pretrain import weights_in_sweep as _in_sweep
 
     assert _in_sweep("/work/sweeps/cpu/pretrain/d204638a9d4d/pretrained.pt") == "pretrain/d204638a9d4d/pretrained.pt"
     assert _in_sweep("/x/pretrain/sweep/pretrain/abc/pretrained.pt") == "pretrain/abc/pretrained.pt"  # the last one
