@@ -28,7 +28,7 @@ from study.reach import lcon_pairs, local
 from study.results import row_evaluations
 from study.worlds import data_seeds
 from study.variance import forest_plot, variance_split
-from study.variants import CUT, Evaluation
+from study.variants import Evaluation, cut
 
 REGION = "non_overlap"
 DRAWS = 2000
@@ -55,13 +55,13 @@ def _world(row: dict, seeds: dict):
 
 
 def _figure(row: dict, sc: str, region: str = REGION) -> float:
-    m = (row_evaluations(row).get(CUT) or {}).get("metrics") or {}
+    m = (row_evaluations(row).get(cut()) or {}).get("metrics") or {}
     v = ((m.get(sc) or {}).get(region) or {}).get("abs_rel")
     return float(v) if isinstance(v, (int, float)) else math.nan
 
 
 def _per_seq(row: dict, sc: str, region: str = REGION):
-    m = (row_evaluations(row).get(CUT) or {}).get("metrics") or {}
+    m = (row_evaluations(row).get(cut()) or {}).get("metrics") or {}
     return ((m.get(sc) or {}).get("per_sequence") or {}).get(region)
 
 
@@ -301,7 +301,7 @@ def budget_reading(budget: dict, short: dict | None, o: float = PRIMARY_OVERLAP)
     out: dict = {"b": {sc: reading(ps, sc) for sc in SCALINGS}, "control": None, "short": None, "change": None}
     if has_control(budget):
         loc = local()
-        out["control"] = measure(budget, o, Evaluation(loc, CUT), Evaluation(loc), REGION)
+        out["control"] = measure(budget, o, Evaluation(loc, cut()), Evaluation(loc), REGION)
     if short is not None:
         long_w = {p["world"]: p for p in ps}
         sp = [p for p in pairs(short, o) if p["world"] in long_w]

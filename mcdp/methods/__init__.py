@@ -26,7 +26,7 @@ A method's own inputs: the `mcdp.inputs.Field`s its network declares (``DepthNet
 `fields_of` is what a run's data reader fills.
 
 A report reads a method through its row and network class, never its name: ``has_bases`` and
-``fresh_layers(model_config(row))`` (`study.report.warm_start_line`), and the row's report flags: ``role``
+``fresh_layers(model_config(row))`` (`study.pretrain.warm_start_line`), and the row's report flags: ``role``
 (the paired ``baseline``, a ``method`` or a ``yardstick``), ``short`` (its label in a table column),
 ``nocon_of`` (the row it is trained without L_con) and ``reach`` (what `study.reach`, `study.primary` and
 the distance figure read of it); tests/study/test_method_rows.py registers a toy mechanism that reaches them.

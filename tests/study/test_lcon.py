@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from study import lcon
-from study.outputs import write_csv
+from study.results_files import write_csv
 from study.primary import DELTA
 from study.variants import CUT
 
@@ -91,7 +91,7 @@ def test_the_lcon_presets_score_both_arms_at_one_step_and_state_their_plan():
 
 def test_the_readme_opens_with_the_committed_answer():
     """The README's first sentence after its commands is the L_con page's answer, as the committed results give it."""
-    from study.results import read_results
+    from study.results_files import read_results
 
     res = read_results(ROOT / "docs/results/lcon_main/results.json")
     n = lcon.reading(lcon.pairs(res), "median")
