@@ -49,6 +49,7 @@ from corelib.atomic import atomic_pipe
 from corelib.rundir import FolderError, check_output_file
 from synth.extras import VIZ_INSTALL as INSTALL
 from synth.overlap import neighbours_of, overlaps_by_neighbour
+from synth.protocol import pixel_rays_at
 from synth.view_labels import class_context, flow_arrows
 
 APP_ID = "mcdp_synth"
@@ -189,7 +190,7 @@ def backproject(depth: np.ndarray, K: np.ndarray, T_ego_cam: np.ndarray, keep: n
     z = depth[v, u]
     ok = keep[v, u] & (z > 0)
     v, u, z = v[ok], u[ok], z[ok].astype(np.float64)
-    X = np.linalg.inv(np.asarray(K, np.float64)) @ np.stack([u + 0.5, v + 0.5, np.ones_like(z)]) * z
+    X = pixel_rays_at(K, u, v) * z
     T = np.asarray(T_ego_cam, np.float64)
     return (T[:3, :3] @ X + T[:3, 3:4]).T.astype(np.float32), v, u
 
