@@ -27,12 +27,12 @@ Example::
 """
 from __future__ import annotations
 
-import re
 from pathlib import Path
 
 import numpy as np
 
-from synth.files import DatasetError, frame_stem, read_depth_exr, read_json, read_png, read_regular, within
+from synth.files import (DatasetError, frame_stem, is_plain_name, read_depth_exr, read_json, read_png, read_regular,
+                         within)
 from synth.label_reader import LabelReader, check_labels_record
 from synth.rig import MAX_CAMERA_PX, CameraSpec
 from synth.sizes import camera_sizes, shared_size
@@ -168,15 +168,6 @@ class Dataset(LabelReader):
     def ground_truth(self) -> dict:
         """Provenance of `read_depth` (the evaluator copies it into metrics.json)."""
         return {"kind": "dense z-depth (rendered)", "source": "<seq>/<CAM>/<frame>.depth.exr"}
-
-
-_PLAIN_NAME = re.compile(r"^[A-Za-z0-9][A-Za-z0-9._-]{0,127}$")
-
-
-def is_plain_name(name) -> bool:
-    """A string of letters, digits, ``. _ -`` (at most 128, starting with a letter or digit): no path
-    separator, never ``.`` or ``..``; safe as one folder or file name."""
-    return isinstance(name, str) and bool(_PLAIN_NAME.match(name)) and name not in (".", "..")
 
 
 def _plain(name, field: str, mpath: Path) -> str:
