@@ -32,7 +32,7 @@ from pathlib import Path
 import numpy as np
 
 from synth.files import (DatasetError, frame_stem, is_plain_name, read_depth_exr, read_json, read_png, read_regular,
-                         within)
+                         short_list, within)
 from synth.label_reader import LabelReader, check_labels_record
 from synth.rig import MAX_CAMERA_PX, CameraSpec
 from synth.sizes import camera_sizes, shared_size
@@ -218,10 +218,6 @@ def dataset_containing(path: str | Path) -> Path | None:
 
 
 INTEGRITY = "integrity"
-def short_list(items: list[str], n: int = 6) -> str:
-    return ", ".join(items[:n]) + (f" (+{len(items) - n} more)" if len(items) > n else "")
-
-
 _REQUIRED_KEYS = {"schema_version": int, "generator": str, "cameras": list, "image_size": dict, "fps": (int, float),
                   "splits": dict, "sequences": dict, "files": dict}
 _OPTIONAL_KEYS = {"generator_version", "code_version", "config", "config_hash", "seed", "has_depth", "families",

@@ -42,6 +42,11 @@ def is_plain_name(name) -> bool:
     return isinstance(name, str) and bool(_PLAIN_NAME.match(name)) and name not in (".", "..")
 
 
+def short_list(items: list[str], n: int = 6) -> str:
+    """The first `n` of `items`, comma-separated, and how many more."""
+    return ", ".join(items[:n]) + (f" (+{len(items) - n} more)" if len(items) > n else "")
+
+
 class OutputFolderError(RuntimeError):
     """The output folder holds something else (another dataset or unrelated files)."""
 
