@@ -47,7 +47,7 @@ from mcdp.inputs import DepthInput
 from mcdp.methods import build_network, fields_of, method_params
 from mcdp.runs import RunError, config_from_checkpoint, find_checkpoint, load_checkpoint, resolve_device
 from mcdp.visual import depth_grid
-from synth.protocol import DatasetReader
+from synth.protocol import DatasetReader, pixel_rays_at
 
 
 @dataclass(frozen=True)
@@ -159,8 +159,7 @@ def rig_point_cloud(
         v, u = np.mgrid[0:H:stride, 0:W:stride]
         z = d[v, u]
         keep = (z > 0) & (z <= max_depth) & np.asarray(ds.mask(spec.name), bool)[v, u]
-        uv1 = np.stack([u[keep] + 0.5, v[keep] + 0.5, np.ones(keep.sum())], 0)  # pixel centres at +0.5
-        X = np.linalg.inv(np.asarray(spec.K, float)) @ uv1 * z[keep]
+        X = pixel_rays_at(spec.K, u[keep], v[keep]) * z[keep]  # pixel centres at +0.5
         T = np.asarray(spec.T_ego_cam, float)
         pts.append((T[:3, :3] @ X + T[:3, 3:4]).T)
         cols.append(rgbs[c][v[keep], u[keep]])

@@ -27,12 +27,12 @@ Example::
 """
 from __future__ import annotations
 
-import re
 from pathlib import Path
 
 import numpy as np
 
-from synth.files import DatasetError, frame_stem, read_depth_exr, read_json, read_png, read_regular, within
+from synth.files import (DatasetError, frame_stem, is_plain_name, read_depth_exr, read_json, read_png, read_regular,
+                         short_list, within)
 from synth.label_reader import LabelReader, check_labels_record
 from synth.rig import MAX_CAMERA_PX, CameraSpec
 from synth.sizes import camera_sizes, shared_size
@@ -170,15 +170,6 @@ class Dataset(LabelReader):
         return {"kind": "dense z-depth (rendered)", "source": "<seq>/<CAM>/<frame>.depth.exr"}
 
 
-_PLAIN_NAME = re.compile(r"^[A-Za-z0-9][A-Za-z0-9._-]{0,127}$")
-
-
-def is_plain_name(name) -> bool:
-    """A string of letters, digits, ``. _ -`` (at most 128, starting with a letter or digit): no path
-    separator, never ``.`` or ``..``; safe as one folder or file name."""
-    return isinstance(name, str) and bool(_PLAIN_NAME.match(name)) and name not in (".", "..")
-
-
 def _plain(name, field: str, mpath: Path) -> str:
     if not is_plain_name(name):
         raise DatasetError(f"{mpath}: {field} {str(name)[:80]!r} is not a plain name (letters, digits, . _ -; "
@@ -227,10 +218,6 @@ def dataset_containing(path: str | Path) -> Path | None:
 
 
 INTEGRITY = "integrity"
-def short_list(items: list[str], n: int = 6) -> str:
-    return ", ".join(items[:n]) + (f" (+{len(items) - n} more)" if len(items) > n else "")
-
-
 _REQUIRED_KEYS = {"schema_version": int, "generator": str, "cameras": list, "image_size": dict, "fps": (int, float),
                   "splits": dict, "sequences": dict, "files": dict}
 _OPTIONAL_KEYS = {"generator_version", "code_version", "config", "config_hash", "seed", "has_depth", "families",

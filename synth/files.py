@@ -12,6 +12,7 @@ import contextlib
 import io
 import json
 import os
+import re
 import stat
 import sys
 import tempfile
@@ -30,6 +31,20 @@ DEPTH_CHANNEL = "Z"
 
 class DatasetError(RuntimeError):
     """The dataset on disk is missing, incomplete, of another version or corrupt; the message names the file."""
+
+
+_PLAIN_NAME = re.compile(r"^[A-Za-z0-9][A-Za-z0-9._-]{0,127}$")
+
+
+def is_plain_name(name) -> bool:
+    """A string of letters, digits, ``. _ -`` (at most 128, starting with a letter or digit): no path
+    separator, never ``.`` or ``..``; safe as one folder or file name."""
+    return isinstance(name, str) and bool(_PLAIN_NAME.match(name)) and name not in (".", "..")
+
+
+def short_list(items: list[str], n: int = 6) -> str:
+    """The first `n` of `items`, comma-separated, and how many more."""
+    return ", ".join(items[:n]) + (f" (+{len(items) - n} more)" if len(items) > n else "")
 
 
 class OutputFolderError(RuntimeError):

@@ -26,7 +26,8 @@ from corelib.atomic import atomic_write_bytes
 from corelib.rundir import FolderError, check_output_file
 from synth.dataset import Dataset, dataset_containing
 from synth.overlap import overlaps_by_neighbour
-from synth.preview_labels import label_tiles, legend
+from synth.label_kinds import preview_tiles
+from synth.preview_labels import legend
 
 SOFTWARE = "mcdp-synth preview"  # the value of the sheet's ``Software`` text chunk
 
@@ -183,7 +184,7 @@ def make_preview(ds: Dataset, out: str | Path, seq: str | None = None, frame: in
         m3 = np.repeat(mask[..., None].astype(np.uint8) * 255, 3, axis=2)
         tiles = [_label(rgb, cam.name), _label(colorize_depth(depths[cam.name]), "depth"),
                  _label(m3, f"mask ({(~mask).mean():.0%} ego)"), _label(ov.astype(np.uint8), f"overlap {frac:.0%}")]
-        tiles += [_label(img, text) for img, text in label_tiles(ds, seq, cam.name, frame)]
+        tiles += [_label(img, text) for img, text in preview_tiles(ds, seq, cam.name, frame)]
         rows.append(np.concatenate(tiles, axis=1))
     if "semantic" in ds.label_kinds:
         rows.append(legend(ds.classes, max(r.shape[1] for r in rows)))

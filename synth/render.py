@@ -156,10 +156,8 @@ def render_sequence(cfg_dict: dict, out_dir: str, index: int, progress_queue=Non
            "lighting": seq_light.to_json(), "frames": frames_json}
     write_json(partial / "ego.json", ego)
     files[f"{seq}/ego.json"] = sha256_file(partial / "ego.json")
-    if "instance" in kinds:
-        from scenes.labels import instance_table
-        write_json(partial / "instances.json", {"sequence": seq, "instances": instance_table(scene)})
-        files[f"{seq}/instances.json"] = sha256_file(partial / "instances.json")
+    if labels is not None:
+        files.update(labels.finish())  # a kind's per-sequence files (instances.json)
     record = {"sequence": seq, "index": index, "frames": cfg.dataset.frames, "files": files, "labels": kinds,
               "overlap_counts": counts, "scene": scene.info, "time_of_day": seq_light.time_of_day,
               "seconds": time.perf_counter() - t0, "scene_seconds": t_scene,

@@ -49,7 +49,9 @@ from corelib.atomic import atomic_pipe
 from corelib.rundir import FolderError, check_output_file
 from synth.extras import VIZ_INSTALL as INSTALL
 from synth.overlap import neighbours_of, overlaps_by_neighbour
-from synth.view_labels import class_context, flow_arrows
+from synth.protocol import pixel_rays_at
+from synth.label_kinds import label_kinds as label_table
+from synth.view_labels import class_context
 
 APP_ID = "mcdp_synth"
 TIMELINE = "time"
@@ -147,13 +149,15 @@ def blueprint_of(ds, seq: str, stages=(), labels: bool = False):
 
     from synth.view_blueprint import rig_blueprint
 
+    shown = label_kinds(ds, labels)
     return rig_blueprint(rrb, ds.cameras, RigRecorder.cam_path, stages, ds.ego(seq)[0]["T_world_ego"],
-                         labels=bool(label_kinds(ds, labels)))
+                         labels=tuple(k.name for k in label_table() if k.log is not None) if shown else ())
 
 
 def label_kinds(ds, labels: bool = True) -> set[str]:
-    """The labels a recording of `ds` shows: some of {"semantic", "flow"} (none unless `labels`)."""
-    return set(ds.label_kinds) & {"semantic", "flow"} if labels else set()
+    """The labels a recording of `ds` shows: the held kinds whose row logs itself (``log``: semantic, flow;
+    `synth.label_kinds`), none unless `labels`."""
+    return {k.name for k in label_table() if k.log is not None and k.name in ds.label_kinds} if labels else set()
 
 
 def scene_model(ds, seq: str):
@@ -189,7 +193,7 @@ def backproject(depth: np.ndarray, K: np.ndarray, T_ego_cam: np.ndarray, keep: n
     z = depth[v, u]
     ok = keep[v, u] & (z > 0)
     v, u, z = v[ok], u[ok], z[ok].astype(np.float64)
-    X = np.linalg.inv(np.asarray(K, np.float64)) @ np.stack([u + 0.5, v + 0.5, np.ones_like(z)]) * z
+    X = pixel_rays_at(K, u, v) * z
     T = np.asarray(T_ego_cam, np.float64)
     return (T[:3, :3] @ X + T[:3, 3:4]).T.astype(np.float32), v, u
 
@@ -312,15 +316,10 @@ class RigRecorder:
 
     def _log_labels(self, path: str, cam: str, frame: int) -> None:
         """The camera-frame's class map and flow arrows (`synth.view_labels`), where the dataset has them."""
-        rr, rec, ds = self.rr, self.rec, self.ds
-        sem = ds.read_semantic(self.seq, cam, frame) if "semantic" in self.labels else None
-        if sem is not None:
-            rec.log(f"{path}/semantic", rr.SegmentationImage(sem))
-        if "flow" in self.labels:
-            if frame < ds.n_frames(self.seq) - 1:
-                rec.log(f"{path}/flow", flow_arrows(rr, *ds.read_flow(self.seq, cam, frame), sem))
-            else:
-                rec.log(f"{path}/flow", rr.Clear(recursive=False))  # no forward flow at the last frame
+        shown: dict = {}  # each kind's logged value, in table order (the flow arrows take the classes' colours)
+        for kind in label_table():
+            if kind.name in self.labels:
+                shown[kind.name] = kind.log(self.rr, self.rec, path, self.ds, self.seq, cam, frame, shown)
 
 
 def record_rig(dataset: str | Path, out: str | Path, seq: str | None = None, frames: str | None = None,

@@ -11,7 +11,10 @@ so its pixel centres are at +0.5: a point that ``view_points`` projects to (u, v
 
 Example::
 
-    export_nuscenes("data/tiny", "data/tiny_ns")      # synth export data/tiny --format nuscenes --out data/tiny_ns
+    export_nuscenes(open_dataset("data/tiny"), "data/tiny_ns")   # synth export data/tiny --format nuscenes --out ...
+
+It takes an opened reader (`synth.open.open_dataset`): the writer sits above the reader factory and imports
+neither it nor `synth.dataset` (tests/test_layers.py).
 """
 from __future__ import annotations
 
@@ -24,9 +27,7 @@ import numpy as np
 
 from corelib.atomic import atomic_write_bytes
 from corelib.rundir import lock_folder
-from synth.dataset import is_plain_name
-from synth.open import open_dataset
-from synth.files import DatasetError, read_png, write_json, write_png
+from synth.files import DatasetError, is_plain_name, read_png, write_json, write_png
 from synth.lidar import LidarConfig, luma
 from synth.nuscenes.layout import (EXPORT_DIR, FORMAT, LIDAR_CHANNEL, LOCK, MARKER, MASKS_DIR, OWNED, SPLITS_FILE,
                                    ExportError, prepare_output)
@@ -47,12 +48,13 @@ def _write_jpeg(path: Path, rgb: np.ndarray, quality: int) -> None:
 
 # ----------------------------------------------------------------------------- export
 
-def export_nuscenes(dataset: str | Path, out: str | Path, version: str = DEFAULT_VERSION,
+def export_nuscenes(ds, out: str | Path, version: str = DEFAULT_VERSION,
                     lidar: LidarConfig | None = LidarConfig(), jpeg_quality: int = 95,
                     progress: bool = False, labels: bool = True) -> dict:
-    """Write the nuScenes dataroot `out` from the synth dataset `dataset`; returns a summary dict.
-    `lidar=None` exports cameras only (no LIDAR_TOP); `labels=False` leaves a dataset's labels out."""
-    ex = _Export(Path(dataset), Path(out), version, lidar, jpeg_quality, labels)  # the source checked
+    """Write the nuScenes dataroot `out` from `ds`, a rendered dataset opened by `synth.open.open_dataset`;
+    returns a summary dict. `lidar=None` exports cameras only (no LIDAR_TOP); `labels=False` leaves a dataset's
+    labels out."""
+    ex = _Export(ds, Path(out), version, lidar, jpeg_quality, labels)  # the source checked
     prepare_output(ex.out, ex.cfg_hash, version, clean=False)  # refuse a foreign folder before writing a byte
     ex.out.mkdir(parents=True, exist_ok=True)
     lock = lock_folder(ex.out, LOCK)  # a second export into `out` is refused, naming this pid
@@ -68,16 +70,16 @@ class _Export:
     calibration, masks, map), every sequence's frames (JPEG, depth copy, LiDAR sweep, table rows), and the
     tables last."""
 
-    def __init__(self, src: Path, out: Path, version: str, lidar: LidarConfig | None, jpeg_quality: int,
+    def __init__(self, ds, out: Path, version: str, lidar: LidarConfig | None, jpeg_quality: int,
                  labels: bool = True) -> None:
         if not is_plain_name(version) or version in OWNED or version.endswith(".partial"):
             raise ExportError(f"--version {version!r} is not a plain folder name (letters, digits, . _ -)")
         if not 1 <= int(jpeg_quality) <= 100:
             raise ExportError(f"jpeg quality {jpeg_quality} is not in 1..100")
-        try:
-            ds = open_dataset(src)
-        except DatasetError as exc:
-            raise ExportError(str(exc)) from None
+        src = Path(ds.root)
+        if ds.format != "synth":
+            raise ExportError(f"{src}: a {ds.format} dataset, not one mcdp-synth rendered; only a rendered dataset "
+                              "exports")
         if src.resolve() == out.resolve() or out.resolve().is_relative_to(src.resolve()):
             raise ExportError(f"{out}: inside the source dataset {src}; choose a folder outside it")
         if not ds.has_depth and lidar is not None:

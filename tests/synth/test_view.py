@@ -210,7 +210,7 @@ def test_a_nuscenes_dataroot_records_its_lidar_sweep_in_the_world_frame(tiny_dat
     from synth.nuscenes.dataset import NuScenesDataset
 
     root = tmp_path / "ns"
-    export_nuscenes(tiny_dataset, root, version="v1.0-synth")
+    export_nuscenes(open_dataset(tiny_dataset), root, version="v1.0-synth")
     ds = open_dataset(root)
     assert isinstance(ds, NuScenesDataset)
     seq = ds.sequences[0]
