@@ -20,6 +20,7 @@ from synth.verify import integrity_record
 from synth.files import read_json, write_json
 from synth.rig import Rig
 from synth.sizes import size_keys
+from synth.trigger import trigger_record
 
 MARKER_DIR = ".synth"
 RECORD = "record.json"
@@ -120,6 +121,9 @@ def finalize(cfg: DataConfig, out: Path, rig: Rig) -> dict | None:
         "labels": labels_record(kinds),
         "files": files,
     }
+    trigger = trigger_record(cfg.rig, rig)
+    if trigger is not None:  # a synchronous rig's manifest is as it was
+        manifest["trigger"] = trigger
     manifest[INTEGRITY] = integrity_record(manifest, read_json(out / "rig.json"))
     write_json(out / MANIFEST, manifest)
     return manifest

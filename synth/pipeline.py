@@ -129,7 +129,9 @@ class LabelFrames:
         name = f"{frame_stem(frame)}.{suffix}"
         return f"{self.seq}/{cam}/{name}", self.folder / cam / name
 
-    def add(self, cam, frame: int, T_world_cam: np.ndarray, res: dict) -> None:
+    def add(self, cam, frame: int, T_world_cam: np.ndarray, res: dict, x: float | None = None) -> None:
+        """One camera-frame's labels; `x`: its continuous frame index (its own trigger time, `synth.trigger`;
+        None: `frame`), so its flow to the next frame moves the movers between the camera's two times."""
         from synth.labels import instance_map, mover_motion, semantic_map
 
         name, depth, ego = cam.name, res["depth"], res["ego"]
@@ -145,12 +147,13 @@ class LabelFrames:
         self.sink.png(*self._file(name, frame, "movers.png"), np.where(movers, 255, 0).astype(np.uint8),
                       self.compression)
         prev = self._prev.get(name)
+        x = frame if x is None else x
         if prev is not None:
-            (d0, i0, e0, T0), f0 = prev, frame - 1
+            (d0, i0, e0, T0, x0), f0 = prev, frame - 1
             (k0, p0), (k1, p1) = self._file(name, f0, "flow.exr"), self._file(name, f0, "flow_valid.png")
-            args = (d0, i0, e0, cam.K, T0, T_world_cam, mover_motion(self.mover_T, f0), depth, inst)
+            args = (d0, i0, e0, cam.K, T0, T_world_cam, mover_motion(self.mover_T, x0, x), depth, inst)
             self.sink.flow((k0, k1), (p0, p1), self.compression, args)
-        self._prev[name] = (depth, inst, ego, T_world_cam)
+        self._prev[name] = (depth, inst, ego, T_world_cam, x)
 
 
 def build_sequence_scene(cfg: DataConfig, index: int) -> Scene:
