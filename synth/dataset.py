@@ -125,7 +125,10 @@ class Dataset(LabelReader):
         time (`synth.trigger.camera_poses`; a synchronous rig: the frame's time and the static T_ego_cam)."""
         from synth.trigger import camera_poses
 
-        return camera_poses(self.ego(seq), self.cameras, self.root / seq / "ego.json")
+        cache = self.__dict__.setdefault("_pose_cache", {})
+        if seq not in cache:
+            cache[seq] = camera_poses(self.ego(seq), self.cameras, self.root / seq / "ego.json")
+        return cache[seq]
 
     def rgb_path(self, seq: str, cam: str, frame: int) -> Path:
         return self.root / seq / cam / f"{frame_stem(frame)}.png"
