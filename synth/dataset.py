@@ -120,6 +120,16 @@ class Dataset(LabelReader):
     def T_world_ego(self, seq: str) -> np.ndarray:
         return np.asarray([f["T_world_ego"] for f in self.ego(seq)], np.float64)
 
+    def camera_poses(self, seq: str) -> tuple[np.ndarray, np.ndarray]:
+        """(F, N) each camera's timestamp_s and (F, N, 4, 4) its pose at that time in the ego frame of its frame's
+        time (`synth.trigger.camera_poses`; a synchronous rig: the frame's time and the static T_ego_cam)."""
+        from synth.trigger import camera_poses
+
+        cache = self.__dict__.setdefault("_pose_cache", {})
+        if seq not in cache:
+            cache[seq] = camera_poses(self.ego(seq), self.cameras, self.root / seq / "ego.json")
+        return cache[seq]
+
     def rgb_path(self, seq: str, cam: str, frame: int) -> Path:
         return self.root / seq / cam / f"{frame_stem(frame)}.png"
 
@@ -221,7 +231,7 @@ INTEGRITY = "integrity"
 _REQUIRED_KEYS = {"schema_version": int, "generator": str, "cameras": list, "image_size": dict, "fps": (int, float),
                   "splits": dict, "sequences": dict, "files": dict}
 _OPTIONAL_KEYS = {"generator_version", "code_version", "config", "config_hash", "seed", "has_depth", "families",
-                  "overlap", "camera_sizes", "labels", INTEGRITY}
+                  "overlap", "camera_sizes", "labels", "trigger", INTEGRITY}
 
 
 def check_manifest_keys(manifest, mpath: Path) -> None:
@@ -244,6 +254,9 @@ def check_manifest_keys(manifest, mpath: Path) -> None:
             raise DatasetError(f"{mpath}: sequences.{str(seq)[:40]}.frames must be a positive integer")
     if "labels" in manifest:
         check_labels_record(manifest["labels"], mpath)
+    if "trigger" in manifest:
+        from synth.trigger import check_trigger_record
+        check_trigger_record(manifest["trigger"], manifest["cameras"], mpath)
     for key in ("width", "height"):
         if not _pixels(manifest["image_size"].get(key)):
             raise DatasetError(f"{mpath}: image_size.{key} must be an integer in [1, {MAX_CAMERA_PX}] (a camera's "

@@ -121,6 +121,7 @@ class RenderedFrame:
     T_world_cam: np.ndarray
     res: dict  # the renderer's read-back: depth, ego, layer, instance
     inst: np.ndarray  # (H, W) uint16 object ids (`synth.labels.instance_map`)
+    x: float = 0.0  # its continuous frame index: `frame`, or its own trigger time (`synth.trigger`)
 
 
 class LabelFrames:
@@ -152,12 +153,13 @@ class LabelFrames:
 
         name, depth = f.cam.name, f.res["depth"]
         prev = self._prev.get(name)
+        x = f.x
         if prev is not None:
-            (d0, i0, e0, T0), f0 = prev, f.frame - 1
+            (d0, i0, e0, T0, x0), f0 = prev, f.frame - 1
             (k0, p0), (k1, p1) = self._file(flow, name, f0), self._file(valid, name, f0)
-            args = (d0, i0, e0, f.cam.K, T0, f.T_world_cam, mover_motion(self.mover_T, f0), depth, f.inst)
+            args = (d0, i0, e0, f.cam.K, T0, f.T_world_cam, mover_motion(self.mover_T, x0, x), depth, f.inst)
             self.sink.flow((k0, k1), (p0, p1), self.compression, args)
-        self._prev[name] = (depth, f.inst, f.res["ego"], f.T_world_cam)
+        self._prev[name] = (depth, f.inst, f.res["ego"], f.T_world_cam, x)
 
     def json(self, lf: LabelFile, doc) -> dict[str, str]:
         """The sequence's file `lf` holding `doc`, written now: {relative path: sha256}."""
@@ -165,10 +167,13 @@ class LabelFrames:
         write_json(path, doc)
         return {key: sha256_file(path)}
 
-    def add(self, cam, frame: int, T_world_cam: np.ndarray, res: dict) -> None:
+    def add(self, cam, frame: int, T_world_cam: np.ndarray, res: dict, x: float | None = None) -> None:
+        """One camera-frame's labels; `x`: its continuous frame index (its own trigger time, `synth.trigger`;
+        None: `frame`), so its flow to the next frame moves the movers between the camera's two times."""
         from synth.labels import instance_map
 
-        f = RenderedFrame(cam, frame, T_world_cam, res, instance_map(res["instance"], res["ego"], res["depth"]))
+        f = RenderedFrame(cam, frame, T_world_cam, res, instance_map(res["instance"], res["ego"], res["depth"]),
+                          frame if x is None else x)
         for kind in label_kinds():
             if kind.name in self.kinds:
                 kind.write(self, f)

@@ -40,6 +40,7 @@ from synth.manifest import (MARKER_DIR, RECORD, assign_splits, began_with, compl
 from synth.photometry import SequencePhotometry
 from synth.pipeline import FrameSink, LabelFrames, ScenePrefetch, build_sequence_scene
 from synth.rig import Rig, build_rig, ego_body_mesh
+from synth.trigger import CameraTimes
 
 MAX_WORKERS = 256  # render processes on one machine (the sweep's `workers` has the same bound)
 
@@ -118,6 +119,7 @@ def render_sequence(cfg_dict: dict, out_dir: str, index: int, progress_queue=Non
     seq_light = draw_sequence_lighting(cfg.lighting, rig.names, np.random.default_rng(light_ss))
     flicker_rng = np.random.default_rng(flicker_ss)
     photo = SequencePhotometry.for_sequence(cfg, index, rig, seq_light)  # None: the renderer's bytes
+    times = CameraTimes.for_sequence(cfg, rig, scene)  # None: every camera at the frame time
     from synth.files import read_png
     masks = {name: read_png(out / "masks" / f"{name}.png", gray=True) for name in rig.names}
     r = renderer_for(cfg)
@@ -133,8 +135,9 @@ def render_sequence(cfg_dict: dict, out_dir: str, index: int, progress_queue=Non
             T_world_ego = scene.T_world_ego[f]
             depths = {}
             for c, cam in enumerate(rig.cameras):
-                T_world_cam = T_world_ego @ cam.T_ego_cam
-                res = r.render(cam.K, T_world_cam, f, seq_light.light, gains[cam.name],
+                x = f if times is None else times.frame_index(c, f)  # each camera at its own time
+                T_world_cam = (T_world_ego if times is None else times.T_world_ego(c, f)) @ cam.T_ego_cam
+                res = r.render(cam.K, T_world_cam, x, seq_light.light, gains[cam.name],
                                size=(cam.width, cam.height), labels=bool(kinds))
                 stem = frame_stem(f)
                 rgb = res["rgb"] if photo is None else photo.apply(c, cam, f, res["rgb"], res["depth"], gains[cam.name])
@@ -144,11 +147,12 @@ def render_sequence(cfg_dict: dict, out_dir: str, index: int, progress_queue=Non
                          res["depth"])
                 depths[cam.name] = res["depth"]
                 if labels is not None:
-                    labels.add(cam, f, T_world_cam, res)
-            sink.overlap(depths, masks, rig.cameras, rig.neighbours)
+                    labels.add(cam, f, T_world_cam, res, x)
+            sink.overlap(depths, masks, rig.cameras if times is None else times.cameras_at(f), rig.neighbours)
             frames_json.append({"frame": f, "timestamp_s": f / cfg.dataset.fps, "T_world_ego": T_world_ego.tolist(),
                                 "lighting": {"camera_gain": {k: list(v) for k, v in gains.items()}},
-                                **(photo.frame_record() if photo is not None else {})})
+                                **(photo.frame_record() if photo is not None else {}),
+                                **(times.frame_record(f) if times is not None else {})})
             if progress_queue is not None:
                 progress_queue.put(1)
         files, counts = sink.results()
