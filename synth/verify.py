@@ -16,7 +16,7 @@ import numpy as np
 
 from corelib.hashing import changed_sections, json_sha256, section_digests, sha256_file
 from synth.dataset import (INTEGRITY, MANIFEST, SCHEMA_VERSION, short_list, check_manifest_keys,
-                           check_manifest_names, check_rig)
+                           check_manifest_names, check_rig, rgb_suffix)
 from synth.files import MAX_READ_BYTES, DatasetError, frame_stem, read_json, read_png, regular_file, within
 from synth.label_reader import instance_ids
 from synth.sizes import camera_sizes, size_problems
@@ -109,7 +109,7 @@ def verify_dataset(root: str | Path, progress: bool = False) -> list[str]:
     # every expected frame file is listed
     cams = manifest.get("cameras", [])
     kinds = (manifest.get("labels") or {}).get("kinds") or []
-    every = [".png", ".depth.exr"] + [s for k, s in (("semantic", ".semantic.png"), ("instance", ".instance.png"),
+    every = [rgb_suffix(manifest), ".depth.exr"] + [s for k, s in (("semantic", ".semantic.png"), ("instance", ".instance.png"),
                                                      ("flow", ".movers.png")) if k in kinds]
     for seq, info in manifest.get("sequences", {}).items():
         n = int(info["frames"])
