@@ -68,7 +68,8 @@ def render_only_rate(cfg, rig) -> tuple[float, float]:
 
 @contextlib.contextmanager
 def files_off():
-    """End to end with the frame sink's PNG (RGB and labels), EXR and overlap tasks switched off (the ablation column)."""
+    """End to end with the frame sink's image (RGB, labels), EXR and overlap tasks switched off (the ablation
+    column)."""
     from synth import pipeline
 
     saved = {k: getattr(pipeline.FrameSink, k) for k in ("png", "rgb", "exr", "overlap")}

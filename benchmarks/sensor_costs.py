@@ -111,10 +111,11 @@ def main(argv=None) -> int:
         for name in sets:
             rw, rc = (1.0, 1.0) if name == "ideal" else (statistics.median(x[i] for x in ratio[name]) for i in (0, 1))
             total, rgb = disk[name]
-            print(f"{name:>13} | {statistics.median(wall[name]):7.3f} | {rw:7.2f} | {statistics.median(cpu[name]):6.3f} "
-                  f"| {rc:7.2f} | {total / n / 1024:19.1f} | {total / ideal_disk:7.2f} | {rgb / n / 1024:18.1f}")
-        print(f"(the settings: {'; '.join(f'{k}: ' + ' '.join(v) for k, v in sets.items() if k not in ('ideal', 'all'))}"
-              "; all: every one of them)")
+            print(f"{name:>13} | {statistics.median(wall[name]):7.3f} | {rw:7.2f} | "
+                  f"{statistics.median(cpu[name]):6.3f} | {rc:7.2f} | {total / n / 1024:19.1f} | "
+                  f"{total / ideal_disk:7.2f} | {rgb / n / 1024:18.1f}")
+        each = "; ".join(f"{k}: " + " ".join(v) for k, v in sets.items() if k not in ("ideal", "all"))
+        print(f"(the settings: {each}; all: every one of them)")
     return 0
 
 

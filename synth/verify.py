@@ -109,8 +109,9 @@ def verify_dataset(root: str | Path, progress: bool = False) -> list[str]:
     # every expected frame file is listed
     cams = manifest.get("cameras", [])
     kinds = (manifest.get("labels") or {}).get("kinds") or []
-    every = [rgb_suffix(manifest), ".depth.exr"] + [s for k, s in (("semantic", ".semantic.png"), ("instance", ".instance.png"),
-                                                     ("flow", ".movers.png")) if k in kinds]
+    every = [rgb_suffix(manifest), ".depth.exr"] + [s for k, s in (("semantic", ".semantic.png"),
+                                                                    ("instance", ".instance.png"),
+                                                                    ("flow", ".movers.png")) if k in kinds]
     for seq, info in manifest.get("sequences", {}).items():
         n = int(info["frames"])
         if "instance" in kinds and f"{seq}/instances.json" not in files:
