@@ -17,7 +17,7 @@ from synth import __version__
 from synth.config import DataConfig
 from synth.dataset import GENERATOR, INTEGRITY, MANIFEST, SCHEMA_VERSION
 from synth.verify import integrity_record
-from synth.files import read_json, write_json
+from synth.files import RGB_SUFFIXES, read_json, write_json
 from synth.label_kinds import enabled_kinds, kind_names
 from synth.label_kinds import label_kinds as label_kinds_table
 from synth.rig import Rig
@@ -46,6 +46,15 @@ def labels_record(kinds: list[str]) -> dict:
             rec.update(k.record() if k.record is not None else {})
             rec[k.name] = k.about
     return rec
+
+
+def rgb_record(cfg: DataConfig) -> dict:
+    """The manifest's ``rgb`` (only with ``sensor.jpeg_quality``; absent, every image is a PNG): the images'
+    format, its JPEG quality and their file name."""
+    q = cfg.sensor.jpeg_quality
+    if q is None:
+        return {}
+    return {"rgb": {"format": "jpeg", "quality": int(q), "file": f"<seq>/<CAM>/<frame>{RGB_SUFFIXES['jpeg']}"}}
 
 
 def assign_splits(cfg: DataConfig) -> dict[str, list[str]]:
@@ -112,7 +121,7 @@ def finalize(cfg: DataConfig, out: Path, rig: Rig) -> dict | None:
         "fps": cfg.dataset.fps, "has_depth": True,
         "splits": assign_splits(cfg), "sequences": sequences, "families": families,
         "overlap": overlap_record(cfg, rig, totals),
-        "labels": labels_record(kinds),
+        "labels": labels_record(kinds), **rgb_record(cfg),
         "files": files,
     }
     trigger = trigger_record(cfg.rig, rig)

@@ -141,8 +141,8 @@ def render_sequence(cfg_dict: dict, out_dir: str, index: int, progress_queue=Non
                                size=(cam.width, cam.height), labels=bool(kinds))
                 stem = frame_stem(f)
                 rgb = res["rgb"] if photo is None else photo.apply(c, cam, f, res["rgb"], res["depth"], gains[cam.name])
-                sink.png(f"{seq}/{cam.name}/{stem}.png", partial / cam.name / f"{stem}.png", rgb,
-                         cfg.render.png_compression)
+                sink.rgb(f"{seq}/{cam.name}/{stem}", partial / cam.name / stem, rgb, cfg.render.png_compression,
+                         cfg.sensor.jpeg_quality)  # .png, or .jpg with sensor.jpeg_quality
                 sink.exr(f"{seq}/{cam.name}/{stem}.depth.exr", partial / cam.name / f"{stem}.depth.exr",
                          res["depth"])
                 depths[cam.name] = res["depth"]

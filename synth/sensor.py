@@ -28,7 +28,7 @@ from dataclasses import dataclass
 import numpy as np
 from pydantic import Field, field_validator
 
-from corelib.configlib import StrictModel
+from corelib.configlib import StrictModel, added_key
 
 SENSOR_DRAWS, SENSOR_NOISE = 0x5E75, 0x5E76  # seed streams of their own (no other draw of a sequence moves)
 _LUMA = np.array([0.2126, 0.7152, 0.0722])  # Rec. 709 luminance of linear RGB
@@ -56,6 +56,10 @@ class SensorConfig(StrictModel):
         electrons); shot noise has variance noise * I. 0 = none.
     read_noise_e: read noise in electrons (Gaussian, sigma = read_noise_e * noise in linear units); only with
         ``noise`` > 0.
+    jpeg_quality: null = the image is written as PNG (lossless); 1..100 = as JPEG at that quality
+        (``<frame>.jpg``, as nuScenes ships its camera images; the manifest's ``rgb`` records it). The last step,
+        after the knobs above; it changes the file, not the image the sensor formed. An added key: unset, it is
+        not hashed (a sensor section hashed before it existed keeps its hash).
     """
 
     exposure_ev: float | list[float] = Field(0.0, description="EV offset, one or one per camera")
@@ -67,6 +71,7 @@ class SensorConfig(StrictModel):
     vignetting: float = Field(0.0, ge=0.0, lt=1.0)
     noise: float = Field(0.0, ge=0.0, le=0.5)
     read_noise_e: float = Field(2.0, ge=0.0, le=100.0)
+    jpeg_quality: int | None = added_key(None, ge=1, le=100, description="null = PNG; 1..100 = JPEG at that quality")
 
     @field_validator("exposure_ev")
     @classmethod
@@ -95,8 +100,9 @@ class SensorConfig(StrictModel):
         return v
 
     def is_identity(self) -> bool:
-        """True when every knob is off: the sensor leaves the renderer's bytes as they are."""
-        return self == SensorConfig()
+        """True when every photometric knob is off: the sensor leaves the renderer's pixels as they are (the file
+        format, ``jpeg_quality``, is `synth.pipeline.FrameSink.rgb`'s)."""
+        return self.model_copy(update={"jpeg_quality": None}) == SensorConfig()
 
 
 @dataclass(frozen=True)

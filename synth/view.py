@@ -285,9 +285,10 @@ class RigRecorder:
             path = self.cam_path(cam.name)
             rgb = ds.read_rgb(self.seq, cam.name, frame)  # checked: size, readable
             self.rgb[cam.name] = rgb
-            png = ds.rgb_path(self.seq, cam.name, frame)
-            if png.suffix == ".png" and ds.format == "synth":
-                rec.log(f"{path}/rgb", rr.EncodedImage(contents=ds.read_bytes(png), media_type="image/png"))
+            src = ds.rgb_path(self.seq, cam.name, frame)
+            media = {".png": "image/png", ".jpg": "image/jpeg"}.get(src.suffix)  # the file as it is stored
+            if media and ds.format == "synth":
+                rec.log(f"{path}/rgb", rr.EncodedImage(contents=ds.read_bytes(src), media_type=media))
             else:
                 rec.log(f"{path}/rgb", rr.Image(rgb))
             self._log_labels(path, cam.name, frame)

@@ -22,12 +22,11 @@ import os
 import shutil
 from pathlib import Path
 
-import cv2
 import numpy as np
 
 from corelib.atomic import atomic_write_bytes
 from corelib.rundir import lock_folder
-from synth.files import DatasetError, is_plain_name, read_png, write_json, write_png
+from synth.files import DatasetError, encode_jpeg, is_plain_name, read_png, write_json, write_png
 from synth.lidar import LidarConfig, luma
 from synth.nuscenes.layout import (EXPORT_DIR, FORMAT, LIDAR_CHANNEL, LOCK, MARKER, MASKS_DIR, OWNED, SPLITS_FILE,
                                    ExportError, prepare_output)
@@ -39,21 +38,26 @@ FORMAT_VERSION = 1
 DEFAULT_VERSION = "v1.0-synth"
 
 
+DEFAULT_JPEG_QUALITY = 95  # a PNG dataset's images are encoded at this quality unless told
+
+
 def _write_jpeg(path: Path, rgb: np.ndarray, quality: int) -> None:
-    ok, buf = cv2.imencode(".jpg", np.ascontiguousarray(rgb[:, :, ::-1]), [cv2.IMWRITE_JPEG_QUALITY, int(quality)])
-    if not ok:
-        raise ExportError(f"{path}: could not encode JPEG")
-    atomic_write_bytes(path, buf.tobytes(), fsync=False)  # whole or absent; the tables, written last, seal
+    try:
+        data = encode_jpeg(rgb, quality)
+    except ValueError:
+        raise ExportError(f"{path}: could not encode JPEG") from None
+    atomic_write_bytes(path, data, fsync=False)  # whole or absent; the tables, written last, seal
 
 
 # ----------------------------------------------------------------------------- export
 
 def export_nuscenes(ds, out: str | Path, version: str = DEFAULT_VERSION,
-                    lidar: LidarConfig | None = LidarConfig(), jpeg_quality: int = 95,
+                    lidar: LidarConfig | None = LidarConfig(), jpeg_quality: int | None = None,
                     progress: bool = False, labels: bool = True) -> dict:
     """Write the nuScenes dataroot `out` from `ds`, a rendered dataset opened by `synth.open.open_dataset`;
     returns a summary dict. `lidar=None` exports cameras only (no LIDAR_TOP); `labels=False` leaves a dataset's
-    labels out."""
+    labels out. `jpeg_quality` None: a JPEG dataset's images (``sensor.jpeg_quality``) are copied byte for byte,
+    a PNG dataset's encoded at `DEFAULT_JPEG_QUALITY`; a number: every image is encoded at it (a JPEG one again)."""
     ex = _Export(ds, Path(out), version, lidar, jpeg_quality, labels)  # the source checked
     prepare_output(ex.out, ex.cfg_hash, version, clean=False)  # refuse a foreign folder before writing a byte
     ex.out.mkdir(parents=True, exist_ok=True)
@@ -70,11 +74,11 @@ class _Export:
     calibration, masks, map), every sequence's frames (JPEG, depth copy, LiDAR sweep, table rows), and the
     tables last."""
 
-    def __init__(self, ds, out: Path, version: str, lidar: LidarConfig | None, jpeg_quality: int,
+    def __init__(self, ds, out: Path, version: str, lidar: LidarConfig | None, jpeg_quality: int | None,
                  labels: bool = True) -> None:
         if not is_plain_name(version) or version in OWNED or version.endswith(".partial"):
             raise ExportError(f"--version {version!r} is not a plain folder name (letters, digits, . _ -)")
-        if not 1 <= int(jpeg_quality) <= 100:
+        if jpeg_quality is not None and not 1 <= int(jpeg_quality) <= 100:
             raise ExportError(f"jpeg quality {jpeg_quality} is not in 1..100")
         src = Path(ds.root)
         if ds.format != "synth":
@@ -88,8 +92,10 @@ class _Export:
         self.cfg_hash = str(ds.manifest.get("config_hash") or "")
         if not self.cfg_hash:
             raise ExportError(f"{src / 'manifest.json'}: no config_hash")
-        self.src, self.out, self.ds, self.version, self.lidar, self.jpeg_quality = \
-            src, out, ds, version, lidar, jpeg_quality
+        rgb = ds.manifest.get("rgb") if ds.format == "synth" else None  # checked on open (`synth.dataset.rgb_suffix`)
+        self.copy_jpeg = jpeg_quality is None and rgb is not None  # already JPEG, as nuScenes ships: copied
+        self.src, self.out, self.ds, self.version, self.lidar = src, out, ds, version, lidar
+        self.jpeg_quality = rgb["quality"] if self.copy_jpeg else jpeg_quality or DEFAULT_JPEG_QUALITY
         self.fps = ds.fps
         self.seqs = ds.sequences
         self.splits = {s: ds.split(s) for s in ("train", "val", "test") if s in ds.manifest.get("splits", {})}
@@ -204,7 +210,10 @@ class _Export:
                 raise ExportError(f"{ds.rgb_path(seq, cam.name, f)}: {rgb.shape[1]}x{rgb.shape[0]}, rig.json "
                                   f"says {cam.width}x{cam.height}")
             rel = f"samples/{ch}/{stem}.jpg"
-            _write_jpeg(out / rel, rgb, self.jpeg_quality)
+            if self.copy_jpeg:  # the dataset's JPEG as it is (read and checked above): no second compression
+                atomic_write_bytes(out / rel, ds.read_bytes(ds.rgb_path(seq, cam.name, f)), fsync=False)
+            else:
+                _write_jpeg(out / rel, rgb, self.jpeg_quality)
             entry = {"sequence": seq, "frame": f, "camera": cam.name, "channel": ch,
                      **self.labels.camera(seq, cam.name, f, ch, stem)}
             if ds.has_depth:
@@ -255,7 +264,7 @@ class _Export:
                 "points_per_sweep": {"min": int(min(n_points)), "max": int(max(n_points)),
                                      "mean": float(np.mean(n_points))}},
             "fps": self.fps, "timestamp_base_us": BASE_TIMESTAMP_US, "sequence_spacing_us": SEQUENCE_SPACING_US,
-            "jpeg_quality": int(self.jpeg_quality),
+            "jpeg_quality": int(self.jpeg_quality), "jpeg": "copied" if self.copy_jpeg else "encoded",
             "pixel_centre": "camera_intrinsic is rig.json K: pixel (c, r) has its centre at (c + 0.5, r + 0.5); "
                             "a projected (u, v) lies in pixel (floor(u), floor(v)). For the integer-centre "
                             "convention subtract 0.5 from K[0][2] and K[1][2].",

@@ -5,6 +5,7 @@ from __future__ import annotations
 import json
 import subprocess
 import sys
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -302,3 +303,20 @@ def test_synth_view_on_a_real_disk_that_fills_ends_in_exit_4_not_a_hang(tiny_dat
     assert res.returncode == 4, res.stderr[-2000:]
     assert len(err) == 1 and f"{mnt / 'v.rrd'}: no space left on device" in err[0], err
     assert left == (["fill"] if full else [])
+
+
+def test_a_jpeg_dataset_logs_its_jpeg_files_as_they_are(tmp_path):
+    """``sensor.jpeg_quality``: each camera's image is logged as the stored JPEG bytes (media type image/jpeg)."""
+    from synth.cli import main
+    from synth.config import load_data_config
+    from synth.render import render_dataset
+
+    data, out = tmp_path / "data", tmp_path / "rig.rrd"
+    tiny = Path(__file__).resolve().parents[2] / "configs" / "data" / "tiny.yaml"
+    cfg = load_data_config(tiny, ["sensor.jpeg_quality=90", "dataset.sequences=1", "dataset.frames=3"])
+    render_dataset(cfg, data, workers=1, progress=False, log=lambda *a: None)
+    assert main(["view", str(data), "--seq", "seq_00000", "--frames", "0:2", "--out", str(out)]) == 0
+    rows = read_rrd(out)["/world/ego/CAM_BACK/rgb"]
+    assert len(rows) == 2 and all(r["EncodedImage:media_type"] == ["image/jpeg"] for _, r in rows)
+    blob = bytes(np.asarray(rows[0][1]["EncodedImage:blob"][0], np.uint8))
+    assert blob in {(data / "seq_00000" / "CAM_BACK" / f"00000{f}.jpg").read_bytes() for f in (0, 1)}
