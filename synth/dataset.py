@@ -232,7 +232,7 @@ INTEGRITY = "integrity"
 _REQUIRED_KEYS = {"schema_version": int, "generator": str, "cameras": list, "image_size": dict, "fps": (int, float),
                   "splits": dict, "sequences": dict, "files": dict}
 _OPTIONAL_KEYS = {"generator_version", "code_version", "config", "config_hash", "seed", "has_depth", "families",
-                  "overlap", "camera_sizes", "labels", "trigger", "rgb", INTEGRITY}
+                  "overlap", "camera_sizes", "labels", "trigger", "rgb", "shutter", INTEGRITY}
 
 
 def rgb_suffix(manifest: dict, mpath: Path | None = None) -> str:
@@ -273,6 +273,9 @@ def check_manifest_keys(manifest, mpath: Path) -> None:
         from synth.trigger import check_trigger_record
         check_trigger_record(manifest["trigger"], manifest["cameras"], mpath)
     rgb_suffix(manifest, mpath)
+    if "shutter" in manifest:
+        from synth.shutter import check_shutter_record
+        check_shutter_record(manifest["shutter"], mpath)
     for key in ("width", "height"):
         if not _pixels(manifest["image_size"].get(key)):
             raise DatasetError(f"{mpath}: image_size.{key} must be an integer in [1, {MAX_CAMERA_PX}] (a camera's "

@@ -22,6 +22,7 @@ from synth.label_kinds import enabled_kinds, kind_names
 from synth.label_kinds import label_kinds as label_kinds_table
 from synth.rig import Rig
 from synth.sizes import size_keys
+from synth.shutter import Shutter
 from synth.trigger import trigger_record
 
 MARKER_DIR = ".synth"
@@ -127,6 +128,9 @@ def finalize(cfg: DataConfig, out: Path, rig: Rig) -> dict | None:
     trigger = trigger_record(cfg.rig, rig)
     if trigger is not None:  # a synchronous rig's manifest is as it was
         manifest["trigger"] = trigger
+    shutter = Shutter.for_config(cfg)
+    if shutter is not None:  # a global, instantaneous shutter's manifest is as it was
+        manifest["shutter"] = shutter.record()
     manifest[INTEGRITY] = integrity_record(manifest, read_json(out / "rig.json"))
     write_json(out / MANIFEST, manifest)
     return manifest

@@ -40,6 +40,7 @@ from synth.manifest import (MARKER_DIR, RECORD, assign_splits, began_with, compl
 from synth.photometry import SequencePhotometry
 from synth.pipeline import FrameSink, LabelFrames, ScenePrefetch, build_sequence_scene
 from synth.rig import Rig, build_rig, ego_body_mesh
+from synth.shutter import Shutter
 from synth.trigger import CameraTimes
 
 MAX_WORKERS = 256  # render processes on one machine (the sweep's `workers` has the same bound)
@@ -120,6 +121,7 @@ def render_sequence(cfg_dict: dict, out_dir: str, index: int, progress_queue=Non
     flicker_rng = np.random.default_rng(flicker_ss)
     photo = SequencePhotometry.for_sequence(cfg, index, rig, seq_light)  # None: the renderer's bytes
     times = CameraTimes.for_sequence(cfg, rig, scene)  # None: every camera at the frame time
+    shutter = Shutter.for_config(cfg)  # None: one render per image, at the camera's time
     from synth.files import read_png
     masks = {name: read_png(out / "masks" / f"{name}.png", gray=True) for name in rig.names}
     r = renderer_for(cfg)
@@ -137,8 +139,13 @@ def render_sequence(cfg_dict: dict, out_dir: str, index: int, progress_queue=Non
             for c, cam in enumerate(rig.cameras):
                 x = f if times is None else times.frame_index(c, f)  # each camera at its own time
                 T_world_cam = (T_world_ego if times is None else times.T_world_ego(c, f)) @ cam.T_ego_cam
-                res = r.render(cam.K, T_world_cam, x, seq_light.light, gains[cam.name],
-                               size=(cam.width, cam.height), labels=bool(kinds))
+                if shutter is None:
+                    res = r.render(cam.K, T_world_cam, x, seq_light.light, gains[cam.name],
+                                   size=(cam.width, cam.height), labels=bool(kinds))
+                else:  # several times per image (synth.shutter): the ego and the movers at each
+                    res = shutter.render(lambda xs, cam=cam, g=gains[cam.name]: r.render(
+                        cam.K, scene.ego_pose_at(xs) @ cam.T_ego_cam, xs, seq_light.light, g,
+                        size=(cam.width, cam.height), labels=bool(kinds)), x, cam.height)
                 stem = frame_stem(f)
                 rgb = res["rgb"] if photo is None else photo.apply(c, cam, f, res["rgb"], res["depth"], gains[cam.name])
                 sink.rgb(f"{seq}/{cam.name}/{stem}", partial / cam.name / stem, rgb, cfg.render.png_compression,
