@@ -7,7 +7,9 @@ lidarseg, by `synth.nuscenes.lidarseg`), then the tables, whose rows `synth.nusc
 
 Conventions: our camera frame is OpenCV like nuScenes'. ``camera_intrinsic`` is the rig's ``K`` unchanged,
 so its pixel centres are at +0.5: a point that ``view_points`` projects to (u, v) falls in pixel
-(floor(u), floor(v)). The same dataset always exports the same bytes.
+(floor(u), floor(v)). The same dataset always exports the same bytes. Cameras that fire at their own times
+(``rig.trigger``): each camera's sample_data has its own timestamp and ego_pose, the LiDAR meshes each
+camera's depth at its own pose; a synchronous dataset exports as before.
 
 Example::
 
