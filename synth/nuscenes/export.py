@@ -7,7 +7,9 @@ lidarseg, by `synth.nuscenes.lidarseg`), then the tables, whose rows `synth.nusc
 
 Conventions: our camera frame is OpenCV like nuScenes'. ``camera_intrinsic`` is the rig's ``K`` unchanged,
 so its pixel centres are at +0.5: a point that ``view_points`` projects to (u, v) falls in pixel
-(floor(u), floor(v)). The same dataset always exports the same bytes.
+(floor(u), floor(v)). The same dataset always exports the same bytes. Cameras that fire at their own times
+(``rig.trigger``): each camera's sample_data has its own timestamp and ego_pose, the LiDAR meshes each
+camera's depth at its own pose; a synchronous dataset exports as before.
 
 Example::
 
@@ -18,6 +20,7 @@ neither it nor `synth.dataset` (tests/test_layers.py).
 """
 from __future__ import annotations
 
+import dataclasses
 import os
 import shutil
 from pathlib import Path
@@ -181,6 +184,7 @@ class _Export:
         if len(ego) != n:
             raise ExportError(f"{ego_path}: {len(ego)} frames, the manifest says {n}")
         self.rows.add_log(seq, timestamp_us(si, 0, fps), family)
+        own = self._camera_poses(seq, ego) if any("cameras" in fr for fr in ego) else None
         for f in range(n):
             fr = ego[f]
             ts = timestamp_us(si, f, fps)
@@ -189,19 +193,49 @@ class _Export:
                                   f"= {f / fps}")
             T_we = check_rigid(fr.get("T_world_ego"), f"{ego_path} frame {f} T_world_ego")
             self.rows.add_sample(seq, f, n, ts)
-            self._frame(seq, f, n, ts, pose(T_we, ts))
+            self._frame(seq, f, n, ts, pose(T_we, ts), None if own is None else self._own_times(seq, own, fr, f, ts))
             if bar is not None:
                 bar.update(1)
         desc = f"mcdp-synth {family}, {info.get('time_of_day', '?')}, split {self.split_of.get(seq, '-')}"
         self.rows.add_scene(seq, n, desc)
 
-    def _frame(self, seq: str, f: int, n: int, ts: int, ego_pose: dict) -> None:
-        """Frame `f` of `seq`: every camera's JPEG (+ depth copy), then the LiDAR sweep simulated from them."""
+    def _camera_poses(self, seq: str, ego: list[dict]) -> tuple[np.ndarray, np.ndarray]:
+        """A sequence whose cameras fire at their own times (rig.trigger, docs/DATASET.md): the reader's checked
+        (F, N) timestamps and (F, N, 4, 4) poses in the frame's ego frame (`Dataset.camera_poses`)."""
+        try:
+            ts, T = self.ds.camera_poses(seq)
+        except DatasetError as exc:
+            raise ExportError(str(exc)) from None
+        if ts.shape[0] != len(ego):
+            raise ExportError(f"{self.ds.root / seq / 'ego.json'}: camera poses for {ts.shape[0]} frames, "
+                              f"ego.json has {len(ego)}")
+        return ts, T
+
+    def _own_times(self, seq: str, own: tuple, fr: dict, f: int, ts: int) -> dict | None:
+        """Frame `f`'s cameras at their own trigger times: {camera: (timestamp in us, its ego_pose row, its pose
+        in the frame's ego frame)}; the timestamp is the frame's plus the camera's offset (rounded to 1 us), the
+        ego_pose that of ego.json's ``cameras.<CAM>.T_world_ego``. A frame without ``cameras``: None."""
+        if "cameras" not in fr:
+            return None
+        path = self.ds.root / seq / "ego.json"
+        out = {}
+        for c, cam in enumerate(self.ds.cameras):
+            t = ts + int(round((float(own[0][f, c]) - f / self.fps) * 1e6))
+            T = check_rigid(fr["cameras"][cam.name].get("T_world_ego"),
+                            f"{path} frame {f} cameras.{cam.name}.T_world_ego")
+            out[cam.name] = (t, pose(T, t), np.asarray(own[1][f, c], np.float64))
+        return out
+
+    def _frame(self, seq: str, f: int, n: int, ts: int, ego_pose: dict, own: dict | None = None) -> None:
+        """Frame `f` of `seq`: every camera's JPEG (+ depth copy), then the LiDAR sweep simulated from them. With
+        `own` (cameras that fire at their own times, `_own_times`) each camera's sample_data has its own timestamp
+        and ego_pose, and the LiDAR meshes each camera's depth at its own pose in the frame's ego frame."""
         ds, out, lidar, rows = self.ds, self.out, self.lidar, self.rows
         depths, grays = {}, {}
         for cam in ds.cameras:
             ch = self.chmap[cam.name]
-            stem = f"{seq}__{ch}__{ts}"
+            cam_ts, cam_pose = (ts, ego_pose) if own is None else own[cam.name][:2]
+            stem = f"{seq}__{ch}__{cam_ts}"
             try:
                 rgb = ds.read_rgb(seq, cam.name, f)
             except DatasetError as exc:
@@ -220,12 +254,14 @@ class _Export:
                 entry["depth"] = self._depth(seq, cam, f, stem, ch, depths)
                 if lidar is not None:
                     grays[cam.name] = luma(rgb)
-            token = rows.add_sample_data(seq, ch, f, n, ts, rel, "jpg", (cam.width, cam.height), ego_pose)
+            token = rows.add_sample_data(seq, ch, f, n, cam_ts, rel, "jpg", (cam.width, cam.height), cam_pose)
             self.sd_index[token] = entry
         if lidar is not None:
             token = rows.sd_token(seq, LIDAR_CHANNEL, f)
             rel = f"samples/{LIDAR_CHANNEL}/{seq}__{LIDAR_CHANNEL}__{ts}.pcd.bin"
-            pts = self.labels.sweep(token, lidar, list(ds.cameras), depths, self.masks, grays)
+            cameras = list(ds.cameras) if own is None else \
+                [dataclasses.replace(c, T_ego_cam=own[c.name][2]) for c in ds.cameras]  # each at its own pose
+            pts = self.labels.sweep(token, lidar, cameras, depths, self.masks, grays)
             atomic_write_bytes(out / rel, pts.astype("<f4").tobytes(), fsync=False)
             self.n_points.append(len(pts))
             self.sd_index[token] = {"sequence": seq, "frame": f, "channel": LIDAR_CHANNEL, "points": int(len(pts)),
@@ -270,6 +306,8 @@ class _Export:
                             "convention subtract 0.5 from K[0][2] and K[1][2].",
             "splits": SPLITS_FILE, "masks": mask_files, "sample_data": self.sd_index, **self.labels.marker(),
         })
+        if "trigger" in self.ds.manifest:  # cameras that fire at their own times; a synchronous rig: as before
+            marker["trigger"] = self.ds.manifest["trigger"]
         write_json(out / MARKER, marker)
         tmp_dir, final_dir = out / f"{self.version}.partial", out / self.version
         if tmp_dir.exists():

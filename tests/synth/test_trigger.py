@@ -146,3 +146,18 @@ def test_cross_camera_depth_agrees_through_each_cameras_own_pose(sweep_dataset, 
         ideal = agreeing_fraction(sync, seq, 2, static)
         assumed = agreeing_fraction(trig, seq, 2, static)
         assert abs(own - ideal) < 0.02 and assumed < own - 0.015, (seq, own, ideal, assumed)
+
+
+def test_the_preview_states_each_cameras_offset_and_warps_through_its_own_pose(sweep_dataset, tiny_dataset, tmp_path):
+    from synth.open import open_dataset
+    from synth.preview import camera_titles, make_preview
+
+    ds = open_dataset(sweep_dataset)
+    seq = ds.sequences[0]
+    titles, Ts = camera_titles(ds, seq, 1)
+    offsets = ds.manifest["trigger"]["offsets_ms"]
+    assert titles == [f"{c} {offsets[c]:+.1f} ms" for c in ds.camera_names] and titles[0] == "CAM_FRONT +0.0 ms"
+    assert np.array_equal(np.stack(Ts), ds.camera_poses(seq)[1][1])
+    sync = open_dataset(tiny_dataset)
+    assert camera_titles(sync, seq, 1)[0] == list(sync.camera_names)  # synchronous: the names, as before
+    assert make_preview(ds, tmp_path / "sheet.png", seq, 1).stat().st_size > 0
