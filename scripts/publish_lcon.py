@@ -89,6 +89,17 @@ def build(stage: Path) -> tuple[str, list[tuple[Path, str]]]:
                  f"`rig_median`: {_lc(answer(n['rig_median']))}. Hodges-Lehmann (median): "
                  f"{n['median']['rank']['hl']:+.4f} [{n['median']['rank']['ci'][0]:+.4f}, "
                  f"{n['median']['rank']['ci'][1]:+.4f}], Wilcoxon p = {n['median']['rank']['p']:.3f}.\n")
+        budget = parts["lcon_budget"]
+        if budget is not None:  # secondary: six of the main run's worlds at 1000 steps, beside the control
+            from study.lcon import budget_reading
+
+            br = budget_reading(budget, main)
+            b, c = br["b"]["median"], br["control"]
+            L.append(f"At {_steps(budget)} steps on {b['n_worlds']} of these worlds (secondary, sized by its cost): "
+                     f"{_lc(answer(b))}"
+                     + (f", beside a positive control that propagates by {c['median']['mean']:+.4f} ± "
+                        f"{c['median']['ci95']:.4f} (ORACLE-local emptied - filled)" if c is not None else "")
+                     + f". At `rig_median` there: {_lc(answer(br['b']['rig_median']))}.\n")
         pilot = parts["lcon_pilot"]
         if pilot is not None:  # exploratory: the pilot's worlds had 8 test sequences, the main run's 32
             pooled = {sc: reading(ps + pairs(pilot), sc) for sc in SCALINGS}
