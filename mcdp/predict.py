@@ -92,7 +92,7 @@ class Predictor:
         self.network.load_state_dict(ckpt["depth_model"])
         self.network.eval()
         self.fields = fields_of(self.cfg)  # the input fields the network reads (as in training)
-        self.reader = RigReader(ds, self.cfg.train.height, self.cfg.train.width)
+        self.reader = RigReader(ds, self.cfg.train.height, self.cfg.train.width, sync=self.cfg.model.sync)
         self.nbr = neighbour_table(ds.neighbours, len(ds.camera_names)).to(self.device)
         self.K = torch.from_numpy(self.reader.K).to(self.device)[None]
         self.T_ego_cam = torch.from_numpy(self.reader.T_ego_cam).to(self.device)[None]
@@ -105,7 +105,8 @@ class Predictor:
         """What the network reads of rig sample (seq, frame), as trained."""
         rgb = self.reader.rgb(seq, frame)
         values = {f.name: f.of(self.reader, seq, frame).to(self.device)[None] for f in self.fields}
-        net = DepthInput(torch.from_numpy(rgb).to(self.device)[None], self.K, self.T_ego_cam, self.mask, self.nbr,
+        T = torch.from_numpy(self.reader.T_ego_cam_at(seq, frame)).to(self.device)[None]  # model.sync, as trained
+        net = DepthInput(torch.from_numpy(rgb).to(self.device)[None], self.K, T, self.mask, self.nbr,
                          values, self.fields)
         return Inputs(seq, frame, rgb, net)
 

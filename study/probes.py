@@ -96,7 +96,8 @@ def run_probes(variants: Iterable, pred, oracle_range: tuple[float, float], eval
     for v in variants:
         if v.probe is None:
             continue
-        stages = [s for s in variants if s.on == v.name and s.adds_stage(pred, oracle_range)]
+        stages = [s for s in variants  # the stages riding on this pass (a row with a probe of its own has none)
+                  if s.on == v.name and s.adds_stage is not None and s.adds_stage(pred, oracle_range)]
         probe = v.probe(pred, oracle_range, dict(probes), stages)
         if probe is None:
             continue

@@ -120,8 +120,8 @@ def _export_args(e: argparse.ArgumentParser) -> None:
     e.add_argument("--no-lidar", action="store_true", help="cameras only, no synthetic LIDAR_TOP")
     e.add_argument("--no-labels", action="store_true", help="leave the dataset's labels out (no lidarseg, no label "
                    "side files; docs/NUSCENES.md, 'Labels')")
-    e.add_argument("--jpeg-quality", type=int, default=95, help="JPEG quality of the nuScenes images, 1..100 "
-                   "(default 95)")
+    e.add_argument("--jpeg-quality", type=int, default=None, help="JPEG quality of the nuScenes images, 1..100 "
+                   "(default: a JPEG dataset's images copied as they are, a PNG dataset's encoded at 95)")
     e.add_argument("--no-progress", action="store_true", help="no progress bar")
     e.set_defaults(overrides=[])
 

@@ -94,6 +94,13 @@ class DataConfig(StrictModel):
     sensor: SensorConfig = added_key(default_factory=SensorConfig)
     weather: WeatherConfig = added_key(default_factory=WeatherConfig)
 
+    @model_validator(mode="after")
+    def _rolling_flow(self) -> "DataConfig":
+        if self.sensor.rolling_shutter_ms > 0 and self.labels.flow:
+            raise ValueError("labels.flow cannot go with sensor.rolling_shutter_ms > 0: a rolling-shutter image has "
+                             "one camera pose per band of rows, and forward flow takes one (synth.shutter)")
+        return self
+
 
 def load_data_config(path=None, overrides: Iterable[str] = ()) -> DataConfig:
     return load_config(DataConfig, path, overrides)

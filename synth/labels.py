@@ -91,6 +91,10 @@ def forward_flow(depth0: np.ndarray, inst0: np.ndarray, ego0: np.ndarray, K: np.
     return flow, valid
 
 
-def mover_motion(T_world_obj: dict[int, np.ndarray], frame: int) -> dict[int, np.ndarray]:
-    """{object id: world(frame+1) <- world(frame)} of movers given their (F, 4, 4) poses by id."""
-    return {obj: T[frame + 1] @ np.linalg.inv(T[frame]) for obj, T in T_world_obj.items()}
+def mover_motion(T_world_obj: dict[int, np.ndarray], frame: float, to: float | None = None) -> dict[int, np.ndarray]:
+    """{object id: world(to) <- world(frame)} of movers given their (F, 4, 4) poses by id; `frame` and `to`
+    (default frame + 1) are continuous frame indices (`scenes.timeline.pose_at`: at integers, the stored poses)."""
+    from scenes.timeline import pose_at
+
+    to = frame + 1 if to is None else to
+    return {obj: pose_at(T, to) @ np.linalg.inv(pose_at(T, frame)) for obj, T in T_world_obj.items()}

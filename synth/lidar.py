@@ -8,6 +8,9 @@ triangle meshes: every 2x2 block of pixel centres with depth, back-projected wit
 at +0.5) and ``T_ego_cam``, gives two triangles. Each lidar ray is intersected exactly with those
 triangles (Moller-Trumbore) and keeps the nearest hit, so a return lies exactly on its beam and on
 the surface the cameras see, interpolated between pixel centres (planar within a 2x2 pixel block).
+Cameras that fire at their own times (``rig.trigger``): pass each with ``T_ego_cam`` its own pose in the ego
+frame of the frame time (`synth.dataset.Dataset.camera_poses`, as the nuScenes export does), so every mesh is
+registered in that one frame and a static surface seen by two cameras gives one return, as when synchronous.
 
 Not meshed (no return there): sky (depth 0), ego body (mask), and triangles across a depth
 discontinuity, i.e. that would meet the camera ray at a grazing angle below ``min_grazing_deg``

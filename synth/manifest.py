@@ -17,11 +17,13 @@ from synth import __version__
 from synth.config import DataConfig
 from synth.dataset import GENERATOR, INTEGRITY, MANIFEST, SCHEMA_VERSION
 from synth.verify import integrity_record
-from synth.files import read_json, write_json
+from synth.files import RGB_SUFFIXES, read_json, write_json
 from synth.label_kinds import enabled_kinds, kind_names
 from synth.label_kinds import label_kinds as label_kinds_table
 from synth.rig import Rig
 from synth.sizes import size_keys
+from synth.shutter import Shutter
+from synth.trigger import trigger_record
 
 MARKER_DIR = ".synth"
 RECORD = "record.json"
@@ -45,6 +47,15 @@ def labels_record(kinds: list[str]) -> dict:
             rec.update(k.record() if k.record is not None else {})
             rec[k.name] = k.about
     return rec
+
+
+def rgb_record(cfg: DataConfig) -> dict:
+    """The manifest's ``rgb`` (only with ``sensor.jpeg_quality``; absent, every image is a PNG): the images'
+    format, its JPEG quality and their file name."""
+    q = cfg.sensor.jpeg_quality
+    if q is None:
+        return {}
+    return {"rgb": {"format": "jpeg", "quality": int(q), "file": f"<seq>/<CAM>/<frame>{RGB_SUFFIXES['jpeg']}"}}
 
 
 def assign_splits(cfg: DataConfig) -> dict[str, list[str]]:
@@ -111,9 +122,15 @@ def finalize(cfg: DataConfig, out: Path, rig: Rig) -> dict | None:
         "fps": cfg.dataset.fps, "has_depth": True,
         "splits": assign_splits(cfg), "sequences": sequences, "families": families,
         "overlap": overlap_record(cfg, rig, totals),
-        "labels": labels_record(kinds),
+        "labels": labels_record(kinds), **rgb_record(cfg),
         "files": files,
     }
+    trigger = trigger_record(cfg.rig, rig)
+    if trigger is not None:  # a synchronous rig's manifest is as it was
+        manifest["trigger"] = trigger
+    shutter = Shutter.for_config(cfg)
+    if shutter is not None:  # a global, instantaneous shutter's manifest is as it was
+        manifest["shutter"] = shutter.record()
     manifest[INTEGRITY] = integrity_record(manifest, read_json(out / "rig.json"))
     write_json(out / MANIFEST, manifest)
     return manifest

@@ -2,7 +2,7 @@
 overlap counts and the next sequence's scene.
 
 The renderer owns one GL context and draws on the calling thread; while llvmpipe rasterises the
-next camera, a small thread pool encodes and writes the previous ones (cv2's PNG encoder, zlib
+next camera, a small thread pool encodes and writes the previous ones (cv2's PNG and JPEG encoders, zlib
 inside OpenEXR, hashlib and file I/O run without the GIL) and counts the z-tested overlap of the
 previous rig frame. Every file is still written whole (a temporary name, then a rename), with the
 same bytes as when written inline, and the results are collected in submission order, so the
@@ -11,7 +11,7 @@ record's ``files`` (and the manifest) list the same hashes in the same order.
 Example::
 
     with FrameSink() as sink:
-        sink.png("seq/CAM/000000.png", path, rgb, compression=3)
+        sink.rgb("seq/CAM/000000", path_stem, rgb, compression=3, jpeg_quality=None)   # .png (or .jpg)
         sink.exr("seq/CAM/000000.depth.exr", path_exr, depth)
         sink.overlap(depths, masks, rig.cameras, rig.neighbours)
         files, counts = sink.results()
@@ -30,7 +30,7 @@ from corelib.atomic import atomic_write_bytes
 from corelib.hashing import sha256_file
 from scenes.model import Mesh, Scene
 from synth.config import DataConfig
-from synth.files import encode_png, write_depth_exr, write_flow_exr, write_json
+from synth.files import RGB_SUFFIXES, encode_jpeg, encode_png, frame_stem, write_depth_exr, write_flow_exr, write_json
 from synth.label_kinds import LabelFile, label_kinds, write_sequence_files
 from synth.overlap import overlap_fraction_counts
 
@@ -38,8 +38,8 @@ WRITE_THREADS = 2
 MAX_PENDING = 40  # tasks in flight before `submit` waits (about three rig frames of six cameras)
 
 
-def _png_task(path: Path, rgb: np.ndarray, compression: int) -> str:
-    data = encode_png(rgb, compression)
+def _image_task(path: Path, rgb: np.ndarray, compression: int, jpeg_quality: int | None = None) -> str:
+    data = encode_png(rgb, compression) if jpeg_quality is None else encode_jpeg(rgb, jpeg_quality)
     # per-file fsync is skipped inside the .partial folder; one sync seals it (render_sequence)
     atomic_write_bytes(path, data, fsync=False)
     return hashlib.sha256(data).hexdigest()
@@ -56,7 +56,12 @@ def _flow_task(keys: tuple[str, str], paths: tuple[Path, Path], compression: int
     flow, valid = forward_flow(*args)
     write_flow_exr(paths[0], flow, fsync=False)
     return {keys[0]: sha256_file(paths[0]),
-            keys[1]: _png_task(paths[1], np.where(valid, 255, 0).astype(np.uint8), compression)}
+            keys[1]: _image_task(paths[1], np.where(valid, 255, 0).astype(np.uint8), compression)}
+
+
+def rgb_suffix(jpeg_quality: int | None) -> str:
+    """The suffix of an RGB image written with ``sensor.jpeg_quality`` = `jpeg_quality` (None: PNG)."""
+    return RGB_SUFFIXES["png" if jpeg_quality is None else "jpeg"]
 
 
 class FrameSink:
@@ -77,7 +82,14 @@ class FrameSink:
         return fut
 
     def png(self, key: str, path: Path, rgb: np.ndarray, compression: int) -> None:
-        self._files.append((key, self._submit(_png_task, path, rgb, compression)))
+        self._files.append((key, self._submit(_image_task, path, rgb, compression)))
+
+    def rgb(self, key: str, path: Path, rgb: np.ndarray, compression: int, jpeg_quality: int | None) -> None:
+        """A camera's RGB image: `key` and `path` without their suffix, which the format gives (`rgb_suffix`):
+        PNG at `compression`, or JPEG at `jpeg_quality` (``sensor.jpeg_quality``) when set."""
+        suffix = rgb_suffix(jpeg_quality)
+        self._files.append((key + suffix, self._submit(_image_task, path.with_name(path.name + suffix), rgb,
+                                                       compression, jpeg_quality)))
 
     def exr(self, key: str, path: Path, depth: np.ndarray) -> None:
         self._files.append((key, self._submit(_exr_task, path, depth)))
@@ -121,6 +133,7 @@ class RenderedFrame:
     T_world_cam: np.ndarray
     res: dict  # the renderer's read-back: depth, ego, layer, instance
     inst: np.ndarray  # (H, W) uint16 object ids (`synth.labels.instance_map`)
+    x: float = 0.0  # its continuous frame index: `frame`, or its own trigger time (`synth.trigger`)
 
 
 class LabelFrames:
@@ -153,12 +166,13 @@ class LabelFrames:
 
         name, depth = f.cam.name, f.res["depth"]
         prev = self._prev.get(name)
+        x = f.x
         if prev is not None:
-            (d0, i0, e0, T0), f0 = prev, f.frame - 1
+            (d0, i0, e0, T0, x0), f0 = prev, f.frame - 1
             (k0, p0), (k1, p1) = self._file(flow, name, f0), self._file(valid, name, f0)
-            args = (d0, i0, e0, f.cam.K, T0, f.T_world_cam, mover_motion(self.mover_T, f0), depth, f.inst)
+            args = (d0, i0, e0, f.cam.K, T0, f.T_world_cam, mover_motion(self.mover_T, x0, x), depth, f.inst)
             self.sink.flow((k0, k1), (p0, p1), self.compression, args)
-        self._prev[name] = (depth, f.inst, f.res["ego"], f.T_world_cam)
+        self._prev[name] = (depth, f.inst, f.res["ego"], f.T_world_cam, x)
 
     def json(self, lf: LabelFile, doc) -> dict[str, str]:
         """The sequence's file `lf` holding `doc`, written now: {relative path: sha256}."""
@@ -172,10 +186,13 @@ class LabelFrames:
         atomic_write_bytes(path, data)
         return {key: sha256_file(path)}
 
-    def add(self, cam, frame: int, T_world_cam: np.ndarray, res: dict) -> None:
+    def add(self, cam, frame: int, T_world_cam: np.ndarray, res: dict, x: float | None = None) -> None:
+        """One camera-frame's labels; `x`: its continuous frame index (its own trigger time, `synth.trigger`;
+        None: `frame`), so its flow to the next frame moves the movers between the camera's two times."""
         from synth.labels import instance_map
 
-        f = RenderedFrame(cam, frame, T_world_cam, res, instance_map(res["instance"], res["ego"], res["depth"]))
+        f = RenderedFrame(cam, frame, T_world_cam, res, instance_map(res["instance"], res["ego"], res["depth"]),
+                          frame if x is None else x)
         for kind in label_kinds():
             if kind.name in self.kinds:
                 kind.write(self, f)

@@ -14,7 +14,7 @@ from typing import Iterable
 
 from corelib.hashing import changed_sections, json_sha256, section_digests, sha256_file
 from synth.dataset import (INTEGRITY, MANIFEST, SCHEMA_VERSION, short_list, check_manifest_keys,
-                           check_manifest_names, check_rig)
+                           check_manifest_names, check_rig, rgb_suffix)
 from synth.files import MAX_READ_BYTES, DatasetError, frame_stem, read_json, regular_file, within
 from synth.label_kinds import expected_files, label_kinds
 from synth.sizes import camera_sizes, size_problems
@@ -112,7 +112,7 @@ def verify_dataset(root: str | Path, progress: bool = False) -> list[str]:
         expected = expected_files(kinds, seq, None, None, n)  # a label kind's per-sequence files
         for cam in cams:
             for f in range(n):
-                expected += [f"{seq}/{cam}/{frame_stem(f)}{s}" for s in (".png", ".depth.exr")]
+                expected += [f"{seq}/{cam}/{frame_stem(f)}{s}" for s in (rgb_suffix(manifest), ".depth.exr")]
                 expected += expected_files(kinds, seq, cam, f, n)
         problems += [f"{root / rel}: not listed in the manifest" for rel in expected if rel not in files]
     for kind in label_kinds():  # each held label kind's own checks (the object ids of the instance maps)
