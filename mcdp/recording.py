@@ -1,6 +1,6 @@
 """`mcdp predict RUN --data DATA --rrd pred.rrd`: a run's predictions beside the ground truth in a Rerun
-recording (the layout of `synth.view`: world mesh, trajectory, blueprint with one tab of depth per stage;
-plus per stage)::
+recording (the layout of `synth.view`: world mesh (the dataset's; `record_predictions`), trajectory, blueprint
+with one tab of depth per stage; plus per stage)::
 
     world/ego/<CAM>/pred/<stage>/depth     DepthImage, predicted z-depth (m), dataset resolution
     world/ego/<CAM>/pred/<stage>/abs_rel   Image (float32, one channel): |pred - gt| / gt on pixels with
@@ -47,9 +47,12 @@ def sequence_offsets(ds, samples: list[tuple[str, int]]) -> dict[str, float]:
 
 
 def record_predictions(pred, samples: list[tuple[str, int]], out, point_stride: int = 2,
-                       progress: bool = False) -> dict:
+                       progress: bool = False, rebuild=None) -> dict:
     """Write the recording of `samples` ((sequence, frame) pairs) with `pred`'s (`mcdp.predict.Predictor`)
-    depth of every stage to `out` (checked by the caller with `synth.view.check_rrd_target`)."""
+    depth of every stage to `out` (checked by the caller with `synth.view.check_rrd_target`). The world mesh is
+    the dataset's (label kind ``mesh``); for a dataset without one, ``rebuild(ds, seq)`` when given (the
+    caller's: `synth.gltf_export.rebuilt_world_mesh` rebuilds it from the generator config, which this library
+    never reads), else none."""
     from pathlib import Path
 
     rr = import_rerun()
@@ -66,7 +69,7 @@ def record_predictions(pred, samples: list[tuple[str, int]], out, point_stride: 
         recorders: dict[str, RigRecorder] = {}
         for seq, frame in items:
             if seq not in recorders:
-                recorders[seq] = RigRecorder(rr, rec, ds, seq, point_stride, offsets[seq])
+                recorders[seq] = RigRecorder(rr, rec, ds, seq, point_stride, offsets[seq], rebuild=rebuild)
                 if len(recorders) == 1:
                     recorders[seq].log_static()
                 recorders[seq].log_sequence(ego_body=len(recorders) == 1)

@@ -201,8 +201,11 @@ def _predict(args: argparse.Namespace) -> int:
             _record_source(Path(args.out), args.run, pred, args.data)
         if args.rrd is not None:
             from mcdp.recording import record_predictions
+            from synth.gltf_export import rebuilt_world_mesh
 
-            r = record_predictions(pred, samples, args.rrd, progress=not args.no_progress and sys.stderr.isatty())
+            # a dataset rendered without labels.mesh: its world mesh rebuilt from the manifest's config
+            r = record_predictions(pred, samples, args.rrd, progress=not args.no_progress and sys.stderr.isatty(),
+                                   rebuild=rebuilt_world_mesh)
             print(f"mcdp predict: wrote {args.rrd} ({r['bytes'] / 1e6:.2f} MB, {r['bytes_per_rig_frame'] / 1e6:.3f} "
                   f"MB per rig-frame); open it with `rerun {args.rrd}`", file=sys.stderr)
         if lock is None:

@@ -137,11 +137,13 @@ def _view_args(w: argparse.ArgumentParser) -> None:
 
 
 def _view(args) -> int:
+    from synth.gltf_export import rebuilt_world_mesh
     from synth.view import record_rig
 
     _outside_datasets(args.out)
 
-    s = record_rig(args.data, args.out, args.seq, args.frames, args.point_stride)
+    # a dataset rendered without labels.mesh: its world mesh rebuilt from the manifest's config
+    s = record_rig(args.data, args.out, args.seq, args.frames, args.point_stride, rebuild=rebuilt_world_mesh)
     print(f"wrote {s['out']}: {s['sequence']} frames {s['frames'][0]}:{s['frames'][1]}, {s['bytes'] / 1e6:.2f} MB "
           f"({s['bytes_per_rig_frame'] / 1e6:.3f} MB per rig-frame) in {s['seconds']:.1f} s; open it with "
           f"`rerun {s['out']}`")

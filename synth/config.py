@@ -71,6 +71,9 @@ class LabelsConfig(StrictModel):
     instance: bool = Field(True, description="<frame>.instance.png (16-bit object ids) and <seq>/instances.json")
     flow: bool = Field(False, description="<frame>.flow.exr forward flow t -> t+1 in pixels, its validity and "
                        "the moving-object mask")
+    # an added key (issue 50): off, a render writes what it wrote before it existed, and every hash stays
+    mesh: bool = added_key(False, description="<seq>/world_mesh.npz: the world mesh as rendered, so a viewer "
+                           "(synth view, mcdp predict --rrd) shows it without the generator config")
 
 
 class DataConfig(StrictModel):

@@ -13,7 +13,7 @@ Layout (docs/DATASET.md)::
       <seq>/<CAM>/<frame:06d>.depth.exr   float32 z-depth in metres (channel "Z"), 0 = no surface
       labels (manifest ``labels.kinds``; `synth.label_reader`): <frame>.semantic.png, <frame>.instance.png,
       <seq>/instances.json, <frame>.flow.exr + .flow_valid.png (frames 0..F-2), <frame>.movers.png (the last
-      three only with labels.flow=true, off by default)
+      three only with labels.flow=true, off by default), <seq>/world_mesh.npz (labels.mesh=true, off by default)
 
 A sequence is written into ``<seq>.partial/`` and renamed to ``<seq>/`` when complete,
 so a folder named like a sequence is always whole. A reader refuses a dataset without

@@ -75,6 +75,25 @@ def rebuild_scene(ds, seq: str):
     return cfg, scene
 
 
+def rebuilt_world_mesh(ds, seq: str):
+    """The world mesh (`synth.world_mesh.WorldMesh`) of a synth dataset's sequence rebuilt from its manifest
+    config (`rebuild_scene`): the Rerun recording's mesh for a dataset rendered without ``labels.mesh``. None
+    for a dataset without a manifest config (a nuScenes dataroot) or whose scene cannot be rebuilt (one line
+    why)."""
+    from corelib.logs import logger
+    from synth.render import make_ego_mesh
+    from synth.world_mesh import world_mesh
+
+    if ds.format != "synth" or "config" not in ds.manifest:
+        return None
+    try:
+        cfg, scene = rebuild_scene(ds, seq)
+    except DatasetError as e:
+        logger("synth.view").warning(f"synth view: no world mesh for {seq}: {e}")
+        return None
+    return world_mesh(scene, make_ego_mesh(cfg))
+
+
 def mesh_parts(trimesh, mesh, textures: np.ndarray, materials: list[str], name: str) -> list:
     """One trimesh.Trimesh per (texture layer, tint) of `mesh` (a `scenes.model.Mesh`), vertices kept as
     they are (a vertex shared by two groups is duplicated; none is in the scene families)."""

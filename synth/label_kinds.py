@@ -32,6 +32,7 @@ from typing import Callable, Literal
 import numpy as np
 
 from synth.files import DatasetError, frame_stem, read_flow_exr, read_json, read_png, short_list, within
+from synth.world_mesh import read_world_mesh
 
 #: every frame; frames 0..F-2 (a pair t -> t+1); once per sequence (``<seq>/<suffix>``)
 Scope = Literal["frame", "pair", "sequence"]
@@ -45,7 +46,7 @@ class LabelFile:
 
     suffix: str
     dtype: str
-    encoding: str  # png8 (8-bit gray PNG), png16 (16-bit PNG), exr_uv (float32 EXR, channels U, V), json
+    encoding: str  # png8 (8-bit gray PNG), png16 (16-bit PNG), exr_uv (float32 EXR, channels U, V), json, npz
     what: str  # its name in an error message ("the semantic map")
     scope: Scope = "frame"
 
@@ -63,6 +64,8 @@ class LabelFile:
             return read_png(path, depth16=True)
         if self.encoding == "exr_uv":
             return read_flow_exr(path, size)
+        if self.encoding == "npz":
+            return read_world_mesh(path)
         return read_json(path)
 
 
@@ -231,6 +234,44 @@ def _log_flow(rr, rec, path: str, ds, seq: str, cam: str, frame: int, shown: dic
         rec.log(f"{path}/flow", rr.Clear(recursive=False))  # no forward flow at the last frame
 
 
+# ----------------------------------------------------------------------------- mesh
+
+WORLD_MESH = LabelFile("world_mesh.npz", "float32", "npz", "the world mesh", "sequence")
+
+
+def _read_mesh(ds, seq: str, cam: str | None = None, frame: int | None = None):
+    """The sequence's `synth.world_mesh.WorldMesh` (`cam`, `frame`: unused, the file is the sequence's)."""
+    return read_world_mesh(ds.label_path("mesh", WORLD_MESH, seq), ds.n_frames(seq))
+
+
+def _finish_mesh(w) -> dict[str, str]:
+    from synth.world_mesh import world_mesh, world_mesh_bytes
+
+    return w.file(WORLD_MESH, world_mesh_bytes(world_mesh(w.scene, w.ego)))
+
+
+def _verify_mesh(root: Path, manifest: dict) -> list[str]:
+    """Each sequence's world mesh file read back whole (`synth.world_mesh.read_world_mesh`: arrays, indices, one
+    mover pose per frame); one problem naming a file that is not. A missing or unlisted file is reported by
+    `synth verify` itself."""
+    problems = []
+    for seq, info in manifest.get("sequences", {}).items():
+        p = root / WORLD_MESH.rel(seq)
+        if not p.is_file():
+            continue
+        frames = info.get("frames") if isinstance(info, dict) else None
+        try:
+            read_world_mesh(within(root, p, "", "dataset root", "is a link to"),
+                            frames if isinstance(frames, int) and not isinstance(frames, bool) else None)
+        except DatasetError as exc:
+            problems.append(str(exc))
+    return problems
+
+
+def _no_frame_files(w, f) -> None:
+    """The mesh kind writes nothing per frame: its file is the sequence's (``finish``)."""
+
+
 # ----------------------------------------------------------------------------- the table
 
 LABEL_KINDS: tuple[LabelKind, ...] = (
@@ -245,6 +286,10 @@ LABEL_KINDS: tuple[LabelKind, ...] = (
               "<seq>/<CAM>/<frame>.flow.exr: forward flow t -> t+1 in pixels (channels U, V; frames 0..F-2), "
               "<frame>.flow_valid.png: 255 = valid; <frame>.movers.png: 255 = a moving object (every frame)",
               _write_flow, _read_flow, show=_show_flow, log=_log_flow),
+    LabelKind("mesh", (WORLD_MESH,), False, 0,  # one file per sequence (tiny preset: about 0.3 MB), no pixels
+              "<seq>/world_mesh.npz: the world mesh as rendered (static mesh in the world frame, each mover's mesh "
+              "and T_world_obj per frame, the ego body; vertex colours; synth.world_mesh)",
+              _no_frame_files, _read_mesh, finish=_finish_mesh, verify=_verify_mesh),
 )
 
 

@@ -28,7 +28,7 @@ import numpy as np
 
 from corelib.atomic import atomic_write_bytes
 from corelib.hashing import sha256_file
-from scenes.model import Scene
+from scenes.model import Mesh, Scene
 from synth.config import DataConfig
 from synth.files import RGB_SUFFIXES, encode_jpeg, encode_png, frame_stem, write_depth_exr, write_flow_exr, write_json
 from synth.label_kinds import LabelFile, label_kinds, write_sequence_files
@@ -141,10 +141,11 @@ class LabelFrames:
     `synth.label_kinds`) writes through `png` / `flow_pair` / `json`; forward flow t -> t+1 once t+1 is rendered."""
 
     def __init__(self, sink: FrameSink, scene: Scene, kinds: list[str], seq: str, folder: Path,
-                 compression: int) -> None:
+                 compression: int, ego: Mesh | None = None) -> None:
         from scenes.labels import instance_classes
 
         self.sink, self.scene, self.kinds, self.seq, self.folder = sink, scene, kinds, seq, folder
+        self.ego = ego  # the ego body (`synth.render.make_ego_mesh`), for the world mesh kind
         self.compression = compression
         self.classes = instance_classes(scene)
         self.mover_T = {scene.mover_instance(k): m.T_world_obj for k, m in enumerate(scene.movers)}
@@ -177,6 +178,12 @@ class LabelFrames:
         """The sequence's file `lf` holding `doc`, written now: {relative path: sha256}."""
         key, path = self._file(lf)
         write_json(path, doc)
+        return {key: sha256_file(path)}
+
+    def file(self, lf: LabelFile, data: bytes) -> dict[str, str]:
+        """The sequence's file `lf` holding `data`, written now: {relative path: sha256}."""
+        key, path = self._file(lf)
+        atomic_write_bytes(path, data)
         return {key: sha256_file(path)}
 
     def add(self, cam, frame: int, T_world_cam: np.ndarray, res: dict, x: float | None = None) -> None:

@@ -137,7 +137,7 @@ class DatasetReader(Protocol):
 
     @property
     def label_kinds(self) -> tuple[str, ...]:
-        """The labels the dataset holds: some of ("semantic", "instance", "flow"); () for none (a dataset
+        """The labels the dataset holds: some of ("semantic", "instance", "flow", "mesh"); () for none (a dataset
         rendered before labels, a nuScenes dataroot: `synth.label_reader.NoLabels`)."""
 
     @property

@@ -131,7 +131,8 @@ def render_sequence(cfg_dict: dict, out_dir: str, index: int, progress_queue=Non
     frames_json = []
     kinds = label_kinds(cfg)
     with FrameSink() as sink:
-        labels = LabelFrames(sink, scene, kinds, seq, partial, cfg.render.png_compression) if kinds else None
+        labels = (LabelFrames(sink, scene, kinds, seq, partial, cfg.render.png_compression, make_ego_mesh(cfg))
+                  if kinds else None)
         for f in range(cfg.dataset.frames):
             gains = frame_gains(seq_light, flicker_rng)
             T_world_ego = scene.T_world_ego[f]

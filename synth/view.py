@@ -6,8 +6,8 @@
 
     world                         ViewCoordinates RIGHT_HAND_Z_UP (static)
     world/trajectory              LineStrips3D: the sequence's ego positions (T_world_ego), logged at its start
-    world/scene/static            Mesh3D: the world mesh (the scene model of `synth.gltf_export`, world frame;
-                                  vertex colours = texture mean x tint), logged at the sequence's start
+    world/scene/static            Mesh3D: the world mesh (`synth.world_mesh`, world frame; vertex colours =
+                                  texture mean x tint), logged at the sequence's start
     world/scene/<mover>           Mesh3D in the mover's frame (at the start) and Transform3D = T_world_obj per frame
     world/ego                     Transform3D = T_world_ego, per frame
     world/ego/body                Mesh3D: the ego body, ego frame (static)
@@ -31,9 +31,12 @@ its Transform3D = its pose then in the ego frame of its frame (so under the fram
 where it fired); the frame's ego pose, points and LiDAR stay at the frame's time. Played, the cameras update
 one after the other as they fired; the back-projected points use each camera's own pose.
 
-The meshes need the synth dataset's manifest config (the scene is rebuilt from it); a nuScenes dataroot
-gets no mesh. The recording carries its blueprint (`synth.view_blueprint`: a 3-D world view beside the
-six cameras in a grid, masks hidden until toggled; a labels tab with labels).
+The meshes are the dataset's own (``<seq>/world_mesh.npz``, label kind ``mesh``: rendered with
+``labels.mesh=true``); for a dataset without them the caller may pass a way to rebuild them (``synth view``
+passes `synth.gltf_export.rebuilt_world_mesh`, which rebuilds the scene from the manifest's generator config;
+this module never reads that config). A nuScenes dataroot gets no mesh. The recording carries its blueprint
+(`synth.view_blueprint`: a 3-D world view beside the six cameras in a grid, masks hidden until toggled; a labels
+tab with labels).
 
 ``K`` goes in unchanged: Rerun's pinhole puts pixel (0, 0)'s corner at the image origin and its
 default principal point at (W/2, H/2), the +0.5 pixel-centre convention of rig.json. The recording is
@@ -167,28 +170,20 @@ def label_kinds(ds, labels: bool = True) -> set[str]:
     return {k.name for k in label_table() if k.log is not None and k.name in ds.label_kinds} if labels else set()
 
 
-def scene_model(ds, seq: str):
-    """(DataConfig, Scene) of a synth dataset's sequence (`synth.gltf_export.rebuild_scene`), or None for a
-    dataset without a manifest config (a nuScenes dataroot) or whose scene cannot be rebuilt (one line why)."""
-    from corelib.logs import logger
-    from synth.files import DatasetError
-    from synth.gltf_export import rebuild_scene
-
-    if ds.format != "synth" or "config" not in ds.manifest:
-        return None
-    try:
-        return rebuild_scene(ds, seq)
-    except DatasetError as e:
-        logger("synth.view").warning(f"synth view: no world mesh for {seq}: {e}")
-        return None
+def world_mesh_of(ds, seq: str, rebuild=None):
+    """The world mesh of `ds`'s sequence `seq` (`synth.world_mesh.WorldMesh`): the one the dataset holds (label
+    kind ``mesh``, written at render time), else ``rebuild(ds, seq)`` when the caller gives a way to rebuild it
+    (`synth.gltf_export.rebuilt_world_mesh`, from the manifest's generator config: a dataset rendered without
+    ``labels.mesh``), else None (no mesh in the recording)."""
+    if ds.format == "synth" and "mesh" in ds.label_kinds:
+        return ds.read_label("mesh", seq)
+    return rebuild(ds, seq) if rebuild is not None else None
 
 
-def mesh3d(rr, mesh, textures: np.ndarray):
-    """A `scenes.model.Mesh` as rr.Mesh3D, each vertex coloured by its texture layer's mean colour x its tint."""
-    mean = textures.reshape(len(textures), -1, 3).mean(axis=1)
-    colors = np.clip(mean[mesh.layers] * mesh.tints, 0, 255).astype(np.uint8)
+def mesh3d(rr, mesh):
+    """A `synth.world_mesh.ColoredMesh` as rr.Mesh3D."""
     return rr.Mesh3D(vertex_positions=mesh.positions, triangle_indices=mesh.indices, vertex_normals=mesh.normals,
-                     vertex_colors=colors)
+                     vertex_colors=mesh.colors)
 
 
 def backproject(depth: np.ndarray, K: np.ndarray, T_ego_cam: np.ndarray, keep: np.ndarray,
@@ -209,7 +204,7 @@ class RigRecorder:
     """Logs one sequence of a dataset into a RecordingStream (layout: module docstring)."""
 
     def __init__(self, rr, rec, ds, seq: str, point_stride: int = 2, time_offset_s: float = 0.0,
-                 labels: bool = False) -> None:
+                 labels: bool = False, rebuild=None) -> None:
         if point_stride < 1:
             raise ViewError(f"--point-stride {point_stride} must be >= 1")
         self.rr, self.rec, self.ds, self.seq = rr, rec, ds, seq
@@ -218,7 +213,8 @@ class RigRecorder:
         self.names = list(ds.camera_names)
         self.nbrs = dict(zip(self.names, neighbours_of(ds.neighbours, len(self.names))))
         self.lidar = ds.lidar_points_world if ds.format == "nuscenes" else None  # a dataroot's LiDAR sweeps
-        self.model = None  # (DataConfig, Scene) once `log_sequence` rebuilt it
+        self.rebuild = rebuild  # the world mesh of a dataset without one (`world_mesh_of`)
+        self.world = None  # the `synth.world_mesh.WorldMesh` once `log_sequence` read it
         self.rgb: dict[str, np.ndarray] = {}  # the last logged frame's images, per camera
         self.labels = label_kinds(ds, labels)  # shown labels (`synth.view_labels`)
         self.times, self.poses = own_times(ds, seq)  # None, None: the cameras fire at the frame's time
@@ -260,19 +256,16 @@ class RigRecorder:
         T = np.asarray([np.asarray(e["T_world_ego"], np.float64) for e in self.ego])
         rec.log("world/trajectory", rr.LineStrips3D([T[:, :3, 3]], colors=(255, 220, 0), radii=0.08,
                                                     labels=[self.seq]))
-        self.model = scene_model(self.ds, self.seq)
-        if self.model is None:
+        self.world = world_mesh_of(self.ds, self.seq, self.rebuild)
+        if self.world is None:
             return
-        cfg, scene = self.model
-        rec.log("world/scene/static", mesh3d(rr, scene.static, scene.textures))
-        for m in scene.movers:
-            rec.log(f"world/scene/{m.name}", mesh3d(rr, m.mesh, scene.textures))
-            T0 = np.asarray(m.T_world_obj[0], np.float64)
-            rec.log(f"world/scene/{m.name}", rr.Transform3D(translation=T0[:3, 3], mat3x3=T0[:3, :3]))
+        rec.log("world/scene/static", mesh3d(rr, self.world.static))
+        for name, mesh, T_world_obj in self.world.movers:
+            rec.log(f"world/scene/{name}", mesh3d(rr, mesh))
+            T0 = np.asarray(T_world_obj[0], np.float64)
+            rec.log(f"world/scene/{name}", rr.Transform3D(translation=T0[:3, 3], mat3x3=T0[:3, :3]))
         if ego_body:
-            from synth.render import make_ego_mesh
-
-            rec.log("world/ego/body", mesh3d(rr, make_ego_mesh(cfg), scene.textures), static=True)
+            rec.log("world/ego/body", mesh3d(rr, self.world.ego), static=True)
 
     def set_frame(self, frame: int) -> float:
         t = self.offset + float(self.ego[frame].get("timestamp_s", frame / self.ds.fps))
@@ -295,9 +288,9 @@ class RigRecorder:
         self.set_frame(frame)
         T_we = np.asarray(self.ego[frame]["T_world_ego"], np.float64)
         rec.log("world/ego", rr.Transform3D(translation=T_we[:3, 3], mat3x3=T_we[:3, :3]))
-        for m in (self.model[1].movers if self.model else []):
-            T = np.asarray(m.T_world_obj[frame], np.float64)
-            rec.log(f"world/scene/{m.name}", rr.Transform3D(translation=T[:3, 3], mat3x3=T[:3, :3]))
+        for name, _, T_world_obj in (self.world.movers if self.world else ()):
+            T = np.asarray(T_world_obj[frame], np.float64)
+            rec.log(f"world/scene/{name}", rr.Transform3D(translation=T[:3, 3], mat3x3=T[:3, :3]))
         depths, pts, cols = {}, [], []
         self.rgb = {}
         Ts = [c.T_ego_cam for c in ds.cameras] if self.poses is None else list(self.poses[frame])
@@ -360,9 +353,9 @@ def own_times(ds, seq: str) -> tuple[np.ndarray | None, np.ndarray | None]:
 
 
 def record_rig(dataset: str | Path, out: str | Path, seq: str | None = None, frames: str | None = None,
-               point_stride: int = 2) -> dict:
-    """Write the recording of one sequence (all its frames, or `frames` ``A:B``) to `out`; returns a
-    summary (sequence, frames, bytes, seconds)."""
+               point_stride: int = 2, rebuild=None) -> dict:
+    """Write the recording of one sequence (all its frames, or `frames` ``A:B``) to `out` (`rebuild`: the world
+    mesh of a dataset that holds none, `world_mesh_of`); returns a summary (sequence, frames, bytes, seconds)."""
     import time
 
     from synth.open import open_dataset
@@ -374,7 +367,7 @@ def record_rig(dataset: str | Path, out: str | Path, seq: str | None = None, fra
     rng = parse_frames(frames, ds.n_frames(seq), seq)
     t0 = time.perf_counter()
     with recording(out, f"{seq}", blueprint_of(ds, seq, labels=True)) as rec:
-        r = RigRecorder(rr, rec, ds, seq, point_stride, labels=True)
+        r = RigRecorder(rr, rec, ds, seq, point_stride, labels=True, rebuild=rebuild)
         r.log_static()
         r.log_sequence()
         for f in rng:

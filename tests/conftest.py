@@ -49,12 +49,14 @@ def tiny_dataset(tmp_path_factory, tiny_config):
 
 @pytest.fixture(scope="session")
 def flow_dataset(tmp_path_factory):
-    """The tiny preset with every label, forward flow included (off by default: its cost), rendered once."""
+    """The tiny preset with every label, forward flow and the world mesh included (both off by default), rendered
+    once."""
     from synth.config import load_data_config
     from synth.render import render_dataset
 
     out = tmp_path_factory.mktemp("labels") / "data"
-    render_dataset(load_data_config(TINY, ["labels.flow=true"]), out, workers=1, progress=False, log=lambda *a: None)
+    cfg = load_data_config(TINY, ["labels.flow=true", "labels.mesh=true"])
+    render_dataset(cfg, out, workers=1, progress=False, log=lambda *a: None)
     return out
 
 

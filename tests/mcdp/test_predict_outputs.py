@@ -30,7 +30,7 @@ def fake_rerun(monkeypatch):
 
     written: list[Path] = []
 
-    def record_predictions(pred, samples, path, progress=False):
+    def record_predictions(pred, samples, path, progress=False, rebuild=None):
         Path(path).write_bytes(b"a recording")
         written.append(Path(path))
         return {"bytes": 11, "bytes_per_rig_frame": 11.0}

@@ -81,6 +81,23 @@ def test_predict_rrd_holds_every_stage_beside_the_ground_truth(run, tiny_dataset
     assert [t for t, _ in ents["/world/trajectory"]] == [times[0]]  # one sequence: its trajectory, at its start
 
 
+def test_predict_rrd_takes_the_world_mesh_from_the_dataset(run, flow_dataset, tmp_path, one_thread):
+    """`record_predictions` on a dataset holding its world mesh (``labels.mesh=true``) shows that mesh, with no
+    rebuild from the generator config given (mcdp never reads one)."""
+    from mcdp.predict import Predictor
+    from mcdp.recording import record_predictions
+    from synth.open import open_dataset
+
+    ds = open_dataset(flow_dataset)
+    seq = ds.split("test")[0]
+    record_predictions(Predictor(run, ds), [(seq, 0)], tmp_path / "pred.rrd")
+    ents = read_rrd(tmp_path / "pred.rrd")
+    (row,) = [r for t, r in ents["/world/scene/static"] if "Mesh3D:vertex_positions" in r]
+    np.testing.assert_array_equal(np.asarray(row["Mesh3D:vertex_positions"], np.float32),
+                                  ds.read_label("mesh", seq).static.positions)
+    assert "/world/ego/body" in ents
+
+
 def test_predict_needs_out_or_rrd_and_refuses_a_foreign_rrd(run, tiny_dataset, tmp_path, capsys):
     assert main(["predict", str(run), "--data", str(tiny_dataset)]) == 2
     assert "give --out PRED (files), --rrd FILE.rrd" in capsys.readouterr().err

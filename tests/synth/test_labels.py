@@ -33,7 +33,7 @@ def test_the_defaults_write_semantic_and_instance_maps_but_no_flow(tiny_dataset)
 
 def test_every_material_has_a_class_and_the_table_is_in_the_manifest(ds):
     assert len(MATERIAL_CLASS) == len(MATERIALS)
-    assert ds.label_kinds == ("semantic", "instance", "flow")
+    assert ds.label_kinds == ("semantic", "instance", "flow", "mesh")
     assert ds.classes == class_table()
     assert [c["name"] for c in ds.classes][:2] == ["sky", "road"]
     assert MATERIAL_CLASS[LAYER["asphalt"]] == CLASS["road"] and MATERIAL_CLASS[LAYER["foliage"]] == CLASS["vegetation"]
@@ -190,7 +190,8 @@ def test_verify_checks_the_label_files(flow_dataset, tmp_path):
 def _strip_labels(src, dst) -> None:
     """`src` as it would have been rendered before labels existed: no label file, no `labels` record."""
     shutil.copytree(src, dst, ignore=shutil.ignore_patterns("*.semantic.png", "*.instance.png", "*.flow.exr",
-                                                            "*.flow_valid.png", "*.movers.png", "instances.json"))
+                                                            "*.flow_valid.png", "*.movers.png", "instances.json",
+                                                            "world_mesh.npz"))
     m = json.loads((dst / "manifest.json").read_text())
     del m["labels"]
     m["files"] = {k: v for k, v in m["files"].items() if (dst / k).is_file()}

@@ -178,6 +178,36 @@ def test_recording_holds_the_world_mesh_trajectory_and_ego_body(recording, tiny_
     assert sorted(poses) == [t0] + [round(ego[f]["timestamp_s"] * 1e9) for f in (1, 2, 3)]
 
 
+def test_a_dataset_with_the_mesh_file_is_recorded_with_it_without_the_generator_config(flow_dataset, tiny_dataset,
+                                                                                      tmp_path, monkeypatch):
+    """The flow dataset holds ``<seq>/world_mesh.npz`` (``labels.mesh=true``): its recording shows that mesh with
+    no way to rebuild one given and the generator-config rebuild broken; a dataset without the file and no
+    rebuild records no mesh."""
+    import synth.gltf_export
+    from synth.open import open_dataset
+    from synth.view import record_rig
+
+    def never(*a, **k):
+        raise AssertionError("the generator config was read")
+
+    monkeypatch.setattr(synth.gltf_export, "rebuild_scene", never)
+    record_rig(flow_dataset, tmp_path / "mesh.rrd", "seq_00001", "0:2")
+    wm = open_dataset(flow_dataset).read_label("mesh", "seq_00001")
+    ents = read_rrd(tmp_path / "mesh.rrd")
+    (row,) = [r for t, r in ents["/world/scene/static"] if "Mesh3D:vertex_positions" in r]
+    np.testing.assert_array_equal(np.asarray(row["Mesh3D:vertex_positions"], np.float32), wm.static.positions)
+    np.testing.assert_array_equal(np.asarray(row["Mesh3D:triangle_indices"]), wm.static.indices)
+    colors = np.asarray(row["Mesh3D:vertex_colors"], np.uint32)  # packed RGBA
+    np.testing.assert_array_equal(np.stack([colors >> 24, colors >> 16 & 255, colors >> 8 & 255], 1), wm.static.colors)
+    (body,) = [r for t, r in ents["/world/ego/body"] if t is None]
+    np.testing.assert_array_equal(np.asarray(body["Mesh3D:vertex_positions"], np.float32), wm.ego.positions)
+    name, _, T = wm.movers[0]
+    poses = [r["Transform3D:translation"][0] for t, r in ents[f"/world/scene/{name}"] if "Transform3D:translation" in r]
+    np.testing.assert_allclose(poses[-1], T[1][:3, 3], rtol=1e-6)
+    record_rig(tiny_dataset, tmp_path / "none.rrd", "seq_00001", "0:1")
+    assert "/world/scene/static" not in read_rrd(tmp_path / "none.rrd")
+
+
 def test_one_depth_image_per_camera_and_frame_equal_to_the_exr(recording, tiny_dataset):
     from synth.open import open_dataset
 
