@@ -18,7 +18,7 @@ from pathlib import Path
 
 from mcdp.methods import label
 from study.mechanisms import KEYS
-from study.paired import paired_difference
+from study.paired import paired_gain
 from study.results import BASELINE, PRIOR_LABEL, REF_LABEL, SCALE_LABEL, method_agg, yardstick_agg
 from study.variants import CUT, Evaluation
 
@@ -207,8 +207,8 @@ def measured_figure(results: dict):
 
 def paired_series(results: dict) -> dict[str, dict[str, list[dict]]]:
     """What paired_vs_mono2.png draws: {key of `PAIRED_KEYS`: {method: [Mono2 − method per overlap]}}, the
-    `paired_difference` taken worse minus better as on every page: positive = helps."""
-    return {key: {m: [paired_difference(results, o, BASELINE, m, key) for o in results["overlaps"]]
+    `paired_gain`: worse minus better as on every page, positive = helps."""
+    return {key: {m: [paired_gain(results, o, BASELINE, m, key) for o in results["overlaps"]]
                   for m in results["methods"] if m != BASELINE} for key, _ in PAIRED_KEYS}
 
 

@@ -28,8 +28,10 @@ def number(x) -> float:
     return float(x) if isinstance(x, (int, float)) and x is not None else float("nan")
 
 
-#: how a paired difference reads in the report (`paired_difference`'s ``differs``)
-VERDICT_WORD = {-1: "**lower (better)**", 1: "**higher (worse)**", 0: "no difference beyond the interval"}
+#: how a paired difference reads in the report (`paired_difference`'s ``differs``), by which way its metric is
+#: better (`mcdp.metrics.better`)
+VERDICT_WORD = {"lower": {-1: "**lower (better)**", 1: "**higher (worse)**", 0: "no difference beyond the interval"},
+                "higher": {-1: "**lower (worse)**", 1: "**higher (better)**", 0: "no difference beyond the interval"}}
 #: how a gain reads (a paired difference taken worse minus better, the one sign of every page: positive = helps)
 GAIN_WORD = {1: "**helps**", -1: "**hurts**", 0: "no difference beyond the interval"}
 
@@ -56,12 +58,15 @@ def fmt_diff(pd: dict, digits: int = 3) -> str:
     return f"{mu:+.{digits}f} ± {fmt_num(ci, digits)}"
 
 
-def verdict_word(pd: dict, floor: float = 0.0) -> str:
-    """VERDICT_WORD of a paired difference; beyond its interval but smaller than `floor` in size is
-    said to be negligible, not better or worse."""
+def verdict_word(pd: dict, floor: float = 0.0, *, key: str) -> str:
+    """VERDICT_WORD of a paired difference of column ``key`` (its metric says which way is better,
+    `mcdp.metrics.better`); beyond its interval but smaller than `floor` in size is said to be negligible, not
+    better or worse."""
+    from mcdp.metrics import better
+
     if pd["differs"] != 0 and abs(pd["mean"]) < floor:
         return f"beyond the interval but negligible (< {floor:g})"
-    return VERDICT_WORD[pd["differs"]]
+    return VERDICT_WORD[better(key)][pd["differs"]]
 
 
 def gain_word(pd: dict, floor: float = 0.0) -> str:
@@ -136,8 +141,9 @@ def flat_row(row: dict) -> dict[str, Any]:
         if sc not in m:
             continue
         for region in ("mean", "overlap", "non_overlap"):
-            for k in metric_names():
-                out[f"{sc}.{region}.{k}"] = number(m[sc][region].get(k))
+            for k in metric_names():  # a metric the record predates is absent, as in its results.csv (no NaN column)
+                if k in m[sc][region]:
+                    out[f"{sc}.{region}.{k}"] = number(m[sc][region][k])
         for cam, v in m[sc]["per_camera_abs_rel"].items():
             out[f"{sc}.camera.{cam}.abs_rel"] = number(v)
         for band, v in m[sc].get("bands", {}).items():  # distance to the overlap (mcdp.evaluate)

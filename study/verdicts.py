@@ -20,7 +20,7 @@ import math
 
 from mcdp.methods import label as method_label
 from study.mechanisms import KEYS, NOWHERE, from_which_overlap, is_yardstick, paired_all, verdict_line
-from study.paired import paired_difference
+from study.paired import paired_gain
 from study.results import BASELINE, SCALE_LABEL, fmt_diff, gain_word, method_agg, yardstick_agg
 
 #: the per-comparison level of every interval in the report
@@ -54,7 +54,7 @@ def mechanism_lines(results: dict, label) -> list[str]:
         return []
     mech = [m for m in methods if not is_yardstick(results, m)]
     diffs, cuts, change = paired_all(results, methods)
-    metric = {m: {key: {d["overlap"]: paired_difference(results, d["overlap"], BASELINE, m, key)
+    metric = {m: {key: {d["overlap"]: paired_gain(results, d["overlap"], BASELINE, m, key)
                         for d in results["data"]} for key, _ in METRIC_KEYS} for m in mech}
     L = [verdict_line(m, diffs[m], cuts[m], change[m], label)[:-1] + "; " + _metric_clause(metric[m]) + "."
          for m in mech]
@@ -118,8 +118,8 @@ def yardstick_lines(results: dict) -> str:
             if paired and sc == "none":
                 cells = []
                 for m in others:
-                    pa = paired_difference(results, o, BASELINE, m, f"{sc}.mean.abs_rel")
-                    pn = paired_difference(results, o, BASELINE, m, f"{sc}.non_overlap.abs_rel")
+                    pa = paired_gain(results, o, BASELINE, m, f"{sc}.mean.abs_rel")
+                    pn = paired_gain(results, o, BASELINE, m, f"{sc}.non_overlap.abs_rel")
                     cells.append(f"{method_label(m)} {fmt_diff(pa)}: {gain_word(pa)} (non-overlap px "
                                  f"{fmt_diff(pn)}: {gain_word(pn)})")
                 lines.append(head + "Mono2 − each method (positive = helps), paired over seeds: " + "; ".join(cells))
