@@ -1,7 +1,7 @@
 """Rig samples for training: one sequence frame t (with t-1, t+1) of every camera.
 
 The batch a step trains on is a `mcdp.inputs.RigBatch` (its schema is there, the one place); a sample
-holds the optional input fields its network declares (`mcdp.inputs.Field`) and no other.
+holds the optional input fields its network declares (`mcdp.inputs.InputField`) and no other.
 
 Images are resized with
 area interpolation; K follows exactly (diag(sx, sy, 1) @ K, pixel centres at +0.5);
@@ -22,7 +22,7 @@ import cv2
 import numpy as np
 import torch
 
-from mcdp.inputs import Field, RigBatch, stack
+from mcdp.inputs import InputField, RigBatch, read_fields, stack
 
 FRAME_OFFSETS = (-1, 0, 1)
 
@@ -122,11 +122,11 @@ class RigDataset(torch.utils.data.Dataset):
         ds: an opened `synth.dataset` dataset.
         split: 'train' | 'val' | 'test'.
         height, width: training size.
-        fields: the optional inputs its network reads (`mcdp.inputs.Field`; `mcdp.methods.fields_of` for a run):
+        fields: the optional inputs its network reads (`mcdp.inputs.InputField`; `mcdp.methods.fields_of` for a run):
             each sample holds these under ``fields`` and no other.
     """
 
-    def __init__(self, ds, split: str, height: int, width: int, fields: tuple[Field, ...] = ()):
+    def __init__(self, ds, split: str, height: int, width: int, fields: tuple[InputField, ...] = ()):
         self.reader = RigReader(ds, height, width)
         self.split = split
         self.fields = tuple(fields)
@@ -151,7 +151,7 @@ class RigDataset(torch.utils.data.Dataset):
             "T_world_ego": torch.from_numpy(T),
             "seq_index": torch.tensor(k, dtype=torch.long),
             "frame": torch.tensor(t, dtype=torch.long),
-            "fields": {f.name: f.of(r, seq, t) for f in self.fields},
+            "fields": read_fields(self.fields, r, seq, t),
         }
         return item
 

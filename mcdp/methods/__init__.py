@@ -22,7 +22,7 @@ run config's ``method_params:`` section holds the keys a run sets, validated aga
 loss terms as ``ctx.params`` and the network's constructor as ``params``. Left empty the section is not
 hashed, so runs that set nothing keep their hashes (`corelib.configlib.added_key`).
 
-A method's own inputs: the `mcdp.inputs.Field`s its network declares (``DepthNetwork.inputs``);
+A method's own inputs: the `mcdp.inputs.InputField`s its network declares (``DepthNetwork.inputs``);
 `fields_of` is what a run's data reader fills.
 
 A report reads a method through its row and network class, never its name: ``has_bases`` and
@@ -255,7 +255,7 @@ def build_network(cfg: ModelConfig, params: BaseModel | None = None) -> nn.Modul
 
 
 def fields_of(cfg: RunConfig) -> tuple:
-    """The optional input fields (`mcdp.inputs.Field`) a run's data reader fills: its network's declared
+    """The optional input fields (`mcdp.inputs.InputField`) a run's data reader fills: its network's declared
     ``inputs``, and `mcdp.methods.base.GT_MEDIAN` when the run is scaled by the ORACLE (``scale.source=
     oracle_gt_median``)."""
     from mcdp.methods.base import GT_MEDIAN

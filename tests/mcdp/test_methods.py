@@ -104,7 +104,7 @@ def test_every_registered_network_keeps_the_contract(name):
     """Conformance: each method's network (its config from the tiny base under its row) is a DepthNetwork whose
     declared members have the documented types, and whose forward returns every stage's depth at full
     resolution."""
-    from mcdp.inputs import DepthInput, Field
+    from mcdp.inputs import DepthInput, InputField
     from mcdp.methods.base import DepthNetwork
 
     row = methods.METHODS[name]
@@ -115,7 +115,7 @@ def test_every_registered_network_keeps_the_contract(name):
     for member in ("uses_neighbours", "joint_pose", "has_bases"):
         assert isinstance(getattr(net, member), bool), member
     assert isinstance(type(net).reads_ground_truth(), bool)
-    assert isinstance(net.inputs, tuple) and all(isinstance(f, Field) for f in net.inputs)
+    assert isinstance(net.inputs, tuple) and all(isinstance(f, InputField) for f in net.inputs)
     fresh = net.fresh_parameters()
     assert all(isinstance(p, nn.Parameter) for p in fresh)
     # what a report says starts fresh (read without building the network) is what does
