@@ -239,13 +239,28 @@ def _record_source(out: Path, run: str, pred, data: str) -> None:
 def _presets_args(p: argparse.ArgumentParser) -> None:
     from corelib.presets import KINDS
 
-    p.add_argument("kind", nargs="?", choices=list(KINDS), help="one kind (default: all)")
+    p.add_argument("kind", nargs="?", choices=["methods", *KINDS], help="one kind (default: all); methods: the "
+                   "registered methods, each a value of --method and the model.method it trains")
+
+
+def format_methods() -> str:
+    """The registered methods (`mcdp.methods.METHODS`, table order): each row's name (``--method``), the
+    ``model.method`` it trains, its label and its role; the README points here rather than listing them."""
+    from mcdp.methods import METHODS
+
+    w = max(len(n) for n in METHODS)
+    out = ["methods (mcdp/methods/__init__.py; mcdp train configs/train/tiny/base.yaml --method NAME):"]
+    out += [f"  {n:<{w}}  model.method={m.defaults['model.method']:<{w}}  {m.label} ({m.role})" for n, m in METHODS.items()]
+    return "\n".join(out)
 
 
 def _presets(args: argparse.Namespace) -> int:
     from corelib.presets import KINDS, format_presets
 
-    print(format_presets([args.kind] if args.kind else list(KINDS)))
+    if args.kind in (None, "methods"):
+        print(format_methods())
+    if args.kind != "methods":
+        print(format_presets([args.kind] if args.kind else list(KINDS)))
     return 0
 
 
@@ -254,7 +269,8 @@ COMMANDS: list[Command] = [
     Command("train", "train a model (resumes if RUN has a checkpoint)", train_arguments, train),
     Command("eval", "evaluate a run on a split -> metrics.json and per-camera tables", _eval_args, _eval),
     Command("predict", "write depth grids, EXR depth and optional PLY for a split", _predict_args, _predict),
-    Command("presets", "list the presets in configs/ (train, sweep, pretrain, data)", _presets_args, _presets),
+    Command("presets", "list the registered methods and the presets in configs/ (train, sweep, pretrain, data)",
+            _presets_args, _presets),
 ]
 
 #: errors -> exit codes (`corelib.cli`: first match wins; then a full disk, a refused file, Ctrl-C)
