@@ -156,6 +156,15 @@ class RigDataset(torch.utils.data.Dataset):
         return item
 
 
+def step_loader(train_set: RigDataset, tc, start: int, end: int, rank: int = 0, world: int = 1,
+                pin: bool = False) -> torch.utils.data.DataLoader:
+    """The batches of training steps [start, end) of ``train_set`` (this rank's share of each; `StepBatchSampler`:
+    a pure function of the step), as ``tc`` (`mcdp.config.TrainConfig`: batch size, seed, workers) asks."""
+    sampler = StepBatchSampler(len(train_set), tc.batch_size, tc.seed, start, end, rank=rank, world=world)
+    return torch.utils.data.DataLoader(train_set, batch_sampler=sampler, collate_fn=collate, num_workers=tc.num_workers,
+                                       pin_memory=pin, persistent_workers=False)
+
+
 def collate(items: list[dict]) -> RigBatch:
     """Stack rig samples into a `mcdp.inputs.RigBatch`."""
     return stack(items)
