@@ -79,6 +79,8 @@ def gain_word(pd: dict, floor: float = 0.0) -> str:
 #: the method every other one is compared with (paired differences, the "vs Mono2" columns of the report): the
 #: registry's row with ``baseline=True`` (`mcdp.methods.baseline`)
 BASELINE = baseline()
+#: the file name of the figure of every method's paired gain over the baseline (`study.plots.paired_plot`)
+PAIRED_PLOT = f"paired_vs_{BASELINE}.png"
 INERT_M = 0.01  # a refinement whose refined depth differs from its init stage by < 1 cm on average is inert
 
 
