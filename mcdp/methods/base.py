@@ -128,8 +128,10 @@ class DepthNetwork(nn.Module, metaclass=ABCMeta):
       from; ``check_rig(params, n_cameras)`` (classmethod): the same for a rig its ``params`` cannot take,
       checked before a run folder is made;
     - ``inputs``: the optional input fields it reads (`mcdp.inputs.InputField`, e.g. ORACLE-local's overlap ground
-      truth): the data reader and the predictor fill these and no other; ``reads_ground_truth()``
-      (classmethod): one of them reads ground truth, so the network is an ORACLE (a yardstick);
+      truth): the data reader and the predictor fill these and no other, and the network runs with any of them
+      absent (``inp.get(FIELD)`` is None: the cut empties those that carry other cameras' content, a caller may
+      fill none; tests/mcdp/test_methods.py runs every registered row so); ``reads_ground_truth()``
+      (classmethod): one of them reads ground truth, so the network is an ORACLE (its row's role is "yardstick");
     - ``n_out``: decoder depth channels (instance attribute; 1 = one sigmoid channel);
     - ``has_bases``: n bases combined by weights (the warm start copies the pretraining's basis channels;
       False: its mono head); ``stages``: stage names, the last is evaluated;
