@@ -76,7 +76,7 @@ def main(argv=None) -> int:
     t_train = time.perf_counter() - t0
     t0 = time.perf_counter()
     if not (tmp / "ns" / "mcdp_synth" / "export.json").is_file():
-        export_nuscenes(tmp / "data", tmp / "ns", progress=False)
+        export_nuscenes(open_dataset(tmp / "data"), tmp / "ns", progress=False)
     t_export = time.perf_counter() - t0
     ns = open_dataset(tmp / "ns")
     ecfg = EvalConfig()

@@ -56,7 +56,7 @@ def label_bytes(out: Path) -> dict[str, int]:
         if not p.is_file():
             continue
         kind = next((k for k, suffixes in KINDS.items() if p.name.endswith(suffixes)), None)
-        if kind is None and p.parent.parent.name.startswith("seq_") and p.name.endswith((".depth.exr", ".png")):
+        if kind is None and p.parent.parent.name.startswith("seq_") and p.name.endswith((".depth.exr", ".png", ".jpg")):
             kind = "rgb+depth"
         if kind is not None:
             sizes[kind] += p.stat().st_size

@@ -68,10 +68,11 @@ def render_only_rate(cfg, rig) -> tuple[float, float]:
 
 @contextlib.contextmanager
 def files_off():
-    """End to end with the frame sink's PNG, EXR and overlap tasks switched off (the ablation column)."""
+    """End to end with the frame sink's image (RGB, labels), EXR and overlap tasks switched off (the ablation
+    column)."""
     from synth import pipeline
 
-    saved = {k: getattr(pipeline.FrameSink, k) for k in ("png", "exr", "overlap")}
+    saved = {k: getattr(pipeline.FrameSink, k) for k in ("png", "rgb", "exr", "overlap")}
     for k in saved:
         setattr(pipeline.FrameSink, k, lambda *a, **kw: None)
     try:

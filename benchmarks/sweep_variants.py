@@ -34,7 +34,8 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from study.paired import paired_difference  # noqa: E402
-from study.results import evaluations, method_agg, read_results  # noqa: E402
+from study.results import evaluations, method_agg  # noqa: E402
+from study.results_files import read_results  # noqa: E402
 from study.variants import CUT, ORACLE, Evaluation  # noqa: E402
 from benchmarks._table import markdown, show  # noqa: E402
 from corelib.text import bounded  # noqa: E402

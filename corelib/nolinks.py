@@ -108,8 +108,8 @@ def linked_part(root: str | Path, path: str | Path) -> Path | None:
 def write_json_in(root: str | Path, path: str | Path, obj, **dumps) -> None:
     """Write ``obj`` as JSON (``indent=1`` unless given) to the file ``path`` below ``root``, whole or not at all,
     its folders reached (and made) without following a link (`open_folder`; `LinkRefused` names a link)."""
-    root, path = Path(root), Path(path)
-    full = path if path.is_absolute() else root / path
+    root = Path(root)
+    full = root.joinpath(*_parts(root, path))  # ``path`` under the root as given (sweeps/x/runs/...), or relative to it
     dumps.setdefault("indent", 1)
     fd = open_folder(root, full.parent, create=True)
     try:

@@ -84,6 +84,11 @@ class ModelConfig(StrictModel):
         fresh run copies the encoder and decoder from it (mono2 takes the mono head, mcdp the
         n basis channels); weight networks start fresh. Refused, naming the layer, when the
         architecture differs. The run records the file's path and sha256.
+    sync: cameras that fire at their own times (a dataset rendered with ``rig.trigger``, or nuScenes):
+        ``compensate`` (default) puts each camera at its own pose at its own time in every cross-camera warp
+        (MCDP's neighbour features, FSM's spatial terms, L_con; `mcdp.data.RigReader.T_ego_cam_at`);
+        ``assume`` uses the static rig extrinsics, as if the cameras fired together (the ablation of what
+        ignoring the offsets costs). Equal on synchronous data; an added key (unset: the run's hash as before).
     """
 
     method: str = Field("mcdp", pattern=r"^[a-z][a-z0-9_]{0,39}$")
@@ -101,6 +106,7 @@ class ModelConfig(StrictModel):
     weight_init_std: Float = Field(1e-3, ge=0.0, le=1.0)
     mono_head: bool = False
     init_from: str | None = None
+    sync: Literal["compensate", "assume"] = added_key("compensate")
 
     @model_validator(mode="after")
     def _check(self) -> "ModelConfig":

@@ -25,6 +25,8 @@ import torch
 from mcdp.inputs import InputField, RigBatch, read_fields, stack
 
 FRAME_OFFSETS = (-1, 0, 1)
+#: how cross-camera warps treat cameras that fire at different times (`mcdp.config.ModelConfig.sync`)
+SYNC_MODES = ("compensate", "assume")
 
 
 def resize_rgb(img: np.ndarray, height: int, width: int) -> np.ndarray:
@@ -80,8 +82,11 @@ class RigReader:
     Masks and intrinsics are computed once per camera.
     """
 
-    def __init__(self, ds, height: int, width: int, cache_bytes: int = 256 * 2**20):
-        self.ds = ds
+    def __init__(self, ds, height: int, width: int, cache_bytes: int = 256 * 2**20, sync: str = "compensate"):
+        if sync not in SYNC_MODES:
+            raise ValueError(f"model.sync must be one of {', '.join(SYNC_MODES)}, got {sync!r}")
+        self.ds, self.sync = ds, sync
+        self._poses: dict[str, tuple[np.ndarray, np.ndarray]] = {}
         self.cache_bytes = int(cache_bytes)
         self._cache: dict[tuple[str, int], np.ndarray] = {}
         self._cached_bytes = 0
@@ -95,6 +100,30 @@ class RigReader:
         self.mask = np.stack([resize_mask(m, self.height, self.width) for m in self.mask_full])[:, None].astype(
             np.float32
         )  # (N, 1, H, W)
+
+    def camera_poses(self, seq: str) -> tuple[np.ndarray, np.ndarray]:
+        """(F, N) each camera's timestamp_s and (F, N, 4, 4) float32 its pose at that time in the ego frame of its
+        frame's time (`synth.dataset.Dataset.camera_poses`; a reader without it, or a synchronous rig: the frame's
+        time and the static extrinsics ``T_ego_cam``)."""
+        if seq not in self._poses:
+            get = getattr(self.ds, "camera_poses", None)
+            if get is None:
+                F = self.ds.n_frames(seq)
+                ts = np.repeat(np.asarray([e["timestamp_s"] for e in self.ds.ego(seq)], np.float64)[:, None],
+                               len(self.cam_names), 1)
+                self._poses[seq] = ts, np.repeat(self.T_ego_cam[None], F, 0)
+            else:
+                ts, T = get(seq)
+                self._poses[seq] = ts, np.asarray(T).astype(np.float32)
+        return self._poses[seq]
+
+    def T_ego_cam_at(self, seq: str, frame: int) -> np.ndarray:
+        """(N, 4, 4) float32 the camera poses every cross-camera warp of rig sample (seq, frame) uses: under
+        ``model.sync=compensate`` each camera's own pose at its own trigger time (`camera_poses`), under
+        ``assume`` the static rig extrinsics (as if the cameras fired together). Equal for synchronous data."""
+        if self.sync == "assume":
+            return self.T_ego_cam
+        return self.camera_poses(seq)[1][frame]
 
     def rgb(self, seq: str, frame: int) -> np.ndarray:
         """(N, 3, H, W) float32 in [0, 1] of every camera at one frame.
@@ -124,10 +153,16 @@ class RigDataset(torch.utils.data.Dataset):
         height, width: training size.
         fields: the optional inputs its network reads (`mcdp.inputs.InputField`; `mcdp.methods.fields_of` for a run):
             each sample holds these under ``fields`` and no other.
+        sync: ``model.sync``: a sample's ``T_ego_cam`` is each camera's own pose at its own trigger time in the
+            ego frame of the sample's frame time (``compensate``; the relative pose of two cameras then goes
+            through the world, and the odometry of t -/+ 1 composes with it exactly for motion at a constant
+            twist) or the static extrinsics (``assume``); equal for a synchronous rig. Each camera's timestamp:
+            ``reader.camera_poses(seq)[0]``.
     """
 
-    def __init__(self, ds, split: str, height: int, width: int, fields: tuple[InputField, ...] = ()):
-        self.reader = RigReader(ds, height, width)
+    def __init__(self, ds, split: str, height: int, width: int, fields: tuple[InputField, ...] = (),
+                 sync: str = "compensate"):
+        self.reader = RigReader(ds, height, width, sync=sync)
         self.split = split
         self.fields = tuple(fields)
         self.seqs = list(ds.split(split))
@@ -146,7 +181,7 @@ class RigDataset(torch.utils.data.Dataset):
         item = {
             "rgb": torch.from_numpy(rgb),
             "K": torch.from_numpy(r.K),
-            "T_ego_cam": torch.from_numpy(r.T_ego_cam),
+            "T_ego_cam": torch.from_numpy(r.T_ego_cam_at(seq, t)),  # each camera's own pose (model.sync)
             "mask": torch.from_numpy(r.mask),
             "T_world_ego": torch.from_numpy(T),
             "seq_index": torch.tensor(k, dtype=torch.long),

@@ -86,6 +86,7 @@ from synth.protocol import DatasetReader
 from . import geometry
 from . import label_regions as LR
 from .per_sequence import per_sequence
+from .truth import camera_poses_at
 from .metrics import (
     metric_names,
     metric_terms,
@@ -212,7 +213,9 @@ class _Truth:
                 raise ValueError(f"ds.read_depth({seq!r}, {rig.names[c]!r}, {f}) has shape {g.shape}, expected "
                                  f"{rig.shapes[c]}")
         self.valids = [valid_gt_mask(g, m, cfg.min_depth, cfg.max_depth) for g, m in zip(self.gts, rig.masks)]
-        overlaps = [overlap_union(i, self.gts, rig.Ks, rig.Ts, rig.masks, rig.nbrs[i]) for i in range(len(rig.names))]
+        Ts = camera_poses_at(ds, seq, f)  # each camera's own pose at its trigger time: the static rig when synchronous
+        self.T_c_c = {(i, j): np.linalg.inv(Ts[i]) @ Ts[j] for j, i in rig.pairs}  # T_ci_cj of this frame (Dep Con)
+        overlaps = [overlap_union(i, self.gts, rig.Ks, Ts, rig.masks, rig.nbrs[i]) for i in range(len(rig.names))]
         self.g_v = [g[v] for g, v in zip(self.gts, self.valids)]  # 1-D, float64
         self.lg_v = [np.log(g) for g in self.g_v]
         ov_v = [o[v] for o, v in zip(overlaps, self.valids)]
@@ -266,7 +269,7 @@ def _score(preds: list, truth: _Truth, rig: _Rig, cfg: EvalConfig, acc: dict, dc
                     h[1] += n
     # Dep Con: unscaled (metric) predictions, clamped like the "none" metrics
     metric_preds = [clamp_depth(p, cfg.min_depth, cfg.max_depth) for p in preds]
-    d_hats, hits = _splat_pairs(metric_preds, rig.pairs, rig.Ks, rig.T_c_c, rig.shapes, rig.masks)
+    d_hats, hits = _splat_pairs(metric_preds, rig.pairs, rig.Ks, truth.T_c_c, rig.shapes, rig.masks)
     for (j, i), d_hat, hit in zip(rig.pairs, d_hats, hits):
         dc_acc[(j, i)].append(dep_con(metric_preds[i], d_hat, truth.gts[i], truth.valids[i] & hit))
 

@@ -21,7 +21,11 @@ from __future__ import annotations
 
 import numpy as np
 
-GROUPS = ("road", "building", "vehicle", "vehicle_parked", "vehicle_moving", "vegetation", "other")
+from scenes.labels import GROUPS as CLASS_GROUPS
+
+#: the class table's evaluation groups (`scenes.labels.GROUPS`), the vehicles also split parked / moving
+GROUPS = tuple(g for group in CLASS_GROUPS for g in (group, *(("vehicle_parked", "vehicle_moving")
+                                                              if group == "vehicle" else ())))
 MOTIONS = ("static", "moving")
 REGIONS = tuple(f"class_{g}" for g in GROUPS) + MOTIONS
 HOLE_RATIO = 2.0
@@ -39,8 +43,7 @@ class LabelIndex:
         def of(pred) -> np.ndarray:
             return np.array([bool(pred(i)) for i in range(n)] + [False], bool)  # +1: an index beyond the table
 
-        self.lut = {f"class_{g}": of(lambda i, g=g: group[i] == g) for g in ("road", "building", "vehicle",
-                                                                              "vegetation", "other")}
+        self.lut = {f"class_{g}": of(lambda i, g=g: group[i] == g) for g in CLASS_GROUPS}
         self.lut["class_vehicle_parked"] = of(lambda i: names[i] == "parked_vehicle")
         self.lut["class_vehicle_moving"] = of(lambda i: names[i] == "moving_vehicle")
         self.lut["moving"] = self.lut["class_vehicle_moving"]

@@ -47,7 +47,7 @@ from mcdp.inputs import DepthInput, read_fields
 from mcdp.methods import build_network, fields_of, method_params
 from mcdp.runs import RunError, config_from_checkpoint, find_checkpoint, load_checkpoint, resolve_device
 from mcdp.visual import depth_grid
-from synth.protocol import DatasetReader
+from synth.protocol import DatasetReader, pixel_rays_at
 
 
 @dataclass(frozen=True)
@@ -92,7 +92,7 @@ class Predictor:
         self.network.load_state_dict(ckpt["depth_model"])
         self.network.eval()
         self.fields = fields_of(self.cfg)  # the input fields the network reads (as in training)
-        self.reader = RigReader(ds, self.cfg.train.height, self.cfg.train.width)
+        self.reader = RigReader(ds, self.cfg.train.height, self.cfg.train.width, sync=self.cfg.model.sync)
         self.nbr = neighbour_table(ds.neighbours, len(ds.camera_names)).to(self.device)
         self.K = torch.from_numpy(self.reader.K).to(self.device)[None]
         self.T_ego_cam = torch.from_numpy(self.reader.T_ego_cam).to(self.device)[None]
@@ -105,8 +105,9 @@ class Predictor:
         """What the network reads of rig sample (seq, frame), as trained."""
         rgb = self.reader.rgb(seq, frame)
         values = {k: v.to(self.device)[None] for k, v in read_fields(self.fields, self.reader, seq, frame).items()}
-        net = DepthInput.filled(torch.from_numpy(rgb).to(self.device)[None], self.K, self.T_ego_cam, self.mask,
-                                self.nbr, values, self.fields)
+        T = torch.from_numpy(self.reader.T_ego_cam_at(seq, frame)).to(self.device)[None]  # model.sync, as trained
+        net = DepthInput.filled(torch.from_numpy(rgb).to(self.device)[None], self.K, T, self.mask, self.nbr,
+                                values, self.fields)
         return Inputs(seq, frame, rgb, net)
 
     @torch.no_grad()
@@ -159,8 +160,7 @@ def rig_point_cloud(
         v, u = np.mgrid[0:H:stride, 0:W:stride]
         z = d[v, u]
         keep = (z > 0) & (z <= max_depth) & np.asarray(ds.mask(spec.name), bool)[v, u]
-        uv1 = np.stack([u[keep] + 0.5, v[keep] + 0.5, np.ones(keep.sum())], 0)  # pixel centres at +0.5
-        X = np.linalg.inv(np.asarray(spec.K, float)) @ uv1 * z[keep]
+        X = pixel_rays_at(spec.K, u[keep], v[keep]) * z[keep]  # pixel centres at +0.5
         T = np.asarray(spec.T_ego_cam, float)
         pts.append((T[:3, :3] @ X + T[:3, 3:4]).T)
         cols.append(rgbs[c][v[keep], u[keep]])

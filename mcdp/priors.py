@@ -25,6 +25,7 @@ import numpy as np
 
 from mcdp.config import EvalConfig
 from mcdp.metrics import valid_gt_mask
+from synth.protocol import pixel_rays_at
 
 if TYPE_CHECKING:
     from synth.protocol import DatasetReader
@@ -40,8 +41,8 @@ def flat_road_depth(K: np.ndarray, T_ego_cam: np.ndarray, height: int, width: in
     """
     if not (np.isfinite(far) and far > 0):
         raise ValueError(f"far must be a positive finite depth in metres, got {far}")
-    u, v = np.meshgrid(np.arange(width) + 0.5, np.arange(height) + 0.5)
-    rays = np.linalg.inv(np.asarray(K, np.float64)) @ np.stack([u.ravel(), v.ravel(), np.ones(u.size)])  # z = 1
+    v, u = np.mgrid[0:height, 0:width]
+    rays = pixel_rays_at(K, u.ravel(), v.ravel())  # (3, H*W) at z = 1
     T = np.asarray(T_ego_cam, np.float64)
     d = T[:3, :3] @ rays  # ego-frame direction per unit of z-depth
     c_z = T[2, 3]

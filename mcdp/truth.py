@@ -46,13 +46,23 @@ def ground_truth_at(ds, masks, seq: str, frame: int, size: tuple[int, int],
     return torch.cat(gts), torch.cat(valids)
 
 
+def camera_poses_at(ds, seq: str, frame: int) -> list[np.ndarray]:
+    """Per camera, (4, 4) float64: its true pose at its own trigger time in the ego frame of the frame's time
+    (`synth.dataset.Dataset.camera_poses`), the static ``T_ego_cam`` for a reader without per-camera times.
+    What the truth of the overlap and Dep Con warp through, whatever a model assumes (``model.sync``)."""
+    get = getattr(ds, "camera_poses", None)
+    if get is None:
+        return [np.asarray(c.T_ego_cam, np.float64) for c in ds.cameras]
+    return list(np.asarray(get(seq)[1][frame], np.float64))
+
+
 def overlap_truth(ds, masks, seq: str, frame: int) -> list:
     """Per camera, (H, W) float32 at the dataset resolution: the ground-truth depth of its overlap pixels
     (`synth.overlap.overlap_mask` with every neighbour, as the evaluation splits its regions), 0 elsewhere
     (a camera without neighbours: 0 everywhere). ORACLE input: it reads ground truth."""
     names, cams = list(ds.camera_names), list(ds.cameras)
     gts = [np.asarray(ds.read_depth(seq, n, frame), np.float64) for n in names]
-    Ks, Ts = [c.K for c in cams], [c.T_ego_cam for c in cams]
+    Ks, Ts = [c.K for c in cams], camera_poses_at(ds, seq, frame)
     nbrs = neighbours_of(ds.neighbours, len(names))
     return [np.where(overlap_union(i, gts, Ks, Ts, masks, nbrs[i]), gts[i], 0.0).astype(np.float32)
             for i in range(len(names))]

@@ -167,6 +167,19 @@ class Scene:
         """The largest static object id (0: none)."""
         return int(self.static.instances.max(initial=0))
 
+    def ego_pose_at(self, x: float) -> np.ndarray:
+        """The ego's pose at the continuous frame index `x` (time ``x / fps``): `scenes.timeline.pose_at`;
+        ``T_world_ego[x]`` itself at an integer frame."""
+        from scenes.timeline import pose_at
+
+        return pose_at(self.T_world_ego, x)
+
+    def mover_poses_at(self, x: float) -> list[np.ndarray]:
+        """Every mover's pose at the continuous frame index `x` (`ego_pose_at`)."""
+        from scenes.timeline import pose_at
+
+        return [pose_at(m.T_world_obj, x) for m in self.movers]
+
     def mover_instance(self, k: int) -> int:
         """The instance id of mover `k`."""
         return self.n_static_instances + 1 + int(k)

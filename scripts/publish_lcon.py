@@ -47,7 +47,7 @@ def _section(title: str, part: str, results: dict | None, plot_dir: Path, missin
     # the section's own heading becomes this part's; the plots are linked from the page's folder
     text = text.replace("## (b) L_con's training-time effect outside the overlap\n", "", 1)
     c = results.get("sweep_config", {})
-    steps = next((o.split("=", 1)[1] for o in c.get("train_overrides", []) if o.startswith("train.steps=")), "?")
+    steps = _steps(results)
     from study.lcon import pairs
 
     worlds = sorted({p["world"] for o in results["overlaps"] for p in pairs(results, o)})
@@ -58,6 +58,12 @@ def _section(title: str, part: str, results: dict | None, plot_dir: Path, missin
             f"overlaps {', '.join(f'{o:.2f}' for o in results['overlaps'])}, checkpoint `{c.get('checkpoint')}`.\n")
     links = [f"![{p.stem}]({NAME}/plots/{part}_{p.name})\n" for p in plots]
     return [head, text] + links, [(p, f"{part}_{p.name}") for p in plots]
+
+
+def _steps(results: dict) -> str:
+    """The fine-tuning budget a sweep's preset states (its `train.steps=` override), or "?"."""
+    c = results.get("sweep_config", {})
+    return next((o.split("=", 1)[1] for o in c.get("train_overrides", []) if o.startswith("train.steps=")), "?")
 
 
 def _lc(text: str) -> str:
@@ -105,6 +111,11 @@ def build(stage: Path) -> tuple[str, list[tuple[Path, str]]]:
         text, pl = _section(title, part, parts[part], plot_dir / part, missing)
         L += text
         plots += pl
+        if part == "lcon_budget" and parts[part] is not None:
+            from study.lcon import budget_reading, format_budget
+
+            L.append("### Beside the positive control, and against 200 steps on the same worlds\n")
+            L.append(format_budget(budget_reading(parts[part], main), _steps(parts[part]), _steps(main or {})))
         if part == "lcon_pilot" and parts["lcon_pilot_auto"] is not None and parts[part] is not None:
             sel = selection_effect(parts[part], parts["lcon_pilot_auto"])
             if sel is not None:

@@ -15,7 +15,7 @@ and every output is built in a temporary folder; only then is anything written i
 files, never through a link). A mistake is one line naming the file (and the field), exit 2.
 
 A report committed with its results.csv only (none now: sweep_compare had only one until 2026-12-03)
-gets its plots rebuilt from the CSV (`study.results.read_results`); its .md is left alone, since its
+gets its plots rebuilt from the CSV (`study.results_files.read_results`); its .md is left alone, since its
 tables need the full results.json.
 """
 from __future__ import annotations
@@ -127,7 +127,8 @@ def _read_sweep(sweep: Path) -> tuple[bytes, dict, dict[str, bytes]]:
 
 def _build(name: str, results: dict, stage: Path, previews: list[str] | None) -> tuple[list[Path], str]:
     """results.csv and plots/ into ``stage``, and the report's text: nothing in docs/results/ yet."""
-    from study.outputs import report_plots, write_csv
+    from study.outputs import report_plots
+    from study.results_files import write_csv
 
     write_csv(results, stage / "results.csv")
     plots = report_plots(results, stage / "plots")
@@ -141,7 +142,7 @@ def publish(name: str, sweep: Path | None) -> str:
     `corelib.atomic`); the line to print. PublishError / ReadRefused (one line) before anything is written."""
     from corelib.atomic import atomic_write_bytes, atomic_write_text, make_folder
     from corelib.readfile import read_inside
-    from study.results import read_results
+    from study.results_files import read_results
 
     if not _NAME.fullmatch(name):
         raise PublishError(f"--name {name[:80]!r}: not a report name (letters, digits, _ . -, not starting with a dot)")

@@ -23,12 +23,12 @@ from pathlib import Path
 
 from study.design import sequential_look, signed_rank, worlds_needed
 from study.power import mde, nested, tost
-from study.primary import DELTA, PRIMARY_OVERLAP, SCALINGS
-from study.reach import lcon_pairs
+from study.primary import DELTA, PRIMARY_OVERLAP, SCALINGS, has_control, measure
+from study.reach import lcon_pairs, local
 from study.results import row_evaluations
 from study.worlds import data_seeds
 from study.variance import forest_plot, variance_split
-from study.variants import CUT
+from study.variants import Evaluation, cut
 
 REGION = "non_overlap"
 DRAWS = 2000
@@ -55,13 +55,13 @@ def _world(row: dict, seeds: dict):
 
 
 def _figure(row: dict, sc: str, region: str = REGION) -> float:
-    m = (row_evaluations(row).get(CUT) or {}).get("metrics") or {}
+    m = (row_evaluations(row).get(cut()) or {}).get("metrics") or {}
     v = ((m.get(sc) or {}).get(region) or {}).get("abs_rel")
     return float(v) if isinstance(v, (int, float)) else math.nan
 
 
 def _per_seq(row: dict, sc: str, region: str = REGION):
-    m = (row_evaluations(row).get(CUT) or {}).get("metrics") or {}
+    m = (row_evaluations(row).get(cut()) or {}).get("metrics") or {}
     return ((m.get(sc) or {}).get("per_sequence") or {}).get(region)
 
 
@@ -287,3 +287,53 @@ def format_selection(sel: dict) -> str:
                     if s["share_from_selection"] >= 0 else
                     f"did not add variance (the last step's is {100 * -s['share_from_selection']:.0f} % larger)"))
     return "\n".join(L) + "\n"
+
+
+def budget_reading(budget: dict, short: dict | None, o: float = PRIMARY_OVERLAP) -> dict:
+    """(b) at a longer budget beside its positive control, and against the shorter budget on the same worlds.
+
+    ``budget``: a sweep with the L_con pair and, as the control, the local yardstick (ORACLE-local) trained at the
+    same budget; ``short``: a sweep of the same worlds at the shorter budget (or None). Returns {"b": {scaling:
+    `reading`}, "control": `study.primary.measure` of emptied - filled on non-overlap pixels (None without it),
+    "short": {scaling: `reading` of the shorter budget on the worlds both have}, "change": {scaling: `nested` of
+    (b) long - (b) short, paired by world}}."""
+    ps = pairs(budget, o)
+    out: dict = {"b": {sc: reading(ps, sc) for sc in SCALINGS}, "control": None, "short": None, "change": None}
+    if has_control(budget):
+        loc = local()
+        out["control"] = measure(budget, o, Evaluation(loc, cut()), Evaluation(loc), REGION)
+    if short is not None:
+        long_w = {p["world"]: p for p in ps}
+        sp = [p for p in pairs(short, o) if p["world"] in long_w]
+        if len(sp) >= 2:
+            out["short"] = {sc: reading(sp, sc) for sc in SCALINGS}
+            out["change"] = {sc: nested({p["world"]: [long_w[p["world"]]["d"][sc] - p["d"][sc]] for p in sp})
+                             for sc in SCALINGS}
+    return out
+
+
+def format_budget(r: dict, steps: str, short_steps: str) -> str:
+    """Markdown: the control beside (b) at the longer budget, and (b)'s change from the shorter budget."""
+    L = []
+    c = r["control"]
+    if c is None:
+        L.append("No positive control in this sweep: a null here cannot be read against a mechanism that propagates.")
+    else:
+        n = c["median"]
+        word = ("**the control propagates**: the overlap's ground truth, handed to ORACLE-local, improves its depth "
+                "outside the overlap beyond the interval" if n.get("differs") == 1 else
+                "**the control does not propagate beyond its interval here**, so a null in (b) cannot be told from a "
+                "budget too short for any propagation")
+        L.append(f"Positive control at the same budget ({steps} steps), ORACLE-local emptied - filled, abs_rel on "
+                 f"non-overlap pixels, positive = the overlap's depth helps outside it: "
+                 + "; ".join(f"{sc} {_f(c[sc]['mean'])} ± {c[sc]['ci95']:.4f}" for sc in SCALINGS)
+                 + f" over {n.get('n_worlds', 0)} worlds: {word}. (b) at the same budget, median: "
+                 f"{_f(r['b']['median']['mean'])} ± {r['b']['median']['ci95']:.4f}.\n")
+    if r["change"] is not None:
+        s, ch = r["short"], r["change"]
+        L.append(f"The same worlds at {short_steps} steps (the main run, exploratory beside it): (b) "
+                 + "; ".join(f"{sc} {_f(s[sc]['mean'])} ± {s[sc]['ci95']:.4f}" for sc in SCALINGS)
+                 + f". Change from {short_steps} to {steps} steps, paired by world: "
+                 + "; ".join(f"{sc} {_f(ch[sc]['mean'])} ± {ch[sc]['ci95']:.4f}" for sc in SCALINGS)
+                 + f" over {ch['median']['n_worlds']} worlds.\n")
+    return "\n".join(L)

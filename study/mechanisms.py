@@ -21,9 +21,10 @@ from __future__ import annotations
 import math
 
 from study.paired import paired_gain
-from study.results import BASELINE, INERT_M, USE_FLOOR, evaluations, fmt_diff, gain_word, method_agg
+from study.probes import INERT_M
+from study.results import BASELINE, USE_FLOOR, evaluations, fmt_diff, gain_word, method_agg
 from study.results import fmt_num as _num
-from study.variants import CUT, Evaluation
+from study.variants import Evaluation, cut
 
 #: (results key, column name) of the paired comparisons against Mono2
 #: `from_which_overlap` of a method better than Mono2 nowhere
@@ -84,7 +85,7 @@ def paired_all(results: dict, methods: list[str]) -> tuple[dict, dict, dict]:
     """Each method against Mono2 per overlap, every difference a gain (worse minus better, positive = helps):
     ({method: {key of `KEYS`: {overlap: Mono2 − method}}}, cut − as trained ({method: {overlap: pd}}, reading
     methods only) and the mean depth change when cut ({method: {overlap: m}})."""
-    evs = evaluations(results)
+    evs, c = evaluations(results), cut()
     diffs: dict[str, dict[str, dict[float, dict]]] = {m: {k: {} for k, _ in KEYS} for m in methods}
     cuts: dict[str, dict[float, dict]] = {m: {} for m in methods}
     change: dict[str, dict[float, float]] = {m: {} for m in methods}
@@ -93,8 +94,8 @@ def paired_all(results: dict, methods: list[str]) -> tuple[dict, dict, dict]:
         for m in methods:
             for key, _ in KEYS:
                 diffs[m][key][o] = paired_gain(results, o, BASELINE, m, key)
-            if Evaluation(m, CUT) in evs:
-                cuts[m][o] = paired_gain(results, o, Evaluation(m, CUT), m, "median.mean.abs_rel")
+            if c is not None and Evaluation(m, c) in evs:
+                cuts[m][o] = paired_gain(results, o, Evaluation(m, c), m, "median.mean.abs_rel")
                 change[m][o] = method_agg(results, o, m, "cut.depth_change_m").get("mean", math.nan)
     return diffs, cuts, change
 

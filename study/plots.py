@@ -20,7 +20,7 @@ from mcdp.methods import label
 from study.mechanisms import KEYS
 from study.paired import paired_gain
 from study.results import BASELINE, PAIRED_PLOT, PRIOR_LABEL, REF_LABEL, SCALE_LABEL, method_agg, yardstick_agg
-from study.variants import CUT, Evaluation
+from study.variants import Evaluation, cut
 
 XLABEL = "target overlap (fraction of hfov)"
 #: the paired figure's panels: (results key, title) of `study.mechanisms.KEYS`, in its order
@@ -259,10 +259,11 @@ def distance_lines(results: dict) -> list[tuple[str, tuple, str]]:
     mech, loc = reading("mechanism"), local()
     lines = [(f"{label(BASELINE)} − {label(m)}", (BASELINE, m), "-") for m in mech
              if Evaluation(m) in have and Evaluation(BASELINE) in have]
-    lines += [(f"{label(m)}: cut − as trained", (Evaluation(m, CUT), m), "--") for m in mech
-              if Evaluation(m, CUT) in have]
-    if loc is not None and Evaluation(loc, CUT) in have:
-        lines.append((f"{short_label(loc)} (yardstick): emptied − filled", (Evaluation(loc, CUT), loc), ":"))
+    c = cut()
+    lines += [(f"{label(m)}: {c} − as trained", (Evaluation(m, c), m), "--") for m in mech
+              if Evaluation(m, c) in have]
+    if loc is not None and Evaluation(loc, c) in have:
+        lines.append((f"{short_label(loc)} (yardstick): emptied − filled", (Evaluation(loc, c), loc), ":"))
     return lines
 
 

@@ -30,7 +30,7 @@ from __future__ import annotations
 import math
 from collections.abc import Callable, Iterable, Mapping
 
-__all__ = ["t_cdf", "t_ppf", "nested", "mde", "tost", "verdict"]
+__all__ = ["t_cdf", "t_ppf", "T975", "t_halfwidth", "nested", "mde", "tost", "verdict"]
 
 _EPS = 1e-16        # relative convergence of the continued fraction
 _TINY = 1e-300      # the modified Lentz algorithm's stand-in for 0
@@ -315,3 +315,20 @@ def verdict(nest: Mapping, delta: float, mde80: float | None = None) -> str:
         mde80 = mde(nest["se"], nest["df"])
     return (f"inconclusive: neither beyond the interval nor within ±{delta:g} (TOST p = {eq['p']:.3f}); "
             f"detectable at 80 % power: ±{mde80:.4f}")
+
+
+#: two-sided 95 % Student-t quantiles t_0.975(df) for df = 1..30 (beyond: the normal 1.96; t is 2.04 at 31 df,
+#: and a sweep has 3-4 seeds): the rounded table every interval over seeds of a report is computed with
+#: (`study.results.mean_std`; `t_ppf` gives the unrounded quantile, which would move the committed reports' last
+#: digits); tests/study/test_results.py checks every entry against scipy where it is installed.
+T975 = (12.706, 4.303, 3.182, 2.776, 2.571, 2.447, 2.365, 2.306, 2.262, 2.228, 2.201, 2.179, 2.160, 2.145,
+        2.131, 2.120, 2.110, 2.101, 2.093, 2.086, 2.080, 2.074, 2.069, 2.064, 2.060, 2.056, 2.052, 2.048,
+        2.045, 2.042)
+
+
+def t_halfwidth(sd: float, n: int) -> float:
+    """Half-width of the 95 % t-interval of a mean of n values with sample std sd (NaN for n < 2)."""
+    if n < 2 or not math.isfinite(sd):
+        return float("nan")
+    t = T975[n - 2] if n - 1 <= len(T975) else 1.96
+    return t * sd / math.sqrt(n)

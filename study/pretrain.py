@@ -172,3 +172,41 @@ def _pretrain(cfg: PretrainConfig, out: Path, dcfg, rcfg, h: str, progress: bool
 
 def load_pretrain_config(path: str | Path | None, overrides=()) -> PretrainConfig:
     return load_config(PretrainConfig, path, overrides)
+
+
+def _join(names: list[str]) -> str:
+    return names[0] if len(names) == 1 else ", ".join(names[:-1]) + " and " + names[-1]
+
+
+def weights_in_sweep(path: str) -> str:
+    """A pretraining's weights file as a path inside its sweep folder (``pretrain/<hash>/pretrained.pt``): a report
+    names no machine's absolute path (results.json of older sweeps records the absolute one)."""
+    parts = Path(path).parts
+    return "/".join(parts[len(parts) - 1 - parts[::-1].index("pretrain"):]) if "pretrain" in parts else path
+
+
+def warm_start_line(methods: list[str], configs: dict | None = None) -> str:
+    """Which part of the shared pretraining each of the sweep's methods starts from (`mcdp.warmstart`: a
+    network with bases takes the n basis channels, one without them the mono head) and which of their
+    layers start fresh (the pretraining has neither MCDP's weight networks nor SurroundDepth's cross-view
+    blocks), naming only the sweep's own methods (all registered). Read from each network's declared members
+    (``has_bases``, ``fresh_layers``), never from its name, at each method's run config (``configs``:
+    `study.recorded.run_configs`; by default the registry's defaults). The report's setup line (`study.report`)."""
+    from mcdp.methods import METHODS, label, model_config, network_class
+
+    mono, bases, fresh = [], [], []
+    for m in methods:
+        net = network_class(METHODS[m])  # the network's class: what it is made of, not what it is called
+        (bases if net.has_bases else mono).append(label(m))
+        layers = net.fresh_layers((configs or {}).get(m) or model_config(METHODS[m]))
+        if layers:
+            fresh.append(f"{label(m)}'s {layers}")
+    parts = []
+    if mono:
+        parts.append(f"{_join(mono)} start{'s' if len(mono) == 1 else ''} from its mono head")
+    if bases:
+        verb = "" if mono else ("starts " if len(bases) == 1 else "start ")  # after the mono clause, implied
+        parts.append(f"{_join(bases)} {verb}from its basis channels")
+    if fresh:
+        parts.append(f"{_join(fresh)} start fresh")
+    return "; ".join(parts)

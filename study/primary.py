@@ -34,7 +34,7 @@ from study.power import mde, nested, tost
 from mcdp.methods import baseline, reading, short_label
 from study.reach import band_names, lcon_pairs, local
 from study.results import flat_of
-from study.variants import CUT, SPREAD, Evaluation
+from study.variants import Evaluation, cut, having
 
 #: the equivalence bound of every primary null, median abs_rel (stated in the preset's header before the run)
 DELTA = 0.005
@@ -126,22 +126,23 @@ def comparisons(results: dict, o: float = PRIMARY_OVERLAP) -> list[tuple[str, st
     """The primary comparisons present: (id, name, a, b, region) with a - b = the gain (positive helps); a and
     b are (evaluation, column prefix) and region a column suffix's region (``non_overlap`` or a band)."""
     out = []
-    base, loc = baseline(), local()
+    base, loc, c = baseline(), local(), cut()
     for m in reading("mechanism"):
-        if _has(results, Evaluation(m, CUT)):
-            out.append(("a", f"{short_label(m)} inference-time propagation (cut - as trained)", Evaluation(m, CUT),
+        if _has(results, Evaluation(m, c)):
+            out.append(("a", f"{short_label(m)} inference-time propagation ({c} - as trained)", Evaluation(m, c),
                         Evaluation(m), "non_overlap"))
     for t, m in lcon_pairs():
-        if _has(results, Evaluation(m, CUT)) and _has(results, Evaluation(t, CUT)):
+        if _has(results, Evaluation(m, c)) and _has(results, Evaluation(t, c)):
             out.append(("b", "L_con training-time propagation (w/o L_con cut - with L_con cut)",
-                        Evaluation(t, CUT), Evaluation(m, CUT), "non_overlap"))
-    if loc is not None and _has(results, Evaluation(loc, CUT)):
-        out.append(("c", f"positive control: {short_label(loc)} emptied - filled", Evaluation(loc, CUT),
+                        Evaluation(t, c), Evaluation(m, c), "non_overlap"))
+    if loc is not None and _has(results, Evaluation(loc, c)):
+        out.append(("c", f"positive control: {short_label(loc)} emptied - filled", Evaluation(loc, c),
                     Evaluation(loc), "non_overlap"))
-    if _has(results, Evaluation(base, SPREAD)):
-        b = short_label(base)
-        out.append(("c", f"hand-built propagator: {b} - {b} corrected from the overlap's ground truth",
-                    Evaluation(base), Evaluation(base, SPREAD), "non_overlap"))
+    for v in having("spread"):  # a propagator from the overlap's ground truth, of the baseline
+        if _has(results, Evaluation(base, v.name)):
+            b = short_label(base)
+            out.append(("c", f"{v.label}: {b} - {b} {v.short} from the overlap's ground truth",
+                        Evaluation(base), Evaluation(base, v.name), "non_overlap"))
     return out
 
 

@@ -20,15 +20,16 @@ from __future__ import annotations
 import math
 
 from study.paired import paired_columns, paired_gain
-from study.results import INERT_M, USE_FLOOR, evaluations, flat_of, fmt_diff, gain_word, method_agg
+from study.probes import INERT_M
+from study.results import USE_FLOOR, evaluations, flat_of, fmt_diff, gain_word, method_agg
 from study.results import fmt_num as _num
 from study.mechanisms import interval_note
-from study.variants import CUT, ORACLE, Evaluation
+from study.variants import Evaluation, cut, having
 
 def refined_methods(results: dict) -> list[str]:
     """Methods of the sweep that were also evaluated with their neighbours cut."""
-    evs = evaluations(results)
-    return [m for m in results["methods"] if Evaluation(m, CUT) in evs]
+    evs, c = evaluations(results), cut()
+    return [m for m in results["methods"] if c is not None and Evaluation(m, c) in evs]
 
 
 def _pd(pd: dict, digits: int = 3, floor: float = 0.0) -> str:
@@ -37,7 +38,7 @@ def _pd(pd: dict, digits: int = 3, floor: float = 0.0) -> str:
 
 def _cut_diff(results: dict, o: float, m: str, key: str) -> dict:
     """Cut - as trained: what reading the other cameras gains (positive = helps)."""
-    return paired_gain(results, o, Evaluation(m, CUT), m, key)
+    return paired_gain(results, o, Evaluation(m, cut()), m, key)
 
 
 def _self_diff(results: dict, o: float, m: str, a: str, b: str) -> dict:
@@ -69,9 +70,10 @@ def format_propagation(results: dict, label) -> str:
         "can express, a yardstick that reads ground truth. Median-scaled abs_rel; mean over seeds ± 95 % "
         "t half-width; differences are paired over seeds" + interval_note(results) + " and taken worse minus "
         "better: **positive = helps** (cut − as trained, init − final).\n")
-    add("| overlap | Method | init | final | cut | ORACLE | headroom closed | mean abs(w − 1/n) | "
-        "mean abs(refined − init) m | inert runs |")
-    add("|---|---|---|---|---|---|---|---|---|---|")
+    c, ceilings = cut(), having("ceiling")  # the cut, and a column per ceiling (a yardstick of the bases)
+    add(f"| overlap | Method | init | final | {c} | " + "".join(f"{v.short} | " for v in ceilings)
+        + "headroom closed | mean abs(w − 1/n) | mean abs(refined − init) m | inert runs |")
+    add("|---|---|---|---|---|" + "---|" * len(ceilings) + "---|---|---|---|")
     for d in results["data"]:
         o = d["overlap"]
         for m in methods:
@@ -79,9 +81,9 @@ def format_propagation(results: dict, label) -> str:
             n_inert = sum(1 for f in fr if f.get("refine.inert") is True)
             add(f"| {o:.2f} | {label(m)} | {_a(results, o, m, 'init.median.mean.abs_rel')} | "
                 f"{_a(results, o, m, 'median.mean.abs_rel')} | "
-                f"{_a(results, o, Evaluation(m, CUT), 'median.mean.abs_rel')} | "
-                f"{_a(results, o, Evaluation(m, ORACLE), 'median.mean.abs_rel')} | "
-                f"{_a(results, o, m, 'refine.headroom_closed', 2)} | "
+                f"{_a(results, o, Evaluation(m, c), 'median.mean.abs_rel')} | "
+                + "".join(f"{_a(results, o, Evaluation(m, v.name), 'median.mean.abs_rel')} | " for v in ceilings)
+                + f"{_a(results, o, m, 'refine.headroom_closed', 2)} | "
                 f"{_a(results, o, m, 'refine.weight_move', 4)} | {_a(results, o, m, 'refine.depth_change_m', 3)} | "
                 f"{n_inert}/{len(fr)} |")
     add("")

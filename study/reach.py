@@ -25,11 +25,11 @@ import math
 from mcdp.methods import baseline, label, nocon_twins, reading, short_label
 from study.paired import paired_columns
 from study.results import flat_of, fmt_diff, mean_std
-from study.variants import CUT, ORACLE, ORACLE_OVL, SPREAD, Evaluation
+from study.variants import Evaluation, cut, having
 
 NON = "median.non_overlap.abs_rel"
-#: the name of the local yardstick's headroom in `quantities` starts so
-LOCAL_HEAD = "local headroom"
+#: the name of the local yardstick's headroom in `quantities` starts so, and the global one's
+LOCAL_HEAD, GLOBAL_HEAD = "local headroom", "global headroom"
 
 
 def local_headroom(q: dict[str, dict], empty: dict) -> dict:
@@ -83,7 +83,13 @@ def _has(results: dict, ev: str | Evaluation) -> bool:
 
 
 def _cut(m: str) -> Evaluation:
-    return Evaluation(m, CUT)
+    return Evaluation(m, cut())
+
+
+def _global(results: dict) -> bool:
+    """Whether the results have the global yardstick: the ``reach`` "global" row evaluated at an overlap ceiling."""
+    glob = global_of()
+    return glob is not None and any(_has(results, Evaluation(glob, v.name)) for v in having("overlap_ceiling"))
 
 
 def quantities(results: dict, o: float, key: str = NON) -> dict[str, dict]:
@@ -91,23 +97,21 @@ def quantities(results: dict, o: float, key: str = NON) -> dict[str, dict]:
     when it helps (headrooms and gains are 'worse - better')."""
     q: dict[str, dict] = {}
     base, loc, glob = baseline(), local(), global_of()
-    if glob is not None and _has(results, Evaluation(glob, ORACLE_OVL)):
-        init_key = "init." + key if key == NON else None
-        if init_key:
-            q["global headroom (init - ORACLE-overlap weights)"] = paired(results, o, (glob, init_key),
-                                                                         (Evaluation(glob, ORACLE_OVL), key))
-            q["all-pixel headroom (init - ORACLE weights)"] = paired(results, o, (glob, init_key),
-                                                                    (Evaluation(glob, ORACLE), key))
-            q[f"{short_label(glob)} refinement gain (init - final)"] = paired(results, o, (glob, init_key),
-                                                                             (glob, key))
-    if _has(results, Evaluation(base, SPREAD)):
-        q[f"hand-built propagator ({label(base)} - {label(base)} corrected from the overlap's ground truth)"] = \
-            paired(results, o, (base, key), (Evaluation(base, SPREAD), key))
+    if _global(results) and key == NON:  # the headrooms from the global row's init stage, non-overlap pixels
+        init_key = "init." + key
+        for head, cap in ((GLOBAL_HEAD, "overlap_ceiling"), ("all-pixel headroom", "ceiling")):
+            for v in (v for v in having(cap) if _has(results, Evaluation(glob, v.name))):
+                q[f"{head} (init - {v.label})"] = paired(results, o, (glob, init_key), (Evaluation(glob, v.name), key))
+        q[f"{short_label(glob)} refinement gain (init - final)"] = paired(results, o, (glob, init_key), (glob, key))
+    for v in having("spread"):  # a propagator from the overlap's ground truth, of the baseline
+        if _has(results, Evaluation(base, v.name)):
+            q[f"{v.label} ({label(base)} - {label(base)} {v.short} from the overlap's ground truth)"] = \
+                paired(results, o, (base, key), (Evaluation(base, v.name), key))
     if loc is not None and _has(results, _cut(loc)):
         q[f"{LOCAL_HEAD} ({short_label(loc)} emptied - filled)"] = paired(results, o, (_cut(loc), key), (loc, key))
     for m in readers():
         if _has(results, _cut(m)):
-            q[f"{m}: inference-time (cut - as trained)"] = paired(results, o, (_cut(m), key), (m, key))
+            q[f"{m}: inference-time ({cut()} - as trained)"] = paired(results, o, (_cut(m), key), (m, key))
     pairs = [(t, m) for t, m in lcon_pairs() if _has(results, _cut(m)) and _has(results, _cut(t))]
     for t, m in pairs:
         q[("" if len(pairs) == 1 else f"{m}: ") + "L_con: training-time (w/o L_con cut - with L_con cut)"] = paired(
@@ -140,8 +144,8 @@ def _propagation(name: str) -> bool:
 def format_reach(results: dict, label) -> str:
     """Markdown: yardsticks, both kinds of propagation, fraction recovered, the distance table; '' when the
     sweep has no run with the instruments (no ORACLE-overlap stage and no ORACLE-local run)."""
-    glob, loc = global_of(), local()
-    if not ((glob is not None and _has(results, Evaluation(glob, ORACLE_OVL))) or (loc is not None and _has(results, loc))):
+    loc = local()
+    if not (_global(results) or (loc is not None and _has(results, loc))):
         return ""
     L: list[str] = []
     add = L.append
@@ -186,12 +190,14 @@ def _band_table(results: dict, bands: list[str], key_of: str) -> list[str]:
     """The band table of column `key_of` (``{b}``: the band): the baseline's value and each mechanism's gain."""
     base, loc, mech = baseline(), local(), reading("mechanism")
     b = short_label(base)
-    cols = ([(f"{short_label(m)} cut - trained", (m, "cut")) for m in mech]
-            + ([(f"{short_label(loc)} emptied - filled", (loc, "cut"))] if loc is not None else [])
-            + [(f"propagator: {b} - corrected", (base, "spread"))]
-            + [(f"{b} - {short_label(m)}", (m, "base")) for m in mech])
-    cols = [(n, q) for n, q in cols
-            if _has(results, _cut(q[0]) if q[1] == "cut" else Evaluation(q[0], SPREAD) if q[1] == "spread" else q[0])]
+    c = cut()
+    # (name, (evaluation a, evaluation b), the one whose rows make the column): a - b per band
+    cols = ([(f"{short_label(m)} {c} - trained", (_cut(m), m), _cut(m)) for m in mech]
+            + ([(f"{short_label(loc)} emptied - filled", (_cut(loc), loc), _cut(loc))] if loc is not None else [])
+            + [(f"propagator: {b} - {v.short}", (base, Evaluation(base, v.name)), Evaluation(base, v.name))
+               for v in having("spread")]
+            + [(f"{b} - {short_label(m)}", (base, m), m) for m in mech])
+    cols = [(n, ab) for n, ab, needed in cols if _has(results, needed)]
     L = [f"| overlap | band | {b} abs_rel | " + " | ".join(n for n, _ in cols) + " |",
          "|---|---|---|" + "---|" * len(cols)]
     for d in results["data"]:
@@ -200,11 +206,8 @@ def _band_table(results: dict, bands: list[str], key_of: str) -> list[str]:
             key = key_of.format(b=band)
             mono = mean_std([f.get(key, math.nan) for f in flat_of(results, o, base)])
             cells = []
-            for _, (m, kind) in cols:
-                pd = (paired(results, o, (_cut(m), key), (m, key)) if kind == "cut"
-                      else paired(results, o, (m, key), (Evaluation(m, SPREAD), key)) if kind == "spread"
-                      else paired(results, o, (base, key), (m, key)))
-                cells.append(_cell(pd))
+            for _, (a, b_) in cols:
+                cells.append(_cell(paired(results, o, (a, key), (b_, key))))
             L.append(f"| {o:.2f} | {band} | {mono['mean']:.4f} | " + " | ".join(cells) + " |")
     return L + [""]
 
@@ -222,7 +225,7 @@ def format_in_words(results: dict) -> str:
         o = d["overlap"]
         q = quantities(results, o)
         head = local_headroom(q, {"n": 0})
-        glob = q.get("global headroom (init - ORACLE-overlap weights)", {"n": 0})
+        glob = next((pd for name, pd in q.items() if name.startswith(GLOBAL_HEAD)), {"n": 0})
         L.append(f"- overlap {o:.2f}: local headroom {_cell(head)} ({_word(head)}), global headroom {_cell(glob)} "
                  f"({_word(glob)})")
         for name, pd in q.items():

@@ -1,6 +1,6 @@
 """What the sweep's stages share (`study.stages` for the runs, `study.worlds` for the worlds): the sweep's
 small JSON records, the counters of what was done or skipped, and the summary of one metrics.json that the
-report reads.
+report reads, and its flat form (`flat_row`: one CSV row's numbers, `study.results.flat_rows`).
 """
 from __future__ import annotations
 
@@ -10,6 +10,7 @@ from pathlib import Path
 from typing import Any
 
 from corelib.atomic import atomic_write_json
+from mcdp.metrics import metric_names
 
 
 def read_json(path: Path) -> dict | None:
@@ -60,6 +61,46 @@ def summarize_metrics(metrics: dict, stage: str = "final") -> dict:
     out["spread"] = dict(st.get("spread", {}))
     out["n_samples"] = metrics.get("n_samples")
     out["stages"] = list(metrics["stages"])
+    return out
+
+
+def number(x) -> float:
+    """``x`` as a float, NaN for anything that is not a number (a missing record, None)."""
+    return float(x) if isinstance(x, (int, float)) and x is not None else float("nan")
+
+
+def flat_row(row: dict) -> dict[str, Any]:
+    """One run's numbers as a flat dict of scalars (the CSV row; ``variant``: set by `flat_rows`)."""
+    out: dict[str, Any] = {k: row.get(k) for k in ("overlap", "method", "variant", "seed", "status", "steps",
+                                                     "checkpoint_step", "train_s", "eval_s", "train_skipped",
+                                                     "eval_skipped")}
+    if row.get("world") is not None:  # its data seed (rows written before issue 47 have none: `data_seeds`)
+        out["world"] = row["world"]
+    m = row.get("metrics")
+    if not m:
+        return out
+    for sc in ("none", "median", "rig_median"):
+        if sc not in m:
+            continue
+        for region in ("mean", "overlap", "non_overlap"):
+            for k in metric_names():  # a metric the record predates is absent, as in its results.csv (no NaN column)
+                if k in m[sc][region]:
+                    out[f"{sc}.{region}.{k}"] = number(m[sc][region][k])
+        for cam, v in m[sc]["per_camera_abs_rel"].items():
+            out[f"{sc}.camera.{cam}.abs_rel"] = number(v)
+        for band, v in m[sc].get("bands", {}).items():  # distance to the overlap (mcdp.evaluate)
+            out[f"{sc}.band.{band}.abs_rel"] = number(v.get("abs_rel"))
+        for key, name in (("classes", "class"), ("motion", "motion"), ("road_bands", "road_band")):  # labels
+            for region, v in m[sc].get(key, {}).items():
+                out[f"{sc}.{name}.{region}.abs_rel"] = number(v.get("abs_rel"))
+        for kind, v in m[sc].get("holes", {}).items():
+            out[f"{sc}.holes.{kind}"] = number(v)
+    out["dep_con.mean"] = number(m["dep_con"]["mean"])
+    out["spread.ratio"] = number(m.get("spread", {}).get("ratio"))
+    for cam, v in m["dep_con"]["per_camera"].items():
+        out[f"dep_con.camera.{cam}"] = number(v)
+    for pair, v in m["dep_con"]["per_pair"].items():
+        out[f"dep_con.pair.{pair}"] = number(v)
     return out
 
 

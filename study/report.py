@@ -18,7 +18,7 @@ reported as worse, NaN stays NaN.
 
 Example::
 
-    python -c "import study.outputs as o, study.results as s; o.write_all(s.read_results('SWEEP/results.json'), 'SWEEP')"
+    python -c "import study.outputs as o, study.results_files as s; o.write_all(s.read_results('SWEEP/results.json'), 'SWEEP')"
     # (read_results: also a results.json written before the variant field; write_all writes it anew)
 """
 from __future__ import annotations
@@ -27,10 +27,11 @@ import math
 from pathlib import Path
 
 from mcdp.diagnostics import COLLAPSE_RATIO
-from mcdp.methods import METHODS, label, model_config, network_class
+from mcdp.methods import label
 from mcdp.metrics import better_words, metric_names
 from study.mechanisms import format_mechanisms
 from study.lcon import format_lcon
+from study.pretrain import warm_start_line, weights_in_sweep
 from study.primary import format_primary
 from study.propagation import format_propagation
 from study.classes import format_classes
@@ -124,42 +125,6 @@ def format_report(results: dict, plots: list[str]) -> str:
     return "\n".join(L) + "\n"
 
 
-def _join(names: list[str]) -> str:
-    return names[0] if len(names) == 1 else ", ".join(names[:-1]) + " and " + names[-1]
-
-
-def _in_sweep(path: str) -> str:
-    """A pretraining's weights file as a path inside its sweep folder (``pretrain/<hash>/pretrained.pt``): a report
-    names no machine's absolute path (results.json of older sweeps records the absolute one)."""
-    parts = Path(path).parts
-    return "/".join(parts[len(parts) - 1 - parts[::-1].index("pretrain"):]) if "pretrain" in parts else path
-
-
-def warm_start_line(methods: list[str], configs: dict | None = None) -> str:
-    """Which part of the shared pretraining each of the sweep's methods starts from (`mcdp.warmstart`: a
-    network with bases takes the n basis channels, one without them the mono head) and which of their
-    layers start fresh (the pretraining has neither MCDP's weight networks nor SurroundDepth's cross-view
-    blocks), naming only the sweep's own methods (all registered). Read from each network's declared members
-    (``has_bases``, ``fresh_layers``), never from its name, at each method's run config (``configs``:
-    `study.recorded.run_configs`; by default the registry's defaults)."""
-    mono, bases, fresh = [], [], []
-    for m in methods:
-        net = network_class(METHODS[m])  # the network's class: what it is made of, not what it is called
-        (bases if net.has_bases else mono).append(label(m))
-        layers = net.fresh_layers((configs or {}).get(m) or model_config(METHODS[m]))
-        if layers:
-            fresh.append(f"{label(m)}'s {layers}")
-    parts = []
-    if mono:
-        parts.append(f"{_join(mono)} start{'s' if len(mono) == 1 else ''} from its mono head")
-    if bases:
-        verb = "" if mono else ("starts " if len(bases) == 1 else "start ")  # after the mono clause, implied
-        parts.append(f"{_join(bases)} {verb}from its basis channels")
-    if fresh:
-        parts.append(f"{_join(fresh)} start fresh")
-    return "; ".join(parts)
-
-
 def _setup_section(results: dict) -> list[str]:
     """Title, how the numbers were made (data, methods, seeds, pretraining, evaluation, yardsticks), collapsed,
     ORACLE and failed runs."""
@@ -200,7 +165,7 @@ def _setup_section(results: dict) -> list[str]:
     if pre:
         configs, fallback = run_configs(results)
         add(f"- every run starts from one shared self-supervised pretraining (no ground truth; its own world: "
-            f"`{' '.join(cfg['pretrain']['data_overrides'])}`): `{_in_sweep(pre['weights'])}` in the sweep folder, "
+            f"`{' '.join(cfg['pretrain']['data_overrides'])}`): `{weights_in_sweep(pre['weights'])}` in the sweep folder, "
             f"config hash `{pre['config_hash'][:12]}`, "
             f"{pre['step']} steps, render {_sec(pre.get('render_s'))} s + train {_sec(pre.get('train_s'))} s; "
             + warm_start_line(methods, configs) + fallback_note([label(m) for m in fallback]))

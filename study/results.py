@@ -6,8 +6,8 @@ and `study.plots` only read it. Nothing here chooses or filters numbers: NaN sta
 
 Every flat row and aggregate entry is one evaluation of a run (`study.variants.Evaluation`): its
 ``method`` (the registry name) and ``variant`` (as trained, cut, ORACLE weights, ...); a lookup takes
-either an Evaluation or a method name (that method as trained). `read_results` reads a results.json or
-results.csv, also one written before the variant field (`upgrade_results`).
+either an Evaluation or a method name (that method as trained). `study.results_files.read_results` reads a
+results.json or results.csv, also one written before the variant field (`upgrade_results`).
 """
 from __future__ import annotations
 
@@ -16,16 +16,12 @@ import time
 from typing import Any
 
 from mcdp.methods import baseline
-from mcdp.metrics import metric_names
+from study.power import t_halfwidth
+from study.records import flat_row
 from study.variants import CUT, ORACLE, ORACLE_OVL, SPREAD, TRAINED, VARIANTS, Evaluation
 
 
 SCALE_LABEL = {"none": "metric", "median": "median", "rig_median": "rig median"}
-
-
-def number(x) -> float:
-    """``x`` as a float, NaN for anything that is not a number (a missing record, None)."""
-    return float(x) if isinstance(x, (int, float)) and x is not None else float("nan")
 
 
 #: how a paired difference reads in the report (`paired_difference`'s ``differs``), by which way its metric is
@@ -81,7 +77,6 @@ def gain_word(pd: dict, floor: float = 0.0) -> str:
 BASELINE = baseline()
 #: the file name of the figure of every method's paired gain over the baseline (`study.plots.paired_plot`)
 PAIRED_PLOT = f"paired_vs_{BASELINE}.png"
-INERT_M = 0.01  # a refinement whose refined depth differs from its init stage by < 1 cm on average is inert
 
 
 #: the keys a row of results written before ``row["evaluations"]`` held its evaluations under: {variant: (metrics
@@ -119,7 +114,7 @@ def flat_rows(row: dict) -> list[dict[str, Any]]:
             continue
         own = base if name == TRAINED else flat_row({"metrics": entry["metrics"]})
         if variant.columns is not None:
-            variant.resolved("columns")(base, own, entry)
+            variant.columns(base, own, entry)
         if name != TRAINED:
             for k in ("overlap", "method", "seed", "world", "status", "steps", "checkpoint_step"):
                 if k in base:
@@ -127,58 +122,6 @@ def flat_rows(row: dict) -> list[dict[str, Any]]:
             own["variant"] = name
             out.append(own)
     return out
-
-
-def flat_row(row: dict) -> dict[str, Any]:
-    """One run's numbers as a flat dict of scalars (the CSV row; ``variant``: set by `flat_rows`)."""
-    out: dict[str, Any] = {k: row.get(k) for k in ("overlap", "method", "variant", "seed", "status", "steps",
-                                                     "checkpoint_step", "train_s", "eval_s", "train_skipped",
-                                                     "eval_skipped")}
-    if row.get("world") is not None:  # its data seed (rows written before issue 47 have none: `data_seeds`)
-        out["world"] = row["world"]
-    m = row.get("metrics")
-    if not m:
-        return out
-    for sc in ("none", "median", "rig_median"):
-        if sc not in m:
-            continue
-        for region in ("mean", "overlap", "non_overlap"):
-            for k in metric_names():  # a metric the record predates is absent, as in its results.csv (no NaN column)
-                if k in m[sc][region]:
-                    out[f"{sc}.{region}.{k}"] = number(m[sc][region][k])
-        for cam, v in m[sc]["per_camera_abs_rel"].items():
-            out[f"{sc}.camera.{cam}.abs_rel"] = number(v)
-        for band, v in m[sc].get("bands", {}).items():  # distance to the overlap (mcdp.evaluate)
-            out[f"{sc}.band.{band}.abs_rel"] = number(v.get("abs_rel"))
-        for key, name in (("classes", "class"), ("motion", "motion"), ("road_bands", "road_band")):  # labels
-            for region, v in m[sc].get(key, {}).items():
-                out[f"{sc}.{name}.{region}.abs_rel"] = number(v.get("abs_rel"))
-        for kind, v in m[sc].get("holes", {}).items():
-            out[f"{sc}.holes.{kind}"] = number(v)
-    out["dep_con.mean"] = number(m["dep_con"]["mean"])
-    out["spread.ratio"] = number(m.get("spread", {}).get("ratio"))
-    for cam, v in m["dep_con"]["per_camera"].items():
-        out[f"dep_con.camera.{cam}"] = number(v)
-    for pair, v in m["dep_con"]["per_pair"].items():
-        out[f"dep_con.pair.{pair}"] = number(v)
-    return out
-
-
-#: two-sided 95 % Student-t quantiles t_0.975(df) for df = 1..30 (beyond: the normal 1.96; t is 2.04 at 31 df,
-#: and a sweep has 3-4 seeds). Kept as a table rather than scipy.stats.t.ppf: scipy (about 110 MB installed)
-#: is no core dependency (only the optional nuScenes devkit pulls it in), and 30 constants do not justify it;
-#: tests/study/test_results.py checks every entry against scipy where it is installed.
-T975 = (12.706, 4.303, 3.182, 2.776, 2.571, 2.447, 2.365, 2.306, 2.262, 2.228, 2.201, 2.179, 2.160, 2.145,
-        2.131, 2.120, 2.110, 2.101, 2.093, 2.086, 2.080, 2.074, 2.069, 2.064, 2.060, 2.056, 2.052, 2.048,
-        2.045, 2.042)
-
-
-def t_halfwidth(sd: float, n: int) -> float:
-    """Half-width of the 95 % t-interval of a mean of n values with sample std sd (NaN for n < 2)."""
-    if n < 2 or not math.isfinite(sd):
-        return float("nan")
-    t = T975[n - 2] if n - 1 <= len(T975) else 1.96
-    return t * sd / math.sqrt(n)
 
 
 def mean_std(values: list[float]) -> dict:
@@ -260,15 +203,6 @@ def aggregate_flat(flats: list[dict], overlaps, evs: list[Evaluation]) -> list[d
     return aggregate
 
 
-def _cell(v: str):
-    if v in ("True", "False"):
-        return v == "True"
-    try:
-        return int(v) if v.lstrip("-").isdigit() else float(v)
-    except ValueError:
-        return v
-
-
 #: results.json's ``schema``. 2: every flat row and aggregate entry has ``method`` (the registry name) and
 #: ``variant`` (`study.variants`) fields, results.csv a ``variant`` column. A results.json without it, or a
 #: results.csv without that column (1), named an evaluation by a suffix on its method ("mcdp_m2@cut"):
@@ -281,7 +215,7 @@ def upgrade_results(results: dict) -> dict:
     (no ``schema``: 1) named each evaluation by a suffix on its method ("mcdp_m2", "mcdp_m2@cut",
     "mcdp_m2@oracle", "mcdp_m2@oracle_overlap"): their flat rows, aggregate and evaluations get the method's
     registry name and a ``variant`` field instead. The one reader of such names; a results.csv's rows come
-    here as ``{"flat": rows}`` (`results_from_csv`)."""
+    here as ``{"flat": rows}`` (`study.results_files.results_from_csv`)."""
     schema = results.get("schema", 1)
     if schema == SCHEMA:
         return results
@@ -305,52 +239,6 @@ def upgrade_results(results: dict) -> dict:
     if "evaluations" in results:
         out["evaluations"] = [split({"method": name}) for name in results["evaluations"]]
     return out
-
-
-def read_results(path) -> dict:
-    """A sweep's results.json, or its results.csv (`results_from_csv`), in the current `SCHEMA`: one written
-    before the variant field is upgraded on reading (`upgrade_results`)."""
-    import json
-    from pathlib import Path
-
-    path = Path(path)
-    if path.suffix == ".csv":
-        return results_from_csv(path)
-    return upgrade_results(json.loads(path.read_text()))
-
-
-def results_from_csv(path) -> dict:
-    """The part of `build_results`' dict that the plots read (overlaps, methods, seeds, flat, aggregate, the
-    measured overlap and the yardsticks' rows), rebuilt from a results.csv (`study.report.write_csv`) for a
-    sweep whose results.json was not kept. Empty cells are left out of the rows, as they were absent. A
-    results.csv without a ``variant`` column (written before it) is read through `upgrade_results`."""
-    import csv
-
-    with open(path, newline="") as fh:
-        reader = csv.DictReader(fh)
-        table = [{k: _cell(v) for k, v in r.items() if v != ""} for r in reader]
-        legacy = "variant" not in (reader.fieldnames or [])
-    if not table or "method" not in table[0]:
-        raise ValueError(f"{path}: not a sweep's results.csv (no rows, or no 'method' column)")
-    yard = {name: which for which, _, name in YARDSTICKS}
-    flats = [r for r in table if r["method"] not in yard]
-    if legacy:
-        flats = upgrade_results({"flat": flats})["flat"]
-    overlaps = sorted({r["overlap"] for r in table})
-    methods = list(dict.fromkeys(r["method"] for r in flats))
-    data = []
-    for o in overlaps:
-        rows = [r for r in table if r["overlap"] == o]
-        d = {"overlap": o, "measured": {"target": rows[0].get("target_overlap", o),
-                                        "measured_mean": rows[0].get("measured_overlap", float("nan"))}}
-        for r in rows:
-            if r["method"] in yard:
-                d[yard[r["method"]]] = {"row": {k: v for k, v in r.items() if "." in k}}
-        data.append(d)
-    evs = evaluations_of(methods, flats)
-    return {"schema": SCHEMA, "overlaps": overlaps, "methods": methods, "evaluations": [e.record() for e in evs],
-            "seeds": sorted({r["seed"] for r in flats if "seed" in r}), "flat": flats, "data": data,
-            "aggregate": aggregate_flat(flats, overlaps, evs)}
 
 
 def _nz(x) -> float:
@@ -379,7 +267,7 @@ YARDSTICKS = (("reference", REF_LABEL, "constant_reference"), ("prior", PRIOR_LA
 def yardstick_row(results: dict, overlap: float, which: str = "reference") -> dict:
     """A yardstick's numbers at one overlap as a flat row (`flat_row`; {} if absent)."""
     for d in results["data"]:
-        if d["overlap"] == overlap and d.get(which):  # "row": already flat (`results_from_csv`)
+        if d["overlap"] == overlap and d.get(which):  # "row": already flat (`study.results_files.results_from_csv`)
             return d[which]["row"] if "row" in d[which] else flat_row({"metrics": d[which]["metrics"]})
     return {}
 

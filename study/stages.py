@@ -20,7 +20,7 @@ from corelib.version import code_version, warn_other_code
 from study.cleanup import remove_best, remove_last, removed_line, trim_pretraining
 from study.config import SPLIT, SweepConfig, eval_config_for, overlap_key, run_config_for
 from study.records import Counters, finite, read_json, write_json  # noqa: F401 (re-exported)
-from study.variants import CUT, ORACLE, ORACLE_OVL, SPREAD, TRAINED, VARIANTS, entries_of
+from study.variants import CUT, ORACLE, ORACLE_OVL, SPREAD, TRAINED, VARIANTS, cut, entries_of, having
 
 
 STATUS = "sweep_status.json"
@@ -45,7 +45,8 @@ def pretrain_stage(cfg: SweepConfig, sweep_dir: Path, progress: bool, log) -> di
 EVAL_PROTOCOL = "as-trained+cut+cut-change+oracle-weights+oracle-overlap+bands+labels+per-sequence"
 
 
-#: the variants `EVAL_PROTOCOL` evaluates; one registered beyond them (`study.variants`) is part of the eval key
+#: the variants `EVAL_PROTOCOL` evaluates (by name: what the protocol string has always covered, so that cached
+#: evaluations keep their key); one registered beyond them (`study.variants`) is part of the eval key
 PROTOCOL_VARIANTS = (TRAINED, CUT, ORACLE, ORACLE_OVL, SPREAD)
 
 
@@ -276,16 +277,17 @@ def _fill_row(row: dict, status: dict, passes: dict[str, dict]) -> None:
 def _row_line(tag: str, row: dict) -> str:
     """The run's log line: abs_rel, Dep Con, how much the refinement acted, the cut, the ORACLE weights."""
     ev = row["evaluations"]
+    c, ceiling = cut(), next((v for v in having("ceiling") if v.name in ev), None)
     m = ev[TRAINED]["metrics"]
     r = ev[TRAINED].get("refinement") or {}
     return (f"{tag}: abs_rel metric {m['none']['mean']['abs_rel']:.4f}, median {m['median']['mean']['abs_rel']:.4f}, "
             f"dep_con {m['dep_con']['mean']:.4f}"
             + (f"; refinement |w - 1/n| {r['weight_move']:.4f}, |refined - init| {r['depth_change_m']:.3f} m"
                if r.get("weight_move") == r.get("weight_move") and "weight_move" in r else "")
-            + (f"; cut median {ev[CUT]['metrics']['median']['mean']['abs_rel']:.4f}, |trained - cut| "
-               f"{(ev[CUT].get('refinement') or {}).get('cut_change_m', float('nan')):.4f} m" if CUT in ev else "")
-            + (f"; ORACLE weights median {ev[ORACLE]['metrics']['median']['mean']['abs_rel']:.4f}"
-               if ORACLE in ev else ""))
+            + (f"; {c} median {ev[c]['metrics']['median']['mean']['abs_rel']:.4f}, |trained - {c}| "
+               f"{(ev[c].get('refinement') or {}).get('cut_change_m', float('nan')):.4f} m" if c in ev else "")
+            + (f"; {ceiling.label} median {ev[ceiling.name]['metrics']['median']['mean']['abs_rel']:.4f}"
+               if ceiling is not None else ""))
 
 
 def evaluate_run(cfg: SweepConfig, run_dir: Path, ds, ecfg, progress: bool, log, tag: str):
@@ -310,7 +312,7 @@ def evaluate_run(cfg: SweepConfig, run_dir: Path, ds, ecfg, progress: bool, log,
         torch.set_num_threads(pred.cfg.train.threads)
     log(f"{tag}: evaluating {pred.ckpt_path.name} (step {pred.step}) on the {SPLIT} split")
     try:
-        passes = run_probes(pred, (ecfg.min_depth, ecfg.max_depth),
+        passes = run_probes(VARIANTS.values(), pred, (ecfg.min_depth, ecfg.max_depth),
                             lambda predict: evaluate(ds, predict, SPLIT, ecfg, progress=progress),
                             lambda line: log(f"{tag}: evaluating {line}"))
         return passes, pred

@@ -120,8 +120,8 @@ def _export_args(e: argparse.ArgumentParser) -> None:
     e.add_argument("--no-lidar", action="store_true", help="cameras only, no synthetic LIDAR_TOP")
     e.add_argument("--no-labels", action="store_true", help="leave the dataset's labels out (no lidarseg, no label "
                    "side files; docs/NUSCENES.md, 'Labels')")
-    e.add_argument("--jpeg-quality", type=int, default=95, help="JPEG quality of the nuScenes images, 1..100 "
-                   "(default 95)")
+    e.add_argument("--jpeg-quality", type=int, default=None, help="JPEG quality of the nuScenes images, 1..100 "
+                   "(default: a JPEG dataset's images copied as they are, a PNG dataset's encoded at 95)")
     e.add_argument("--no-progress", action="store_true", help="no progress bar")
     e.set_defaults(overrides=[])
 
@@ -216,6 +216,7 @@ def _export(args) -> int:
     from synth.lidar import LidarConfig
     from synth.dataset import dataset_containing
     from synth.nuscenes.export import export_nuscenes
+    from synth.open import open_dataset
 
     if dataset_containing(args.out) is not None:
         raise ConfigError(f"--out {args.out} is inside the dataset {dataset_containing(args.out)}; export outside it")
@@ -227,7 +228,7 @@ def _export(args) -> int:
         raise ConfigError("--no-lidar and lidar.* overrides together")
     lidar = None if args.no_lidar else build_config(LidarConfig, ov.get("lidar", {}),
                                                     "lidar overrides " + " ".join(args.overrides))
-    s = export_nuscenes(args.data, args.out, version=args.version, lidar=lidar, jpeg_quality=args.jpeg_quality,
+    s = export_nuscenes(open_dataset(args.data), args.out, version=args.version, lidar=lidar, jpeg_quality=args.jpeg_quality,
                         progress=not args.no_progress and sys.stderr.isatty(), labels=not args.no_labels)
     pts = "" if s["lidar_points_per_sweep"] is None else f", {s['lidar_points_per_sweep']:.0f} lidar points/sweep"
     pts += f", lidarseg for {s['lidarseg']} sweeps" if s["lidarseg"] else ""

@@ -91,6 +91,13 @@ class DataConfig(StrictModel):
     sensor: SensorConfig = added_key(default_factory=SensorConfig)
     weather: WeatherConfig = added_key(default_factory=WeatherConfig)
 
+    @model_validator(mode="after")
+    def _rolling_flow(self) -> "DataConfig":
+        if self.sensor.rolling_shutter_ms > 0 and self.labels.flow:
+            raise ValueError("labels.flow cannot go with sensor.rolling_shutter_ms > 0: a rolling-shutter image has "
+                             "one camera pose per band of rows, and forward flow takes one (synth.shutter)")
+        return self
+
 
 def load_data_config(path=None, overrides: Iterable[str] = ()) -> DataConfig:
     return load_config(DataConfig, path, overrides)
@@ -100,14 +107,14 @@ def load_data_config(path=None, overrides: Iterable[str] = ()) -> DataConfig:
 #: without ``--yes`` (bytes, the upper bound of `render_size`)
 MAX_RENDER_BYTES = 500 * 10**9
 _BYTES_PER_PIXEL = 3 + 4  # RGB uint8 + float32 z-depth, before PNG / EXR compression (about 2 measured)
-#: each label's bytes per pixel before compression: class uint8; object id uint16; flow 2 x float32 + validity
-#: and mover masks uint8
-LABEL_BYTES_PER_PIXEL = {"semantic": 1, "instance": 2, "flow": 10}
 
 
 def bytes_per_pixel(cfg: DataConfig) -> int:
-    """Uncompressed bytes a render of `cfg` writes per pixel: RGB, depth and the labels it asks for."""
-    return _BYTES_PER_PIXEL + sum(n for k, n in LABEL_BYTES_PER_PIXEL.items() if getattr(cfg.labels, k))
+    """Uncompressed bytes a render of `cfg` writes per pixel: RGB, depth and the labels it asks for (each label
+    kind's cost: `synth.label_kinds`)."""
+    from synth.label_kinds import label_bytes_per_pixel
+
+    return _BYTES_PER_PIXEL + label_bytes_per_pixel(cfg.labels)
 
 
 def render_size(cfg: DataConfig, shard_of: int = 1) -> dict:

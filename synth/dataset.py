@@ -9,7 +9,7 @@ Layout (docs/DATASET.md)::
       rig.json               cameras [{name, width, height, K, T_ego_cam, hfov_deg, yaw_deg}], neighbours
       masks/<CAM>.png        uint8, 255 = scene, 0 = ego body (each file at its camera's size)
       <seq>/ego.json         per frame: timestamp_s, T_world_ego (4x4), lighting
-      <seq>/<CAM>/<frame:06d>.png         RGB uint8 sRGB
+      <seq>/<CAM>/<frame:06d>.png         RGB uint8 sRGB (.jpg: a JPEG, with the manifest's ``rgb.format`` jpeg)
       <seq>/<CAM>/<frame:06d>.depth.exr   float32 z-depth in metres (channel "Z"), 0 = no surface
       labels (manifest ``labels.kinds``; `synth.label_reader`): <frame>.semantic.png, <frame>.instance.png,
       <seq>/instances.json, <frame>.flow.exr + .flow_valid.png (frames 0..F-2), <frame>.movers.png (the last
@@ -27,12 +27,12 @@ Example::
 """
 from __future__ import annotations
 
-import re
 from pathlib import Path
 
 import numpy as np
 
-from synth.files import DatasetError, frame_stem, read_depth_exr, read_json, read_png, read_regular, within
+from synth.files import (RGB_SUFFIXES, DatasetError, frame_stem, is_plain_name, read_depth_exr, read_image, read_json,
+                         read_png, read_regular, short_list, within)
 from synth.label_reader import LabelReader, check_labels_record
 from synth.rig import MAX_CAMERA_PX, CameraSpec
 from synth.sizes import camera_sizes, shared_size
@@ -57,6 +57,7 @@ class Dataset(LabelReader):
         self._ego_cache: dict[str, list] = {}
         self._mask_cache: dict[str, np.ndarray] = {}
         self._sizes = {c.name: (c.width, c.height) for c in self.cameras}
+        self.rgb_suffix = rgb_suffix(manifest)  # checked by check_manifest_keys
 
     format = "synth"  # `synth.protocol.DatasetReader.format`
 
@@ -120,8 +121,18 @@ class Dataset(LabelReader):
     def T_world_ego(self, seq: str) -> np.ndarray:
         return np.asarray([f["T_world_ego"] for f in self.ego(seq)], np.float64)
 
+    def camera_poses(self, seq: str) -> tuple[np.ndarray, np.ndarray]:
+        """(F, N) each camera's timestamp_s and (F, N, 4, 4) its pose at that time in the ego frame of its frame's
+        time (`synth.trigger.camera_poses`; a synchronous rig: the frame's time and the static T_ego_cam)."""
+        from synth.trigger import camera_poses
+
+        cache = self.__dict__.setdefault("_pose_cache", {})
+        if seq not in cache:
+            cache[seq] = camera_poses(self.ego(seq), self.cameras, self.root / seq / "ego.json")
+        return cache[seq]
+
     def rgb_path(self, seq: str, cam: str, frame: int) -> Path:
-        return self.root / seq / cam / f"{frame_stem(frame)}.png"
+        return self.root / seq / cam / f"{frame_stem(frame)}{self.rgb_suffix}"
 
     def depth_path(self, seq: str, cam: str, frame: int) -> Path:
         return self.root / seq / cam / f"{frame_stem(frame)}.depth.exr"
@@ -141,7 +152,7 @@ class Dataset(LabelReader):
     def read_rgb(self, seq: str, cam: str, frame: int) -> np.ndarray:
         """(H, W, 3) uint8 RGB at the camera's size."""
         p = self.inside(self.rgb_path(seq, cam, frame))
-        return self._sized(read_png(p), p, "the image", cam)
+        return self._sized(read_png(p) if self.rgb_suffix == ".png" else read_image(p), p, "the image", cam)
 
     def read_depth(self, seq: str, cam: str, frame: int) -> np.ndarray:
         """(H, W) float32 z-depth in metres at the camera's size, 0 = no surface; finite and >= 0, else
@@ -168,15 +179,6 @@ class Dataset(LabelReader):
     def ground_truth(self) -> dict:
         """Provenance of `read_depth` (the evaluator copies it into metrics.json)."""
         return {"kind": "dense z-depth (rendered)", "source": "<seq>/<CAM>/<frame>.depth.exr"}
-
-
-_PLAIN_NAME = re.compile(r"^[A-Za-z0-9][A-Za-z0-9._-]{0,127}$")
-
-
-def is_plain_name(name) -> bool:
-    """A string of letters, digits, ``. _ -`` (at most 128, starting with a letter or digit): no path
-    separator, never ``.`` or ``..``; safe as one folder or file name."""
-    return isinstance(name, str) and bool(_PLAIN_NAME.match(name)) and name not in (".", "..")
 
 
 def _plain(name, field: str, mpath: Path) -> str:
@@ -227,14 +229,24 @@ def dataset_containing(path: str | Path) -> Path | None:
 
 
 INTEGRITY = "integrity"
-def short_list(items: list[str], n: int = 6) -> str:
-    return ", ".join(items[:n]) + (f" (+{len(items) - n} more)" if len(items) > n else "")
-
-
 _REQUIRED_KEYS = {"schema_version": int, "generator": str, "cameras": list, "image_size": dict, "fps": (int, float),
                   "splits": dict, "sequences": dict, "files": dict}
 _OPTIONAL_KEYS = {"generator_version", "code_version", "config", "config_hash", "seed", "has_depth", "families",
-                  "overlap", "camera_sizes", "labels", INTEGRITY}
+                  "overlap", "camera_sizes", "labels", "trigger", "rgb", "shutter", INTEGRITY}
+
+
+def rgb_suffix(manifest: dict, mpath: Path | None = None) -> str:
+    """The suffix of the dataset's RGB images: its manifest's ``rgb.format`` (`synth.manifest.rgb_record`) in
+    `RGB_SUFFIXES`, ``.png`` without the key (every dataset rendered before JPEG); DatasetError naming the key."""
+    rec = manifest.get("rgb", {"format": "png"})
+    fmt = rec.get("format") if isinstance(rec, dict) else None
+    if not isinstance(fmt, str) or fmt not in RGB_SUFFIXES:
+        raise DatasetError(f"{mpath or MANIFEST}: rgb.format must be one of {', '.join(RGB_SUFFIXES)}, got "
+                           f"{str(fmt)[:40]!r}")
+    q = rec.get("quality")
+    if fmt == "jpeg" and not (isinstance(q, int) and not isinstance(q, bool) and 1 <= q <= 100):
+        raise DatasetError(f"{mpath or MANIFEST}: rgb.quality must be an integer in 1..100, got {str(q)[:40]!r}")
+    return RGB_SUFFIXES[fmt]
 
 
 def check_manifest_keys(manifest, mpath: Path) -> None:
@@ -257,6 +269,13 @@ def check_manifest_keys(manifest, mpath: Path) -> None:
             raise DatasetError(f"{mpath}: sequences.{str(seq)[:40]}.frames must be a positive integer")
     if "labels" in manifest:
         check_labels_record(manifest["labels"], mpath)
+    if "trigger" in manifest:
+        from synth.trigger import check_trigger_record
+        check_trigger_record(manifest["trigger"], manifest["cameras"], mpath)
+    rgb_suffix(manifest, mpath)
+    if "shutter" in manifest:
+        from synth.shutter import check_shutter_record
+        check_shutter_record(manifest["shutter"], mpath)
     for key in ("width", "height"):
         if not _pixels(manifest["image_size"].get(key)):
             raise DatasetError(f"{mpath}: image_size.{key} must be an integer in [1, {MAX_CAMERA_PX}] (a camera's "

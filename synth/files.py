@@ -1,5 +1,6 @@
-"""Files of the dataset contract: JSON, PNG and single-channel EXR z-depth, each written whole or not
-at all (`corelib.atomic`) and read with an error that names the file (`DatasetError`).
+"""Files of the dataset contract: JSON, PNG, JPEG (an RGB image with ``sensor.jpeg_quality``) and single-channel
+EXR z-depth, each written whole or not at all (`corelib.atomic`) and read with an error that names the file
+(`DatasetError`).
 
 Example::
 
@@ -12,6 +13,7 @@ import contextlib
 import io
 import json
 import os
+import re
 import stat
 import sys
 import tempfile
@@ -22,7 +24,7 @@ import cv2
 import numpy as np
 
 from corelib.atomic import atomic_write_bytes, atomic_write_json
-from synth.image_headers import check_jpeg_header, check_png_header
+from synth.image_headers import jpeg_size, check_jpeg_header, check_png_header
 from synth.rig import MAX_CAMERA_PX
 
 DEPTH_CHANNEL = "Z"
@@ -30,6 +32,20 @@ DEPTH_CHANNEL = "Z"
 
 class DatasetError(RuntimeError):
     """The dataset on disk is missing, incomplete, of another version or corrupt; the message names the file."""
+
+
+_PLAIN_NAME = re.compile(r"^[A-Za-z0-9][A-Za-z0-9._-]{0,127}$")
+
+
+def is_plain_name(name) -> bool:
+    """A string of letters, digits, ``. _ -`` (at most 128, starting with a letter or digit): no path
+    separator, never ``.`` or ``..``; safe as one folder or file name."""
+    return isinstance(name, str) and bool(_PLAIN_NAME.match(name)) and name not in (".", "..")
+
+
+def short_list(items: list[str], n: int = 6) -> str:
+    """The first `n` of `items`, comma-separated, and how many more."""
+    return ", ".join(items[:n]) + (f" (+{len(items) - n} more)" if len(items) > n else "")
 
 
 class OutputFolderError(RuntimeError):
@@ -139,6 +155,23 @@ def encode_png(img: np.ndarray, compression: int = 3) -> bytes:
     if not ok:
         raise ValueError("write_png: could not encode the image")
     return buf.tobytes()
+
+
+def encode_jpeg(rgb: np.ndarray, quality: int) -> bytes:
+    """uint8 RGB (H, W, 3) -> baseline JPEG file bytes at `quality` (1..100; OpenCV's libjpeg, 4:2:0 chroma
+    subsampling, as nuScenes' camera images), the same bytes for the same pixels."""
+    if rgb.dtype != np.uint8 or rgb.ndim != 3 or rgb.shape[2] != 3:
+        raise ValueError(f"encode_jpeg: expected (H, W, 3) uint8, got {rgb.shape} {rgb.dtype}")
+    if not 1 <= int(quality) <= 100:
+        raise ValueError(f"encode_jpeg: quality must be in 1..100, got {quality}")
+    ok, buf = cv2.imencode(".jpg", np.ascontiguousarray(rgb[:, :, ::-1]), [cv2.IMWRITE_JPEG_QUALITY, int(quality)])
+    if not ok:
+        raise ValueError("encode_jpeg: could not encode the image")
+    return buf.tobytes()
+
+
+#: an RGB image's file suffix by its format (the manifest's ``rgb.format``; absent: png), the one table of it
+RGB_SUFFIXES = {"png": ".png", "jpeg": ".jpg"}
 
 
 def write_png(path: str | Path, img: np.ndarray, compression: int = 3, fsync: bool = True) -> None:
@@ -331,7 +364,8 @@ def read_flow_exr(path: str | Path, size: tuple[int, int] | None = None) -> np.n
 
 
 def stored_size(path: str | Path) -> tuple[int, int] | None:
-    """(width, height) of a PNG (its IHDR) or OpenEXR depth map (its data window) from the header alone;
+    """(width, height) of a PNG (its IHDR), a JPEG (its frame header) or an OpenEXR depth map (its data window)
+    from the header alone;
     None when the header cannot be read (`verify` reports such a file by its checksum)."""
     path = Path(path)
     try:
@@ -341,6 +375,10 @@ def stored_size(path: str | Path) -> tuple[int, int] | None:
             if not head.startswith(PNG_SIGNATURE) or head[12:16] != b"IHDR":
                 return None
             return int.from_bytes(head[16:20], "big"), int.from_bytes(head[20:24], "big")
+        if path.suffix == ".jpg":
+            with open(regular_file(path), "rb") as f:
+                head = f.read(2**16)  # the frame header follows the quantisation tables (a few hundred bytes)
+            return jpeg_size(head) if head.startswith(JPEG_SIGNATURE) else None
         if path.suffix == ".exr":
             with open(regular_file(path), "rb") as f:
                 return _exr_size(f)

@@ -250,12 +250,12 @@ class Renderer:
             self.GL.glDeleteTextures(1, [self._tex])
         self._static, self._ego, self._movers, self._tex = None, None, [], None
 
-    def _object_poses(self, frame: int) -> list[np.ndarray]:
-        return [m.T_world_obj[frame] for m in self._scene.movers]
+    def _object_poses(self, frame: float) -> list[np.ndarray]:
+        return self._scene.mover_poses_at(frame)
 
     def _render_shadow(self, frame: int, light: LightState) -> None:
         GL = self.GL
-        center = self._scene.T_world_ego[frame][:3, 3].copy()
+        center = self._scene.ego_pose_at(frame)[:3, 3].copy()
         center[2] = 0.0
         sun = np.asarray(light.sun_dir, np.float64)
         sun /= np.linalg.norm(sun)
@@ -284,14 +284,16 @@ class Renderer:
             self._set_mat4(self._prog_shadow, "u_light_mvp", self._light_vp @ T)
             gm.draw()
         if self._ego is not None:
-            self._set_mat4(self._prog_shadow, "u_light_mvp", self._light_vp @ self._scene.T_world_ego[frame])
+            self._set_mat4(self._prog_shadow, "u_light_mvp", self._light_vp @ self._scene.ego_pose_at(frame))
             self._ego.draw()
         self._shadow_frame = frame
 
-    def render(self, K: np.ndarray, T_world_cam: np.ndarray, frame: int, light: LightState,
+    def render(self, K: np.ndarray, T_world_cam: np.ndarray, frame: float, light: LightState,
                gain=(1.0, 1.0, 1.0), size: tuple[int, int] | None = None,
                labels: bool = False) -> dict[str, np.ndarray]:
-        """Render one camera at one frame; see the module docstring for the outputs. ``size`` (width, height):
+        """Render one camera at one frame; see the module docstring for the outputs. ``frame`` is a continuous
+        frame index (time ``frame / fps``): the movers and the ego body are posed at that time
+        (`scenes.timeline`; at an integer, the frame's stored poses). ``size`` (width, height):
         the camera's image size, K's pixels (None: the renderer's); ``labels``: read back object ids and layers
         too. Mover k draws as object `Scene.mover_instance(k)`."""
         if self._scene is None:
@@ -352,7 +354,7 @@ class Renderer:
         for k, (gm, T) in enumerate(zip(self._movers, self._object_poses(frame))):
             draw(gm, T, 0.0, float(self._scene.mover_instance(k)))
         if self._ego is not None:
-            draw(self._ego, self._scene.T_world_ego[frame], 1.0, 0.0)
+            draw(self._ego, self._scene.ego_pose_at(frame), 1.0, 0.0)
         # read back (GL rows are bottom-up)
         GL.glPixelStorei(GL.GL_PACK_ALIGNMENT, 1)
         GL.glReadBuffer(GL.GL_COLOR_ATTACHMENT0)

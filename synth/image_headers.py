@@ -27,7 +27,7 @@ _JPEG_SOF = frozenset(range(0xC0, 0xD0)) - {0xC4, 0xC8, 0xCC}
 _JPEG_BARE = frozenset([0x01, *range(0xD0, 0xD9)])
 
 
-def _jpeg_size(data: bytes) -> tuple[int, int] | None:
+def jpeg_size(data: bytes) -> tuple[int, int] | None:
     """(width, height) of a JPEG's frame header (SOF), found by walking its marker segments; None when no frame
     header comes before the scan (SOS), the end (EOI) or the end of the bytes."""
     i = 2  # after SOI
@@ -58,7 +58,7 @@ def check_jpeg_header(path: Path, data: bytes, error: type[Exception]) -> None:
     """A JPEG whose frame header (SOF) claims a side above `MAX_CAMERA_PX` (or 0: a height given later, by a DNL
     marker), or that has no frame header, is refused before it is decoded: a 3 KB file may claim 32000 x 32000
     pixels (gigabytes once decoded), the bound of `check_png_header` and of the EXR readers."""
-    size = _jpeg_size(data)
+    size = jpeg_size(data)
     if size is None:
         raise error(f"{path}: not a readable JPEG (no frame header before its image data)")
     w, h = size

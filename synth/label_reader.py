@@ -16,17 +16,13 @@ from pathlib import Path
 
 import numpy as np
 
-from synth.files import DatasetError, frame_stem, read_flow_exr, read_json, read_png
+from synth.files import DatasetError, read_json
+from synth.label_kinds import INSTANCES, MOVERS, LabelFile, instance_ids, kind_names, label_kind
 
-
-#: the label kinds a manifest's ``labels.kinds`` may list
-KINDS = ("semantic", "instance", "flow")
 #: the most classes a class table may hold: a semantic map is uint8
 MAX_CLASSES = 256
 #: the longest class or group name (characters)
 MAX_CLASS_NAME = 64
-#: the largest object id: an instance map is uint16
-MAX_INSTANCE_ID = 2**16 - 1
 
 
 def _short_name(v) -> bool:
@@ -34,20 +30,22 @@ def _short_name(v) -> bool:
 
 
 def check_labels_record(rec, mpath: Path) -> None:
-    """The manifest's ``labels`` (`synth.manifest.labels_record`): an object with ``kinds`` (a list of `KINDS`),
+    """The manifest's ``labels`` (`synth.manifest.labels_record`): an object with ``kinds`` (a list of the kinds of
+    `synth.label_kinds`),
     and with semantic labels a class table of at most `MAX_CLASSES` rows (a semantic map is uint8), each
     {index (0, 1, ...), name and group (printable strings of at most `MAX_CLASS_NAME` characters), color ([r, g, b]
     in 0..255)}; DatasetError naming the field otherwise."""
     if not isinstance(rec, dict):
         raise DatasetError(f"{mpath}: labels must be an object {{kinds, classes, ...}}, not a "
                            f"{type(rec).__name__}")
-    extra = sorted(str(k)[:40] for k in rec if k not in ("kinds", "classes", *KINDS))
+    known = kind_names()
+    extra = sorted(str(k)[:40] for k in rec if k not in ("kinds", "classes", *known))
     if extra:
         raise DatasetError(f"{mpath}: labels has unknown key(s) {', '.join(map(repr, extra[:4]))} (it knows kinds, "
-                           f"classes, {', '.join(KINDS)})")
+                           f"classes, {', '.join(known)})")
     kinds = rec.get("kinds")
-    if not isinstance(kinds, list) or len(kinds) > len(KINDS) or not all(k in KINDS for k in kinds):
-        raise DatasetError(f"{mpath}: labels.kinds must be a list of {', '.join(KINDS)}, got {str(kinds)[:60]}")
+    if not isinstance(kinds, list) or len(kinds) > len(known) or not all(k in known for k in kinds):
+        raise DatasetError(f"{mpath}: labels.kinds must be a list of {', '.join(known)}, got {str(kinds)[:60]}")
     if "semantic" not in kinds and "classes" not in rec:
         return
     table = rec.get("classes")
@@ -66,23 +64,6 @@ def check_labels_record(rec, mpath: Path) -> None:
                                f"{str(c)[:80]}")
 
 
-def instance_ids(doc, path: Path) -> set[int]:
-    """The object ids of a sequence's instances.json (`synth.render`: {sequence, instances: [{id, class, moving,
-    ...}]}): each an integer in 1..`MAX_INSTANCE_ID` (an instance map is uint16, 0 = none), none twice;
-    DatasetError naming the file otherwise."""
-    rows = doc.get("instances") if isinstance(doc, dict) else None
-    if not isinstance(rows, list):
-        raise DatasetError(f"{path}: 'instances' must be a list")
-    ids: set[int] = set()
-    for k, r in enumerate(rows):
-        i = r.get("id") if isinstance(r, dict) else None
-        if not isinstance(i, int) or isinstance(i, bool) or not 0 < i <= MAX_INSTANCE_ID or i in ids:
-            raise DatasetError(f"{path}: instances[{k}].id must be an integer in 1..{MAX_INSTANCE_ID}, each once; got "
-                               f"{str(i)[:40]}")
-        ids.add(i)
-    return ids
-
-
 def lacks(root, kind: str) -> DatasetError:
     return DatasetError(f"{root}: has no {kind} labels (rendered before labels existed, or with "
                         f"labels.{kind}=false); render it again with labels.{kind}=true to get them")
@@ -90,6 +71,9 @@ def lacks(root, kind: str) -> DatasetError:
 
 class NoLabels:
     """The label members of `synth.protocol.DatasetReader` for a dataset that has none."""
+
+    def read_label(self, kind: str, seq: str, cam: str | None = None, frame: int | None = None):
+        raise lacks(self.root, kind)
 
     @property
     def label_kinds(self) -> tuple[str, ...]:
@@ -120,10 +104,11 @@ class LabelReader:
 
     @property
     def label_kinds(self) -> tuple[str, ...]:
-        """The labels every sequence holds: some of ("semantic", "instance", "flow"); () before labels."""
+        """The labels every sequence holds: some of the kinds of `synth.label_kinds` (table order); () before
+        labels."""
         rec = self.manifest.get("labels")
         kinds = rec.get("kinds") if isinstance(rec, dict) else None
-        return tuple(k for k in ("semantic", "instance", "flow") if isinstance(kinds, list) and k in kinds)
+        return tuple(k for k in kind_names() if isinstance(kinds, list) and k in kinds)
 
     @property
     def classes(self) -> list[dict]:
@@ -133,47 +118,44 @@ class LabelReader:
         check_labels_record(self.manifest["labels"], self.root / "manifest.json")
         return self.manifest["labels"]["classes"]
 
-    def _label(self, kind: str, seq: str, cam: str, frame: int, suffix: str) -> Path:
+    def label_path(self, kind: str, lf: LabelFile, seq: str, cam: str | None = None, frame: int | None = None) -> Path:
+        """The path of label file `lf` of `kind` (`synth.label_kinds`), inside the root; DatasetError saying what
+        the dataset lacks when it does not hold `kind`."""
         if kind not in self.label_kinds:
             raise lacks(self.root, kind)
-        return self.inside(self.root / seq / cam / f"{frame_stem(frame)}.{suffix}")
+        return self.inside(self.root / lf.rel(seq, cam, frame))
+
+    def read_label_file(self, kind: str, lf: LabelFile, seq: str, cam: str, frame: int) -> np.ndarray:
+        """Image file `lf` of `kind` of one camera-frame, decoded, at the camera's size."""
+        p = self.label_path(kind, lf, seq, cam, frame)
+        return self._sized(lf.decode(p, self._size(cam)), p, lf.what, cam)
+
+    def read_label(self, kind: str, seq: str, cam: str | None = None, frame: int | None = None):
+        """The value of label `kind` (its row's ``read``: `synth.label_kinds`) of one camera-frame."""
+        if kind not in self.label_kinds:
+            raise lacks(self.root, kind)
+        return label_kind(kind).read(self, seq, cam, frame)
 
     def read_semantic(self, seq: str, cam: str, frame: int) -> np.ndarray:
         """(H, W) uint8 class index (`classes`) at the camera's size."""
-        p = self._label("semantic", seq, cam, frame, "semantic.png")
-        sem = self._sized(read_png(p, gray=True), p, "the semantic map", cam)
-        if int(sem.max(initial=0)) >= len(self.classes):
-            raise DatasetError(f"{p}: class index {int(sem.max())} is not in labels.classes")
-        return sem
+        return self.read_label("semantic", seq, cam, frame)
 
     def read_instance(self, seq: str, cam: str, frame: int) -> np.ndarray:
         """(H, W) uint16 object id (0 = none; `instances`) at the camera's size."""
-        p = self._label("instance", seq, cam, frame, "instance.png")
-        return self._sized(read_png(p, depth16=True), p, "the instance map", cam)
+        return self.read_label("instance", seq, cam, frame)
 
     def read_movers(self, seq: str, cam: str, frame: int) -> np.ndarray:
         """(H, W) bool, True on the pixels of moving objects."""
-        p = self._label("flow", seq, cam, frame, "movers.png")
-        return self._sized(read_png(p, gray=True), p, "the mover mask", cam) > 127
+        return self.read_label_file("flow", MOVERS, seq, cam, frame) > 127
 
     def read_flow(self, seq: str, cam: str, frame: int) -> tuple[np.ndarray, np.ndarray]:
         """((H, W, 2) float32 forward flow frame -> frame + 1 in pixels, (H, W) bool valid); frames
         0 .. n_frames - 2."""
-        if not 0 <= frame < self.n_frames(seq) - 1:
-            raise DatasetError(f"{self.root / seq}: forward flow exists for frames 0..{self.n_frames(seq) - 2}, "
-                               f"not {frame}")
-        p = self._label("flow", seq, cam, frame, "flow.exr")
-        flow = self._sized(read_flow_exr(p, self._size(cam)), p, "the flow map", cam)
-        if not np.isfinite(flow).all():
-            raise DatasetError(f"{p}: flow holds non-finite values")
-        pv = self._label("flow", seq, cam, frame, "flow_valid.png")
-        return flow, self._sized(read_png(pv, gray=True), pv, "the flow validity", cam) > 127
+        return self.read_label("flow", seq, cam, frame)
 
     def instances(self, seq: str) -> list[dict]:
         """The objects of sequence `seq`: id, class, moving (a mover's name and T_world_obj per frame)."""
-        if "instance" not in self.label_kinds:
-            raise lacks(self.root, "instance")
-        p = self.inside(self.root / seq / "instances.json")
+        p = self.label_path("instance", INSTANCES, seq)
         doc = read_json(p)
         instance_ids(doc, p)
         return doc["instances"]

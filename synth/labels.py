@@ -18,6 +18,7 @@ from __future__ import annotations
 import numpy as np
 
 from scenes.labels import CLASS, MATERIAL_CLASS
+from synth.protocol import pixel_rays
 
 #: flow validity: |z_rendered(t+1) - z_moved| <= Z_TOL_REL z + Z_TOL_ABS (metres), at one of 4 neighbours
 Z_TOL_REL = 0.03
@@ -45,11 +46,6 @@ def instance_map(instance: np.ndarray, ego: np.ndarray, depth: np.ndarray) -> np
     return np.where(ego | (depth <= 0), 0, instance).astype(np.uint16)
 
 
-def _pixel_grid(H: int, W: int) -> tuple[np.ndarray, np.ndarray]:
-    v, u = np.mgrid[0:H, 0:W]
-    return u.astype(np.float64) + 0.5, v.astype(np.float64) + 0.5
-
-
 def forward_flow(depth0: np.ndarray, inst0: np.ndarray, ego0: np.ndarray, K: np.ndarray, T_world_cam0: np.ndarray,
                  T_world_cam1: np.ndarray, motion: dict[int, np.ndarray], depth1: np.ndarray,
                  inst1: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -60,10 +56,9 @@ def forward_flow(depth0: np.ndarray, inst0: np.ndarray, ego0: np.ndarray, K: np.
     every other surface is static, except the ego body, which moves with the camera (flow 0).
     """
     H, W = depth0.shape
-    u, v = _pixel_grid(H, W)
+    u, v = np.meshgrid(np.arange(W) + 0.5, np.arange(H) + 0.5)  # pixel centres
     z = depth0.astype(np.float64)
-    Kinv = np.linalg.inv(K)
-    rays = np.stack([u, v, np.ones_like(u)], -1) @ Kinv.T
+    rays = pixel_rays(K, W, H)
     p0 = rays * z[..., None]  # camera-frame points at t
     T_c1_w = np.linalg.inv(T_world_cam1)
     M_static = T_c1_w @ T_world_cam0
@@ -96,6 +91,10 @@ def forward_flow(depth0: np.ndarray, inst0: np.ndarray, ego0: np.ndarray, K: np.
     return flow, valid
 
 
-def mover_motion(T_world_obj: dict[int, np.ndarray], frame: int) -> dict[int, np.ndarray]:
-    """{object id: world(frame+1) <- world(frame)} of movers given their (F, 4, 4) poses by id."""
-    return {obj: T[frame + 1] @ np.linalg.inv(T[frame]) for obj, T in T_world_obj.items()}
+def mover_motion(T_world_obj: dict[int, np.ndarray], frame: float, to: float | None = None) -> dict[int, np.ndarray]:
+    """{object id: world(to) <- world(frame)} of movers given their (F, 4, 4) poses by id; `frame` and `to`
+    (default frame + 1) are continuous frame indices (`scenes.timeline.pose_at`: at integers, the stored poses)."""
+    from scenes.timeline import pose_at
+
+    to = frame + 1 if to is None else to
+    return {obj: pose_at(T, to) @ np.linalg.inv(pose_at(T, frame)) for obj, T in T_world_obj.items()}

@@ -8,6 +8,9 @@ triangle meshes: every 2x2 block of pixel centres with depth, back-projected wit
 at +0.5) and ``T_ego_cam``, gives two triangles. Each lidar ray is intersected exactly with those
 triangles (Moller-Trumbore) and keeps the nearest hit, so a return lies exactly on its beam and on
 the surface the cameras see, interpolated between pixel centres (planar within a 2x2 pixel block).
+Cameras that fire at their own times (``rig.trigger``): pass each with ``T_ego_cam`` its own pose in the ego
+frame of the frame time (`synth.dataset.Dataset.camera_poses`, as the nuScenes export does), so every mesh is
+registered in that one frame and a static surface seen by two cameras gives one return, as when synchronous.
 
 Not meshed (no return there): sky (depth 0), ego body (mask), and triangles across a depth
 discontinuity, i.e. that would meet the camera ray at a grazing angle below ``min_grazing_deg``
@@ -36,6 +39,7 @@ import numpy as np
 from pydantic import Field, model_validator
 
 from corelib.configlib import StrictModel
+from synth.protocol import pixel_rays
 from synth.rig import CameraSpec
 
 # LIDAR_TOP axes in the ego frame: lidar x = ego -y (right), lidar y = ego x (forward), lidar z = ego z.
@@ -98,8 +102,7 @@ def _camera_triangles(cam: CameraSpec, depth: np.ndarray, valid: np.ndarray, T_l
     """Triangles of one camera's depth mesh in the lidar frame: (T, 3, 3) vertices, (T, 3) gray or None,
     (T, 3) label of each vertex's pixel or None."""
     H, W = depth.shape
-    u, v = np.meshgrid(np.arange(W) + 0.5, np.arange(H) + 0.5)
-    rays = np.stack([u, v, np.ones_like(u)], -1) @ np.linalg.inv(cam.K).T  # (H, W, 3), z = 1
+    rays = pixel_rays(cam.K, W, H)  # (H, W, 3), z = 1
     P_cam = rays * depth[..., None].astype(np.float64)
     T = T_lidar_ego @ cam.T_ego_cam
     P = P_cam @ T[:3, :3].T + T[:3, 3]

@@ -17,13 +17,16 @@ from synth import __version__
 from synth.config import DataConfig
 from synth.dataset import GENERATOR, INTEGRITY, MANIFEST, SCHEMA_VERSION
 from synth.verify import integrity_record
-from synth.files import read_json, write_json
+from synth.files import RGB_SUFFIXES, read_json, write_json
+from synth.label_kinds import enabled_kinds, kind_names
+from synth.label_kinds import label_kinds as label_kinds_table
 from synth.rig import Rig
 from synth.sizes import size_keys
+from synth.shutter import Shutter
+from synth.trigger import trigger_record
 
 MARKER_DIR = ".synth"
 RECORD = "record.json"
-LABEL_KINDS = ("semantic", "instance", "flow")
 
 
 def sequence_id(index: int) -> str:
@@ -31,26 +34,28 @@ def sequence_id(index: int) -> str:
 
 
 def label_kinds(cfg: DataConfig) -> list[str]:
-    """The labels a render of `cfg` writes (`labels.*`), in `LABEL_KINDS` order."""
-    return [k for k in LABEL_KINDS if getattr(cfg.labels, k)]
+    """The labels a render of `cfg` writes (`labels.*`), in the order of the table (`synth.label_kinds`)."""
+    return enabled_kinds(cfg.labels)
 
 
 def labels_record(kinds: list[str]) -> dict:
-    """The manifest's ``labels``: the kinds every sequence holds, the class table, the file conventions."""
-    from scenes.labels import class_table
-
+    """The manifest's ``labels``: the kinds every sequence holds and each held row's record (the class table)
+    and file conventions (`synth.label_kinds`)."""
     rec: dict = {"kinds": kinds}
-    if "semantic" in kinds:
-        rec["classes"] = class_table()
-        rec["semantic"] = "<seq>/<CAM>/<frame>.semantic.png: uint8 class index (classes[].index)"
-    if "instance" in kinds:
-        rec["instance"] = ("<seq>/<CAM>/<frame>.instance.png: uint16 object id, 0 = none; <seq>/instances.json: "
-                           "id, class, moving, a mover's T_world_obj per frame")
-    if "flow" in kinds:
-        rec["flow"] = ("<seq>/<CAM>/<frame>.flow.exr: forward flow t -> t+1 in pixels (channels U, V; frames "
-                       "0..F-2), <frame>.flow_valid.png: 255 = valid; <frame>.movers.png: 255 = a moving object "
-                       "(every frame)")
+    for k in label_kinds_table():
+        if k.name in kinds:
+            rec.update(k.record() if k.record is not None else {})
+            rec[k.name] = k.about
     return rec
+
+
+def rgb_record(cfg: DataConfig) -> dict:
+    """The manifest's ``rgb`` (only with ``sensor.jpeg_quality``; absent, every image is a PNG): the images'
+    format, its JPEG quality and their file name."""
+    q = cfg.sensor.jpeg_quality
+    if q is None:
+        return {}
+    return {"rgb": {"format": "jpeg", "quality": int(q), "file": f"<seq>/<CAM>/<frame>{RGB_SUFFIXES['jpeg']}"}}
 
 
 def assign_splits(cfg: DataConfig) -> dict[str, list[str]]:
@@ -95,7 +100,7 @@ def finalize(cfg: DataConfig, out: Path, rig: Rig) -> dict | None:
     totals: dict[str, list[int]] = {}
     sequences = {}
     families: dict[str, int] = {}
-    kinds = list(LABEL_KINDS)
+    kinds = list(kind_names())
     for i in range(n):
         rec = read_json(out / sequence_id(i) / RECORD)
         kinds = [k for k in kinds if k in rec.get("labels", [])]  # a render resumed by older code: the common kinds
@@ -117,9 +122,15 @@ def finalize(cfg: DataConfig, out: Path, rig: Rig) -> dict | None:
         "fps": cfg.dataset.fps, "has_depth": True,
         "splits": assign_splits(cfg), "sequences": sequences, "families": families,
         "overlap": overlap_record(cfg, rig, totals),
-        "labels": labels_record(kinds),
+        "labels": labels_record(kinds), **rgb_record(cfg),
         "files": files,
     }
+    trigger = trigger_record(cfg.rig, rig)
+    if trigger is not None:  # a synchronous rig's manifest is as it was
+        manifest["trigger"] = trigger
+    shutter = Shutter.for_config(cfg)
+    if shutter is not None:  # a global, instantaneous shutter's manifest is as it was
+        manifest["shutter"] = shutter.record()
     manifest[INTEGRITY] = integrity_record(manifest, read_json(out / "rig.json"))
     write_json(out / MANIFEST, manifest)
     return manifest

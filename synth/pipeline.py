@@ -2,7 +2,7 @@
 overlap counts and the next sequence's scene.
 
 The renderer owns one GL context and draws on the calling thread; while llvmpipe rasterises the
-next camera, a small thread pool encodes and writes the previous ones (cv2's PNG encoder, zlib
+next camera, a small thread pool encodes and writes the previous ones (cv2's PNG and JPEG encoders, zlib
 inside OpenEXR, hashlib and file I/O run without the GIL) and counts the z-tested overlap of the
 previous rig frame. Every file is still written whole (a temporary name, then a rename), with the
 same bytes as when written inline, and the results are collected in submission order, so the
@@ -11,7 +11,7 @@ record's ``files`` (and the manifest) list the same hashes in the same order.
 Example::
 
     with FrameSink() as sink:
-        sink.png("seq/CAM/000000.png", path, rgb, compression=3)
+        sink.rgb("seq/CAM/000000", path_stem, rgb, compression=3, jpeg_quality=None)   # .png (or .jpg)
         sink.exr("seq/CAM/000000.depth.exr", path_exr, depth)
         sink.overlap(depths, masks, rig.cameras, rig.neighbours)
         files, counts = sink.results()
@@ -21,6 +21,7 @@ from __future__ import annotations
 import hashlib
 from collections import deque
 from concurrent.futures import Future, ThreadPoolExecutor
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -29,15 +30,16 @@ from corelib.atomic import atomic_write_bytes
 from corelib.hashing import sha256_file
 from scenes.model import Scene
 from synth.config import DataConfig
-from synth.files import encode_png, frame_stem, write_depth_exr, write_flow_exr
+from synth.files import RGB_SUFFIXES, encode_jpeg, encode_png, frame_stem, write_depth_exr, write_flow_exr, write_json
+from synth.label_kinds import LabelFile, label_kinds, write_sequence_files
 from synth.overlap import overlap_fraction_counts
 
 WRITE_THREADS = 2
 MAX_PENDING = 40  # tasks in flight before `submit` waits (about three rig frames of six cameras)
 
 
-def _png_task(path: Path, rgb: np.ndarray, compression: int) -> str:
-    data = encode_png(rgb, compression)
+def _image_task(path: Path, rgb: np.ndarray, compression: int, jpeg_quality: int | None = None) -> str:
+    data = encode_png(rgb, compression) if jpeg_quality is None else encode_jpeg(rgb, jpeg_quality)
     # per-file fsync is skipped inside the .partial folder; one sync seals it (render_sequence)
     atomic_write_bytes(path, data, fsync=False)
     return hashlib.sha256(data).hexdigest()
@@ -54,7 +56,12 @@ def _flow_task(keys: tuple[str, str], paths: tuple[Path, Path], compression: int
     flow, valid = forward_flow(*args)
     write_flow_exr(paths[0], flow, fsync=False)
     return {keys[0]: sha256_file(paths[0]),
-            keys[1]: _png_task(paths[1], np.where(valid, 255, 0).astype(np.uint8), compression)}
+            keys[1]: _image_task(paths[1], np.where(valid, 255, 0).astype(np.uint8), compression)}
+
+
+def rgb_suffix(jpeg_quality: int | None) -> str:
+    """The suffix of an RGB image written with ``sensor.jpeg_quality`` = `jpeg_quality` (None: PNG)."""
+    return RGB_SUFFIXES["png" if jpeg_quality is None else "jpeg"]
 
 
 class FrameSink:
@@ -75,7 +82,14 @@ class FrameSink:
         return fut
 
     def png(self, key: str, path: Path, rgb: np.ndarray, compression: int) -> None:
-        self._files.append((key, self._submit(_png_task, path, rgb, compression)))
+        self._files.append((key, self._submit(_image_task, path, rgb, compression)))
+
+    def rgb(self, key: str, path: Path, rgb: np.ndarray, compression: int, jpeg_quality: int | None) -> None:
+        """A camera's RGB image: `key` and `path` without their suffix, which the format gives (`rgb_suffix`):
+        PNG at `compression`, or JPEG at `jpeg_quality` (``sensor.jpeg_quality``) when set."""
+        suffix = rgb_suffix(jpeg_quality)
+        self._files.append((key + suffix, self._submit(_image_task, path.with_name(path.name + suffix), rgb,
+                                                       compression, jpeg_quality)))
 
     def exr(self, key: str, path: Path, depth: np.ndarray) -> None:
         self._files.append((key, self._submit(_exr_task, path, depth)))
@@ -110,9 +124,21 @@ class FrameSink:
         self.close()
 
 
+@dataclass(frozen=True)
+class RenderedFrame:
+    """One rendered camera-frame as a label kind's writer sees it (`synth.label_kinds.LabelKind.write`)."""
+
+    cam: object  # the `synth.rig.CameraSpec`
+    frame: int
+    T_world_cam: np.ndarray
+    res: dict  # the renderer's read-back: depth, ego, layer, instance
+    inst: np.ndarray  # (H, W) uint16 object ids (`synth.labels.instance_map`)
+    x: float = 0.0  # its continuous frame index: `frame`, or its own trigger time (`synth.trigger`)
+
+
 class LabelFrames:
-    """A sequence's label files (`synth.labels`), fed one rendered camera-frame at a time: the semantic and
-    instance maps and the mover mask at once, each camera's forward flow t -> t+1 once t+1 is rendered."""
+    """A sequence's label files, fed one rendered camera-frame at a time: each kind of `kinds` (a row of
+    `synth.label_kinds`) writes through `png` / `flow_pair` / `json`; forward flow t -> t+1 once t+1 is rendered."""
 
     def __init__(self, sink: FrameSink, scene: Scene, kinds: list[str], seq: str, folder: Path,
                  compression: int) -> None:
@@ -125,32 +151,48 @@ class LabelFrames:
         self.mover_ids = np.array(sorted(self.mover_T), np.int32)
         self._prev: dict[str, tuple] = {}
 
-    def _file(self, cam: str, frame: int, suffix: str) -> tuple[str, Path]:
-        name = f"{frame_stem(frame)}.{suffix}"
-        return f"{self.seq}/{cam}/{name}", self.folder / cam / name
+    def _file(self, lf: LabelFile, cam: str | None = None, frame: int | None = None) -> tuple[str, Path]:
+        rel = lf.rel(self.seq, cam, frame)
+        return rel, self.folder / rel.split("/", 1)[1]
 
-    def add(self, cam, frame: int, T_world_cam: np.ndarray, res: dict) -> None:
-        from synth.labels import instance_map, mover_motion, semantic_map
+    def png(self, lf: LabelFile, f: RenderedFrame, img: np.ndarray) -> None:
+        """`img` as label file `lf` of camera-frame `f` (a PNG, written off the GL thread)."""
+        self.sink.png(*self._file(lf, f.cam.name, f.frame), img, self.compression)
 
-        name, depth, ego = cam.name, res["depth"], res["ego"]
-        inst = instance_map(res["instance"], ego, depth)
-        if "semantic" in self.kinds:
-            self.sink.png(*self._file(name, frame, "semantic.png"),
-                          semantic_map(res["layer"], res["instance"], ego, depth, self.classes), self.compression)
-        if "instance" in self.kinds:
-            self.sink.png(*self._file(name, frame, "instance.png"), inst, self.compression)
-        if "flow" not in self.kinds:
-            return
-        movers = np.isin(inst, self.mover_ids)
-        self.sink.png(*self._file(name, frame, "movers.png"), np.where(movers, 255, 0).astype(np.uint8),
-                      self.compression)
+    def flow_pair(self, f: RenderedFrame, flow: LabelFile, valid: LabelFile) -> None:
+        """The forward flow (and its validity) of `f`'s camera from the frame before `f` to `f`."""
+        from synth.labels import mover_motion
+
+        name, depth = f.cam.name, f.res["depth"]
         prev = self._prev.get(name)
+        x = f.x
         if prev is not None:
-            (d0, i0, e0, T0), f0 = prev, frame - 1
-            (k0, p0), (k1, p1) = self._file(name, f0, "flow.exr"), self._file(name, f0, "flow_valid.png")
-            args = (d0, i0, e0, cam.K, T0, T_world_cam, mover_motion(self.mover_T, f0), depth, inst)
+            (d0, i0, e0, T0, x0), f0 = prev, f.frame - 1
+            (k0, p0), (k1, p1) = self._file(flow, name, f0), self._file(valid, name, f0)
+            args = (d0, i0, e0, f.cam.K, T0, f.T_world_cam, mover_motion(self.mover_T, x0, x), depth, f.inst)
             self.sink.flow((k0, k1), (p0, p1), self.compression, args)
-        self._prev[name] = (depth, inst, ego, T_world_cam)
+        self._prev[name] = (depth, f.inst, f.res["ego"], f.T_world_cam, x)
+
+    def json(self, lf: LabelFile, doc) -> dict[str, str]:
+        """The sequence's file `lf` holding `doc`, written now: {relative path: sha256}."""
+        key, path = self._file(lf)
+        write_json(path, doc)
+        return {key: sha256_file(path)}
+
+    def add(self, cam, frame: int, T_world_cam: np.ndarray, res: dict, x: float | None = None) -> None:
+        """One camera-frame's labels; `x`: its continuous frame index (its own trigger time, `synth.trigger`;
+        None: `frame`), so its flow to the next frame moves the movers between the camera's two times."""
+        from synth.labels import instance_map
+
+        f = RenderedFrame(cam, frame, T_world_cam, res, instance_map(res["instance"], res["ego"], res["depth"]),
+                          frame if x is None else x)
+        for kind in label_kinds():
+            if kind.name in self.kinds:
+                kind.write(self, f)
+
+    def finish(self) -> dict[str, str]:
+        """The kinds' per-sequence files, written once every frame is: {relative path: sha256}."""
+        return write_sequence_files(self, self.kinds)
 
 
 def build_sequence_scene(cfg: DataConfig, index: int) -> Scene:

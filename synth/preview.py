@@ -2,7 +2,9 @@
 dataset with labels (class map, flow) per camera and a last row, the class legend (`synth.preview_labels`).
 
 Overlap column: the camera's RGB in grey, tinted blue where the previous camera in
-ring order sees the pixel, red where the next one does (purple: both).
+ring order sees the pixel, red where the next one does (purple: both). Cameras that fire at their own times
+(``rig.trigger``): each RGB tile's title gives the camera's offset from the frame time (``+7.1 ms``), and the
+overlap warps through each camera's own pose (`camera_poses`).
 
 The sheet carries a PNG text chunk (``Software: mcdp-synth preview``, written and read by Pillow's
 `PngImagePlugin`; sheets of earlier versions carry the same chunk): `--out` may name a new file or an
@@ -26,7 +28,8 @@ from corelib.atomic import atomic_write_bytes
 from corelib.rundir import FolderError, check_output_file
 from synth.dataset import Dataset, dataset_containing
 from synth.overlap import overlaps_by_neighbour
-from synth.preview_labels import label_tiles, legend
+from synth.label_kinds import preview_tiles
+from synth.preview_labels import legend
 
 SOFTWARE = "mcdp-synth preview"  # the value of the sheet's ``Software`` text chunk
 
@@ -157,6 +160,18 @@ def key_row(width: int, flow: bool) -> np.ndarray:
     return row
 
 
+def camera_titles(ds: Dataset, seq: str, frame: int) -> tuple[list[str], list[np.ndarray]]:
+    """Each camera's RGB title and the pose its overlap warps through: its name and static ``T_ego_cam``; with
+    trigger times (the manifest's ``trigger``) its name, its offset from the frame's time in ms and its own pose
+    (`Dataset.camera_poses`)."""
+    cams = list(ds.cameras)
+    if "trigger" not in ds.manifest:
+        return [c.name for c in cams], [c.T_ego_cam for c in cams]
+    ts, T = ds.camera_poses(seq)
+    t0 = float(ds.ego(seq)[frame]["timestamp_s"])
+    return [f"{c.name} {(ts[frame, i] - t0) * 1000:+.1f} ms" for i, c in enumerate(cams)], list(T[frame])
+
+
 def make_preview(ds: Dataset, out: str | Path, seq: str | None = None, frame: int = 0) -> Path:
     out = check_preview_target(out)  # before the overlap is computed
     seq = seq or ds.sequences[0]
@@ -168,7 +183,8 @@ def make_preview(ds: Dataset, out: str | Path, seq: str | None = None, frame: in
     depths = {n: ds.read_depth(seq, n, frame) for n in names}
     rows = []
     cams = list(ds.cameras)
-    dl, Ks, Ts = [depths[c.name] for c in cams], [c.K for c in cams], [c.T_ego_cam for c in cams]
+    titles, Ts = camera_titles(ds, seq, frame)
+    dl, Ks = [depths[c.name] for c in cams], [c.K for c in cams]
     masks = [ds.mask(c.name) for c in cams]
     for i, cam in enumerate(cams):
         rgb = ds.read_rgb(seq, cam.name, frame)
@@ -181,9 +197,9 @@ def make_preview(ds: Dataset, out: str | Path, seq: str | None = None, frame: in
         ov[by_next] = 0.5 * ov[by_next] + 0.5 * np.array([255, 60, 40])
         frac = (by_prev | by_next)[mask].mean() if mask.any() else 0.0
         m3 = np.repeat(mask[..., None].astype(np.uint8) * 255, 3, axis=2)
-        tiles = [_label(rgb, cam.name), _label(colorize_depth(depths[cam.name]), "depth"),
+        tiles = [_label(rgb, titles[i]), _label(colorize_depth(depths[cam.name]), "depth"),
                  _label(m3, f"mask ({(~mask).mean():.0%} ego)"), _label(ov.astype(np.uint8), f"overlap {frac:.0%}")]
-        tiles += [_label(img, text) for img, text in label_tiles(ds, seq, cam.name, frame)]
+        tiles += [_label(img, text) for img, text in preview_tiles(ds, seq, cam.name, frame)]
         rows.append(np.concatenate(tiles, axis=1))
     if "semantic" in ds.label_kinds:
         rows.append(legend(ds.classes, max(r.shape[1] for r in rows)))

@@ -1,5 +1,5 @@
 """The labels of the preview sheet (`synth.preview`): class maps in the class table's colours, forward flow as a
-colour image, the class legend.
+colour image, the class legend (each label kind's tiles: its row's ``show`` in `synth.label_kinds`).
 
 Flow colours: hue = the flow's direction (the HSV wheel, 0 deg = red = to the right, image v down), brightness =
 its length relative to the longest valid flow of the tile (the 99th percentile, named in the tile's caption);
@@ -8,7 +8,7 @@ forward flow: its tile shows the mover mask instead (white = a moving object).
 
 Example::
 
-    tiles = label_tiles(ds, seq, "CAM_FRONT", 0)       # [(class image, caption), (flow image, caption)]
+    rgb, scale = colorize_flow(*ds.read_flow(seq, "CAM_FRONT", 0))   # hue = direction, full brightness = scale
 """
 from __future__ import annotations
 
@@ -35,24 +35,6 @@ def colorize_flow(flow: np.ndarray, valid: np.ndarray) -> tuple[np.ndarray, floa
     rgb = cv2.cvtColor(hsv, cv2.COLOR_HSV2RGB)
     rgb[~valid] = 0
     return rgb, scale
-
-
-def label_tiles(ds, seq: str, cam: str, frame: int) -> list[tuple[np.ndarray, str]]:
-    """The label tiles of one camera-frame: the class map (with semantic labels) and the flow, or the mover mask
-    at the sequence's last frame (with flow labels); [] for a dataset without labels."""
-    tiles = []
-    kinds = ds.label_kinds
-    if "semantic" in kinds:
-        tiles.append((colorize_classes(ds.read_semantic(seq, cam, frame), ds.classes), "classes"))
-    if "flow" in kinds:
-        if frame < ds.n_frames(seq) - 1:
-            flow, valid = ds.read_flow(seq, cam, frame)
-            rgb, scale = colorize_flow(flow, valid)
-            tiles.append((rgb, f"flow ({scale:.1f} px)"))
-        else:
-            movers = ds.read_movers(seq, cam, frame)
-            tiles.append((np.repeat(movers[..., None].astype(np.uint8) * 255, 3, axis=2), "movers"))
-    return tiles
 
 
 def legend(classes: list[dict], width: int, line_h: int = 18) -> np.ndarray:

@@ -40,6 +40,8 @@ from synth.manifest import (MARKER_DIR, RECORD, assign_splits, began_with, compl
 from synth.photometry import SequencePhotometry
 from synth.pipeline import FrameSink, LabelFrames, ScenePrefetch, build_sequence_scene
 from synth.rig import Rig, build_rig, ego_body_mesh
+from synth.shutter import Shutter
+from synth.trigger import CameraTimes
 
 MAX_WORKERS = 256  # render processes on one machine (the sweep's `workers` has the same bound)
 
@@ -118,6 +120,8 @@ def render_sequence(cfg_dict: dict, out_dir: str, index: int, progress_queue=Non
     seq_light = draw_sequence_lighting(cfg.lighting, rig.names, np.random.default_rng(light_ss))
     flicker_rng = np.random.default_rng(flicker_ss)
     photo = SequencePhotometry.for_sequence(cfg, index, rig, seq_light)  # None: the renderer's bytes
+    times = CameraTimes.for_sequence(cfg, rig, scene)  # None: every camera at the frame time
+    shutter = Shutter.for_config(cfg)  # None: one render per image, at the camera's time
     from synth.files import read_png
     masks = {name: read_png(out / "masks" / f"{name}.png", gray=True) for name in rig.names}
     r = renderer_for(cfg)
@@ -133,22 +137,29 @@ def render_sequence(cfg_dict: dict, out_dir: str, index: int, progress_queue=Non
             T_world_ego = scene.T_world_ego[f]
             depths = {}
             for c, cam in enumerate(rig.cameras):
-                T_world_cam = T_world_ego @ cam.T_ego_cam
-                res = r.render(cam.K, T_world_cam, f, seq_light.light, gains[cam.name],
-                               size=(cam.width, cam.height), labels=bool(kinds))
+                x = f if times is None else times.frame_index(c, f)  # each camera at its own time
+                T_world_cam = (T_world_ego if times is None else times.T_world_ego(c, f)) @ cam.T_ego_cam
+                if shutter is None:
+                    res = r.render(cam.K, T_world_cam, x, seq_light.light, gains[cam.name],
+                                   size=(cam.width, cam.height), labels=bool(kinds))
+                else:  # several times per image (synth.shutter): the ego and the movers at each
+                    res = shutter.render(lambda xs, cam=cam, g=gains[cam.name]: r.render(
+                        cam.K, scene.ego_pose_at(xs) @ cam.T_ego_cam, xs, seq_light.light, g,
+                        size=(cam.width, cam.height), labels=bool(kinds)), x, cam.height)
                 stem = frame_stem(f)
                 rgb = res["rgb"] if photo is None else photo.apply(c, cam, f, res["rgb"], res["depth"], gains[cam.name])
-                sink.png(f"{seq}/{cam.name}/{stem}.png", partial / cam.name / f"{stem}.png", rgb,
-                         cfg.render.png_compression)
+                sink.rgb(f"{seq}/{cam.name}/{stem}", partial / cam.name / stem, rgb, cfg.render.png_compression,
+                         cfg.sensor.jpeg_quality)  # .png, or .jpg with sensor.jpeg_quality
                 sink.exr(f"{seq}/{cam.name}/{stem}.depth.exr", partial / cam.name / f"{stem}.depth.exr",
                          res["depth"])
                 depths[cam.name] = res["depth"]
                 if labels is not None:
-                    labels.add(cam, f, T_world_cam, res)
-            sink.overlap(depths, masks, rig.cameras, rig.neighbours)
+                    labels.add(cam, f, T_world_cam, res, x)
+            sink.overlap(depths, masks, rig.cameras if times is None else times.cameras_at(f), rig.neighbours)
             frames_json.append({"frame": f, "timestamp_s": f / cfg.dataset.fps, "T_world_ego": T_world_ego.tolist(),
                                 "lighting": {"camera_gain": {k: list(v) for k, v in gains.items()}},
-                                **(photo.frame_record() if photo is not None else {})})
+                                **(photo.frame_record() if photo is not None else {}),
+                                **(times.frame_record(f) if times is not None else {})})
             if progress_queue is not None:
                 progress_queue.put(1)
         files, counts = sink.results()
@@ -156,10 +167,8 @@ def render_sequence(cfg_dict: dict, out_dir: str, index: int, progress_queue=Non
            "lighting": seq_light.to_json(), "frames": frames_json}
     write_json(partial / "ego.json", ego)
     files[f"{seq}/ego.json"] = sha256_file(partial / "ego.json")
-    if "instance" in kinds:
-        from scenes.labels import instance_table
-        write_json(partial / "instances.json", {"sequence": seq, "instances": instance_table(scene)})
-        files[f"{seq}/instances.json"] = sha256_file(partial / "instances.json")
+    if labels is not None:
+        files.update(labels.finish())  # a kind's per-sequence files (instances.json)
     record = {"sequence": seq, "index": index, "frames": cfg.dataset.frames, "files": files, "labels": kinds,
               "overlap_counts": counts, "scene": scene.info, "time_of_day": seq_light.time_of_day,
               "seconds": time.perf_counter() - t0, "scene_seconds": t_scene,

@@ -29,7 +29,7 @@ from dataclasses import dataclass
 from typing import Literal
 
 import numpy as np
-from pydantic import Field, field_validator
+from pydantic import Field, field_validator, model_validator
 
 from scenes.model import Mesh
 from corelib.configlib import StrictModel, added_key
@@ -45,6 +45,8 @@ _R_BODY_CV = np.array([[0.0, 0.0, 1.0], [-1.0, 0.0, 0.0], [0.0, -1.0, 0.0]])
 #: the largest image side of a camera (pixels): the config's bound, and what a manifest may claim and a reader
 #: decodes (`synth.dataset.check_manifest_keys`, `synth.files.read_png`)
 MAX_CAMERA_PX = 4096
+#: the largest trigger offset of a camera from its frame's time (ms, either way): `RigConfig.trigger_offsets_ms`
+MAX_TRIGGER_MS = 500.0
 
 
 class CameraConfig(StrictModel):
@@ -101,6 +103,9 @@ class RigConfig(StrictModel):
     ``cameras``: per-camera overrides of hfov, yaw, pitch, mount and image size (`CameraOverride`), applied
     over the solved layout, e.g. ``rig.cameras.CAM_BACK.hfov_deg=110`` or ``rig.cameras.CAM_BACK.width=480``
     (real rigs: configs/data/nuscenes_like.yaml).
+    ``trigger``: when each camera fires within a frame (`synth.trigger`): ``synchronous`` (all at the frame
+    time), ``offsets`` (``trigger_offsets_ms``, one per camera in rig order, each within +-`MAX_TRIGGER_MS`)
+    or ``lidar_sweep`` (as the LiDAR rotating at ``lidar_hz`` passes each camera's yaw, as in nuScenes).
     """
 
     overlap: float = Field(0.25, ge=0.10, le=0.60)
@@ -111,6 +116,26 @@ class RigConfig(StrictModel):
     znear_m: float = Field(0.01, ge=0.001, le=2.0)
     zfar_m: float = Field(400.0, ge=50.0, le=5000.0)
     cameras: dict[str, CameraOverride] = added_key(default_factory=dict)
+    # added keys (issue 48): synchronous, the frame's bytes are those rendered without them
+    trigger: Literal["synchronous", "offsets", "lidar_sweep"] = added_key("synchronous")
+    trigger_offsets_ms: list[float] | None = added_key(None)
+    lidar_hz: float = added_key(20.0, ge=2.0, le=100.0)
+
+    @field_validator("trigger_offsets_ms")
+    @classmethod
+    def _offsets(cls, v):
+        if v is not None and not (len(v) == len(CAMERA_NAMES)
+                                  and all(math.isfinite(x) and abs(x) <= MAX_TRIGGER_MS for x in v)):
+            raise ValueError(f"rig.trigger_offsets_ms must be {len(CAMERA_NAMES)} numbers (ms, one per camera: "
+                             f"{', '.join(CAMERA_NAMES)}) within +-{MAX_TRIGGER_MS:g}, got {str(v)[:200]}")
+        return v
+
+    @model_validator(mode="after")
+    def _trigger(self) -> "RigConfig":
+        if (self.trigger == "offsets") != (self.trigger_offsets_ms is not None):
+            raise ValueError("rig.trigger_offsets_ms is set exactly when rig.trigger=offsets (got rig.trigger="
+                             f"{self.trigger}, rig.trigger_offsets_ms={self.trigger_offsets_ms})")
+        return self
 
     @field_validator("cameras")
     @classmethod

@@ -26,13 +26,17 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
-from pydantic import Field, field_validator
+from pydantic import Field, field_validator, model_validator
 
-from corelib.configlib import StrictModel
+from corelib.configlib import StrictModel, added_key
 
 SENSOR_DRAWS, SENSOR_NOISE = 0x5E75, 0x5E76  # seed streams of their own (no other draw of a sequence moves)
 _LUMA = np.array([0.2126, 0.7152, 0.0722])  # Rec. 709 luminance of linear RGB
 MAX_EV = 8.0  # auto-exposure's correction is clamped to +-MAX_EV (a black or a white frame)
+MAX_SHUTTER_MS = 100.0  # an exposure or a rolling read-out longer than this is not a driving camera's
+#: the keys of the shutter (`synth.shutter`): they decide which times are rendered, not what the sensor does
+#: to a formed image, so `is_identity` does not look at them
+SHUTTER_KEYS = ("exposure_ms", "subframes", "rolling_shutter_ms", "rolling_bands")
 
 
 class SensorConfig(StrictModel):
@@ -56,6 +60,16 @@ class SensorConfig(StrictModel):
         electrons); shot noise has variance noise * I. 0 = none.
     read_noise_e: read noise in electrons (Gaussian, sigma = read_noise_e * noise in linear units); only with
         ``noise`` > 0.
+    jpeg_quality: null = the image is written as PNG (lossless); 1..100 = as JPEG at that quality
+        (``<frame>.jpg``, as nuScenes ships its camera images; the manifest's ``rgb`` records it). The last step,
+        after the knobs above; it changes the file, not the image the sensor formed. An added key: unset, it is
+        not hashed (a sensor section hashed before it existed keeps its hash).
+    exposure_ms: motion blur (`synth.shutter`): the shutter is open this long, centred on the camera's time;
+        0 = an instant (no blur). Needs ``subframes`` >= 2.
+    subframes: K renders spread evenly over the exposure, averaged in linear light (1..16; 1 with no exposure).
+    rolling_shutter_ms: rows read out top to bottom over this time, centred on the camera's time; 0 = global.
+    rolling_bands: the rolling read-out's bands of rows, each rendered at its own time (2..32; with
+        ``subframes`` K, K renders a band).
     """
 
     exposure_ev: float | list[float] = Field(0.0, description="EV offset, one or one per camera")
@@ -67,6 +81,19 @@ class SensorConfig(StrictModel):
     vignetting: float = Field(0.0, ge=0.0, lt=1.0)
     noise: float = Field(0.0, ge=0.0, le=0.5)
     read_noise_e: float = Field(2.0, ge=0.0, le=100.0)
+    jpeg_quality: int | None = added_key(None, ge=1, le=100, description="null = PNG; 1..100 = JPEG at that quality")
+    # added keys: at their defaults (an instant, a global shutter) every hash and byte is as before
+    exposure_ms: float = added_key(0.0, ge=0.0, le=MAX_SHUTTER_MS)
+    subframes: int = added_key(1, ge=1, le=16)
+    rolling_shutter_ms: float = added_key(0.0, ge=0.0, le=MAX_SHUTTER_MS)
+    rolling_bands: int = added_key(8, ge=2, le=32)
+
+    @model_validator(mode="after")
+    def _blur(self) -> "SensorConfig":
+        if (self.exposure_ms > 0) != (self.subframes > 1):
+            raise ValueError(f"motion blur takes both sensor.exposure_ms > 0 and sensor.subframes >= 2 (got "
+                             f"exposure_ms={self.exposure_ms:g}, subframes={self.subframes}); set both, or neither")
+        return self
 
     @field_validator("exposure_ev")
     @classmethod
@@ -95,8 +122,11 @@ class SensorConfig(StrictModel):
         return v
 
     def is_identity(self) -> bool:
-        """True when every knob is off: the sensor leaves the renderer's bytes as they are."""
-        return self == SensorConfig()
+        """True when every photometric knob is off: the sensor leaves the formed image's bytes as they are (the
+        file format, ``jpeg_quality``, is `synth.pipeline.FrameSink.rgb`'s; the shutter's keys, `SHUTTER_KEYS`,
+        choose the times that form it)."""
+        default = SensorConfig()
+        return self.model_copy(update={"jpeg_quality": None, **{k: getattr(default, k) for k in SHUTTER_KEYS}}) == default
 
 
 @dataclass(frozen=True)

@@ -12,13 +12,11 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Iterable
 
-import numpy as np
-
 from corelib.hashing import changed_sections, json_sha256, section_digests, sha256_file
 from synth.dataset import (INTEGRITY, MANIFEST, SCHEMA_VERSION, short_list, check_manifest_keys,
-                           check_manifest_names, check_rig)
-from synth.files import MAX_READ_BYTES, DatasetError, frame_stem, read_json, read_png, regular_file, within
-from synth.label_reader import instance_ids
+                           check_manifest_names, check_rig, rgb_suffix)
+from synth.files import MAX_READ_BYTES, DatasetError, frame_stem, read_json, regular_file, within
+from synth.label_kinds import expected_files, label_kinds
 from synth.sizes import camera_sizes, size_problems
 
 _MANIFEST_DEPTH, _RIG_DEPTH = 2, 3  # "splits.train", "sequences.seq_0003"; "cameras[CAM_FRONT].K"
@@ -109,21 +107,17 @@ def verify_dataset(root: str | Path, progress: bool = False) -> list[str]:
     # every expected frame file is listed
     cams = manifest.get("cameras", [])
     kinds = (manifest.get("labels") or {}).get("kinds") or []
-    every = [".png", ".depth.exr"] + [s for k, s in (("semantic", ".semantic.png"), ("instance", ".instance.png"),
-                                                     ("flow", ".movers.png")) if k in kinds]
     for seq, info in manifest.get("sequences", {}).items():
         n = int(info["frames"])
-        if "instance" in kinds and f"{seq}/instances.json" not in files:
-            problems.append(f"{root / seq / 'instances.json'}: not listed in the manifest")
+        expected = expected_files(kinds, seq, None, None, n)  # a label kind's per-sequence files
         for cam in cams:
             for f in range(n):
-                flow = [".flow.exr", ".flow_valid.png"] if "flow" in kinds and f < n - 1 else []
-                for suffix in every + flow:
-                    rel = f"{seq}/{cam}/{frame_stem(f)}{suffix}"
-                    if rel not in files:
-                        problems.append(f"{root / rel}: not listed in the manifest")
-    if "instance" in kinds:
-        problems += instance_problems(root, manifest)
+                expected += [f"{seq}/{cam}/{frame_stem(f)}{s}" for s in (rgb_suffix(manifest), ".depth.exr")]
+                expected += expected_files(kinds, seq, cam, f, n)
+        problems += [f"{root / rel}: not listed in the manifest" for rel in expected if rel not in files]
+    for kind in label_kinds():  # each held label kind's own checks (the object ids of the instance maps)
+        if kind.name in kinds and kind.verify is not None:
+            problems += kind.verify(root, manifest)
     return problems
 
 
@@ -160,29 +154,3 @@ def _absent(p: Path) -> str:
     except DatasetError as exc:
         return str(exc)
     return f"{p}: not readable"
-
-
-def instance_problems(root: Path, manifest: dict) -> list[str]:
-    """Every listed instance map holding an object id its sequence's instances.json lacks (a problem naming the
-    map and up to 6 ids); an instances.json that is unreadable or whose ids are not 1..65535, each once (a problem
-    naming it). A map or table already reported (missing, altered) is read as it is, or skipped when unreadable."""
-    files, problems = manifest.get("files", {}), []
-    for seq in manifest.get("sequences", {}):
-        table = root / seq / "instances.json"
-        if not table.is_file():
-            continue  # reported above: missing, not a regular file, or not listed
-        try:
-            ids = instance_ids(read_json(within(root, table, "", "dataset root", "is a link to")), table)
-        except DatasetError as exc:
-            problems.append(str(exc))
-            continue
-        for rel in sorted(r for r in files if r.startswith(f"{seq}/") and r.endswith(".instance.png")):
-            p = root / rel
-            try:
-                found = np.unique(read_png(within(root, p, "", "dataset root", "is a link to"), depth16=True))
-            except DatasetError:
-                continue  # reported above (missing, a link out, altered) or by its checksum
-            unknown = [int(i) for i in found if i and int(i) not in ids]
-            if unknown:
-                problems.append(f"{p}: object id(s) {short_list([str(i) for i in unknown])} not in {table}")
-    return problems

@@ -13,7 +13,8 @@
     world/ego/body                Mesh3D: the ego body, ego frame (static)
     world/ego/points_gt           Points3D: ground-truth depth of every camera back-projected, ego frame
     world/ego/<CAM>               Transform3D = T_ego_cam and Pinhole(K, resolution, camera_xyz=RDF, image
-                                  plane 1.5 m from the camera in the 3-D view) (static)
+                                  plane 1.5 m from the camera in the 3-D view) (static; cameras that fire at
+                                  their own times: the Transform3D per frame, below)
     world/ego/<CAM>/rgb           EncodedImage: the dataset's PNG bytes, per frame
     world/ego/<CAM>/depth         DepthImage, float32 z-depth in metres (meter=1), 0 = no surface, per frame
     world/ego/<CAM>/ego_mask      SegmentationImage (static): 0 = ego body, 1 = scene
@@ -23,6 +24,12 @@
     world/lidar                   Points3D, world frame: the sample's LIDAR_TOP sweep (nuScenes datasets only)
     world/ego/<CAM>/semantic, flow   a dataset with labels: the class map and the forward flow's arrows
                                   (`synth.view_labels`); absent without labels
+
+Cameras that fire at their own times (``rig.trigger``; a nuScenes dataroot whose cameras' ``sample_data``
+times differ): each camera's rgb, depth, overlap and labels are logged at its own time (``camera_poses``), with
+its Transform3D = its pose then in the ego frame of its frame (so under the frame's ``world/ego`` it stands
+where it fired); the frame's ego pose, points and LiDAR stay at the frame's time. Played, the cameras update
+one after the other as they fired; the back-projected points use each camera's own pose.
 
 The meshes need the synth dataset's manifest config (the scene is rebuilt from it); a nuScenes dataroot
 gets no mesh. The recording carries its blueprint (`synth.view_blueprint`: a 3-D world view beside the
@@ -49,7 +56,9 @@ from corelib.atomic import atomic_pipe
 from corelib.rundir import FolderError, check_output_file
 from synth.extras import VIZ_INSTALL as INSTALL
 from synth.overlap import neighbours_of, overlaps_by_neighbour
-from synth.view_labels import class_context, flow_arrows
+from synth.protocol import pixel_rays_at
+from synth.label_kinds import label_kinds as label_table
+from synth.view_labels import class_context
 
 APP_ID = "mcdp_synth"
 TIMELINE = "time"
@@ -147,13 +156,15 @@ def blueprint_of(ds, seq: str, stages=(), labels: bool = False):
 
     from synth.view_blueprint import rig_blueprint
 
+    shown = label_kinds(ds, labels)
     return rig_blueprint(rrb, ds.cameras, RigRecorder.cam_path, stages, ds.ego(seq)[0]["T_world_ego"],
-                         labels=bool(label_kinds(ds, labels)))
+                         labels=tuple(k.name for k in label_table() if k.log is not None) if shown else ())
 
 
 def label_kinds(ds, labels: bool = True) -> set[str]:
-    """The labels a recording of `ds` shows: some of {"semantic", "flow"} (none unless `labels`)."""
-    return set(ds.label_kinds) & {"semantic", "flow"} if labels else set()
+    """The labels a recording of `ds` shows: the held kinds whose row logs itself (``log``: semantic, flow;
+    `synth.label_kinds`), none unless `labels`."""
+    return {k.name for k in label_table() if k.log is not None and k.name in ds.label_kinds} if labels else set()
 
 
 def scene_model(ds, seq: str):
@@ -189,7 +200,7 @@ def backproject(depth: np.ndarray, K: np.ndarray, T_ego_cam: np.ndarray, keep: n
     z = depth[v, u]
     ok = keep[v, u] & (z > 0)
     v, u, z = v[ok], u[ok], z[ok].astype(np.float64)
-    X = np.linalg.inv(np.asarray(K, np.float64)) @ np.stack([u + 0.5, v + 0.5, np.ones_like(z)]) * z
+    X = pixel_rays_at(K, u, v) * z
     T = np.asarray(T_ego_cam, np.float64)
     return (T[:3, :3] @ X + T[:3, 3:4]).T.astype(np.float32), v, u
 
@@ -210,6 +221,7 @@ class RigRecorder:
         self.model = None  # (DataConfig, Scene) once `log_sequence` rebuilt it
         self.rgb: dict[str, np.ndarray] = {}  # the last logged frame's images, per camera
         self.labels = label_kinds(ds, labels)  # shown labels (`synth.view_labels`)
+        self.times, self.poses = own_times(ds, seq)  # None, None: the cameras fire at the frame's time
 
     @staticmethod
     def cam_path(name: str) -> str:
@@ -221,7 +233,8 @@ class RigRecorder:
         for c, cam in enumerate(self.ds.cameras):
             path = self.cam_path(cam.name)
             T = np.asarray(cam.T_ego_cam, np.float64)
-            rec.log(path, rr.Transform3D(translation=T[:3, 3], mat3x3=T[:3, :3]), static=True)
+            if self.times is None:  # else per frame at the camera's own time (`log_frame`)
+                rec.log(path, rr.Transform3D(translation=T[:3, 3], mat3x3=T[:3, :3]), static=True)
             rec.log(path, rr.Pinhole(image_from_camera=np.asarray(cam.K, np.float64),
                                      resolution=[cam.width, cam.height], camera_xyz=rr.ViewCoordinates.RDF,
                                      image_plane_distance=FRUSTUM_M),
@@ -266,8 +279,18 @@ class RigRecorder:
         self.rec.set_time(TIMELINE, duration=t)
         return t
 
+    def set_camera_time(self, frame: int, c: int) -> None:
+        """Camera `c`'s own time at `frame` with its pose then (cameras that fire at their own times); else as is."""
+        if self.times is None:
+            return
+        self.rec.set_time(TIMELINE, duration=self.offset + float(self.times[frame, c]))
+        T = self.poses[frame, c]
+        self.rec.log(self.cam_path(self.ds.cameras[c].name), self.rr.Transform3D(translation=T[:3, 3],
+                                                                                  mat3x3=T[:3, :3]))
+
     def log_frame(self, frame: int) -> dict[str, np.ndarray]:
-        """Log frame `frame` (sets the time); returns the ground-truth depth per camera."""
+        """Log frame `frame` (sets the time; each camera's at its own when they fire apart); returns the
+        ground-truth depth per camera. Ends at the frame's time."""
         rr, rec, ds = self.rr, self.rec, self.ds
         self.set_frame(frame)
         T_we = np.asarray(self.ego[frame]["T_world_ego"], np.float64)
@@ -277,13 +300,16 @@ class RigRecorder:
             rec.log(f"world/scene/{m.name}", rr.Transform3D(translation=T[:3, 3], mat3x3=T[:3, :3]))
         depths, pts, cols = {}, [], []
         self.rgb = {}
-        for cam in ds.cameras:
+        Ts = [c.T_ego_cam for c in ds.cameras] if self.poses is None else list(self.poses[frame])
+        for c, cam in enumerate(ds.cameras):
             path = self.cam_path(cam.name)
+            self.set_camera_time(frame, c)
             rgb = ds.read_rgb(self.seq, cam.name, frame)  # checked: size, readable
             self.rgb[cam.name] = rgb
-            png = ds.rgb_path(self.seq, cam.name, frame)
-            if png.suffix == ".png" and ds.format == "synth":
-                rec.log(f"{path}/rgb", rr.EncodedImage(contents=ds.read_bytes(png), media_type="image/png"))
+            src = ds.rgb_path(self.seq, cam.name, frame)
+            media = {".png": "image/png", ".jpg": "image/jpeg"}.get(src.suffix)  # the file as it is stored
+            if media and ds.format == "synth":
+                rec.log(f"{path}/rgb", rr.EncodedImage(contents=ds.read_bytes(src), media_type=media))
             else:
                 rec.log(f"{path}/rgb", rr.Image(rgb))
             self._log_labels(path, cam.name, frame)
@@ -292,18 +318,22 @@ class RigRecorder:
                 continue
             depths[cam.name] = depth
             rec.log(f"{path}/depth", rr.DepthImage(depth, meter=1.0))
-            p, v, u = backproject(depth, cam.K, cam.T_ego_cam, np.asarray(ds.mask(cam.name), bool), self.stride)
+            p, v, u = backproject(depth, cam.K, Ts[c], np.asarray(ds.mask(cam.name), bool), self.stride)
             pts.append(p)
             cols.append(rgb[v, u])
         if depths:
             cams = list(ds.cameras)
-            dl, Ks, Ts = [depths[c.name] for c in cams], [c.K for c in cams], [c.T_ego_cam for c in cams]
+            dl, Ks = [depths[c.name] for c in cams], [c.K for c in cams]
             masks = [ds.mask(c.name) for c in cams]
             for c, cam in enumerate(cams):
                 code = np.zeros((cam.height, cam.width), np.uint8)
                 for b, ov in enumerate(overlaps_by_neighbour(c, dl, Ks, Ts, masks, self.nbrs[cam.name][:2])):
                     code |= ov.astype(np.uint8) << b
+                if self.times is not None:
+                    rec.set_time(TIMELINE, duration=self.offset + float(self.times[frame, c]))
                 rec.log(f"{self.cam_path(cam.name)}/overlap", rr.SegmentationImage(code))
+        self.set_frame(frame)  # the frame's points, each camera's at its own pose: in the ego frame of its time
+        if pts:
             rec.log("world/ego/points_gt", rr.Points3D(np.concatenate(pts), colors=np.concatenate(cols), radii=0.05))
         if self.lidar is not None:
             rec.log("world/lidar", rr.Points3D(np.asarray(self.lidar(self.seq, frame), np.float32), radii=0.05,
@@ -312,15 +342,21 @@ class RigRecorder:
 
     def _log_labels(self, path: str, cam: str, frame: int) -> None:
         """The camera-frame's class map and flow arrows (`synth.view_labels`), where the dataset has them."""
-        rr, rec, ds = self.rr, self.rec, self.ds
-        sem = ds.read_semantic(self.seq, cam, frame) if "semantic" in self.labels else None
-        if sem is not None:
-            rec.log(f"{path}/semantic", rr.SegmentationImage(sem))
-        if "flow" in self.labels:
-            if frame < ds.n_frames(self.seq) - 1:
-                rec.log(f"{path}/flow", flow_arrows(rr, *ds.read_flow(self.seq, cam, frame), sem))
-            else:
-                rec.log(f"{path}/flow", rr.Clear(recursive=False))  # no forward flow at the last frame
+        shown: dict = {}  # each kind's logged value, in table order (the flow arrows take the classes' colours)
+        for kind in label_table():
+            if kind.name in self.labels:
+                shown[kind.name] = kind.log(self.rr, self.rec, path, self.ds, self.seq, cam, frame, shown)
+
+
+def own_times(ds, seq: str) -> tuple[np.ndarray | None, np.ndarray | None]:
+    """(F, N) each camera's timestamp_s and (F, N, 4, 4) its pose in its frame's ego frame (the reader's
+    ``camera_poses``) when some camera of `seq` fires off its frame's time; (None, None) otherwise."""
+    get = getattr(ds, "camera_poses", None)
+    if get is None:
+        return None, None
+    ts, T = get(seq)
+    frame_ts = np.asarray([float(e.get("timestamp_s", f / ds.fps)) for f, e in enumerate(ds.ego(seq))])
+    return (None, None) if np.array_equal(ts, np.repeat(frame_ts[:, None], ts.shape[1], 1)) else (ts, T)
 
 
 def record_rig(dataset: str | Path, out: str | Path, seq: str | None = None, frames: str | None = None,

@@ -59,12 +59,13 @@ def eye(rrb, T_world_ego) -> object:
     return rrb.EyeControls3D(position=at(EYE_EGO_M), look_target=at(TARGET_EGO_M), eye_up=[0.0, 0.0, 1.0])
 
 
-def rig_blueprint(rrb, cameras, cam_path, stages=(), T_world_ego=None, labels: bool = False) -> object:
+def rig_blueprint(rrb, cameras, cam_path, stages=(), T_world_ego=None, labels: tuple[str, ...] = ()) -> object:
     """The blueprint (module docstring) for `cameras` (`synth.rig` cameras), whose entities sit under
     ``cam_path(name)``; `stages`: the predicted stages with a tab each; `T_world_ego`: the first frame's ego pose
-    (the 3-D view starts behind the car), or None for Rerun's own view of everything; `labels`: a labels tab."""
+    (the 3-D view starts behind the car), or None for Rerun's own view of everything; `labels`: the label entities
+    of a labels tab (`synth.label_kinds`: the kinds that log themselves), () for none."""
     names, cols = ring_order(cameras)
-    masks = ("ego_mask", "overlap", *(("semantic", "flow") if labels else ()))
+    masks = ("ego_mask", "overlap", *labels)
 
     def grid(title, shown, hidden, name_suffix=""):
         views = []
@@ -79,7 +80,7 @@ def rig_blueprint(rrb, cameras, cam_path, stages=(), T_world_ego=None, labels: b
     for s in stages:
         tabs.append(grid(f"depth {s}", [f"pred/{s}/depth"], [f"pred/{s}/abs_rel", *masks], f" {s}"))
     if labels:
-        tabs.append(grid("labels", ["rgb", "semantic", "flow"], ["depth", "ego_mask", "overlap"], " labels"))
+        tabs.append(grid("labels", ["rgb", *labels], ["depth", "ego_mask", "overlap"], " labels"))
     hidden_3d = [f"{cam_path(n)}/{p}" for n in names for p in ("depth", *masks, "pred")]
     world = rrb.Spatial3DView(origin="world", name="world: rig, mesh, trajectory, points",
                               overrides=_hide(rrb, hidden_3d),

@@ -69,9 +69,10 @@ def draw_fog_density(cfg: WeatherConfig, seed: int, index: int) -> float:
 
 def ray_distance(depth: np.ndarray, K: np.ndarray) -> np.ndarray:
     """(H, W) z-depth in metres (0 = no surface) -> (H, W) distance along each pixel centre's ray (0 stays 0)."""
+    from synth.protocol import pixel_rays
+
     H, W = depth.shape
-    u, v = np.meshgrid(np.arange(W) + 0.5, np.arange(H) + 0.5)
-    rays = np.stack([u, v, np.ones_like(u)], -1) @ np.linalg.inv(K).T  # (H, W, 3) at z = 1
+    rays = pixel_rays(K, W, H)  # (H, W, 3) at z = 1
     return depth.astype(np.float64) * np.linalg.norm(rays, axis=-1)
 
 

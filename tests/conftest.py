@@ -98,9 +98,10 @@ def ns_root(tiny_dataset, tmp_path_factory):
     """The tiny dataset exported as a nuScenes dataroot (version v1.0-synth), once per test module: tests
     read it, or change a copy of it."""
     from synth.nuscenes.export import export_nuscenes
+    from synth.open import open_dataset
 
     out = tmp_path_factory.mktemp("ns") / "root"
-    export_nuscenes(tiny_dataset, out, version="v1.0-synth")
+    export_nuscenes(open_dataset(tiny_dataset), out, version="v1.0-synth")
     return out
 
 

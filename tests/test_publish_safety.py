@@ -56,7 +56,7 @@ def test_the_sweeps_plots_replace_linked_files_of_a_copied_sweep(tmp_path):
     """A `cp -a` copy of a sweep folder whose plots are links to the original's: a rerun's plots replace the
     links and leave the original's files as they were."""
     from study.plots import make_plots
-    from study.results import read_results
+    from study.results_files import read_results
 
     orig = tmp_path / "orig"
     orig.mkdir()

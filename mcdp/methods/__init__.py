@@ -26,7 +26,7 @@ A method's own inputs: the `mcdp.inputs.InputField`s its network declares (``Dep
 `fields_of` is what a run's data reader fills.
 
 A report reads a method through its row and network class, never its name: ``has_bases`` and
-``fresh_layers(model_config(row))`` (`study.report.warm_start_line`), and the row's report flags: ``baseline``
+``fresh_layers(model_config(row))`` (`study.pretrain.warm_start_line`), and the row's report flags: ``baseline``
 (the row every other is paired against; a row's ``role``, "baseline", "method" or "yardstick", is derived: a
 row whose network reads ground truth, ``reads_ground_truth()``, is a yardstick), ``short`` (its label in a table column),
 ``nocon_of`` (the row it is trained without L_con) and ``reach`` (what `study.reach`, `study.primary` and

@@ -130,6 +130,27 @@ class NuScenesDataset(NoLabels):
     def T_world_ego(self, seq: str) -> np.ndarray:
         return np.stack([f["T_world_ego"] for f in self._seq(seq)]).astype(np.float64)
 
+    def camera_poses(self, seq: str) -> tuple[np.ndarray, np.ndarray]:
+        """(F, N) each camera's timestamp_s and (F, N, 4, 4) its pose in the ego frame of its frame's time, from its
+        own ``sample_data``: ``T_world_ego(f)^-1 @ ego_pose(camera) @ T_ego_cam`` (the frame's time and pose are
+        CAM_FRONT's, `T_world_ego`), the contract of `synth.dataset.Dataset.camera_poses`. A camera whose ego_pose
+        is the frame's (a synchronous export) gets the static ``T_ego_cam`` itself."""
+        frames = self._seq(seq)
+        ts = np.empty((len(frames), len(self.cameras)), np.float64)
+        T = np.empty((len(frames), len(self.cameras), 4, 4), np.float64)
+        for f, fr in enumerate(frames):
+            T_ego_world, t_front = None, fr["cams"]["CAM_FRONT"]["timestamp"]
+            for c, spec in enumerate(self.cameras):
+                rec = fr["cams"][spec.name]
+                ts[f, c] = fr["timestamp_s"] + (rec["timestamp"] - t_front) / 1e6
+                if np.array_equal(rec["T_world_ego"], fr["T_world_ego"]):
+                    T[f, c] = spec.T_ego_cam
+                    continue
+                if T_ego_world is None:
+                    T_ego_world = np.linalg.inv(fr["T_world_ego"])
+                T[f, c] = T_ego_world @ rec["T_world_ego"] @ spec.T_ego_cam
+        return ts, T
+
     def rgb_path(self, seq: str, cam: str, frame: int) -> Path:
         return self.root / self._cam(seq, cam, frame)["filename"]
 

@@ -23,7 +23,8 @@ from __future__ import annotations
 import numpy as np
 
 from corelib.atomic import atomic_write_bytes
-from synth.files import DatasetError, frame_stem
+from synth.files import DatasetError
+from synth.label_kinds import INSTANCE, INSTANCES, SEMANTIC
 from synth.lidar import LidarConfig, labelled_sweep, simulate_sweep
 from synth.nuscenes.layout import EXPORT_DIR, LIDARSEG_DIR
 
@@ -94,25 +95,25 @@ class ExportLabels:
         sweep); returns the export.json entries {semantic, instance: path} ({} without labels)."""
         if not self.on:
             return {}
-        ds, base = self.ds, self.ds.root / seq / cam / frame_stem(f)
+        ds = self.ds
         if seq not in self._seqs and self.instance:
             self._seqs.add(seq)
             try:  # parsed and checked first (the manifest's bounds: `synth.files.read_json`), then copied
                 ds.instances(seq)
             except DatasetError as exc:
                 raise self.error(str(exc)) from None
-            self._copy(ds.root / seq / "instances.json", f"{EXPORT_DIR}/labels/{seq}.instances.json")
+            self._copy(ds.root / INSTANCES.rel(seq), f"{EXPORT_DIR}/labels/{seq}.{INSTANCES.suffix}")
         try:
             self.sem[cam] = ds.read_semantic(seq, cam, f)
             if self.instance:
                 ds.read_instance(seq, cam, f)
         except DatasetError as exc:
             raise self.error(str(exc)) from None
-        entry = {"semantic": self._copy(base.with_name(base.name + ".semantic.png"),
-                                        f"{EXPORT_DIR}/labels/{ch}/{stem}.semantic.png")}
+        entry = {"semantic": self._copy(ds.root / SEMANTIC.rel(seq, cam, f),
+                                        f"{EXPORT_DIR}/labels/{ch}/{stem}.{SEMANTIC.suffix}")}
         if self.instance:
-            entry["instance"] = self._copy(base.with_name(base.name + ".instance.png"),
-                                           f"{EXPORT_DIR}/labels/{ch}/{stem}.instance.png")
+            entry["instance"] = self._copy(ds.root / INSTANCE.rel(seq, cam, f),
+                                           f"{EXPORT_DIR}/labels/{ch}/{stem}.{INSTANCE.suffix}")
         return entry
 
     def sweep(self, token: str, lidar: LidarConfig, cameras: list, depths: dict, masks: dict,

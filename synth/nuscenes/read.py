@@ -13,7 +13,8 @@ docs/NUSCENES.md, "Reading a nuScenes dataroot", has the mapping and its limits;
   order), ring neighbours; K = ``camera_intrinsic`` (+0.5 on cx, cy for a dataroot without our
   ``mcdp_synth/export.json``: nuScenes is taken to use integer pixel centres, ours puts them at +0.5),
   T_ego_cam = ``calibrated_sensor`` (must be the same for every sample: one rig);
-- T_world_ego = the ego_pose of each sample's CAM_FRONT sample_data;
+- T_world_ego = the ego_pose of each sample's CAM_FRONT sample_data; `camera_poses` each camera's own
+  (its sample_data's timestamp and ego_pose, in the ego frame of CAM_FRONT's: cameras that fire apart);
 - depth = the sample's LIDAR_TOP sweep projected into the camera with the devkit's chain
   (lidar -> ego at lidar time -> global -> ego at camera time -> camera), z at pixel
   (floor(u), floor(v)) in our +0.5-centre K, nearest point per pixel, kept in

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import os
+from pathlib import Path
 
 import pytest
 
@@ -70,3 +71,17 @@ def test_a_path_outside_the_root_is_an_error(tree):
         open_folder(root, outside / "b")
     with pytest.raises(ValueError, match="is not inside"):
         open_folder(root, "a/../../outside")
+
+
+def test_a_path_given_as_the_caller_names_it_is_written_once_not_below_the_root_again(tree, monkeypatch):
+    """A sweep names its folder relative to the working directory (``sweeps/x``) and a run's record below it
+    (``sweeps/x/runs/r/status.json``): the record lands there, not in ``sweeps/x/sweeps/x/runs/...``, and a path
+    relative to the root still means one below it."""
+    root, _ = tree
+    monkeypatch.chdir(root.parent)
+    rel_root = Path(root.name)
+    write_json_in(rel_root, rel_root / "a" / "status.json", {"n": 2})
+    assert json.loads((root / "a" / "status.json").read_text()) == {"n": 2}
+    assert not (root / root.name).exists()
+    write_json_in(rel_root, Path("a") / "b" / "other.json", {"n": 3})
+    assert json.loads((root / "a" / "b" / "other.json").read_text()) == {"n": 3}

@@ -15,14 +15,18 @@ from mcdp.oracle import fit_oracle_weights, si_log_error
 from mcdp.predict import Predictor
 from mcdp.trainer import Trainer
 from study.probes import CUT, TRAINED, Probed
+from study.variants import stages_on
 
 ROOT = Path(__file__).resolve().parents[2]
 TINY = ROOT / "configs" / "train" / "tiny"
 
 
 def probe(run, ds, variant=TRAINED, **kw) -> Probed:
-    """The run's predictor evaluated as one variant of the overlap experiment (`study.probes`)."""
-    return Probed(Predictor(run, ds, device="cpu"), variant, **kw)
+    """The run's predictor evaluated as one variant of the overlap experiment (`study.probes`), given an
+    ``oracle_range`` with the stages of the variant table that ride on it (`study.variants.stages_on`)."""
+    pred = Predictor(run, ds, device="cpu")
+    rng = kw.get("oracle_range")
+    return Probed(pred, variant, **kw, stages=stages_on(variant, pred, rng) if rng is not None else ())
 
 
 def test_cut_equals_normal_for_mono2(ds, tmp_path, one_thread, trained, eval_frame):
@@ -114,7 +118,10 @@ def test_the_propagator_is_an_extra_stage_of_a_network_that_reads_no_other_camer
     rng = (0.5, 80.0)
     mono = untrained(ds, tmp_path / "mono2.pt", "mono2")
     assert not mono.network.uses_neighbours
-    p = Probed(mono, oracle_range=rng)
+    def with_stages(pred, variant=TRAINED):  # the as-trained probe with the table's stages that apply to the run
+        return Probed(pred, variant, oracle_range=rng, stages=stages_on(variant, pred, rng))
+
+    p = with_stages(mono)
     assert p.stages == ["init", "final", "oracle_spread"]
     seq, f = eval_frame
     out = p.predict(seq, f)
@@ -132,15 +139,15 @@ def test_the_propagator_is_an_extra_stage_of_a_network_that_reads_no_other_camer
     np.testing.assert_allclose(out["oracle_spread"], want[:, 0].numpy(), rtol=1e-5)
     np.testing.assert_allclose(out["oracle_spread"][known[:, 0].numpy()], gt[known].numpy(), rtol=1e-6)
     # no propagator: without an ORACLE range, in a cut probe, for networks that read their neighbours
-    assert Probed(mono).stages == ["init"] and Probed(mono, CUT, oracle_range=rng).stages == ["init"]
+    assert Probed(mono).stages == ["init"] and with_stages(mono, CUT).stages == ["init"]
     local = untrained(ds, tmp_path / "oracle_local.pt", "oracle_local")
     assert local.network.uses_neighbours
-    lp = Probed(local, oracle_range=rng)
+    lp = with_stages(local)
     assert lp.stages == ["init"] and list(lp.predict(seq, f)) == ["init"]
     m1 = untrained(ds, tmp_path / "m1.pt", "mcdp_m1")
-    assert Probed(m1, oracle_range=rng).stages == ["init", "refine1", "final", "oracle", "oracle_overlap"]
+    assert with_stages(m1).stages == ["init", "refine1", "final", "oracle", "oracle_overlap"]
     m0 = untrained(ds, tmp_path / "m0.pt", "mcdp_m0")  # bases without refinement: reads no other camera
-    assert Probed(m0, oracle_range=rng).stages == ["init", "final", "oracle", "oracle_overlap", "oracle_spread"]
+    assert with_stages(m0).stages == ["init", "final", "oracle", "oracle_overlap", "oracle_spread"]
 
 
 def _spread_reference(pred: torch.Tensor, known: torch.Tensor, length: float, prior: float) -> torch.Tensor:

@@ -163,7 +163,7 @@ def test_a_toy_with_an_input_of_its_own_gets_it_in_training_and_inference(toy_in
 def test_the_toy_row_is_what_the_study_and_the_report_read(toy):
     """Sweeps accept it, reports label it in table order and read its network's members for the warm start."""
     from study.config import SweepConfig
-    from study.report import warm_start_line
+    from study.pretrain import warm_start_line
 
     assert SweepConfig(methods=["toy", "mono2"]).methods == ["mono2", "toy"]
     assert methods.label("toy") == "Toy net"

@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from study import lcon
-from study.outputs import write_csv
+from study.results_files import write_csv
 from study.primary import DELTA
 from study.variants import CUT
 
@@ -91,7 +91,7 @@ def test_the_lcon_presets_score_both_arms_at_one_step_and_state_their_plan():
 
 def test_the_readme_opens_with_the_committed_answer():
     """The README's first sentence after its commands is the L_con page's answer, as the committed results give it."""
-    from study.results import read_results
+    from study.results_files import read_results
 
     res = read_results(ROOT / "docs/results/lcon_main/results.json")
     n = lcon.reading(lcon.pairs(res), "median")
@@ -104,3 +104,40 @@ def test_the_readme_opens_with_the_committed_answer():
     rows = [r for r in res["rows"] if r["method"] in ("mcdp_m2", "mcdp_m2_nocon")]
     seeds = {w["world"]: w["data_seed"] for w in res["data"][0]["worlds"]}
     assert all(r["world"] == seeds[r["seed"]] for r in rows)   # the world column is the data seed it trained on
+
+
+def _with_control(res, emptied, filled):
+    """``res`` with an ORACLE-local run per world (filled = as trained, emptied = cut) in its flat rows (the
+    columns `study.primary.measure` reads)."""
+    from study.variants import TRAINED
+
+    worlds = sorted({r["seed"]: r["world"] for r in res["rows"]}.items())
+    res["flat"] = []
+    for s, w in worlds:
+        for variant, v in ((TRAINED, filled + 0.001 * s), (CUT, emptied)):
+            res["flat"].append({"overlap": 0.1, "method": "oracle_local", "variant": variant, "seed": s, "world": w,
+                                "status": "ok", **{f"{sc}.non_overlap.abs_rel": v for sc in ("none", "median",
+                                                                                             "rig_median")}})
+    res["methods"].append("oracle_local")
+    res["seeds"] = [s for s, _ in worlds]
+    return res
+
+
+def test_the_budget_reading_puts_b_beside_its_control_and_pairs_it_with_the_short_budget_by_world():
+    """Item 4: (b) at the long budget is read beside the positive control trained at that budget (emptied - filled,
+    positive = the overlap's depth helps outside it), and its change from the short budget is paired by world."""
+    long = _with_control(_results([0.004, 0.006, 0.005, 0.003]), emptied=0.30, filled=0.25)
+    short = _results([0.001, 0.002, 0.000, 0.001, 0.009])  # a fifth world the long budget lacks: left out
+    r = lcon.budget_reading(long, short)
+    c = r["control"]["median"]
+    assert c["n_worlds"] == 4 and 0.045 < c["mean"] < 0.050 and c["differs"] == 1
+    assert r["short"]["median"]["n_worlds"] == 4
+    ch = r["change"]["median"]
+    assert ch["n_worlds"] == 4 and abs(ch["mean"] - (r["b"]["median"]["mean"] - r["short"]["median"]["mean"])) < 1e-12
+    assert 0.002 < ch["mean"] < 0.005
+    text = lcon.format_budget(r, "1000", "200")
+    assert "**the control propagates**" in text and "Change from 200 to 1000 steps, paired by world" in text
+    flat = _with_control(_results([0.004, 0.006, 0.005, 0.003]), emptied=0.25, filled=0.25)
+    assert "does not propagate" in lcon.format_budget(lcon.budget_reading(flat, None), "1000", "200")
+    bare = {**_results([0.004, 0.006]), "flat": []}  # no ORACLE-local run
+    assert "No positive control" in lcon.format_budget(lcon.budget_reading(bare, None), "1000", "200")

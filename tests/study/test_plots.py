@@ -11,7 +11,8 @@ import pytest
 from study.plots import PAIRED_KEYS, make_plots, paired_plot, paired_series
 from study.report import format_report
 from study.paired import paired_difference
-from study.results import BASELINE, method_agg, read_results, results_from_csv, yardstick_agg
+from study.results import BASELINE, method_agg, yardstick_agg
+from study.results_files import read_results, results_from_csv
 
 ROOT = Path(__file__).resolve().parents[2]
 PROP = ROOT / "docs" / "results" / "propagation"

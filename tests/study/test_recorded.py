@@ -11,7 +11,7 @@ import pytest
 from mcdp.methods import METHODS
 from study.recorded import run_configs
 from study.report import format_report
-from study.results import read_results
+from study.results_files import read_results
 
 ROOT = Path(__file__).resolve().parents[2]
 

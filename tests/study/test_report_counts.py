@@ -7,7 +7,7 @@ import re
 from pathlib import Path
 
 from study.report import format_report
-from study.results import read_results
+from study.results_files import read_results
 
 PROP = Path(__file__).resolve().parents[2] / "docs" / "results" / "propagation" / "results.json"
 

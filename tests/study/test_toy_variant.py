@@ -37,7 +37,7 @@ class _Doubled:
         return self.inner.refinement
 
 
-def _doubled_probe(pred, oracle_range, earlier):
+def _doubled_probe(pred, oracle_range, earlier, stages):
     assert TRAINED in earlier  # the passes made before it
     return _Doubled(pred)
 

@@ -159,7 +159,7 @@ def test_the_nuscenes_export_writes_and_reads_back_each_channels_size(renders, t
     from synth.nuscenes.read import open_nuscenes
 
     out = tmp_path / "ns"
-    export_nuscenes(renders["mixed"], out, lidar=None)
+    export_nuscenes(open_dataset(renders["mixed"]), out, lidar=None)
     ns = open_nuscenes(out)
     assert {c.name: (c.width, c.height) for c in ns.cameras} == {
         c.name: (c.width, c.height) for c in open_dataset(renders["mixed"]).cameras}

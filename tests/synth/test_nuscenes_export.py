@@ -256,7 +256,7 @@ def test_reexport_is_reproducible_and_cli(ns_root, tiny_dataset, tmp_path, capsy
     copy = tmp_path / "copy"
     shutil.copytree(ns_root, copy)
     before = {p.relative_to(copy): sha256_file(p) for p in copy.rglob("*") if p.is_file()}
-    export_nuscenes(tiny_dataset, copy, version=VERSION)
+    export_nuscenes(open_dataset(tiny_dataset), copy, version=VERSION)
     after = {p.relative_to(copy): sha256_file(p) for p in copy.rglob("*") if p.is_file()}
     assert before == after
     rc = main(["export", str(tiny_dataset), "--format", "nuscenes", "--out", str(copy), "--version", "v1.0-ci",
@@ -271,14 +271,14 @@ def test_reexport_is_reproducible_and_cli(ns_root, tiny_dataset, tmp_path, capsy
     assert 0 < pts.points.shape[1] <= 16 * 360
 
 
-def test_refuses_foreign_or_other_folders(tiny_dataset, tmp_path, capsys):
+def test_refuses_foreign_or_other_folders(tiny_dataset, ns_root, tmp_path, capsys):
     from synth.cli import main
 
     foreign = tmp_path / "foreign"
     foreign.mkdir()
     (foreign / "notes.txt").write_text("mine")
     with pytest.raises(ExportError, match=re.escape(str(foreign))):
-        export_nuscenes(tiny_dataset, foreign)
+        export_nuscenes(open_dataset(tiny_dataset), foreign)
     assert [p.name for p in foreign.iterdir()] == ["notes.txt"]
     rc = main(["export", str(tiny_dataset), "--format", "nuscenes", "--out", str(foreign), "--no-progress"])
     err = capsys.readouterr().err
@@ -289,27 +289,27 @@ def test_refuses_foreign_or_other_folders(tiny_dataset, tmp_path, capsys):
     (other / "mcdp_synth" / "export.json").write_text(json.dumps(
         {"format": "mcdp-synth-nuscenes-export", "source": {"config_hash": "f" * 64}, "version": VERSION}))
     with pytest.raises(ExportError, match="another dataset"):
-        export_nuscenes(tiny_dataset, other)
+        export_nuscenes(open_dataset(tiny_dataset), other)
 
     ours = tmp_path / "ours"
-    export_nuscenes(tiny_dataset, ours, lidar=None)
+    export_nuscenes(open_dataset(tiny_dataset), ours, lidar=None)
     assert not (ours / "samples" / "LIDAR_TOP").exists()
     (ours / "mine.txt").write_text("x")
     with pytest.raises(ExportError, match=re.escape(str(ours / "mine.txt"))):
-        export_nuscenes(tiny_dataset, ours, lidar=None)
+        export_nuscenes(open_dataset(tiny_dataset), ours, lidar=None)
     assert (ours / VERSION / "scene.json").is_file()  # nothing removed
 
     (ours / "mcdp_synth" / "export.json").write_text("{not json")
     with pytest.raises(ExportError, match="export.json"):
-        export_nuscenes(tiny_dataset, ours, lidar=None)
+        export_nuscenes(open_dataset(tiny_dataset), ours, lidar=None)
 
-    with pytest.raises(ExportError, match="manifest.json"):
-        export_nuscenes(tmp_path / "foreign", tmp_path / "new")
+    with pytest.raises(ExportError, match="not one mcdp-synth rendered"):
+        export_nuscenes(open_dataset(ns_root), tmp_path / "new")
     assert not (tmp_path / "new").exists()
     with pytest.raises(ExportError, match="plain folder name"):
-        export_nuscenes(tiny_dataset, tmp_path / "new", version="../up")
+        export_nuscenes(open_dataset(tiny_dataset), tmp_path / "new", version="../up")
     with pytest.raises(ExportError, match="inside the source dataset"):
-        export_nuscenes(tiny_dataset, Path(tiny_dataset) / "ns")
+        export_nuscenes(open_dataset(tiny_dataset), Path(tiny_dataset) / "ns")
 
 
 def test_tables_complete_and_json_last(ns_root):

@@ -144,8 +144,8 @@ def test_a_dataset_without_labels_exports_as_before(ns_root, tiny_dataset, tiny_
     assert open_dataset(src).label_kinds == ()
     outs = [tmp_path / "old_ns", tmp_path / "off_ns"]
     coarse = LidarConfig(azimuth_res_deg=2.0)
-    s_old = export_nuscenes(src, outs[0], version=VERSION, lidar=coarse)
-    s_off = export_nuscenes(tiny_dataset, outs[1], version=VERSION, lidar=coarse, labels=False)
+    s_old = export_nuscenes(open_dataset(src), outs[0], version=VERSION, lidar=coarse)
+    s_off = export_nuscenes(open_dataset(tiny_dataset), outs[1], version=VERSION, lidar=coarse, labels=False)
     assert s_old["lidarseg"] == s_off["lidarseg"] == 0
     ref = Path(ns_root)
     for out in outs:

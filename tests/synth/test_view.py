@@ -5,6 +5,7 @@ from __future__ import annotations
 import json
 import subprocess
 import sys
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -210,7 +211,7 @@ def test_a_nuscenes_dataroot_records_its_lidar_sweep_in_the_world_frame(tiny_dat
     from synth.nuscenes.dataset import NuScenesDataset
 
     root = tmp_path / "ns"
-    export_nuscenes(tiny_dataset, root, version="v1.0-synth")
+    export_nuscenes(open_dataset(tiny_dataset), root, version="v1.0-synth")
     ds = open_dataset(root)
     assert isinstance(ds, NuScenesDataset)
     seq = ds.sequences[0]
@@ -302,3 +303,57 @@ def test_synth_view_on_a_real_disk_that_fills_ends_in_exit_4_not_a_hang(tiny_dat
     assert res.returncode == 4, res.stderr[-2000:]
     assert len(err) == 1 and f"{mnt / 'v.rrd'}: no space left on device" in err[0], err
     assert left == (["fill"] if full else [])
+
+
+def test_a_jpeg_dataset_logs_its_jpeg_files_as_they_are(tmp_path):
+    """``sensor.jpeg_quality``: each camera's image is logged as the stored JPEG bytes (media type image/jpeg)."""
+    from synth.cli import main
+    from synth.config import load_data_config
+    from synth.render import render_dataset
+
+    data, out = tmp_path / "data", tmp_path / "rig.rrd"
+    tiny = Path(__file__).resolve().parents[2] / "configs" / "data" / "tiny.yaml"
+    cfg = load_data_config(tiny, ["sensor.jpeg_quality=90", "dataset.sequences=1", "dataset.frames=3"])
+    render_dataset(cfg, data, workers=1, progress=False, log=lambda *a: None)
+    assert main(["view", str(data), "--seq", "seq_00000", "--frames", "0:2", "--out", str(out)]) == 0
+    rows = read_rrd(out)["/world/ego/CAM_BACK/rgb"]
+    assert len(rows) == 2 and all(r["EncodedImage:media_type"] == ["image/jpeg"] for _, r in rows)
+    blob = bytes(np.asarray(rows[0][1]["EncodedImage:blob"][0], np.uint8))
+    assert blob in {(data / "seq_00000" / "CAM_BACK" / f"00000{f}.jpg").read_bytes() for f in (0, 1)}
+
+
+def test_cameras_that_fire_apart_are_played_at_their_own_times(tmp_path):
+    """rig.trigger=lidar_sweep: each camera's image, depth and overlap at its own time, with its Transform3D then
+    (its pose in the frame's ego frame: `camera_poses`, per frame, none static); the ego and the points at the
+    frame's time."""
+    from pathlib import Path
+
+    from corelib.configlib import load_config
+    from synth.cli import main
+    from synth.config import DataConfig
+    from synth.open import open_dataset
+    from synth.render import render_dataset
+
+    tiny = Path(__file__).resolve().parents[2] / "configs" / "data" / "tiny.yaml"
+    data = tmp_path / "data"
+    render_dataset(load_config(DataConfig, tiny, ["rig.trigger=lidar_sweep", "dataset.frames=3", "camera.width=48",
+                                                  "camera.height=32"]), data, workers=1, progress=False,
+                   log=lambda *a: None)
+    ds = open_dataset(data)
+    seq = ds.sequences[0]
+    out = tmp_path / "trig.rrd"
+    assert main(["view", str(data), "--seq", seq, "--out", str(out)]) == 0
+    assert "verified without error" in rrd_verify(out)
+    ents = read_rrd(out)
+    ts, T = ds.camera_poses(seq)
+    frame_ns = [round(e["timestamp_s"] * 1e9) for e in ds.ego(seq)]
+    for c, cam in enumerate(ds.camera_names):
+        own = [round(t * 1e9) for t in ts[:, c]]
+        for what in ("rgb", "depth", "overlap"):
+            assert sorted(t for t, _ in ents[f"/world/ego/{cam}/{what}"] if t is not None) == own, (cam, what)
+        rows = [(t, r) for t, r in ents[f"/world/ego/{cam}"] if "Transform3D:translation" in r]
+        assert all(t is not None for t, _ in rows) and sorted(t for t, _ in rows) == own
+        for t, r in rows:
+            np.testing.assert_allclose(r["Transform3D:translation"][0], T[own.index(t), c, :3, 3], atol=1e-5)
+    assert own != frame_ns and sorted(t for t, _ in ents["/world/ego"] if t is not None) == frame_ns
+    assert sorted(t for t, _ in ents["/world/ego/points_gt"]) == frame_ns

@@ -1,0 +1,42 @@
+"""study/sensor.py: each method's change from the ideal camera, paired by world, and FSM's change against
+MCDP's (the paper's argument about photometric losses between cameras)."""
+import numpy as np
+
+from study import sensor
+from study.variants import TRAINED
+
+
+def _results(shift: dict, seed: int = 0) -> dict:
+    """Three worlds x (Mono2, FSM, MCDP (m = 2)); ``shift``: added to a method's abs_rel and Dep Con."""
+    rng = np.random.default_rng(seed)
+    base = {"mono2": 0.20, "fsm": 0.19, "mcdp_m2": 0.195}
+    flat = []
+    for w in range(3):
+        world = rng.normal(0, 0.01)  # a world's difficulty, shared by its conditions
+        for m, v in base.items():
+            d = shift.get(m, 0.0)
+            flat.append({"overlap": 0.3, "method": m, "variant": TRAINED, "seed": w, "world": w, "status": "ok",
+                         "median.mean.abs_rel": v + world + d + rng.normal(0, 0.0005),
+                         "dep_con.mean": 0.05 + world / 4 + d / 2})
+    return {"overlaps": [0.3], "methods": list(base), "flat": flat,
+            "data": [{"overlap": 0.3, "worlds": [{"reference": {"metrics": {"median": {"mean": {"abs_rel": 0.6}}}}}]}]}
+
+
+def test_each_change_is_paired_by_world_and_the_contrast_says_who_suffers():
+    ideal, cond = _results({}), _results({"fsm": 0.02, "mcdp_m2": 0.002})
+    ch = sensor.change(ideal, cond, "fsm", "median.mean.abs_rel")
+    assert ch["n_worlds"] == 3 and abs(ch["mean"] - 0.02) < 0.002 and ch["differs"] == 1  # the world cancels
+    assert abs(sensor.change(ideal, ideal, "mono2", "median.mean.abs_rel")["mean"]) < 1e-12
+    c = sensor.contrast(ideal, cond, "median.mean.abs_rel")
+    assert abs(c["mean"] - 0.018) < 0.002 and c["differs"] == 1
+    text = sensor.format_sensor(ideal, [("Exposure", "a spread", cond)])
+    assert "FSM suffers more than MCDP (m = 2), beyond the interval" in text
+    assert "constant-depth reference scores 0.6000" in text and "**(worse)**" in text
+    same = sensor.format_sensor(ideal, [("Null", "nothing", _results({}, seed=0))])
+    assert "not resolved with 3 worlds" in same
+
+
+def test_a_failed_run_is_left_out_of_its_pair():
+    ideal, cond = _results({}), _results({"fsm": 0.02})
+    cond["flat"][1]["status"] = "diverged"  # world 0's FSM
+    assert sensor.change(ideal, cond, "fsm", "median.mean.abs_rel")["n_worlds"] == 2
