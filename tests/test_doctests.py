@@ -12,6 +12,8 @@ import pytest
 MODULES = (
     "mcdp.inputs",   # InputField, DepthInput, RigBatch: a method's own input
     "mcdp.metrics",  # Metric, METRICS: a metric and its direction
+    "study.variants",  # Variant, VARIANTS: a way the sweep evaluates a run
+    "synth.label_kinds",  # LabelKind: a label a render writes
 )
 
 

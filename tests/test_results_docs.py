@@ -146,7 +146,7 @@ def test_republish_knows_every_committed_page_and_each_sweep_page_rebuilds():
 
     rp = importlib.import_module("scripts.republish")
     ps = importlib.import_module("scripts.publish_sweep")
-    from study.results import read_results
+    from study.results_files import read_results
 
     pages = rp.pages()
     results = ROOT / "docs" / "results"

@@ -10,7 +10,8 @@ import pytest
 
 from mcdp import metrics as M
 from study.paired import paired_difference, paired_gain
-from study.results import BASELINE, aggregate_flat, evaluations, read_results, verdict_word, yardstick_row
+from study.results import BASELINE, aggregate_flat, evaluations, verdict_word, yardstick_row
+from study.results_files import read_results
 
 ROOT = Path(__file__).resolve().parents[2]
 PROP = ROOT / "docs" / "results" / "propagation"
