@@ -1,4 +1,5 @@
-"""What a run wrote into RUN/checkpoints/, and the removal of only those files.
+"""What a run wrote into RUN/checkpoints/, and the removal of only those files: the checkpoints' writer
+(`write_checkpoint`: the file, whole, and its record) beside the reader of its record (`removable`).
 
 Two records beside the checkpoints:
 
@@ -23,12 +24,13 @@ Example::
 from __future__ import annotations
 
 import hashlib
+import io
 import json
 import os
 import stat
 from pathlib import Path
 
-from corelib.atomic import atomic_write_at, atomic_write_json
+from corelib.atomic import atomic_write_at, atomic_write_bytes, atomic_write_json
 
 #: the record of the checkpoints deleted after use (`record_removed`)
 REMOVED = "removed.json"
@@ -107,6 +109,30 @@ def record_written(run_dir: str | Path, name: str, sha256: str, nbytes: int, ste
 
 
 # --------------------------------------------------------------------------- removable
+def atomic_torch_save(obj, path: Path) -> tuple[str, int]:
+    """torch.save to ``path.tmp`` then os.replace: a crash never leaves a half-written checkpoint.
+    Returns (sha256, bytes) of what was written (`mcdp.checkpoint_files.record_written`)."""
+    import torch
+
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    buf = io.BytesIO()  # serialised in memory: a full disk then fails in one plain write, not inside torch
+    torch.save(obj, buf)
+    data = buf.getbuffer()
+    atomic_write_bytes(path, data)
+    return hashlib.sha256(data).hexdigest(), len(data)
+
+
+def write_checkpoint(run_dir: str | Path, name: str, state: dict, step: int, weights_only: bool = False) -> Path:
+    """Write ``RUN/checkpoints/<name>`` whole (`atomic_torch_save`) and record its sha256 (`record_written`: a
+    clean-up deletes only such files); ``weights_only`` drops the optimiser, scaler and RNG states (best.pt)."""
+    path = Path(run_dir) / "checkpoints" / name
+    if weights_only:
+        state = {k: v for k, v in state.items() if k not in ("optimizer", "scaler", "torch_rng")}
+    record_written(run_dir, name, *atomic_torch_save(state, path), step)
+    return path
+
+
 def _sha256_at(fd: int, name: str) -> tuple[str, int] | str:
     """(sha256, bytes) of the regular file ``name`` in ``fd`` opened without following a link; a reason otherwise."""
     try:

@@ -1,7 +1,7 @@
 """Rig samples for training: one sequence frame t (with t-1, t+1) of every camera.
 
 The batch a step trains on is a `mcdp.inputs.RigBatch` (its schema is there, the one place); a sample
-holds the optional input fields its network declares (`mcdp.inputs.Field`) and no other.
+holds the optional input fields its network declares (`mcdp.inputs.InputField`) and no other.
 
 Images are resized with
 area interpolation; K follows exactly (diag(sx, sy, 1) @ K, pixel centres at +0.5);
@@ -22,7 +22,7 @@ import cv2
 import numpy as np
 import torch
 
-from mcdp.inputs import Field, RigBatch, stack
+from mcdp.inputs import InputField, RigBatch, read_fields, stack
 
 FRAME_OFFSETS = (-1, 0, 1)
 #: how cross-camera warps treat cameras that fire at different times (`mcdp.config.ModelConfig.sync`)
@@ -151,7 +151,7 @@ class RigDataset(torch.utils.data.Dataset):
         ds: an opened `synth.dataset` dataset.
         split: 'train' | 'val' | 'test'.
         height, width: training size.
-        fields: the optional inputs its network reads (`mcdp.inputs.Field`; `mcdp.methods.fields_of` for a run):
+        fields: the optional inputs its network reads (`mcdp.inputs.InputField`; `mcdp.methods.fields_of` for a run):
             each sample holds these under ``fields`` and no other.
         sync: ``model.sync``: a sample's ``T_ego_cam`` is each camera's own pose at its own trigger time in the
             ego frame of the sample's frame time (``compensate``; the relative pose of two cameras then goes
@@ -160,7 +160,7 @@ class RigDataset(torch.utils.data.Dataset):
             ``reader.camera_poses(seq)[0]``.
     """
 
-    def __init__(self, ds, split: str, height: int, width: int, fields: tuple[Field, ...] = (),
+    def __init__(self, ds, split: str, height: int, width: int, fields: tuple[InputField, ...] = (),
                  sync: str = "compensate"):
         self.reader = RigReader(ds, height, width, sync=sync)
         self.split = split
@@ -186,9 +186,18 @@ class RigDataset(torch.utils.data.Dataset):
             "T_world_ego": torch.from_numpy(T),
             "seq_index": torch.tensor(k, dtype=torch.long),
             "frame": torch.tensor(t, dtype=torch.long),
-            "fields": {f.name: f.of(r, seq, t) for f in self.fields},
+            "fields": read_fields(self.fields, r, seq, t),
         }
         return item
+
+
+def step_loader(train_set: RigDataset, tc, start: int, end: int, rank: int = 0, world: int = 1,
+                pin: bool = False) -> torch.utils.data.DataLoader:
+    """The batches of training steps [start, end) of ``train_set`` (this rank's share of each; `StepBatchSampler`:
+    a pure function of the step), as ``tc`` (`mcdp.config.TrainConfig`: batch size, seed, workers) asks."""
+    sampler = StepBatchSampler(len(train_set), tc.batch_size, tc.seed, start, end, rank=rank, world=world)
+    return torch.utils.data.DataLoader(train_set, batch_sampler=sampler, collate_fn=collate, num_workers=tc.num_workers,
+                                       pin_memory=pin, persistent_workers=False)
 
 
 def collate(items: list[dict]) -> RigBatch:

@@ -1,4 +1,5 @@
-"""Depth-collapse diagnostics: the spread of predicted depth, and when it means "collapsed".
+"""Training's guards: the spread of predicted depth and when it means "collapsed" (`CollapseGuard`), a
+non-finite loss or gradient (`TrainingDiverged`), fp16 steps skipped in a row (`SkipGuard`).
 
 Self-supervised depth can degenerate to a constant map, or saturate at a bound
 of its range (``model.min_depth`` / ``model.max_depth``), while its loss still
@@ -95,6 +96,35 @@ class CollapseGuard:
             return False
         self.streak += 1
         return (self.armed or step >= COLLAPSE_GRACE_STEPS) and self.streak == COLLAPSE_STREAK
+
+    def check(self, depth: torch.Tensor, mask: torch.Tensor, min_depth: float, max_depth: float,
+              step: int) -> tuple[dict, str | None]:
+        """One logged step's check of the final stage's depth (B*N, 1, h, w) on its scene ``mask`` (any shape of
+        as many pixels): (`depth_spread` with ``collapsed``: `collapse_reason`'s answer, the reason when the
+        warning is due at ``step`` (`warn_now`), else None)."""
+        spread = depth_spread(depth, mask.reshape(depth.shape), min_depth, max_depth)
+        reason = collapse_reason(spread)
+        return dict(spread, collapsed=reason), (reason if self.warn_now(reason, step) else None)
+
+
+#: fp16 steps in a row the GradScaler may skip (non-finite gradients) before training stops
+FP16_SKIP_LIMIT = 20
+
+
+class SkipGuard:
+    """fp16 training: the GradScaler skips a step whose gradients are not finite (and lowers its scale); this
+    counts such steps in a row, and says when `FP16_SKIP_LIMIT` of them stop training."""
+
+    def __init__(self) -> None:
+        self.skipped = 0
+
+    def record(self, scale_before: float, scale_after: float, step: int) -> str | None:
+        """Record one step; the message of a `TrainingDiverged` when the limit is reached, else None."""
+        self.skipped = self.skipped + 1 if scale_after < scale_before else 0
+        if self.skipped < FP16_SKIP_LIMIT:
+            return None
+        return (f"fp16: the gradients were not finite for {self.skipped} steps in a row (up to step {step}); "
+                "the weights did not change in them")
 
 
 def gradient_divergence(named_parameters, step: int) -> str | None:

@@ -1,12 +1,15 @@
 """What a depth network reads: `DepthInput` for one forward pass, `RigBatch` for one training step, and
-the optional `Field`s that only some methods read.
+the optional `InputField`s that only some methods read.
 
 Every network reads the same core of a rig sample at frame t (`DepthInput`: images, intrinsics,
-extrinsics, scene mask, neighbour table). What only some methods read is a `Field`: a name, a reader
+extrinsics, scene mask, neighbour table). What only some methods read is an `InputField`: a name, a reader
 that makes it for one rig sample, and what it carries. A network declares the fields it reads
 (`mcdp.methods.base.DepthNetwork.inputs`); the data reader (`mcdp.data.RigDataset`) and the predictor
-(`mcdp.predict.Predictor.inputs`) fill those and no other, and the network finds them in
-``DepthInput.fields``. A method that needs an input of its own declares its `Field` in its own module
+(`mcdp.predict.Predictor.inputs`) fill those and no other (both read them with `read_fields` and make the
+network's input with the one constructor `DepthInput.filled`), and the network finds them in ``DepthInput.fields``.
+A network runs with any declared field absent (``inp.get(FIELD)`` is None): the cut empties the fields that carry
+other cameras' content, and a caller may fill none (tests/mcdp/test_methods.py runs every registered network
+with each declared field absent). A method that needs an input of its own declares its `InputField` in its own module
 (`mcdp.methods.oracle_local.OVERLAP_TRUTH`; tests/mcdp/test_toy_method.py adds one in a test): nothing
 else changes.
 
@@ -20,15 +23,29 @@ training size)::
     T_world_ego  (B, 3, 4, 4)       float32             ego odometry at t-1, t, t+1
     seq_index    (B,)               int64               index into `mcdp.data.RigDataset.seqs`
     frame        (B,)               int64               frame t
-    fields       {name: (B, N, ...)}                    the declared `Field`s, nothing else
+    fields       {name: (B, N, ...)}                    the declared `InputField`s, nothing else
 
-Ground truth enters a batch only through a field that says so (``Field.truth``: an ORACLE's input, a
+Ground truth enters a batch only through a field that says so (``InputField.truth``: an ORACLE's input, a
 yardstick); the rows whose networks read one are labelled ORACLE in every report.
 
-Example::
+Example (run as a doctest in the fast tier, tests/test_doctests.py): a field of one value per camera, two rig
+samples of two cameras stacked into a batch (`mcdp.data.collate` does this for `mcdp.data.RigDataset`'s samples),
+frame t as the network reads it, and its cut::
 
-    batch = collate([train[0], train[1]])         # `RigBatch`
-    out = network(batch.depth_input(nbr, fields=network.inputs))
+    >>> import torch
+    >>> SPEED = InputField("speed", lambda reader, seq, frame: [2.0, 2.0], "(N,) metres per frame")
+    >>> sample = {"rgb": torch.zeros(2, 3, 3, 4, 6), "K": torch.eye(3).repeat(2, 1, 1),
+    ...           "T_ego_cam": torch.eye(4).repeat(2, 1, 1), "mask": torch.ones(2, 1, 4, 6),
+    ...           "T_world_ego": torch.eye(4).repeat(3, 1, 1), "seq_index": torch.tensor(0), "frame": torch.tensor(1),
+    ...           "fields": read_fields((SPEED,), None, "seq", 1)}
+    >>> batch = stack([sample, sample])
+    >>> nbr = torch.tensor([[1, 1], [0, 0]])                # each camera's left and right neighbour
+    >>> inp = batch.depth_input(nbr, declared=(SPEED,))
+    >>> tuple(inp.rgb.shape), inp.get(SPEED).tolist()
+    ((2, 2, 3, 4, 6), [[2.0, 2.0], [2.0, 2.0]])
+    >>> cut = inp.cut()                                     # SPEED carries no other camera's content: it stays
+    >>> cut.nbr.tolist(), cut.get(SPEED) is not None
+    ([[-1, -1], [-1, -1]], True)
 """
 from __future__ import annotations
 
@@ -40,7 +57,7 @@ import torch
 
 
 @dataclass(frozen=True)
-class Field:
+class InputField:
     """An input only some networks read.
 
     Args:
@@ -63,13 +80,19 @@ class Field:
         return torch.as_tensor(self.read(reader, seq, frame), dtype=torch.float32)
 
 
+def read_fields(declared: tuple[InputField, ...], reader, seq: str, frame: int) -> dict[str, torch.Tensor]:
+    """{name: (N, ...) float32} of every declared field for rig sample (seq, frame): what the data reader puts in
+    a sample and the predictor in its input (``reader``: a `mcdp.data.RigReader`)."""
+    return {f.name: f.of(reader, seq, frame) for f in declared}
+
+
 @dataclass(frozen=True)
 class DepthInput:
     """What a depth network reads in one forward pass: frame t of B rig samples.
 
     rgb (B, N, 3, H, W) float32 in [0, 1]; K (B, N, 3, 3); T_ego_cam (B, N, 4, 4); mask (B, N, 1, H, W) 1 =
     scene; nbr (N, 2) int64 [left, right] neighbour of each camera, -1 for none (`mcdp.data.neighbour_table`);
-    fields: {name: (B, N, ...)} the declared `Field`s (``declared``: what they are), an emptied one absent.
+    fields: {name: (B, N, ...)} the declared `InputField`s (``declared``: what they are), an emptied one absent.
     """
 
     rgb: torch.Tensor
@@ -78,15 +101,28 @@ class DepthInput:
     mask: torch.Tensor
     nbr: torch.Tensor
     fields: Mapping[str, torch.Tensor] = field(default_factory=dict)
-    declared: tuple[Field, ...] = ()
+    declared: tuple[InputField, ...] = ()
 
-    def get(self, f: Field | str) -> torch.Tensor | None:
+    @classmethod
+    def filled(cls, rgb: torch.Tensor, K: torch.Tensor, T_ego_cam: torch.Tensor, mask: torch.Tensor, nbr: torch.Tensor,
+               values: Mapping[str, torch.Tensor], declared: tuple[InputField, ...]) -> "DepthInput":
+        """The one constructor of a network's input from read data, used by the data reader's batches
+        (`RigBatch.depth_input`) and the predictor (`mcdp.predict.Predictor.inputs`): frame t of the rig and the
+        values of the declared fields. A declared field may be absent (the network runs without it); a value that
+        no declared field names is a ValueError (a network is filled with what it declares, nothing else)."""
+        known = {f.name for f in declared}
+        extra = sorted(set(values) - known)
+        if extra:
+            raise ValueError(f"input field {extra[0]!r} is not declared (declared: {', '.join(sorted(known)) or 'none'})")
+        return cls(rgb, K, T_ego_cam, mask, nbr, dict(values), tuple(declared))
+
+    def get(self, f: InputField | str) -> torch.Tensor | None:
         """The field's value, or None when it was not filled (not declared, or emptied)."""
         return self.fields.get(f if isinstance(f, str) else f.name)
 
     def cut(self) -> "DepthInput":
         """The same input with the neighbours cut: every neighbour entry -1, as for a camera without
-        neighbours, and every field that carries other cameras' content (``Field.neighbours``) emptied."""
+        neighbours, and every field that carries other cameras' content (``InputField.neighbours``) emptied."""
         drop = {f.name for f in self.declared if f.neighbours}
         return dataclasses.replace(self, nbr=torch.full_like(self.nbr, -1),
                                    fields={k: v for k, v in self.fields.items() if k not in drop})
@@ -118,12 +154,12 @@ class RigBatch:
         """The same batch in page-locked memory (the DataLoader calls this with ``pin_memory=True``, on CUDA)."""
         return self._map(lambda t: t.pin_memory())
 
-    def depth_input(self, nbr: torch.Tensor, declared: tuple[Field, ...] = (),
+    def depth_input(self, nbr: torch.Tensor, declared: tuple[InputField, ...] = (),
                     rgb: torch.Tensor | None = None) -> DepthInput:
         """Frame t as a network reads it. ``rgb``: (B, N, 3, 3, H, W) images to use instead of ``self.rgb``
         (e.g. colour-augmented); ``declared``: the fields the network was filled with."""
         images = self.rgb if rgb is None else rgb
-        return DepthInput(images[:, :, 1], self.K, self.T_ego_cam, self.mask, nbr, dict(self.fields), tuple(declared))
+        return DepthInput.filled(images[:, :, 1], self.K, self.T_ego_cam, self.mask, nbr, self.fields, tuple(declared))
 
 
 def stack(items: list[Mapping[str, Any]]) -> RigBatch:

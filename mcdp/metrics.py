@@ -7,11 +7,25 @@ tensors (converted with ``.detach().cpu()``). Depths are z-depth in metres,
 (``none`` | ``median`` per image | ``rig_median`` one scale per rig sample) and
 THEN clamped to [min_depth, max_depth], as in Monodepth2.
 
-Example::
+A metric is one `Metric` row of `METRICS` (its name, its per-pixel term, whether a root is taken after the
+mean, and which way is better); everything that reads or words a metric reads that table when it runs. The
+committed sweep reports tabulate every metric, so after adding one republish them (`python
+scripts/republish.py`).
 
-    valid = valid_gt_mask(gt, scene_mask)
-    s = median_scale(gt, pred, valid)
-    m = depth_metrics(gt, clamp_depth(pred * s), valid)   # {'abs_rel': ..., 'a1': ...}
+Example (run as a doctest in the fast tier, tests/test_doctests.py)::
+
+    >>> import numpy as np
+    >>> gt = np.array([[2.0, 4.0], [8.0, 10.0]])
+    >>> pred = gt / 2                                  # right up to scale
+    >>> valid = valid_gt_mask(gt, None)
+    >>> s = median_scale(gt, pred, valid)
+    >>> s
+    2.0
+    >>> m = depth_metrics(gt, clamp_depth(pred * s), valid)
+    >>> m["abs_rel"], m["a1"]
+    (0.0, 1.0)
+    >>> better("a1"), better("none.non_overlap.abs_rel"), better("dep_con.mean")
+    ('higher', 'lower', 'lower')
 """
 from __future__ import annotations
 
@@ -26,6 +40,8 @@ __all__ = [
     "METRICS",
     "metric_names",
     "Metric",
+    "better",
+    "check_metrics",
     "depth_metrics",
     "nan_metrics",
     "valid_gt_mask",
@@ -47,33 +63,79 @@ class Pixels:
         self.thresh = np.maximum(g / p, p / g)
 
 
+#: the two directions a metric can have (`Metric.better`)
+DIRECTIONS = ("lower", "higher")
+
+
 @dataclass(frozen=True)
 class Metric:
-    """One depth metric: its per-pixel term (averaged over the pixels of a region), and whether the metric
-    is the square root of that mean. The evaluator (`mcdp.evaluate`, per region and image) and the trainer's
-    validation (`mcdp.validation`, pooled sums) both read `METRICS`, so a metric is one entry there."""
+    """One depth metric: its per-pixel term (averaged over the pixels of a region), whether the metric
+    is the square root of that mean, and which way is better (``better``: "lower" for an error such as abs_rel,
+    "higher" for an accuracy such as a1). The evaluator (`mcdp.evaluate`, per region and image) and the trainer's
+    validation (`mcdp.validation`, pooled sums) both read `METRICS`, and every report wording that says better or
+    worse reads ``better`` (`better`), so a metric is one entry there."""
 
     name: str
     term: Callable[[Pixels], np.ndarray]
     root_after_mean: bool = False
+    better: str = "lower"
+
+    def __post_init__(self) -> None:
+        if self.better not in DIRECTIONS:
+            raise ValueError(f"Metric {self.name!r}: better={self.better!r}, must be 'lower' or 'higher'")
+        if not self.name or "." in self.name:
+            raise ValueError(f"Metric {self.name!r}: a name is non-empty and holds no '.' (results keys are dotted)")
+
+
+def check_metrics(table: Sequence[Metric]) -> tuple[Metric, ...]:
+    """``table`` as a tuple, or ValueError naming the first metric name given twice (a name is a metrics dict's
+    key, a results column and a report's column: one identity)."""
+    seen: set[str] = set()
+    for m in table:
+        if m.name in seen:
+            raise ValueError(f"METRICS: metric {m.name!r} is given twice (each metric is one row of mcdp.metrics.METRICS)")
+        seen.add(m.name)
+    return tuple(table)
 
 
 #: every metric, in table order (Monodepth2's definitions)
-METRICS: tuple[Metric, ...] = (
+METRICS: tuple[Metric, ...] = check_metrics((
     Metric("abs_rel", lambda x: np.abs(x.d) / x.g),
     Metric("sq_rel", lambda x: x.d2 / x.g),
     Metric("rmse", lambda x: x.d2, root_after_mean=True),
     Metric("rmse_log", lambda x: (x.log_g - np.log(x.p)) ** 2, root_after_mean=True),
-    Metric("a1", lambda x: x.thresh < 1.25),
-    Metric("a2", lambda x: x.thresh < 1.25 ** 2),
-    Metric("a3", lambda x: x.thresh < 1.25 ** 3),
-)
+    Metric("a1", lambda x: x.thresh < 1.25, better="higher"),
+    Metric("a2", lambda x: x.thresh < 1.25 ** 2, better="higher"),
+    Metric("a3", lambda x: x.thresh < 1.25 ** 3, better="higher"),
+))
+
+#: measures beside `METRICS` that a results key may name, and their direction: Dep Con (the paper's consistency
+#: error, `dep_con`) is an error
+OTHER_MEASURES = {"dep_con": "lower"}
 
 
 def metric_names() -> tuple[str, ...]:
     """The keys of every metrics dict, in table order: read from `METRICS` when called, so that a metric is one
-    entry there and nothing else (tests/mcdp/test_metrics.py adds a toy one)."""
-    return tuple(m.name for m in METRICS)
+    entry there and nothing else (tests/mcdp/test_metrics.py adds a toy one); ValueError if a name is given twice."""
+    return tuple(m.name for m in check_metrics(METRICS))
+
+
+def better(key: str) -> str:
+    """Which way is better, "lower" or "higher", for a metric name or a results key that names one (a dotted
+    column such as "none.non_overlap.a1": the metric is its last part; "dep_con.mean": a measure of
+    `OTHER_MEASURES`, its first). KeyError for a key that names no metric."""
+    parts = key.split(".")
+    for m in METRICS:
+        if m.name == parts[-1]:
+            return m.better
+    if parts[0] in OTHER_MEASURES:
+        return OTHER_MEASURES[parts[0]]
+    raise KeyError(f"{key!r} names no metric of mcdp.metrics.METRICS (nor {', '.join(OTHER_MEASURES)})")
+
+
+def better_words(key: str) -> str:
+    """"lower is better" or "higher is better", for the report's headings (`better`)."""
+    return f"{better(key)} is better"
 
 
 def _np(x, name: str, dtype=np.float64) -> np.ndarray:

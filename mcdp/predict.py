@@ -5,7 +5,7 @@
 `mcdp.evaluate.evaluate`). The network runs at the training size; depth is
 upsampled bilinearly to each camera's dataset size. Only frame t is used (no
 temporal neighbours, no pose network). No ground truth is read, except what the network itself
-declares as an input field (`mcdp.inputs.Field`): a run trained with ``scale.source=oracle_gt_median``
+declares as an input field (`mcdp.inputs.InputField`): a run trained with ``scale.source=oracle_gt_median``
 rescales by the GT median exactly as in training and is labelled ORACLE (`Predictor.oracle`), and
 ORACLE-local is given the overlap's ground-truth depth (its field reads it).
 
@@ -43,7 +43,7 @@ from corelib.atomic import atomic_write_bytes
 from corelib.configlib import config_to_dict
 from mcdp.config import EVAL_MAX_DEPTH
 from mcdp.data import RigReader, neighbour_table
-from mcdp.inputs import DepthInput
+from mcdp.inputs import DepthInput, read_fields
 from mcdp.methods import build_network, fields_of, method_params
 from mcdp.runs import RunError, config_from_checkpoint, find_checkpoint, load_checkpoint, resolve_device
 from mcdp.visual import depth_grid
@@ -104,10 +104,10 @@ class Predictor:
     def inputs(self, seq: str, frame: int) -> Inputs:
         """What the network reads of rig sample (seq, frame), as trained."""
         rgb = self.reader.rgb(seq, frame)
-        values = {f.name: f.of(self.reader, seq, frame).to(self.device)[None] for f in self.fields}
+        values = {k: v.to(self.device)[None] for k, v in read_fields(self.fields, self.reader, seq, frame).items()}
         T = torch.from_numpy(self.reader.T_ego_cam_at(seq, frame)).to(self.device)[None]  # model.sync, as trained
-        net = DepthInput(torch.from_numpy(rgb).to(self.device)[None], self.K, T, self.mask, self.nbr,
-                         values, self.fields)
+        net = DepthInput.filled(torch.from_numpy(rgb).to(self.device)[None], self.K, T, self.mask, self.nbr,
+                                values, self.fields)
         return Inputs(seq, frame, rgb, net)
 
     @torch.no_grad()

@@ -3,13 +3,17 @@
 Run folder::
 
     RUN/config.yaml            resolved RunConfig
-    RUN/run.json               dataset path, cameras, neighbours, warm start
+    RUN/run.json               dataset path (every dataset trained on), cameras, rig, neighbours, warm start
     RUN/checkpoints/last.pt    model, optimiser, step, config, RNG (written whole: corelib.atomic)
-    RUN/checkpoints/best.pt    lowest val loss: networks, step, config (no optimiser state)
+    RUN/checkpoints/best.pt    lowest val loss: networks, step, config (no optimiser state: a third of the
+                               size; resuming always starts from last.pt)
     RUN/checkpoints/written.json  the checkpoints the trainer wrote, each with its sha256 (`mcdp.checkpoint_files`)
     RUN/checkpoints/removed.json  the checkpoints deleted after use, each with its step, size and why
                                (a sweep's keep_last / keep_best: false); `find_checkpoint` then says so
-    RUN/tensorboard/           scalars and six-camera image grids (mcdp.logger)
+    RUN/tensorboard/           scalars (val/depth_*: `mcdp.validation`), six-camera image grids, the config
+                               (mcdp.logger)
+    RUN/train.log              every line of the run (`corelib.logs`: the stderr lines, and DEBUG the
+                               logged steps' losses), appended on resume
 
 Example::
 
@@ -20,17 +24,17 @@ Example::
 from __future__ import annotations
 
 import functools
-import io
 import json
+import math
 from pathlib import Path
 
 import numpy as np
 import torch
 
-from corelib.atomic import atomic_write_bytes, atomic_write_json
+from corelib.atomic import atomic_write_json
 from corelib.configlib import build_config, config_hash, config_to_dict, hashed_dict
 from corelib.version import code_version
-from mcdp.checkpoint_files import REMOVED, removed_checkpoints  # noqa: F401 (REMOVED: the name callers use)
+from mcdp.checkpoint_files import REMOVED, atomic_torch_save, removed_checkpoints  # noqa: F401 (names callers use)
 from mcdp.config import RunConfig, resume_conflicts, upgrade_config_dict
 
 CHECKPOINT_VERSION = 1
@@ -70,20 +74,6 @@ def _digest(path: str, size: int, mtime_ns: int) -> str:
 
 
 # --------------------------------------------------------------------------- checkpoints
-def atomic_torch_save(obj, path: Path) -> tuple[str, int]:
-    """torch.save to ``path.tmp`` then os.replace: a crash never leaves a half-written checkpoint.
-    Returns (sha256, bytes) of what was written (`mcdp.checkpoint_files.record_written`)."""
-    import hashlib
-
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    buf = io.BytesIO()  # serialised in memory: a full disk then fails in one plain write, not inside torch
-    torch.save(obj, buf)
-    data = buf.getbuffer()
-    atomic_write_bytes(path, data)
-    return hashlib.sha256(data).hexdigest(), len(data)
-
-
 def checkpoint_record(step: int, cfg: RunConfig, depth, pose, optimizer, scaler, ds, *, best_val: float,
                       val_history: list, spread: dict, init_from, world_size: int) -> dict:
     """What a training checkpoint holds (`load_checkpoint` reads it): the networks', optimiser's and scaler's
@@ -123,6 +113,23 @@ def load_checkpoint(path: Path) -> dict:
     if not isinstance(ckpt, dict) or ckpt.get("version") != CHECKPOINT_VERSION or "config" not in ckpt:
         raise RunError(f"checkpoint {path} is not an mcdp checkpoint of version {CHECKPOINT_VERSION}")
     return ckpt
+
+
+def restore_checkpoint(ckpt: dict, depth, pose, optimizer, scaler) -> dict:
+    """Load a training checkpoint (`checkpoint_record`'s, read by `load_checkpoint`) into the networks, the
+    optimiser, the scaler and torch's RNG; the rest of the trainer's state it holds: {"step", "best_val",
+    "val_history", "spread", "init_from", "world_size"}."""
+    depth.load_state_dict(ckpt["depth_model"])
+    if pose is not None:
+        pose.load_state_dict(ckpt["pose_model"])
+    optimizer.load_state_dict(ckpt["optimizer"])
+    if ckpt.get("scaler"):
+        scaler.load_state_dict(ckpt["scaler"])
+    torch.set_rng_state(ckpt["torch_rng"])
+    return {"step": int(ckpt["step"]), "best_val": float(ckpt.get("best_val", math.inf)),
+            "val_history": [tuple(x) for x in ckpt.get("val_history", [])],
+            "spread": dict(ckpt.get("depth_spread") or {}), "init_from": ckpt.get("init_from"),
+            "world_size": int(ckpt.get("world_size", 1))}
 
 
 def config_from_checkpoint(ckpt: dict, source: str = "checkpoint") -> RunConfig:

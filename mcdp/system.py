@@ -104,7 +104,7 @@ class SelfSupervisedSystem(torch.nn.Module):
         method = method_of(cfg.model)
         self.params = method_params(cfg)  # the method's own parameters (LossContext.params), or None
         self.depth = method.builder(cfg.model, self.params)
-        self.fields = fields_of(cfg)  # the optional inputs its batches carry (`mcdp.inputs.Field`)
+        self.fields = fields_of(cfg)  # the optional inputs its batches carry (`mcdp.inputs.InputField`)
         self.pose = PoseModel(cfg.model.pretrained) if cfg.scale.source != "odometry" else None
         self.register_buffer("nbr", neighbour_table(neighbours, n_cams), persistent=False)
         tgt, src = directed_pairs(neighbours)

@@ -17,16 +17,9 @@ Model selection uses the val split only and no ground truth: every
 ``train.val_every`` steps the final stage's L_p + lambda L_con on fixed val
 samples is measured and the lowest is kept as ``checkpoints/best.pt``.
 
-Run folder::
-
-    RUN/config.yaml            resolved RunConfig
-    RUN/run.json               dataset path (every dataset trained on), cameras, rig, neighbours
-    RUN/checkpoints/last.pt    model, optimiser, step, config (atomic: tmp + os.replace)
-    RUN/checkpoints/best.pt    lowest val loss: networks, step, config (no optimiser state: a
-                               third of the size; resuming always starts from last.pt)
-    RUN/tensorboard/           scalars (val/depth_*: `mcdp.validation`), six-camera image grids, the config
-    RUN/train.log              every line of the run (`corelib.logs`: the stderr lines, and DEBUG the
-                               logged steps' losses), appended on resume
+The run folder it writes (config.yaml, run.json, checkpoints/, tensorboard/, train.log) is described once, in
+`mcdp.runs`; a checkpoint's writer and reader sit side by side there and in `mcdp.checkpoint_files`, the guards
+(collapse, divergence, fp16 skips) in `mcdp.diagnostics`.
 
 Example::
 
@@ -47,23 +40,19 @@ from corelib.logs import close_run_log, logger, run_log
 from corelib.rundir import FolderError, claim
 from corelib.version import warn_other_code
 from mcdp.config import RunConfig
-from mcdp.data import RigDataset, StepBatchSampler, collate
-from mcdp.diagnostics import (CollapseGuard, TrainingDiverged, collapse_reason, depth_spread,  # noqa: F401
-                              gradient_divergence, loss_divergence)  # TrainingDiverged: raised here, imported from here
+from mcdp.data import RigDataset, step_loader
+from mcdp.diagnostics import (CollapseGuard, SkipGuard, TrainingDiverged,  # noqa: F401 (imported from here too)
+                              gradient_divergence, loss_divergence)
 from mcdp.distributed import Dist
 from mcdp.inputs import RigBatch
 from mcdp.logger import TrainLogger
-from mcdp.checkpoint_files import record_written
+from mcdp.checkpoint_files import write_checkpoint
 from mcdp.methods import check_run
-from mcdp.runs import (RunError, atomic_torch_save, check_resume, checkpoint_record, resolve_device, resolve_precision,
+from mcdp.runs import (RunError, check_resume, checkpoint_record, resolve_device, resolve_precision, restore_checkpoint,
                        write_run_record)
 from mcdp.system import SelfSupervisedSystem
-from mcdp.validation import validation_loss
+from mcdp.validation import val_indices, validation_loss
 from mcdp.warmstart import warm_start
-
-#: fp16 steps in a row the GradScaler may skip (non-finite gradients) before training stops
-FP16_SKIP_LIMIT = 20
-
 
 log = logger("mcdp.train")
 
@@ -153,7 +142,7 @@ class Trainer:
         if ckpt is None and cfg.model.init_from is not None:
             self.init_from = warm_start(self.depth, cfg.model.init_from)
         self.step = 0
-        self._skipped = 0
+        self.skip_guard = SkipGuard()
         self.spread: dict = {}
         self.collapse_guard = CollapseGuard()
         self.best_val = math.inf
@@ -179,40 +168,25 @@ class Trainer:
                                  init_from=self.init_from, world_size=self.dist.world)
 
     def save_checkpoint(self, name: str = "last.pt", weights_only: bool = False) -> Path:
-        """Atomically write ``checkpoints/<name>``, its sha256 recorded (`mcdp.checkpoint_files`: a clean-up
-        deletes only such files); `weights_only` drops optimiser/scaler/RNG state.
-        Under torchrun only rank 0 writes (every rank holds the same weights)."""
-        path = self.run_dir / "checkpoints" / name
+        """Atomically write ``checkpoints/<name>``, its sha256 recorded (`mcdp.checkpoint_files.write_checkpoint`);
+        `weights_only` drops optimiser/scaler/RNG state. Under torchrun only rank 0 writes (every rank holds the
+        same weights)."""
         if not self.dist.is_main:
-            return path
-        state = self.state()
-        if weights_only:
-            for k in ("optimizer", "scaler", "torch_rng"):
-                state.pop(k)
-        record_written(self.run_dir, name, *atomic_torch_save(state, path), self.step)
-        return path
+            return self.run_dir / "checkpoints" / name
+        return write_checkpoint(self.run_dir, name, self.state(), self.step, weights_only)
 
     def _restore(self, ckpt: dict) -> None:
+        """Resume from last.pt (`mcdp.runs.restore_checkpoint`, beside its writer and reader)."""
         if self.dist.is_main:  # a run resumed by other code: one warning line (corelib.version)
             warn_other_code(f"checkpoint {self.run_dir / 'checkpoints' / 'last.pt'}",
                             ckpt.get("code_version"), log.warning)
-        self.depth.load_state_dict(ckpt["depth_model"])
-        if self.pose is not None:
-            self.pose.load_state_dict(ckpt["pose_model"])
-        self.optimizer.load_state_dict(ckpt["optimizer"])
-        if ckpt.get("scaler"):
-            self.scaler.load_state_dict(ckpt["scaler"])
-        self.step = int(ckpt["step"])
-        self.best_val = float(ckpt.get("best_val", math.inf))
-        self.val_history = [tuple(x) for x in ckpt.get("val_history", [])]
-        self.spread = dict(ckpt.get("depth_spread") or {})
-        self.init_from = ckpt.get("init_from")
-        torch.set_rng_state(ckpt["torch_rng"])
-        saved_world = int(ckpt.get("world_size", 1))
-        if saved_world != self.dist.world and self.dist.is_main:
+        rest = restore_checkpoint(ckpt, self.depth, self.pose, self.optimizer, self.scaler)
+        self.step, self.best_val, self.val_history = rest["step"], rest["best_val"], rest["val_history"]
+        self.spread, self.init_from = rest["spread"], rest["init_from"]
+        if rest["world_size"] != self.dist.world and self.dist.is_main:
             # exact in what is trained: batches and augmentation are functions of the step, and the
             # global batch is the same; only the split of each batch over processes changes
-            log.info(f"mcdp train: resuming a run trained on {saved_world} process(es) with {self.dist.world}: "
+            log.info(f"mcdp train: resuming a run trained on {rest['world_size']} process(es) with {self.dist.world}: "
                      "the same global batches; numbers differ as an N-rank run differs from a 1-process one "
                      "(per-rank BatchNorm statistics)")
 
@@ -226,9 +200,7 @@ class Trainer:
 
     # ------------------------------------------------------------------ validation
     def val_indices(self) -> list[int]:
-        n = len(self.val_set)
-        k = min(n, self.cfg.train.val_samples)
-        return sorted({int(round(i * (n - 1) / max(k - 1, 1))) for i in range(k)}) if n else []
+        return val_indices(len(self.val_set), self.cfg.train.val_samples)
 
     @torch.no_grad()
     def validate(self) -> float | None:
@@ -246,18 +218,14 @@ class Trainer:
 
     # ------------------------------------------------------------------ logging
     def check_spread(self, outputs: dict, mask: torch.Tensor) -> dict:
-        """Spread of the final stage's depth on this batch (`mcdp.diagnostics`); warns once per collapse."""
+        """Spread of the final stage's depth on this batch (`mcdp.diagnostics.CollapseGuard`); warns once per collapse."""
         m = self.cfg.model
-        final = self.depth.stages[-1]
-        depth = outputs["depth", final, 0]
-        mask = mask.reshape(depth.shape)
-        spread = depth_spread(depth, mask, m.min_depth, m.max_depth)
-        reason = collapse_reason(spread)
-        if self.collapse_guard.warn_now(reason, self.step) and self.dist.is_main:
-            log.warning(f"mcdp train: WARNING step {self.step}: depth collapsed: {reason}")
-        self.spread = dict(spread, collapsed=reason)
-        self.log.scalars({f"depth_spread/{k}": spread[k] for k in ("ratio", "at_min", "at_max")}, self.step)
-        return spread
+        depth = outputs["depth", self.depth.stages[-1], 0]
+        self.spread, warn = self.collapse_guard.check(depth, mask, m.min_depth, m.max_depth, self.step)
+        if warn is not None and self.dist.is_main:
+            log.warning(f"mcdp train: WARNING step {self.step}: depth collapsed: {warn}")
+        self.log.scalars({f"depth_spread/{k}": self.spread[k] for k in ("ratio", "at_min", "at_max")}, self.step)
+        return self.spread
 
     def _last_good(self) -> str:
         last = self.run_dir / "checkpoints" / "last.pt"
@@ -278,7 +246,8 @@ class Trainer:
         end = tc.steps if until is None else min(int(until), tc.steps)
         if start >= end:
             return {"steps": self.step, "trained": 0, "best_val": self.best_val, "losses": []}
-        loader = self._loader(start, end)
+        loader = step_loader(self.train_set, self.cfg.train, start, end, self.dist.rank, self.dist.world,
+                             pin=self.device.type == "cuda")
         self.depth.train()
         if self.pose is not None:
             self.pose.train()
@@ -335,18 +304,9 @@ class Trainer:
             "depth_spread": dict(self.spread),
         }
 
-    def _loader(self, start: int, end: int) -> torch.utils.data.DataLoader:
-        """The train split's batches of steps [start, end) (this rank's share; `StepBatchSampler`)."""
-        tc = self.cfg.train
-        sampler = StepBatchSampler(len(self.train_set), tc.batch_size, tc.seed, start, end,
-                                   rank=self.dist.rank, world=self.dist.world)
-        return torch.utils.data.DataLoader(self.train_set, batch_sampler=sampler, collate_fn=collate,
-                                           num_workers=tc.num_workers, pin_memory=self.device.type == "cuda",
-                                           persistent_workers=False)
-
     def _step(self, batch: RigBatch) -> tuple[dict, dict]:
         """One optimiser step on `batch` at `self.step`: (outputs, losses). TrainingDiverged on a non-finite loss
-        (on any rank) or gradient, or fp16 steps skipped `FP16_SKIP_LIMIT` times in a row."""
+        (on any rank) or gradient, or fp16 steps skipped too often in a row (`mcdp.diagnostics.SkipGuard`)."""
         tc = self.cfg.train
         outputs, losses = (self.ddp or self.system)(batch, self.step, True)
         loss = losses["loss"]
@@ -366,11 +326,9 @@ class Trainer:
         self.scaler.step(self.optimizer)
         self.scaler.update()
         if scale is not None:  # fp16: the scaler skips a step with non-finite gradients and lowers the scale
-            self._skipped = self._skipped + 1 if self.scaler.get_scale() < scale else 0
-            if self._skipped >= FP16_SKIP_LIMIT:
-                raise TrainingDiverged(f"fp16: the gradients were not finite for {self._skipped} steps in a row "
-                                       f"(up to step {self.step}); the weights did not change in them"
-                                       + self._last_good() + "; try train.precision=bf16 or fp32")
+            skipped = self.skip_guard.record(scale, self.scaler.get_scale(), self.step)
+            if skipped is not None:
+                raise TrainingDiverged(skipped + self._last_good() + "; try train.precision=bf16 or fp32")
         return outputs, losses
 
     def _validate_and_keep_best(self) -> None:

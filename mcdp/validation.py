@@ -1,7 +1,7 @@
 """The trainer's validation: the val loss that picks best.pt, and depth metrics for TensorBoard only.
 
 `validation_loss` is the final stage's L_p + lambda L_con on the fixed val rig samples
-(`mcdp.trainer.Trainer.val_indices`), no ground truth: the step's own ``stage/<final>`` loss
+(`val_indices`), no ground truth: the step's own ``stage/<final>`` loss
 (`mcdp.system`), read as the training step computes it, never re-weighted here (a method's own terms
 and the velocity term are not in it). Where the dataset has depth, the final stage's
 depth of those samples is also scored (`DepthAccumulator`, logged as ``val/depth_<metric>``): abs_rel, sq_rel, rmse,
@@ -25,6 +25,13 @@ import torch
 
 from mcdp.data import collate
 from mcdp.metrics import clamp_depth, metric_names, metric_terms, metrics_from_means, nan_metrics, valid_gt_mask
+
+
+def val_indices(n: int, k: int) -> list[int]:
+    """The fixed val samples every validation reads: ``k`` of the ``n`` samples of the val split, evenly spread
+    (the first and the last included); [] for an empty split."""
+    k = min(n, k)
+    return sorted({int(round(i * (n - 1) / max(k - 1, 1))) for i in range(k)}) if n else []
 
 
 @torch.no_grad()

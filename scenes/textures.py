@@ -13,7 +13,8 @@ class, come from the one table of materials, `scenes.materials.TABLE`. Orientati
 (see `scenes.primitives`): column = u * S, row = v * S, rows top-down, and on
 vertical surfaces v grows downward, so facades appear upright.
 
-`car_paint`, `sign` and `house_siding` are light and neutral: meshes colour them with per-vertex tints.
+`car_paint`, `sign` and `house_siding` are light and neutral: meshes colour them with per-vertex tints. The
+noise, grain and pattern operations every maker uses are `scenes.patterns`.
 
 Example::
 
@@ -28,99 +29,9 @@ from typing import Callable
 import numpy as np
 
 from scenes.materials import LAYER, MATERIALS, TILE_M, uv_scale_for  # noqa: F401 (the materials' table)
+from scenes.patterns import Ctx as _Ctx, box_mask as _box_mask, lines as _lines, mix as _mix, shade as _shade
 
 TEXTURE_SIZES = (64, 128, 256, 512)
-
-# ---------------------------------------------------------------------------- building blocks
-class _Ctx:
-    """Shared per-size grids and the generator for one texture set."""
-
-    def __init__(self, rng: np.random.Generator, size: int) -> None:
-        self.rng = rng
-        self.S = size
-        c = (np.arange(size) + 0.5) / size
-        U, V = np.meshgrid(c, c)  # (S, S): U along columns (u), V along rows (v)
-        self.U, self.V = U.astype(np.float32), V.astype(np.float32)
-        f = np.fft.fftfreq(size) * size     # cycles per tile
-        fr = np.fft.rfftfreq(size) * size
-        self.FY, self.FX = np.meshgrid(f, fr, indexing="ij")  # (S, S//2+1)
-        self._masks: dict[tuple, np.ndarray] = {}
-        self._grain: np.ndarray | None = None
-
-    def noise(self, lo: float, hi: float, aniso: tuple[float, float] = (1.0, 1.0)) -> np.ndarray:
-        """Periodic band-pass noise (S, S), zero mean, unit std; lo/hi in cycles per tile.
-
-        aniso = (ax, ay) divides the cut-offs per axis (max u-frequency hi/ax, v-frequency
-        hi/ay): ay > ax gives features elongated along v (vertical streaks on walls).
-        """
-        key = (lo, hi, aniso)
-        mask = self._masks.get(key)
-        if mask is None:  # filter masks are the slow part: compute each once per set
-            f = np.hypot(self.FX * aniso[0], self.FY * aniso[1])
-            mask = np.exp(-(f / hi) ** 2) * (1.0 - np.exp(-(f / max(lo, 1e-6)) ** 2))
-            self._masks[key] = mask.astype(np.float32)
-            mask = self._masks[key]
-        # white noise drawn directly in the (half) frequency domain: one inverse FFT only
-        shape = mask.shape
-        F = np.empty(shape, np.complex64)
-        F.real = self.rng.standard_normal(shape, dtype=np.float32)
-        F.imag = self.rng.standard_normal(shape, dtype=np.float32)
-        F *= mask
-        n = np.fft.irfft2(F, s=(self.S, self.S))
-        sd = n.std()
-        return ((n - n.mean()) / (sd if sd > 0 else 1.0)).astype(np.float32)
-
-    def grain(self) -> np.ndarray:
-        """Pixel-scale grain (S, S), unit std: the local contrast every material gets.
-
-        White noise is periodic by construction (no filtering needed, and cheap).
-        """
-        return self.rng.standard_normal((self.S, self.S), dtype=np.float32)
-
-    def cells(self, nx: int, ny: int) -> np.ndarray:
-        """Random value in [0, 1) per cell of an nx x ny grid, broadcast to (S, S)."""
-        table = self.rng.random((ny, nx), dtype=np.float32)
-        ix = np.floor(self.U * nx).astype(int) % nx
-        iy = np.floor(self.V * ny).astype(int) % ny
-        return table[iy, ix]
-
-
-def _shade(base, amount: np.ndarray) -> np.ndarray:
-    """base colour (3,) modulated by (S, S) multiplicative factor -> (S, S, 3).
-
-    One multiply per channel into the output (the values of ``base[None, None, :] * amount[..., None]``,
-    5x faster than that broadcast, whose innermost loop is 3 long)."""
-    b = np.asarray(base, dtype=np.float32)
-    out = np.empty(amount.shape + (3,), np.result_type(b, amount))
-    for k in range(3):
-        np.multiply(b[k], amount, out=out[..., k])
-    return out
-
-
-def _mix(a: np.ndarray, b: np.ndarray, t: np.ndarray) -> np.ndarray:
-    """Blend two (S, S, 3) images with weight t (S, S) in [0, 1] on b: ``a * (1 - t) + b * t`` per channel
-    (the same operations as the broadcast expression, 1.5-3x faster)."""
-    out = np.empty(np.broadcast_shapes(a.shape, b.shape, t.shape + (1,)), np.result_type(a, b, t))
-    w0 = 1.0 - t
-    tmp = np.empty(t.shape, out.dtype)
-    for k in range(out.shape[-1]):
-        np.multiply(a[..., k], w0, out=out[..., k])
-        np.multiply(b[..., k], t, out=tmp)
-        out[..., k] += tmp
-    return out
-
-
-def _box_mask(x: np.ndarray, lo: float, hi: float, soft: float) -> np.ndarray:
-    """Soft 1-D window on fractional coordinate x in [0, 1): 1 inside [lo, hi]."""
-    return np.clip((x - lo) / soft + 0.5, 0, 1) * np.clip((hi - x) / soft + 0.5, 0, 1)
-
-
-def _lines(x: np.ndarray, count: int, width: float) -> np.ndarray:
-    """1 on `count` evenly spaced lines (width as a fraction of the period) of coordinate x."""
-    f = (x * count) % 1.0
-    d = np.minimum(f, 1.0 - f)
-    return np.clip(1.0 - d / max(width, 1e-6), 0.0, 1.0) ** 0.5
-
 
 # ---------------------------------------------------------------------------- materials
 def _asphalt(c: _Ctx) -> np.ndarray:

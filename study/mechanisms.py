@@ -20,7 +20,7 @@ from __future__ import annotations
 
 import math
 
-from study.paired import paired_difference
+from study.paired import paired_gain
 from study.probes import INERT_M
 from study.results import BASELINE, USE_FLOOR, evaluations, fmt_diff, gain_word, method_agg
 from study.results import fmt_num as _num
@@ -93,9 +93,9 @@ def paired_all(results: dict, methods: list[str]) -> tuple[dict, dict, dict]:
         o = d["overlap"]
         for m in methods:
             for key, _ in KEYS:
-                diffs[m][key][o] = paired_difference(results, o, BASELINE, m, key)
+                diffs[m][key][o] = paired_gain(results, o, BASELINE, m, key)
             if c is not None and Evaluation(m, c) in evs:
-                cuts[m][o] = paired_difference(results, o, Evaluation(m, c), m, "median.mean.abs_rel")
+                cuts[m][o] = paired_gain(results, o, Evaluation(m, c), m, "median.mean.abs_rel")
                 change[m][o] = method_agg(results, o, m, "cut.depth_change_m").get("mean", math.nan)
     return diffs, cuts, change
 

@@ -18,6 +18,15 @@ def paired_difference(results: dict, overlap: float, a: str | Evaluation, b: str
     return paired_columns(results, overlap, (a, key), (b, key))
 
 
+def paired_gain(results: dict, overlap: float, ref: str | Evaluation, new: str | Evaluation, key: str) -> dict:
+    """What ``new`` gains over ``ref`` in column ``key``, paired as `paired_difference`, taken worse minus better
+    (the one sign of every page: positive = ``new`` helps): ref − new where lower is better, new − ref where
+    higher is (`mcdp.metrics.better`: e.g. a1)."""
+    from mcdp.metrics import better
+
+    return paired_difference(results, overlap, *((ref, new) if better(key) == "lower" else (new, ref)), key)
+
+
 def world_of(results: dict) -> dict:
     """seed -> world id of the sweep (`study.config.world_of_seed`, from the recorded config); with one shared
     world, or one seed per world, each seed is its own cluster."""

@@ -18,8 +18,8 @@ from pathlib import Path
 
 from mcdp.methods import label
 from study.mechanisms import KEYS
-from study.paired import paired_difference
-from study.results import BASELINE, PRIOR_LABEL, REF_LABEL, SCALE_LABEL, method_agg, yardstick_agg
+from study.paired import paired_gain
+from study.results import BASELINE, PAIRED_PLOT, PRIOR_LABEL, REF_LABEL, SCALE_LABEL, method_agg, yardstick_agg
 from study.variants import Evaluation, cut
 
 XLABEL = "target overlap (fraction of hfov)"
@@ -136,7 +136,7 @@ def make_plots(results: dict, plot_dir: Path) -> list[Path]:
     band(ax, "median.mean.abs_rel", "range of the methods, median")
     _style(ax, "yardsticks (no training)", "abs_rel", xs, x_axis(results))
     fig.suptitle("abs_rel vs overlap, test split, all pixels (mean ± 95 % interval over seeds, unpaired; the "
-                 "comparison with Mono2: paired_vs_mono2.png)", fontsize=11)
+                 f"comparison with {label(BASELINE)}: {PAIRED_PLOT})", fontsize=11)
     fig.tight_layout()
     _legend(fig, axes, ncol=4)
     paths.append(_save(plt, fig, plot_dir / "abs_rel_vs_overlap.png"))
@@ -207,8 +207,8 @@ def measured_figure(results: dict):
 
 def paired_series(results: dict) -> dict[str, dict[str, list[dict]]]:
     """What paired_vs_mono2.png draws: {key of `PAIRED_KEYS`: {method: [Mono2 − method per overlap]}}, the
-    `paired_difference` taken worse minus better as on every page: positive = helps."""
-    return {key: {m: [paired_difference(results, o, BASELINE, m, key) for o in results["overlaps"]]
+    `paired_gain`: worse minus better as on every page, positive = helps."""
+    return {key: {m: [paired_gain(results, o, BASELINE, m, key) for o in results["overlaps"]]
                   for m in results["methods"] if m != BASELINE} for key, _ in PAIRED_KEYS}
 
 
@@ -239,12 +239,13 @@ def paired_plot(results: dict, plot_dir: Path) -> Path | None:
                 ax.plot([xi], [yi], "o", color=c, mfc=c if p["differs"] else "white", ms=6)
         ax.axhline(0.0, color="k", lw=0.8)
         unit = "abs_rel, median scaling" if key.startswith("median.") else "ratio"
-        _style(ax, name, f"{name}: Mono2 − method ({unit}; > 0 = helps)", xs, x_axis(results))
-    fig.suptitle("Mono2 − each method, paired over seeds" + (" (one seed: no interval)" if one_seed else
-                 ", 95 % interval; positive = helps (better than Mono2); filled = beyond the interval"), fontsize=11)
+        _style(ax, name, f"{name}: {label(BASELINE)} − method ({unit}; > 0 = helps)", xs, x_axis(results))
+    fig.suptitle(f"{label(BASELINE)} − each method, paired over seeds" + (" (one seed: no interval)" if one_seed else
+                 f", 95 % interval; positive = helps (better than {label(BASELINE)}); filled = beyond the interval"),
+                 fontsize=11)
     fig.tight_layout()
     _legend(fig, axes)
-    return _save(plt, fig, plot_dir / "paired_vs_mono2.png")
+    return _save(plt, fig, plot_dir / PAIRED_PLOT)
 
 
 def distance_lines(results: dict) -> list[tuple[str, tuple, str]]:

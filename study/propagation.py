@@ -19,7 +19,7 @@ from __future__ import annotations
 
 import math
 
-from study.paired import paired_columns, paired_difference
+from study.paired import paired_columns, paired_gain
 from study.probes import INERT_M
 from study.results import USE_FLOOR, evaluations, flat_of, fmt_diff, gain_word, method_agg
 from study.results import fmt_num as _num
@@ -38,7 +38,7 @@ def _pd(pd: dict, digits: int = 3, floor: float = 0.0) -> str:
 
 def _cut_diff(results: dict, o: float, m: str, key: str) -> dict:
     """Cut - as trained: what reading the other cameras gains (positive = helps)."""
-    return paired_difference(results, o, Evaluation(m, cut()), m, key)
+    return paired_gain(results, o, Evaluation(m, cut()), m, key)
 
 
 def _self_diff(results: dict, o: float, m: str, a: str, b: str) -> dict:

@@ -83,8 +83,9 @@ def flat_row(row: dict) -> dict[str, Any]:
         if sc not in m:
             continue
         for region in ("mean", "overlap", "non_overlap"):
-            for k in metric_names():
-                out[f"{sc}.{region}.{k}"] = number(m[sc][region].get(k))
+            for k in metric_names():  # a metric the record predates is absent, as in its results.csv (no NaN column)
+                if k in m[sc][region]:
+                    out[f"{sc}.{region}.{k}"] = number(m[sc][region][k])
         for cam, v in m[sc]["per_camera_abs_rel"].items():
             out[f"{sc}.camera.{cam}.abs_rel"] = number(v)
         for band, v in m[sc].get("bands", {}).items():  # distance to the overlap (mcdp.evaluate)

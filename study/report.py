@@ -28,7 +28,7 @@ from pathlib import Path
 
 from mcdp.diagnostics import COLLAPSE_RATIO
 from mcdp.methods import label
-from mcdp.metrics import metric_names
+from mcdp.metrics import better_words, metric_names
 from study.mechanisms import format_mechanisms
 from study.lcon import format_lcon
 from study.pretrain import warm_start_line, weights_in_sweep
@@ -217,11 +217,12 @@ def _setup_section(results: dict) -> list[str]:
 def _summary_section(results: dict) -> list[str]:
     """abs_rel vs overlap per method and scaling, the paired verdict, propagation, verdicts."""
     methods = results["methods"]
+    base = label(BASELINE)
     L: list[str] = []
     add = L.append
     add("## Summary: abs_rel vs overlap\n")
     for sc in ("none", "median"):
-        add(f"**{SCALE_LABEL[sc]} scaling** (abs_rel, lower is better; in brackets: gain vs Mono2, (Mono2 − method) / Mono2, positive = helps)\n")
+        add(f"**{SCALE_LABEL[sc]} scaling** (abs_rel, {better_words('abs_rel')}; in brackets: gain vs {base}, ({base} − method) / {base}, positive = helps)\n")
         add("| overlap | measured | " + " | ".join(label(m) for m in methods) + f" | {REF_LABEL} | {PRIOR_LABEL} |")
         add("|---|---|" + "---|" * (len(methods) + 2))
         for d in results["data"]:
@@ -254,6 +255,7 @@ def _summary_section(results: dict) -> list[str]:
 def _overlap_section(results: dict, d: dict, cams: list[str] | None) -> list[str]:
     """One overlap: measured overlap per pair, Table 1 and Table 2 layouts, overlap vs non-overlap pixels."""
     methods = results["methods"]
+    base = label(BASELINE)
     o = d["overlap"]
     mo = d["measured"]
     L: list[str] = []
@@ -269,7 +271,7 @@ def _overlap_section(results: dict, d: dict, cams: list[str] | None) -> list[str
     for k, v in mo["per_pair"].items():
         add(f"| {k} | {_num(v['target'])} | {_num(v['measured'])} |")
     add("")
-    add(f"**Table 1 layout** (test split; Δ = relative gain in abs_rel over Mono2, (Mono2 − method) / Mono2, positive = helps)\n")
+    add(f"**Table 1 layout** (test split; Δ = relative gain in abs_rel over {base}, ({base} − method) / {base}, positive = helps)\n")
     add("| Method | Scale | " + " | ".join(metric_names()) + " | Δ abs_rel |")
     add("|---|---|" + "---|" * (len(metric_names()) + 1))
     for sc in ("none", "median"):
@@ -285,7 +287,7 @@ def _overlap_section(results: dict, d: dict, cams: list[str] | None) -> list[str
                 + f" | {_pct(_rel(yardstick_agg(results, o, f'{sc}.mean.abs_rel', which)['mean'], ref))} |")
     add("")
     if cams:
-        add("**Table 2 layout: Dep Con per camera** (unscaled predictions, lower is better; Δ = relative gain of the mean over Mono2, positive = helps)\n")
+        add(f"**Table 2 layout: Dep Con per camera** (unscaled predictions, {better_words('dep_con')}; Δ = relative gain of the mean over {base}, positive = helps)\n")
         add("| Method | " + " | ".join(cams) + " | mean | Δ mean |")
         add("|---|" + "---|" * (len(cams) + 2))
         ref = method_agg(results, o, BASELINE, "dep_con.mean")["mean"]
@@ -298,7 +300,7 @@ def _overlap_section(results: dict, d: dict, cams: list[str] | None) -> list[str
         add(f"| *{REF_LABEL}* | " + " | ".join(_fmt(yardstick_agg(results, o, f"dep_con.camera.{c}")) for c in cams)
             + f" | {_fmt(a)} | {_pct(_rel(a['mean'], ref))} |")
         add("")
-    add("**Overlap vs non-overlap pixels** (abs_rel; Δ = relative gain over Mono2 on the same region, positive = helps)\n")
+    add(f"**Overlap vs non-overlap pixels** (abs_rel; Δ = relative gain over {label(BASELINE)} on the same region, positive = helps)\n")
     add("| Method | Scale | overlap | non-overlap | Δ overlap | Δ non-overlap |")
     add("|---|---|---|---|---|---|")
     for sc in ("none", "median"):

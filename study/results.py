@@ -24,8 +24,10 @@ from study.variants import CUT, ORACLE, ORACLE_OVL, SPREAD, TRAINED, VARIANTS, E
 SCALE_LABEL = {"none": "metric", "median": "median", "rig_median": "rig median"}
 
 
-#: how a paired difference reads in the report (`paired_difference`'s ``differs``)
-VERDICT_WORD = {-1: "**lower (better)**", 1: "**higher (worse)**", 0: "no difference beyond the interval"}
+#: how a paired difference reads in the report (`paired_difference`'s ``differs``), by which way its metric is
+#: better (`mcdp.metrics.better`)
+VERDICT_WORD = {"lower": {-1: "**lower (better)**", 1: "**higher (worse)**", 0: "no difference beyond the interval"},
+                "higher": {-1: "**lower (worse)**", 1: "**higher (better)**", 0: "no difference beyond the interval"}}
 #: how a gain reads (a paired difference taken worse minus better, the one sign of every page: positive = helps)
 GAIN_WORD = {1: "**helps**", -1: "**hurts**", 0: "no difference beyond the interval"}
 
@@ -52,12 +54,15 @@ def fmt_diff(pd: dict, digits: int = 3) -> str:
     return f"{mu:+.{digits}f} ± {fmt_num(ci, digits)}"
 
 
-def verdict_word(pd: dict, floor: float = 0.0) -> str:
-    """VERDICT_WORD of a paired difference; beyond its interval but smaller than `floor` in size is
-    said to be negligible, not better or worse."""
+def verdict_word(pd: dict, floor: float = 0.0, *, key: str) -> str:
+    """VERDICT_WORD of a paired difference of column ``key`` (its metric says which way is better,
+    `mcdp.metrics.better`); beyond its interval but smaller than `floor` in size is said to be negligible, not
+    better or worse."""
+    from mcdp.metrics import better
+
     if pd["differs"] != 0 and abs(pd["mean"]) < floor:
         return f"beyond the interval but negligible (< {floor:g})"
-    return VERDICT_WORD[pd["differs"]]
+    return VERDICT_WORD[better(key)][pd["differs"]]
 
 
 def gain_word(pd: dict, floor: float = 0.0) -> str:
@@ -68,8 +73,10 @@ def gain_word(pd: dict, floor: float = 0.0) -> str:
 
 
 #: the method every other one is compared with (paired differences, the "vs Mono2" columns of the report): the
-#: registry's row with ``role="baseline"`` (`mcdp.methods.baseline`)
+#: registry's row with ``baseline=True`` (`mcdp.methods.baseline`)
 BASELINE = baseline()
+#: the file name of the figure of every method's paired gain over the baseline (`study.plots.paired_plot`)
+PAIRED_PLOT = f"paired_vs_{BASELINE}.png"
 
 
 #: the keys a row of results written before ``row["evaluations"]`` held its evaluations under: {variant: (metrics

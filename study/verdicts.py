@@ -20,8 +20,8 @@ import math
 
 from mcdp.methods import label as method_label
 from study.mechanisms import KEYS, NOWHERE, from_which_overlap, is_yardstick, paired_all, verdict_line
-from study.paired import paired_difference
-from study.results import BASELINE, SCALE_LABEL, fmt_diff, gain_word, method_agg, yardstick_agg
+from study.paired import paired_gain
+from study.results import BASELINE, PAIRED_PLOT, SCALE_LABEL, fmt_diff, gain_word, method_agg, yardstick_agg
 
 #: the per-comparison level of every interval in the report
 ALPHA = 0.05
@@ -31,17 +31,18 @@ METRIC_KEYS = (("none.mean.abs_rel", "metric abs_rel, all px"), ("none.non_overl
 
 def format_verdicts(results: dict, label) -> str:
     """Markdown: the section ``## Verdicts``."""
+    base = method_label(BASELINE)
     L = ["## Verdicts\n", "Every verdict of this report; the sections below give the numbers they read. They cover "
          "both scalings the report tabulates for the methods, median-scaled and metric (unscaled) abs_rel, and Dep "
          "Con (unscaled); the primary comparisons also read `rig_median`. Every difference is a gain, worse minus "
-         "better: positive = helps. A method is better or worse than Mono2 only where the paired 95 % interval "
+         f"better: positive = helps. A method is better or worse than {base} only where the paired 95 % interval "
          "excludes 0.\n"]
     from study.primary import has_control, headline
 
     if has_control(results):
         L.append(f"- **Primary comparisons** (the section above): {headline(results)}.")
     L += mechanism_lines(results, label)
-    L += ["", "Against the yardsticks (abs_rel, mean over seeds) and, in metric scaling, Mono2 (paired over seeds):\n",
+    L += ["", f"Against the yardsticks (abs_rel, mean over seeds) and, in metric scaling, {base} (paired over seeds):\n",
           yardstick_lines(results)]
     return "\n".join(L) + "\n"
 
@@ -53,8 +54,9 @@ def mechanism_lines(results: dict, label) -> list[str]:
     if BASELINE not in results["methods"] or not methods or len(results["seeds"]) < 2:
         return []
     mech = [m for m in methods if not is_yardstick(results, m)]
+    base = method_label(BASELINE)
     diffs, cuts, change = paired_all(results, methods)
-    metric = {m: {key: {d["overlap"]: paired_difference(results, d["overlap"], BASELINE, m, key)
+    metric = {m: {key: {d["overlap"]: paired_gain(results, d["overlap"], BASELINE, m, key)
                         for d in results["data"]} for key, _ in METRIC_KEYS} for m in mech}
     L = [verdict_line(m, diffs[m], cuts[m], change[m], label)[:-1] + "; " + _metric_clause(metric[m]) + "."
          for m in mech]
@@ -70,19 +72,19 @@ def mechanism_lines(results: dict, label) -> list[str]:
         worse = [f"{label(m)} at {_at(pds)} ({name})" for m in mech
                  for key, name in (("median.mean.abs_rel", "median"), ("none.mean.abs_rel", "metric"))
                  for pds in [diffs[m][key] if key in diffs[m] else metric[m][key]] if _at(pds)]
-        L.append("- **In one line**: " + ("more accurate than Mono2: " + "; ".join(better) if better else
-                                          "no mechanism is more accurate than Mono2 at any overlap")
+        L.append("- **In one line**: " + (f"more accurate than {base}: " + "; ".join(better) if better else
+                                          f"no mechanism is more accurate than {base} at any overlap")
                  + (f"; at no overlap: {', '.join(never)}" if better and never else "")
                  + " (median-scaled abs_rel, all pixels, beyond the paired 95 % interval); less accurate than "
-                 + "Mono2 (all pixels, either scaling): " + ("; ".join(worse) if worse else "none") + ".")
+                 + f"{base} (all pixels, either scaling): " + ("; ".join(worse) if worse else "none") + ".")
     both = {m: {**diffs[m], **metric[m]} for m in mech}
     keys = [k for k in [k for k, _ in KEYS] + [k for k, _ in METRIC_KEYS]  # the measures the sweep recorded
             if any(pd.get("n") for m in mech for pd in both[m][k].values())]
     n = sum(1 for m in mech for key in keys for o in both[m][key])
     hits = sum(1 for m in mech for key in keys for pd in both[m][key].values() if pd["differs"])
-    L.append(f"- **Multiple comparisons**: these lines read {n} paired comparisons with Mono2 "
+    L.append(f"- **Multiple comparisons**: these lines read {n} paired comparisons with {base} "
              f"({len(mech)} mechanism(s) x {len(results['data'])} overlap(s) x {len(keys)} measures), each at 95 % and "
-             f"not corrected for the others: were no mechanism different from Mono2, about {ALPHA * n:.1f} of them would "
+             f"not corrected for the others: were no mechanism different from {base}, about {ALPHA * n:.1f} of them would "
              f"fall beyond their interval by chance; {hits} do. A single 'at x only' is weak evidence on its own.")
     return L
 
@@ -92,6 +94,7 @@ def yardstick_lines(results: dict) -> str:
     against Mono2 only through paired differences and their 95 % interval (`verdict_word`), never raw means: in
     median scaling those are the lines of the mechanisms' section (`study.mechanisms`), in metric scaling here."""
     methods = results["methods"]
+    base = method_label(BASELINE)
     others = [m for m in methods if m != BASELINE and not is_yardstick(results, m)]
     lines = []
     paired = BASELINE in methods and others and len(results["seeds"]) > 1
@@ -118,20 +121,20 @@ def yardstick_lines(results: dict) -> str:
             if paired and sc == "none":
                 cells = []
                 for m in others:
-                    pa = paired_difference(results, o, BASELINE, m, f"{sc}.mean.abs_rel")
-                    pn = paired_difference(results, o, BASELINE, m, f"{sc}.non_overlap.abs_rel")
+                    pa = paired_gain(results, o, BASELINE, m, f"{sc}.mean.abs_rel")
+                    pn = paired_gain(results, o, BASELINE, m, f"{sc}.non_overlap.abs_rel")
                     cells.append(f"{method_label(m)} {fmt_diff(pa)}: {gain_word(pa)} (non-overlap px "
                                  f"{fmt_diff(pn)}: {gain_word(pn)})")
-                lines.append(head + "Mono2 − each method (positive = helps), paired over seeds: " + "; ".join(cells))
+                lines.append(head + f"{base} − each method (positive = helps), paired over seeds: " + "; ".join(cells))
     if BASELINE not in methods:
-        lines.append("- Mono2 is not part of this sweep: no comparison with it.")
+        lines.append(f"- {base} is not part of this sweep: no comparison with it.")
     elif not others:
-        lines.append("- Only Mono2 is part of this sweep: no comparison with it.")
+        lines.append(f"- Only {base} is part of this sweep: no comparison with it.")
     elif paired:
-        lines.append("- Against Mono2 in median scaling: the lines above (and paired_vs_mono2.png); a method is said "
-                     "to be better or worse than Mono2 only where the paired 95 % interval excludes 0.")
+        lines.append(f"- Against {base} in median scaling: the lines above (and {PAIRED_PLOT}); a method is said "
+                     f"to be better or worse than {base} only where the paired 95 % interval excludes 0.")
     if len(results["seeds"]) == 1:
-        lines.append("- One training seed only: no paired interval, so no verdict against Mono2; differences smaller "
+        lines.append(f"- One training seed only: no paired interval, so no verdict against {base}; differences smaller "
                      "than the seed-to-seed spread (unknown here) are not evidence either way.")
     return "\n".join(lines)
 

@@ -22,12 +22,13 @@ run config's ``method_params:`` section holds the keys a run sets, validated aga
 loss terms as ``ctx.params`` and the network's constructor as ``params``. Left empty the section is not
 hashed, so runs that set nothing keep their hashes (`corelib.configlib.added_key`).
 
-A method's own inputs: the `mcdp.inputs.Field`s its network declares (``DepthNetwork.inputs``);
+A method's own inputs: the `mcdp.inputs.InputField`s its network declares (``DepthNetwork.inputs``);
 `fields_of` is what a run's data reader fills.
 
 A report reads a method through its row and network class, never its name: ``has_bases`` and
-``fresh_layers(model_config(row))`` (`study.pretrain.warm_start_line`), and the row's report flags: ``role``
-(the paired ``baseline``, a ``method`` or a ``yardstick``), ``short`` (its label in a table column),
+``fresh_layers(model_config(row))`` (`study.pretrain.warm_start_line`), and the row's report flags: ``baseline``
+(the row every other is paired against; a row's ``role``, "baseline", "method" or "yardstick", is derived: a
+row whose network reads ground truth, ``reads_ground_truth()``, is a yardstick), ``short`` (its label in a table column),
 ``nocon_of`` (the row it is trained without L_con) and ``reach`` (what `study.reach`, `study.primary` and
 the distance figure read of it); tests/study/test_method_rows.py registers a toy mechanism that reaches them.
 
@@ -62,9 +63,9 @@ class Method:
     #: the pydantic class of the method's own parameters (the run config's ``method_params`` section), or its
     #: "module:name", or None (then ``method_params`` must stay empty)
     params: type[BaseModel] | str | None = None
-    #: what the row is in a report (`study`): "baseline" (the row every other is paired against: the paired
-    #: figure, the "vs" columns; `baseline`), "method", or "yardstick" (reads ground truth: an ORACLE)
-    role: str = "method"
+    #: the row every other is paired against in a report (`study`: the paired figure, the "vs" columns, the prose
+    #: that names it; `baseline`); its `role` is then "baseline"
+    baseline: bool = False
     #: a shorter label where the report names it in a table's column or a comparison (default: ``label``)
     short: str = ""
     #: the name of the row this one is trained without L_con (its twin): the training-time propagation of
@@ -80,6 +81,15 @@ class Method:
     @property
     def short_label(self) -> str:
         return self.short or self.label
+
+    @property
+    def role(self) -> str:
+        """What the row is in a report: "baseline" (``baseline=True``), "yardstick" (its network reads ground truth,
+        ``reads_ground_truth()``: an ORACLE, derived, never restated here) or "method". Imports the network's
+        module when it was named as "module:name"."""
+        if self.baseline:
+            return "baseline"
+        return "yardstick" if network_class(self).reads_ground_truth() else "method"
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "defaults", {"model.method": self.name, **dict(self.defaults)})
@@ -122,7 +132,7 @@ def unregister(name: str) -> Method:
 
 for _m in (
     Method("mono2", "Mono2", {"model.refine_steps": 0, "loss.consistency_weight": 0.0},
-           "mcdp.methods.depth_bases:MonoDepthModel", role="baseline"),
+           "mcdp.methods.depth_bases:MonoDepthModel", baseline=True),
     Method("fsm", "FSM", {"model.refine_steps": 0, "loss.consistency_weight": 0.0},
            "mcdp.methods.fsm:FsmDepthModel", params="mcdp.methods.fsm:FsmParams", reach=("mechanism",)),
     Method("surround", "SurroundDepth", {"model.refine_steps": 0,
@@ -146,7 +156,7 @@ for _m in (
     # a yardstick, not a method: Mono2 + the ground-truth depth of the overlap pixels as input (filled / emptied)
     Method("oracle_local", "ORACLE-local (GT overlap input)", {"model.refine_steps": 0,
                                                               "loss.consistency_weight": 0.0},
-           "mcdp.methods.oracle_local:OracleLocalModel", role="yardstick", short="ORACLE-local", reach=("local",)),
+           "mcdp.methods.oracle_local:OracleLocalModel", short="ORACLE-local", reach=("local",)),
 ):
     register(_m)
 
@@ -159,8 +169,8 @@ def names() -> list[str]:
 
 
 def baseline() -> str:
-    """The name of the row every other is paired against (``role="baseline"``, the first such)."""
-    return next(m.name for m in METHODS.values() if m.role == "baseline")
+    """The name of the row every other is paired against (``baseline=True``, the first such)."""
+    return next(m.name for m in METHODS.values() if m.baseline)
 
 
 def reading(what: str) -> list[str]:
@@ -255,7 +265,7 @@ def build_network(cfg: ModelConfig, params: BaseModel | None = None) -> nn.Modul
 
 
 def fields_of(cfg: RunConfig) -> tuple:
-    """The optional input fields (`mcdp.inputs.Field`) a run's data reader fills: its network's declared
+    """The optional input fields (`mcdp.inputs.InputField`) a run's data reader fills: its network's declared
     ``inputs``, and `mcdp.methods.base.GT_MEDIAN` when the run is scaled by the ORACLE (``scale.source=
     oracle_gt_median``)."""
     from mcdp.methods.base import GT_MEDIAN

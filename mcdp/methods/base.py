@@ -34,7 +34,7 @@ import torch.nn as nn
 import torch.nn.functional as F
 
 from mcdp.config import ModelConfig
-from mcdp.inputs import DepthInput, Field
+from mcdp.inputs import DepthInput, InputField
 from mcdp.truth import gt_median
 
 def _read_gt_median(reader, seq: str, frame: int):
@@ -43,7 +43,7 @@ def _read_gt_median(reader, seq: str, frame: int):
 
 #: the ORACLE scale mode's input (``scale.source=oracle_gt_median``, the public reference code's scaling):
 #: each camera's median ground-truth depth; every depth is multiplied by it / the init stage's median
-GT_MEDIAN = Field("gt_median", _read_gt_median, "(N,) metres", truth=True)
+GT_MEDIAN = InputField("gt_median", _read_gt_median, "(N,) metres", truth=True)
 
 
 def disp_to_depth(sig: torch.Tensor, min_depth: float, max_depth: float) -> tuple[torch.Tensor, torch.Tensor]:
@@ -127,9 +127,11 @@ class DepthNetwork(nn.Module, metaclass=ABCMeta):
     - ``check_config(cfg)`` (classmethod): ConfigError naming the key for a model config it cannot be built
       from; ``check_rig(params, n_cameras)`` (classmethod): the same for a rig its ``params`` cannot take,
       checked before a run folder is made;
-    - ``inputs``: the optional input fields it reads (`mcdp.inputs.Field`, e.g. ORACLE-local's overlap ground
-      truth): the data reader and the predictor fill these and no other; ``reads_ground_truth()``
-      (classmethod): one of them reads ground truth, so the network is an ORACLE (a yardstick);
+    - ``inputs``: the optional input fields it reads (`mcdp.inputs.InputField`, e.g. ORACLE-local's overlap ground
+      truth): the data reader and the predictor fill these and no other, and the network runs with any of them
+      absent (``inp.get(FIELD)`` is None: the cut empties those that carry other cameras' content, a caller may
+      fill none; tests/mcdp/test_methods.py runs every registered row so); ``reads_ground_truth()``
+      (classmethod): one of them reads ground truth, so the network is an ORACLE (its row's role is "yardstick");
     - ``n_out``: decoder depth channels (instance attribute; 1 = one sigmoid channel);
     - ``has_bases``: n bases combined by weights (the warm start copies the pretraining's basis channels;
       False: its mono head); ``stages``: stage names, the last is evaluated;
@@ -149,7 +151,7 @@ class DepthNetwork(nn.Module, metaclass=ABCMeta):
     params = None
     has_bases = False
     joint_pose = False
-    inputs: tuple[Field, ...] = ()
+    inputs: tuple[InputField, ...] = ()
     n_out = 1
 
     @classmethod

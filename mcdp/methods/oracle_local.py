@@ -40,7 +40,7 @@ import torch
 import torch.nn as nn
 import torch.nn.functional as F
 
-from mcdp.inputs import DepthInput, Field
+from mcdp.inputs import DepthInput, InputField
 from mcdp.methods.depth_bases import MonoDepthModel
 from mcdp.truth import overlap_truth_at
 
@@ -52,7 +52,7 @@ def _read_overlap_truth(reader, seq: str, frame: int) -> torch.Tensor:
 
 
 #: ORACLE-local's input field: each camera's overlap pixels' ground-truth depth at the training size, 0 elsewhere
-OVERLAP_TRUTH = Field("overlap_truth", _read_overlap_truth, "(N, 1, H, W) metres on the overlap, 0 elsewhere",
+OVERLAP_TRUTH = InputField("overlap_truth", _read_overlap_truth, "(N, 1, H, W) metres on the overlap, 0 elsewhere",
                       neighbours=True, truth=True)
 
 #: the layers' names before they were renamed -> now (old checkpoints load under the new names)

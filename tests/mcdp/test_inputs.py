@@ -1,10 +1,11 @@
 """mcdp.inputs: the typed input of every network (DepthInput), a training step's batch (RigBatch) and the
 optional fields a network declares."""
 import numpy as np
+import pytest
 import torch
 
 from mcdp.data import RigDataset, collate
-from mcdp.inputs import DepthInput, Field, RigBatch
+from mcdp.inputs import DepthInput, InputField, RigBatch
 
 
 def _sample(n: int = 3, h: int = 4, w: int = 6, k: float = 0.0) -> dict:
@@ -19,18 +20,22 @@ def test_collate_stacks_samples_and_their_fields_and_frame_t_is_the_network_inpu
     assert isinstance(batch, RigBatch) and batch.rgb.shape == (2, 3, 3, 3, 4, 6)
     assert batch.fields["a"].tolist() == [[0.0] * 3, [1.0] * 3] and batch.fields["b"].shape == (2, 3, 1, 4, 6)
     nbr = torch.tensor([[2, 1], [0, 2], [1, 0]])
-    inp = batch.depth_input(nbr)
+    declared = (InputField("a", lambda r, s, f: None), InputField("b", lambda r, s, f: None), InputField("c", None))
+    inp = batch.depth_input(nbr, declared)
     assert inp.rgb.shape == (2, 3, 3, 4, 6) and torch.equal(inp.rgb, batch.rgb[:, :, 1]) and inp.nbr is nbr
     assert set(inp.fields) == {"a", "b"} and inp.get("a") is batch.fields["a"] and inp.get("c") is None
     other = torch.zeros_like(batch.rgb)
-    assert torch.equal(batch.depth_input(nbr, rgb=other).rgb, other[:, :, 1])  # e.g. colour-augmented images
+    assert torch.equal(batch.depth_input(nbr, declared, rgb=other).rgb, other[:, :, 1])  # e.g. colour-augmented
+    # the one constructor (`DepthInput.filled`) takes the declared fields only: a batch's value no field declares
+    with pytest.raises(ValueError, match="input field 'b' is not declared \\(declared: a, c\\)"):
+        batch.depth_input(nbr, (declared[0], declared[2]))
     moved = batch.to("cpu")
     assert isinstance(moved, RigBatch) and torch.equal(moved.fields["b"], batch.fields["b"])
 
 
 def test_the_cut_empties_only_the_fields_that_carry_other_cameras():
-    own = Field("a", lambda r, s, f: np.zeros(3))
-    theirs = Field("b", lambda r, s, f: np.zeros(3), neighbours=True, truth=True)
+    own = InputField("a", lambda r, s, f: np.zeros(3))
+    theirs = InputField("b", lambda r, s, f: np.zeros(3), neighbours=True, truth=True)
     inp = DepthInput(torch.rand(1, 3, 3, 4, 6), torch.eye(3).expand(1, 3, 3, 3), torch.eye(4).expand(1, 3, 4, 4),
                      torch.ones(1, 3, 1, 4, 6), torch.tensor([[2, 1], [0, 2], [1, 0]]),
                      {"a": torch.ones(1, 3), "b": torch.ones(1, 3)}, (own, theirs))
@@ -46,7 +51,7 @@ def test_a_sample_holds_the_fields_its_network_declares_and_no_other(ds):
         calls.append((seq, frame))
         return np.arange(len(reader.cam_names), dtype=np.float64) + frame
 
-    f = Field("frame_plus", read, "(N,)")
+    f = InputField("frame_plus", read, "(N,)")
     plain, filled = RigDataset(ds, "train", 16, 24), RigDataset(ds, "train", 16, 24, (f,))
     assert plain[0]["fields"] == {} and not calls
     item = filled[0]

@@ -104,7 +104,7 @@ def test_every_registered_network_keeps_the_contract(name):
     """Conformance: each method's network (its config from the tiny base under its row) is a DepthNetwork whose
     declared members have the documented types, and whose forward returns every stage's depth at full
     resolution."""
-    from mcdp.inputs import DepthInput, Field
+    from mcdp.inputs import DepthInput, InputField
     from mcdp.methods.base import DepthNetwork
 
     row = methods.METHODS[name]
@@ -115,7 +115,7 @@ def test_every_registered_network_keeps_the_contract(name):
     for member in ("uses_neighbours", "joint_pose", "has_bases"):
         assert isinstance(getattr(net, member), bool), member
     assert isinstance(type(net).reads_ground_truth(), bool)
-    assert isinstance(net.inputs, tuple) and all(isinstance(f, Field) for f in net.inputs)
+    assert isinstance(net.inputs, tuple) and all(isinstance(f, InputField) for f in net.inputs)
     fresh = net.fresh_parameters()
     assert all(isinstance(p, nn.Parameter) for p in fresh)
     # what a report says starts fresh (read without building the network) is what does
@@ -132,6 +132,36 @@ def test_every_registered_network_keeps_the_contract(name):
     for st in net.stages:
         d = out["depth", st, 0]
         assert d.shape == (N, 1, H, W) and torch.isfinite(d).all() and (d > 0).all()
+
+
+@pytest.mark.parametrize("name", list(methods.METHODS))
+def test_every_registered_network_runs_with_any_declared_field_absent(name, fake_dataset):
+    """The contract (`mcdp.methods.base.DepthNetwork`, ``inputs``): a network runs with any of its declared fields
+    absent (emptied by the cut, or never filled) as with all of them filled; `GT_MEDIAN`, which a run scaled by the
+    ORACLE gives any network, counts as declared. The fields are read from a dataset (the tests' fake) as the data
+    reader and the predictor read them (`mcdp.inputs.read_fields`, `DepthInput.filled`)."""
+    from mcdp.data import RigReader, neighbour_table
+    from mcdp.inputs import DepthInput, read_fields
+    from mcdp.methods.base import GT_MEDIAN
+
+    row = methods.METHODS[name]
+    cfg = load_config(RunConfig, ROOT / "configs" / "train" / "tiny" / "base.yaml", base=dict(row.defaults))
+    net = methods.build_network(cfg.model).eval()
+    declared = tuple(net.inputs) + ((GT_MEDIAN,) if GT_MEDIAN not in net.inputs else ())
+    ds = fake_dataset()
+    reader = RigReader(ds, cfg.train.height, cfg.train.width)
+    values = {k: v[None] for k, v in read_fields(declared, reader, "s0", 1).items()}
+    rig = [torch.from_numpy(a)[None] for a in (reader.rgb("s0", 1), reader.K, reader.T_ego_cam, reader.mask)]
+    nbr = neighbour_table(ds.neighbours, len(ds.camera_names))
+    for absent in [None, *declared, "all"]:
+        given = {} if absent == "all" else {k: v for k, v in values.items() if absent is None or k != absent.name}
+        inp = DepthInput.filled(*rig, nbr, given, declared)
+        for x in (inp, inp.cut()):
+            with torch.no_grad():
+                out = net(x, scales=1)
+            d = out["depth", net.stages[-1], 0]
+            assert d.shape == (2, 1, cfg.train.height, cfg.train.width), (absent, d.shape)
+            assert torch.isfinite(d).all() and (d > 0).all(), (name, absent)
 
 
 def test_a_network_must_define_forward():
@@ -243,9 +273,17 @@ def test_fsm_reads_its_weights_from_the_loss_context():
     assert float(terms[0.2]["fsm/spatial"]) == pytest.approx(2 * float(terms[0.1]["fsm/spatial"]), rel=1e-6)
 
 
-def test_a_row_is_a_yardstick_exactly_when_its_network_reads_ground_truth():
-    """Two sources must agree: the row's ``role`` (what the report calls it) and its network's declared input
-    fields (``reads_ground_truth()``: what it is given); a network that reads ground truth is never a method."""
-    for name, row in methods.METHODS.items():
-        reads = methods.network_class(row).reads_ground_truth()
-        assert (row.role == "yardstick") == reads, name
+def test_a_rows_role_is_derived_from_its_network():
+    """A row's role is not restated: "yardstick" exactly when its network reads ground truth (``reads_ground_truth()``,
+    an input field with ``truth=True``), "baseline" for the row that says ``baseline=True``, else "method"."""
+    from mcdp.inputs import InputField
+    from mcdp.methods.depth_bases import MonoDepthModel
+
+    assert {n: r.role for n, r in methods.METHODS.items() if r.role != "method"} == {"mono2": "baseline",
+                                                                                    "oracle_local": "yardstick"}
+
+    class Peeks(MonoDepthModel):
+        inputs = (InputField("gt_peek", lambda r, s, f: None, truth=True),)
+
+    assert methods.Method("peeks", "Peeks", build=Peeks).role == "yardstick"  # no flag says so: its input does
+    assert methods.Method("plain", "Plain", build=MonoDepthModel).role == "method"

@@ -135,3 +135,25 @@ def test_one_metric_table_serves_the_evaluator_and_the_validation():
     assert a == pytest.approx(b, rel=1e-12)
     assert a["rmse"] == pytest.approx(np.sqrt(np.mean((g - p) ** 2)))
     assert [m.name for m in M.METRICS if m.root_after_mean] == ["rmse", "rmse_log"]
+
+
+def test_a_metric_has_a_direction_and_one_identity(monkeypatch):
+    """Each `Metric` says which way is better (a1-a3 higher, the errors lower); a name given twice fails clearly,
+    at import (`check_metrics` wraps the table) and when the table is read (`metric_names`), e.g. a toy appended
+    twice."""
+    assert {m.name: m.better for m in M.METRICS} == {"abs_rel": "lower", "sq_rel": "lower", "rmse": "lower",
+                                                     "rmse_log": "lower", "a1": "higher", "a2": "higher", "a3": "higher"}
+    assert M.better("median.non_overlap.a2") == "higher" and M.better("dep_con.pair.0-1") == "lower"
+    assert M.better_words("none.mean.rmse") == "lower is better"
+    with pytest.raises(KeyError, match="'spread.ratio' names no metric"):
+        M.better("spread.ratio")
+    with pytest.raises(ValueError, match="better='up', must be 'lower' or 'higher'"):
+        M.Metric("toy", lambda x: x.d, better="up")
+    with pytest.raises(ValueError, match="holds no '.'"):
+        M.Metric("toy.acc", lambda x: x.d)
+    toy = M.Metric("log10", lambda x: np.abs(np.log10(x.g) - np.log10(x.p)))
+    with pytest.raises(ValueError, match="metric 'a1' is given twice"):
+        M.check_metrics(M.METRICS + (M.Metric("a1", lambda x: x.thresh < 1.25, better="higher"),))
+    monkeypatch.setattr(M, "METRICS", M.METRICS + (toy, toy))
+    with pytest.raises(ValueError, match="metric 'log10' is given twice"):
+        M.metric_names()

@@ -1,6 +1,6 @@
 """The bar of issue 31: adding a method is one module (tests/mcdp/toy_method.py: its network, its own loss term,
 its parameters) plus one registry row (the `toy` fixture below), with zero edits to the trainer, the system, the
-evaluator or the study. The toy trains warm-started from a pretraining, its own term is in the logged loss and
+evaluator, the study or README.md (issue 50: the README points to ``mcdp presets methods``). The toy trains warm-started from a pretraining, its own term is in the logged loss and
 moves the gradient by its own weight, and ``mcdp eval`` / ``mcdp predict`` run on it."""
 from __future__ import annotations
 
@@ -169,6 +169,24 @@ def test_the_toy_row_is_what_the_study_and_the_report_read(toy):
     assert methods.label("toy") == "Toy net"
     assert warm_start_line(["toy"]) == "Toy net starts from its mono head; Toy net's gain start fresh"
     methods.check_run(toy_cfg(toy))
+
+
+def test_the_toy_needs_no_edit_of_the_readme_and_no_role_of_its_own(toy, toy_input, capsys):
+    """Its module and its row are all: README.md lists no method to keep in step (it points to ``mcdp presets
+    methods``, which lists the toys from their rows), and a row's role is derived from its network (neither toy
+    reads ground truth: both are methods)."""
+    import re
+
+    from study.method_commands import main
+
+    readme = (ROOT / "README.md").read_text()
+    assert "mcdp presets methods" in readme and not re.search(r"`model\.method`\s*\(`\w+`\s*\|", readme)
+    assert "toy" not in re.findall(r"`(\w+)`", readme)
+    assert main(["presets", "methods"]) == 0
+    listed = {ln.split()[0]: ln for ln in capsys.readouterr().out.splitlines()[1:]}
+    assert listed["toy"].endswith("Toy net (method)") and "model.method=toy " in listed["toy"]
+    assert listed["toy_input"].endswith("Toy with an input (method)") and "model.method=toy_input" in listed["toy_input"]
+    assert toy.role == toy_input.role == "method" and not ToyInputDepth.reads_ground_truth()
 
 
 def test_the_toy_row_does_not_outlive_its_fixture():

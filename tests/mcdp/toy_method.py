@@ -9,7 +9,7 @@ mean, weighted by ``method_params.flatness_weight``.
 
 `ToyInputDepth` is a second toy: one that needs an input of its own, ``EGO_SPEED`` (the ego car's speed over
 the last frame, metres per frame, one value per camera, read from the dataset's odometry; no ground truth),
-declared here as a `mcdp.inputs.Field` and read by its network; the data reader and the predictor fill it
+declared here as a `mcdp.inputs.InputField` and read by its network; the data reader and the predictor fill it
 because the network declares it.
 """
 from __future__ import annotations
@@ -21,7 +21,7 @@ from pydantic import Field
 
 from corelib.configlib import StrictModel
 from mcdp.config import Float
-from mcdp.inputs import DepthInput, Field as InputField
+from mcdp.inputs import DepthInput, InputField
 from mcdp.methods.base import LossContext
 from mcdp.methods.depth_bases import MonoDepthModel
 

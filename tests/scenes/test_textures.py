@@ -68,7 +68,7 @@ def test_uv_scale_and_errors():
 def test_shade_and_mix_are_their_broadcast_definitions_bit_for_bit(dt):
     """`_shade` and `_mix` compute channel by channel for speed; every texture byte depends on them
     giving exactly the values (and dtype) of the broadcast expressions they replace."""
-    from scenes.textures import _mix, _shade
+    from scenes.patterns import mix as _mix, shade as _shade
 
     rng = np.random.default_rng(3)
     amount = (1 + 0.2 * rng.standard_normal((32, 48))).astype(dt)

@@ -74,11 +74,17 @@ def test_the_rows_flags_name_the_baseline_the_yardsticks_and_the_twins():
         assert m.nocon_of is None or m.nocon_of in methods.METHODS, m.name
 
 
-def test_the_readme_lists_every_model_method_of_the_registry():
-    """README.md's ``model.method`` choices are the values the registry's rows train, in table order."""
+def test_mcdp_presets_lists_every_row_and_the_readme_points_there(toy, capsys):
+    """The README lists no method by hand: it points to ``mcdp presets methods``, which lists every registered row
+    (a toy one too), its ``model.method`` and its role, in table order."""
+    from study.method_commands import main
+
     text = (ROOT / "README.md").read_text()
-    m = re.search(r"`model\.method`\s*\(((?:`\w+`(?:\s*\|\s*)?)+)", text)
-    assert m, "README.md: no `model.method` (`a` | `b` ...) list"
-    listed = re.findall(r"`(\w+)`", m.group(1))
-    trained = list(dict.fromkeys(str(r.defaults.get("model.method", r.name)) for r in methods.METHODS.values()))
-    assert listed == trained, f"README.md lists model.method {listed}; the registry's rows train {trained}"
+    assert re.search(r"`model\.method`\s*\(the network a registered method trains: `mcdp presets methods`", text)
+    assert not re.search(r"`model\.method`\s*\(`\w+`\s*\|", text)  # no hand-written list to keep in step
+    assert main(["presets", "methods"]) == 0
+    rows = capsys.readouterr().out.splitlines()[1:]
+    assert [r.split()[0] for r in rows] == list(methods.METHODS) and rows[-1].split()[0] == "toy"
+    for r in rows:
+        m = methods.METHODS[r.split()[0]]
+        assert f"model.method={m.defaults['model.method']} " in r and r.endswith(f"{m.label} ({m.role})"), r

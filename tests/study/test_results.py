@@ -47,9 +47,12 @@ def test_a_difference_that_rounds_to_zero_is_still_written_and_a_negligible_one_
     assert fmt_diff({"mean": -0.0123, "ci95": 0.004, "differs": -1}, 3) == "-0.012 ± 0.004"
     assert fmt_diff({"mean": 0.0, "ci95": 0.0, "differs": 0}, 3) == "+0.000 ± 0.000"
     assert fmt_diff({"mean": float("nan"), "ci95": float("nan"), "differs": 0}) == "nan ± nan"
-    assert verdict_word(tiny, 0.0005).startswith("beyond the interval but negligible")
-    assert "worse" in verdict_word(tiny)  # without a floor it is a difference
-    assert "better" in verdict_word({"mean": -0.01, "ci95": 0.004, "differs": -1}, 0.0005)
+    assert verdict_word(tiny, 0.0005, key="abs_rel").startswith("beyond the interval but negligible")
+    assert "worse" in verdict_word(tiny, key="abs_rel")  # without a floor it is a difference
+    assert "better" in verdict_word({"mean": -0.01, "ci95": 0.004, "differs": -1}, 0.0005, key="none.mean.abs_rel")
+    # a1 is higher-is-better (`mcdp.metrics.Metric.better`): the same difference reads the other way
+    assert verdict_word(tiny, key="none.mean.a1") == "**higher (better)**"
+    assert verdict_word({"mean": -0.01, "ci95": 0.004, "differs": -1}, key="a1") == "**lower (worse)**"
 
 
 def test_the_setup_names_only_the_sweeps_methods_and_the_head_each_starts_from():
