@@ -12,7 +12,6 @@ Feeds: docs/results/render_throughput.md
 """
 from __future__ import annotations
 
-import argparse
 import sys
 import time
 from pathlib import Path
@@ -24,7 +23,9 @@ sys.path.insert(0, str(ROOT))
 
 
 def main(argv=None) -> int:
-    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    from corelib.cli import ArgumentParser
+
+    ap = ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--rounds", type=int, default=6, help="paired rounds (1..50)")
     ap.add_argument("--record", type=Path, default=None, help="also write the table to this file")
     args = ap.parse_args(argv)

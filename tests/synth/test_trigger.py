@@ -12,7 +12,7 @@ from synth.trigger import lidar_sweep_offset_s, trigger_offsets_s
 
 TINY = Path(__file__).resolve().parents[2] / "configs" / "data" / "tiny.yaml"
 TINY_HASH = "4c93be54b2f0ddb35c56d70e7fd2b087d4a0e648eeb11eb99ebc6a5727a1c9d8"  # tests/synth/test_sensor.py
-SWEEP = ["rig.trigger=lidar_sweep", "labels.flow=true"]
+SWEEP = ["rig.trigger=lidar_sweep", "labels.flow=true", "labels.mesh=true"]  # every label, as flow_dataset
 
 
 def _tiny(overrides=()):
