@@ -28,7 +28,8 @@ PARTS = ("lcon_main", "lcon_pilot", "lcon_pilot_auto", "lcon_overlaps", "lcon_bu
 NAME = "lcon"
 
 
-def _load(part: str) -> dict | None:
+def load_part(part: str) -> dict | None:
+    """docs/results/<part>/results.json, checked and upgraded (`publish_sweep.check_results`); None if not published."""
     from corelib.readfile import read_inside
     from publish_sweep import check_results
 
@@ -77,7 +78,12 @@ def build(stage: Path) -> tuple[str, list[tuple[Path, str]]]:
     from study.lcon import answer, format_selection, pairs, reading, selection_effect
     from study.primary import SCALINGS
 
-    parts = {p: _load(p) for p in PARTS}
+    parts = {p: load_part(p) for p in PARTS}
+    br = None  # (b) at the long budget beside its control: the opening lines and its section read it
+    if parts["lcon_budget"] is not None:
+        from study.lcon import budget_reading
+
+        br = budget_reading(parts["lcon_budget"], parts["lcon_main"])
     L: list[str] = ["# Does training with L_con on a small overlap make depth better outside it?\n"]
     preface = RESULTS / NAME / "preface.md"
     main = parts["lcon_main"]
@@ -91,9 +97,6 @@ def build(stage: Path) -> tuple[str, list[tuple[Path, str]]]:
                  f"{n['median']['rank']['ci'][1]:+.4f}], Wilcoxon p = {n['median']['rank']['p']:.3f}.\n")
         budget = parts["lcon_budget"]
         if budget is not None:  # secondary: six of the main run's worlds at 1000 steps, beside the control
-            from study.lcon import budget_reading
-
-            br = budget_reading(budget, main)
             b, c = br["b"]["median"], br["control"]
             L.append(f"At {_steps(budget)} steps on {b['n_worlds']} of these worlds (secondary, sized by its cost): "
                      f"{_lc(answer(b))}"
@@ -123,10 +126,10 @@ def build(stage: Path) -> tuple[str, list[tuple[Path, str]]]:
         L += text
         plots += pl
         if part == "lcon_budget" and parts[part] is not None:
-            from study.lcon import budget_reading, format_budget
+            from study.lcon import format_budget
 
             L.append("### Beside the positive control, and against 200 steps on the same worlds\n")
-            L.append(format_budget(budget_reading(parts[part], main), _steps(parts[part]), _steps(main or {})))
+            L.append(format_budget(br, _steps(parts[part]), _steps(main or {})))
         if part == "lcon_pilot" and parts["lcon_pilot_auto"] is not None and parts[part] is not None:
             sel = selection_effect(parts[part], parts["lcon_pilot_auto"])
             if sel is not None:

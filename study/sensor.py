@@ -35,27 +35,32 @@ def _by_world(results: dict, method: str, key: str) -> dict:
     return out
 
 
-def change(ideal: dict, cond: dict, method: str, key: str) -> dict:
-    """`study.power.nested` of cond - ideal for one method and figure, paired by world, with ``mde80``."""
-    a, b = _by_world(cond, method, key), _by_world(ideal, method, key)
-    n = nested({w: [a[w] - b[w]] for w in sorted(set(a) & set(b))})
+def _over_worlds(diffs: dict) -> dict:
+    """`study.power.nested` of one paired difference per world, with ``mde80``."""
+    n = nested({w: [diffs[w]] for w in sorted(diffs)})
     n["mde80"] = mde(n["se"], n["df"]) if n["n_worlds"] >= 2 else math.nan
+    return n
+
+
+def _diffs(ideal: dict, cond: dict, method: str, key: str) -> dict:
+    """{world: cond - ideal} of one method and figure, over the worlds both have."""
+    a, b = _by_world(cond, method, key), _by_world(ideal, method, key)
+    return {w: a[w] - b[w] for w in set(a) & set(b)}
+
+
+def change(ideal: dict, cond: dict, method: str, key: str) -> dict:
+    """`study.power.nested` of cond - ideal for one method and figure, paired by world, with ``mde80`` and the
+    ideal's mean (``ideal``)."""
+    n = _over_worlds(_diffs(ideal, cond, method, key))
+    b = _by_world(ideal, method, key)
     n["ideal"] = math.fsum(b.values()) / len(b) if b else math.nan
     return n
 
 
 def contrast(ideal: dict, cond: dict, key: str, pair: tuple[str, str] = CONTRAST) -> dict:
     """(pair[0]'s change) - (pair[1]'s change), paired by world: positive = the first suffers more."""
-    ca = {w: v for w, v in _diffs(ideal, cond, pair[0], key).items()}
-    cb = _diffs(ideal, cond, pair[1], key)
-    n = nested({w: [ca[w] - cb[w]] for w in sorted(set(ca) & set(cb))})
-    n["mde80"] = mde(n["se"], n["df"]) if n["n_worlds"] >= 2 else math.nan
-    return n
-
-
-def _diffs(ideal: dict, cond: dict, method: str, key: str) -> dict:
-    a, b = _by_world(cond, method, key), _by_world(ideal, method, key)
-    return {w: a[w] - b[w] for w in set(a) & set(b)}
+    ca, cb = (_diffs(ideal, cond, m, key) for m in pair)
+    return _over_worlds({w: ca[w] - cb[w] for w in set(ca) & set(cb)})
 
 
 def _yardstick(results: dict) -> float:
