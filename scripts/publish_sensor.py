@@ -36,7 +36,7 @@ def build() -> str:
     """The page's text."""
     from corelib.readfile import read_text_inside
     from publish_lcon import load_part
-    from study.sensor import format_sensor
+    from study.sensor import format_between, format_sensor
 
     L = ["# What the camera as a sensor does to cross-camera consistency\n"]
     preface = RESULTS / NAME / "preface.md"
@@ -53,6 +53,13 @@ def build() -> str:
         return "\n".join(L).rstrip() + "\n"
     L.append(f"## The ideal camera and each condition ([its full report]({IDEAL}.md))\n")
     L.append(format_sensor(ideal, [(h, w, parts[p]) for p, h, w in CONDITIONS if parts[p] is not None]))
+    a, c = parts["sensor_trigger_assume"], parts["sensor_trigger_compensate"]
+    if a is not None and c is not None:
+        L.append("## What ignoring the trigger offsets costs\n")
+        L.append("The two trigger conditions train on the same rendered worlds; only `model.sync` differs, and "
+                 "it acts on cross-camera warps alone (Dep Con is always measured through each camera's own "
+                 "pose), so a method with no cross-camera warp in training (Mono2) should read exactly 0 here: a check that the switch acts only where it should.\n")
+        L.append(format_between(("`sync: compensate`", c), ("`sync: assume`", a)))
     missing = [h for p, h, _ in CONDITIONS if parts[p] is None]
     if missing:
         L.append("**Not run** (see the preface): " + "; ".join(missing) + ".\n")

@@ -82,10 +82,41 @@ def _cell(n: dict) -> str:
     return f"{n['mean']:+.4f}" + (f" ± {hw:.4f}" if math.isfinite(hw) else "") + mark
 
 
+def _pair_table(base: dict, cond: dict, methods: list[str], intro: str) -> list[str]:
+    """Markdown lines: each method's change cond - base per figure (MDE in brackets), then the FSM - MCDP
+    contrast with its reading on median abs_rel. ``intro``: the sentence above the table."""
+    L = [intro + " ± the 95 % t interval over worlds, MDE at 80 % power in brackets.\n",
+         "| method | " + " | ".join(label for _, label in FIGURES) + " |",
+         "|---|" + "---|" * len(FIGURES)]
+    for m in methods:
+        cells = []
+        for k, _ in FIGURES:
+            n = change(base, cond, m, k)
+            cells.append(f"{_cell(n)} [{n['mde80']:.4f}]" if math.isfinite(n["mde80"]) else _cell(n))
+        L.append(f"| {short_label(m)} | " + " | ".join(cells) + " |")
+    if all(m in methods for m in CONTRAST):
+        a, b = (short_label(m) for m in CONTRAST)
+        L.append(f"| {a}'s change - {b}'s | " + " | ".join(
+            _cell(contrast(base, cond, k)) for k, _ in FIGURES) + " |")
+        n = contrast(base, cond, FIGURES[0][0])
+        verdict = (f"{a} suffers more than {b}, beyond the interval" if n["differs"] == 1 else
+                   f"{b} suffers more than {a}, beyond the interval" if n["differs"] == -1 else
+                   f"not resolved with {n['n_worlds']} worlds (detectable at {n['mde80']:.4f})")
+        L.append(f"\nThe paper's argument ({a}'s photometric loss between cameras suffers, {b}'s depth "
+                 f"comparison does not), on median abs_rel: {verdict}.\n")
+    else:
+        L.append("")
+    return L
+
+
+def _methods(results: dict) -> list[str]:
+    return [m for m in results.get("methods", []) if _by_world(results, m, FIGURES[0][0])]
+
+
 def format_sensor(ideal: dict, conditions: list[tuple[str, str, dict]]) -> str:
     """Markdown: per condition (name, what it changes, results), each method's change from the ideal camera
     for every figure, and the FSM - MCDP contrast, beside the ideal's values and the constant-depth yardstick."""
-    methods = [m for m in ideal.get("methods", []) if _by_world(ideal, m, FIGURES[0][0])]
+    methods = _methods(ideal)
     L = ["| method | " + " | ".join(f"ideal {label}" for _, label in FIGURES) + " |",
          "|---|" + "---|" * len(FIGURES)]
     for m in methods:
@@ -95,27 +126,14 @@ def format_sensor(ideal: dict, conditions: list[tuple[str, str, dict]]) -> str:
              "ideal worlds.\n")
     for name, what, cond in conditions:
         L.append(f"### {name}: {what}\n")
-        L.append(f"Constant-depth reference on these worlds: {_yardstick(cond):.4f}. Change from the ideal camera, "
-                 "condition - ideal, paired by world, **positive = worse**; ± the 95 % t interval over worlds, MDE "
-                 "at 80 % power in brackets.\n")
-        L.append("| method | " + " | ".join(label for _, label in FIGURES) + " |")
-        L.append("|---|" + "---|" * len(FIGURES))
-        for m in methods:
-            cells = []
-            for k, _ in FIGURES:
-                n = change(ideal, cond, m, k)
-                cells.append(f"{_cell(n)} [{n['mde80']:.4f}]" if math.isfinite(n["mde80"]) else _cell(n))
-            L.append(f"| {short_label(m)} | " + " | ".join(cells) + " |")
-        if all(m in methods for m in CONTRAST):
-            a, b = (short_label(m) for m in CONTRAST)
-            L.append(f"| {a}'s change - {b}'s | " + " | ".join(
-                _cell(contrast(ideal, cond, k)) for k, _ in FIGURES) + " |")
-            n = contrast(ideal, cond, FIGURES[0][0])
-            verdict = (f"{a} suffers more than {b}, beyond the interval" if n["differs"] == 1 else
-                       f"{b} suffers more than {a}, beyond the interval" if n["differs"] == -1 else
-                       f"not resolved with {n['n_worlds']} worlds (detectable at {n['mde80']:.4f})")
-            L.append(f"\nThe paper's argument ({a}'s photometric loss between cameras suffers, {b}'s depth "
-                     f"comparison does not), on median abs_rel: {verdict}.\n")
-        else:
-            L.append("")
+        L += _pair_table(ideal, cond, methods, f"Constant-depth reference on these worlds: {_yardstick(cond):.4f}. "
+                         "Change from the ideal camera, condition - ideal, paired by world, **positive = worse**;")
     return "\n".join(L)
+
+
+def format_between(base: tuple[str, dict], cond: tuple[str, dict]) -> str:
+    """Markdown: each method's change from one condition to another on the same worlds (``cond - base``, both
+    given as (name, results)), e.g. what ignoring the trigger offsets costs: ``sync: assume`` against
+    ``compensate`` on the same rendered data. A method with no cross-camera warp should read exactly 0."""
+    (bn, b), (cn, c) = base, cond
+    return "\n".join(_pair_table(b, c, _methods(b), f"{cn} - {bn}, paired by world, **positive = worse**;"))

@@ -40,3 +40,13 @@ def test_a_failed_run_is_left_out_of_its_pair():
     ideal, cond = _results({}), _results({"fsm": 0.02})
     cond["flat"][1]["status"] = "diverged"  # world 0's FSM
     assert sensor.change(ideal, cond, "fsm", "median.mean.abs_rel")["n_worlds"] == 2
+
+
+def test_between_two_conditions_reads_each_methods_change_and_zero_where_nothing_differs():
+    compensate, assume = _results({}), _results({"fsm": 0.01, "mcdp_m2": 0.004})
+    text = sensor.format_between(("`sync: compensate`", compensate), ("`sync: assume`", assume))
+    assert text.startswith("`sync: assume` - `sync: compensate`, paired by world")
+    mono = next(line for line in text.splitlines() if line.startswith("| Mono2 |"))
+    assert mono.startswith("| Mono2 | +0.0000") and "(worse)" not in mono  # same results: exactly no change
+    fsm = next(line for line in text.splitlines() if line.startswith("| FSM |"))
+    assert fsm.startswith("| FSM | +0.010") and "**(worse)**" in fsm
