@@ -88,6 +88,9 @@ layout(location=1) out vec4 o_depth;
     float f = 1.0 - exp(-v_dist / u_fog_dist);
     c = mix(c, u_fog_rgb, f);
     o_color = vec4(to_srgb(c * u_gain), 1.0);
+    // behind the camera: never visible, but z / zfar < 0 clamps to depth 0 and would win the depth test
+    // (llvmpipe rasterised one such fragment at -24.06 m: tests/synth/test_depth_sign.py)
+    if (v_zcam <= 0.0) discard;
     o_depth = vec4(v_zcam, u_is_ego, v_instance, v_layer);
     gl_FragDepth = v_zcam / u_zfar;
 }
