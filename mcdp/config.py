@@ -86,7 +86,8 @@ class ModelConfig(StrictModel):
         architecture differs. The run records the file's path and sha256.
     sync: cameras that fire at their own times (a dataset rendered with ``rig.trigger``, or nuScenes):
         ``compensate`` (default) puts each camera at its own pose at its own time in every cross-camera warp
-        (MCDP's neighbour features, FSM's spatial terms, L_con; `mcdp.data.RigReader.T_ego_cam_at`);
+        (MCDP's neighbour features, FSM's spatial terms, L_con; `mcdp.data.RigReader.T_ego_cam_at`) and in the
+        camera motion the ego odometry gives every method (`mcdp.rigid.odometry_camera_motion`, Mono2's too);
         ``assume`` uses the static rig extrinsics, as if the cameras fired together (the ablation of what
         ignoring the offsets costs). Equal on synchronous data; an added key (unset: the run's hash as before).
     """

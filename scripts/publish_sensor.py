@@ -56,9 +56,11 @@ def build() -> str:
     a, c = parts["sensor_trigger_assume"], parts["sensor_trigger_compensate"]
     if a is not None and c is not None:
         L.append("## What ignoring the trigger offsets costs\n")
-        L.append("The two trigger conditions train on the same rendered worlds; only `model.sync` differs, and "
-                 "it acts on cross-camera warps alone (Dep Con is always measured through each camera's own "
-                 "pose), so a method with no cross-camera warp in training (Mono2) should read exactly 0 here: a check that the switch acts only where it should.\n")
+        L.append("The two trigger conditions train on the same rendered worlds; only `model.sync` differs. It "
+                 "acts on every cross-camera warp and on the camera motion the ego odometry gives each camera "
+                 "(`scale.source=odometry`), Mono2's too; Dep Con is always measured through each camera's own "
+                 "pose. Mono2 has no cross-camera warp, so its row is the yardstick here: how far a run moves "
+                 "when only its odometry's camera poses change slightly.\n")
         L.append(format_between(("`sync: compensate`", c), ("`sync: assume`", a)))
     missing = [h for p, h, _ in CONDITIONS if parts[p] is None]
     if missing:
