@@ -65,8 +65,8 @@ def test_the_world_column_is_each_rows_world_and_the_split_is_in_the_section(tmp
 
 
 def test_results_csv_world_is_the_data_seed_each_run_trained_on(tmp_path):
-    """The committed propagation sweep: 3 worlds x 2 seeds (seeds 0, 1 on data seed 0, ...); its rows predate the
-    world field, so the column comes from the recorded data."""
+    """The committed propagation sweep: 3 worlds x 2 seeds (seeds 0, 1 on data seed 0, ...): the column is the data
+    seed each run's world was rendered from."""
     res = json.loads((ROOT / "docs/results/propagation/results.json").read_text())
     write_csv(res, tmp_path / "r.csv")
     rows = [r for r in csv.DictReader((tmp_path / "r.csv").open()) if r["status"] != "reference"]
@@ -85,6 +85,9 @@ def test_the_lcon_presets_score_both_arms_at_one_step_and_state_their_plan():
         cfg = load_sweep_config(str(ROOT / f"configs/sweep/{name}.yaml"), [])
         assert cfg.checkpoint == "last" and cfg.worlds == "per_seed" and cfg.seeds_per_world == 1, name
         assert lcon.lcon_arms({"methods": cfg.methods}) == ("mcdp_m2_nocon", "mcdp_m2"), name
+    prop = load_sweep_config(str(ROOT / "configs/sweep/cpu_propagation.yaml"), [])  # its (b) too, at 3 overlaps
+    assert prop.checkpoint == "last" and prop.overlaps == [0.10, 0.30, 0.60] and {"mcdp_m2_nocon", "mcdp_m2"} <= set(
+        prop.methods)
     main = load_sweep_config(str(ROOT / "configs/sweep/cpu_lcon.yaml"), [])
     assert main.plan.worlds == len(main.seeds) and main.plan.first_look == len(main.seeds) // 2
 
