@@ -146,12 +146,15 @@ class Predictor:
 
 # --------------------------------------------------------------------------- outputs
 def rig_point_cloud(
-    ds, depths: list[np.ndarray], rgbs: list[np.ndarray], stride: int = 2, max_depth: float = EVAL_MAX_DEPTH
+    ds, depths: list[np.ndarray], rgbs: list[np.ndarray], stride: int = 2, max_depth: float = EVAL_MAX_DEPTH,
+    poses: np.ndarray | None = None,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Points of every camera in the ego frame: (M, 3) float32 metres, (M, 3) uint8 colours.
 
     Ego-body pixels (mask) and depths beyond max_depth are dropped; every
-    ``stride``-th pixel in each direction is used.
+    ``stride``-th pixel in each direction is used. ``poses``: (N, 4, 4) each camera's pose in the ego frame
+    (cameras that fire at their own times: the reader's ``camera_poses`` of the frame); None: the static
+    extrinsics.
     """
     pts, cols = [], []
     for c, spec in enumerate(ds.cameras):
@@ -161,7 +164,7 @@ def rig_point_cloud(
         z = d[v, u]
         keep = (z > 0) & (z <= max_depth) & np.asarray(ds.mask(spec.name), bool)[v, u]
         X = pixel_rays_at(spec.K, u[keep], v[keep]) * z[keep]  # pixel centres at +0.5
-        T = np.asarray(spec.T_ego_cam, float)
+        T = np.asarray(spec.T_ego_cam if poses is None else poses[c], float)
         pts.append((T[:3, :3] @ X + T[:3, 3:4]).T)
         cols.append(rgbs[c][v[keep], u[keep]])
     return np.concatenate(pts).astype(np.float32), np.concatenate(cols).astype(np.uint8)
@@ -206,7 +209,8 @@ def write_prediction(pred: Predictor, seq: str, frame: int, out_dir: str | Path,
         write_depth_exr(p, np.ascontiguousarray(final[c], dtype=np.float32))
         written.append(p)
     if ply:
-        pts, cols = rig_point_cloud(pred.ds, list(final), rgbs)
+        get = getattr(pred.ds, "camera_poses", None)  # each camera where it was when it fired
+        pts, cols = rig_point_cloud(pred.ds, list(final), rgbs, poses=None if get is None else get(seq)[1][frame])
         p = out / f"{frame_stem(frame)}.ply"
         write_ply(p, pts, cols)
         written.append(p)

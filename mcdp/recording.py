@@ -77,6 +77,7 @@ def record_predictions(pred, samples: list[tuple[str, int]], out, point_stride: 
             rec.log("sample", rr.TextLog(f"{seq} frame {frame}"))
             depths = pred.predict(seq, frame)
             rgb = recorders[seq].rgb
+            Ts = recorders[seq].poses_at(frame)  # each camera's own pose when they fire apart, as the truth's
             for stage, d in depths.items():
                 pts, cols = [], []
                 for c, cam in enumerate(ds.cameras):
@@ -86,7 +87,7 @@ def record_predictions(pred, samples: list[tuple[str, int]], out, point_stride: 
                     mask = np.asarray(ds.mask(cam.name), bool)
                     if cam.name in gt:
                         rec.log(f"{base}/abs_rel", rr.Image(abs_rel_image(dc, gt[cam.name], mask), color_model="L"))
-                    p, v, u = backproject(dc, cam.K, cam.T_ego_cam, mask, point_stride)
+                    p, v, u = backproject(dc, cam.K, Ts[c], mask, point_stride)
                     pts.append(p)
                     cols.append(rgb[cam.name][v, u])
                 rec.log(f"world/ego/pred/{stage}/points", rr.Points3D(np.concatenate(pts), colors=np.concatenate(cols),

@@ -281,6 +281,10 @@ class RigRecorder:
         self.rec.log(self.cam_path(self.ds.cameras[c].name), self.rr.Transform3D(translation=T[:3, 3],
                                                                                   mat3x3=T[:3, :3]))
 
+    def poses_at(self, frame: int) -> list[np.ndarray]:
+        """Each camera's pose in the ego frame of `frame`'s time: its own, when the cameras fire apart."""
+        return [c.T_ego_cam for c in self.ds.cameras] if self.poses is None else list(self.poses[frame])
+
     def log_frame(self, frame: int) -> dict[str, np.ndarray]:
         """Log frame `frame` (sets the time; each camera's at its own when they fire apart); returns the
         ground-truth depth per camera. Ends at the frame's time."""
@@ -293,7 +297,7 @@ class RigRecorder:
             rec.log(f"world/scene/{name}", rr.Transform3D(translation=T[:3, 3], mat3x3=T[:3, :3]))
         depths, pts, cols = {}, [], []
         self.rgb = {}
-        Ts = [c.T_ego_cam for c in ds.cameras] if self.poses is None else list(self.poses[frame])
+        Ts = self.poses_at(frame)
         for c, cam in enumerate(ds.cameras):
             path = self.cam_path(cam.name)
             self.set_camera_time(frame, c)
