@@ -23,8 +23,11 @@ def test_the_examples_of_an_extension_point_run(name):
     finder = doctest.DocTestFinder(exclude_empty=True)
     tests = [t for t in finder.find(module, name) if t.examples]
     assert tests, f"{name}: no >>> example in its docstrings (an extension point shows one)"
+    tables = {k: sorted(map(str, v)) for k, v in vars(module).items() if k.isupper() and isinstance(v, dict)}
     runner = doctest.DocTestRunner(optionflags=doctest.ELLIPSIS | doctest.NORMALIZE_WHITESPACE)
     for t in tests:
         runner.run(t)
     res = runner.summarize(verbose=False)
     assert res.failed == 0, f"{name}: {res.failed} of {res.attempted} examples failed (the output above)"
+    after = {k: sorted(map(str, v)) for k, v in vars(module).items() if k.isupper() and isinstance(v, dict)}
+    assert after == tables, f"{name}: an example left a table changed (it removes what it registers)"

@@ -4,8 +4,6 @@ through `study.variants.register` (and removed after), it rides on the as-traine
 report.md's reach section and its primary comparisons with no edit of the report."""
 from __future__ import annotations
 
-import doctest
-import json
 from pathlib import Path
 
 import pytest
@@ -110,11 +108,3 @@ def test_a_variant_is_a_probe_or_a_stage_and_has_known_capabilities():
     with pytest.raises(ValueError, match="capability 'cut' is 'cut''s already"):
         variants.register(Variant("cut2", "x", lambda *a: None, capabilities=("cut",)))
     assert "cut2" not in variants.VARIANTS and Evaluation("mono2", "cut").variant == "cut"
-
-
-def test_the_variant_tables_example_runs():
-    """The ``Example::`` block of `study.variants` (a doctest; fold into the generic doctest collector)."""
-    failed, tried = doctest.testmod(variants, verbose=False, report=False)[:2]
-    assert tried >= 5 and failed == 0
-    assert json.dumps(sorted(variants.VARIANTS)) == json.dumps(sorted(
-        ["trained", "cut", "oracle", "oracle_overlap", "oracle_spread"]))  # the example removed what it added
