@@ -73,7 +73,7 @@ CLAIMS = [
     ("README.md", r"cpu_compare.yaml --out sweeps/cpu`, (\d+) min measured", "sweep_compare",
      lambda r: (round(_wall_min(r)),)),
     ("README.md", r"reusing its\s+runs; (\w+) \(world, seed\) pairs\)", "sweep_compare", lambda r: (len(r["seeds"]),)),
-    ("README.md", r"70 min measured, (\w+) worlds x (\w+)\s+seeds", "propagation",
+    ("README.md", r"90 min measured, (\w+) worlds x (\w+)\s+seeds", "propagation",
      lambda r: (len(r["seeds"]) // r["sweep_config"]["seeds_per_world"], r["sweep_config"]["seeds_per_world"])),
 ]
 for _name in ("sweep_cpu", "propagation", "sweep_compare", "propagation_budget"):
