@@ -209,8 +209,8 @@ def write_prediction(pred: Predictor, seq: str, frame: int, out_dir: str | Path,
         write_depth_exr(p, np.ascontiguousarray(final[c], dtype=np.float32))
         written.append(p)
     if ply:
-        get = getattr(pred.ds, "camera_poses", None)  # each camera where it was when it fired
-        pts, cols = rig_point_cloud(pred.ds, list(final), rgbs, poses=None if get is None else get(seq)[1][frame])
+        poses = pred.reader.camera_poses(seq)[1][frame]  # each camera where it was when it fired (static if together)
+        pts, cols = rig_point_cloud(pred.ds, list(final), rgbs, poses=poses)
         p = out / f"{frame_stem(frame)}.ply"
         write_ply(p, pts, cols)
         written.append(p)
