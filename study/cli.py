@@ -63,7 +63,8 @@ def _sweep_args(p: argparse.ArgumentParser) -> None:
                         "tasks on a local Ray / the cluster at RAY_ADDRESS (pip install -e '.[cluster]'; "
                         "docs/SCALING.md)")
     p.add_argument("--yes", action="store_true", help="start a sweep whose renders together are larger than "
-                   "synth.config.MAX_RENDER_BYTES (500 GB uncompressed) without refusing")
+                   "synth.config.MAX_RENDER_BYTES (500 GB uncompressed), or whose renders and checkpoints are more "
+                   "than the disk has free (study.disk), without refusing")
     p.add_argument("overrides", nargs="*",
                    help="sweep config overrides key=value, e.g. 'overlaps=[0.2,0.5]' seeds=[0,1] "
                         "'train_overrides=[train.steps=100]'")
@@ -90,6 +91,9 @@ def run_sweep_command(args: argparse.Namespace) -> int:
     print(f"mcdp sweep: its renders: {size_statement(size)}", file=sys.stderr)
     check_render_size(size, args.yes, f"sweep {args.preset}: its renders together",
                       "dataset.sequences / dataset.frames / camera.* in data_overrides (and pretrain.data_overrides)")
+    from study.disk import check_disk
+
+    print(f"mcdp sweep: its checkpoints: {check_disk(cfg, args.out, size['max_bytes'], args.yes)}", file=sys.stderr)
     from study.engines import EXIT_RUN_FAILED
     from study.sweep import run_sweep
 

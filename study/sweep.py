@@ -68,16 +68,19 @@ def run_sweep(cfg: SweepConfig, out: str | Path, progress: bool = True, log: Cal
     render_skipped, trained, train_skipped, train_resumed, evaluated, eval_skipped,
     diverged, failed), ``data`` (per overlap), ``rows`` (per overlap x method x seed),
     ``aggregate`` (mean/std over seeds) and ``timing``. Its renders together above
-    `synth.config.MAX_RENDER_BYTES` are refused (ConfigError) unless `yes`. ``checked``: the caller has
-    resolved and size-checked every nested config already (`study.config.check_nested_configs`, as the
-    command line does before it says the size), so they are not resolved a second time.
+    `synth.config.MAX_RENDER_BYTES`, or renders and checkpoints together above the space free under `out`
+    (`study.disk.check_disk`), are refused (ConfigError) unless `yes`. ``checked``: the caller has resolved and
+    size-checked every nested config and the disk already (`study.config.check_nested_configs`, as the command
+    line does before it says the sizes), so they are not resolved a second time.
     """
     from corelib.rundir import claim
 
     log = log or logger("sweep").info  # stderr (-q hides it) and, during a run, its train.log
     out = Path(out)
-    if not checked:  # a typo in an override, a huge render: refused before anything is written
-        check_nested_configs(cfg, yes)
+    if not checked:  # a typo in an override, a huge render, a disk too small: refused before anything is written
+        from study.disk import check_disk
+
+        log(f"[sweep] its checkpoints: {check_disk(cfg, out, check_nested_configs(cfg, yes)['max_bytes'], yes)}")
     if cfg.engine == "ray":
         from corelib.cluster import import_ray
         import_ray()  # Ray missing: one line, before anything is written
