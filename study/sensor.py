@@ -137,3 +137,57 @@ def format_between(base: tuple[str, dict], cond: tuple[str, dict]) -> str:
     ``compensate`` on the same rendered data. A method with no cross-camera warp should read exactly 0."""
     (bn, b), (cn, c) = base, cond
     return "\n".join(_pair_table(b, c, _methods(b), f"{cn} - {bn}, paired by world, **positive = worse**;"))
+
+
+def _primary_line(n: dict, rank: dict, a: str, b: str) -> str:
+    """The follow-up's primary reading: the t interval with its p and MDE, the rank-based reading, the verdict."""
+    from study.power import t_cdf
+
+    p = 2.0 * (1.0 - t_cdf(abs(n["mean"] / n["se"]), n["df"])) if n["se"] > 0 else math.nan
+    lo, hi = rank["ci"]
+    line = (f"**Primary: {a}'s change - {b}'s = {n['mean']:+.4f} ± {n['ci95']:.4f}** (95 % t over {n['n_worlds']} "
+            f"worlds, {n['df']} df, p = {p:.3f}; detectable at 80 % power: {n['mde80']:.4f}). Rank-based: "
+            f"Wilcoxon p = {rank['p']:.3f}, Hodges-Lehmann {rank['hl']:+.4f} [{lo:+.4f}, {hi:+.4f}] "
+            f"({100 * rank['ci_level']:.1f} %).")
+    agree = rank["p"] < 0.05
+    if n["differs"] == 1:
+        verdict = (f"{a} suffers more than {b} from the exposure spread, beyond the interval"
+                   + ("; the rank-based reading agrees." if agree else
+                      "; the rank-based reading does not reject, so a few worlds may carry it."))
+    elif n["differs"] == -1:
+        verdict = (f"{b} suffers more than {a}, the opposite of the paper's argument, beyond the interval"
+                   + ("; the rank-based reading agrees." if agree else "; the rank-based reading does not reject."))
+    else:
+        verdict = (f"not resolved: {a}'s extra cost is between {n['mean'] - n['ci95']:+.4f} and "
+                   f"{n['mean'] + n['ci95']:+.4f} (95 %), and a difference of {n['mde80']:.4f} would have been "
+                   "seen with 80 % power.")
+    return line + " " + verdict[0].upper() + verdict[1:]
+
+
+def format_followup(ideal: dict, cond: dict, planned: int, what: str) -> str:
+    """Markdown: the pre-planned follow-up of one condition on more worlds (``planned`` of them, stated in the
+    preset's header before the runs): the primary contrast (FSM's change - MCDP's on median abs_rel) with its
+    t interval, p, MDE and the rank-based reading (`study.design.signed_rank`), each method's change, and the
+    per-world values, so that no world is hidden behind the mean."""
+    from study.design import signed_rank
+
+    a, b = (short_label(m) for m in CONTRAST)
+    key = FIGURES[0][0]
+    n = contrast(ideal, cond, key)
+    rank = signed_rank([v for _, v in n["values"]])
+    L = [f"Planned before the runs (configs/sweep/cpu_sensor.yaml's header): {planned} worlds, one look at the end, "
+         f"{what}. Read here: {n['n_worlds']} worlds with every run of both conditions.\n",
+         _primary_line(n, rank, a, b) + "\n"]
+    L += _pair_table(ideal, cond, _methods(ideal), f"Constant-depth reference on these worlds: "
+                     f"{_yardstick(cond):.4f}. Change from the ideal camera, condition - ideal, paired by world, "
+                     "**positive = worse**;")[:-1]  # its verdict sentence: the primary line above replaces it
+    L.append("")
+    methods = _methods(ideal)
+    per = {m: _diffs(ideal, cond, m, key) for m in methods}
+    L += ["Per world, median abs_rel, condition - ideal:\n",
+          "| world | " + " | ".join(short_label(m) for m in methods) + f" | {a} - {b} |",
+          "|---|" + "---|" * (len(methods) + 1)]
+    for w, v in sorted(n["values"], key=lambda wv: wv[0]):
+        L.append(f"| {w} | " + " | ".join(f"{per[m][w]:+.4f}" if w in per[m] else "—" for m in methods)
+                 + f" | {v:+.4f} |")
+    return "\n".join(L) + "\n"

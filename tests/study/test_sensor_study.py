@@ -6,12 +6,12 @@ from study import sensor
 from study.variants import TRAINED
 
 
-def _results(shift: dict, seed: int = 0) -> dict:
-    """Three worlds x (Mono2, FSM, MCDP (m = 2)); ``shift``: added to a method's abs_rel and Dep Con."""
+def _results(shift: dict, seed: int = 0, worlds: int = 3) -> dict:
+    """``worlds`` worlds x (Mono2, FSM, MCDP (m = 2)); ``shift``: added to a method's abs_rel and Dep Con."""
     rng = np.random.default_rng(seed)
     base = {"mono2": 0.20, "fsm": 0.19, "mcdp_m2": 0.195}
     flat = []
-    for w in range(3):
+    for w in range(worlds):
         world = rng.normal(0, 0.01)  # a world's difficulty, shared by its conditions
         for m, v in base.items():
             d = shift.get(m, 0.0)
@@ -50,3 +50,23 @@ def test_between_two_conditions_reads_each_methods_change_and_zero_where_nothing
     assert mono.startswith("| Mono2 | +0.0000") and "(worse)" not in mono  # same results: exactly no change
     fsm = next(line for line in text.splitlines() if line.startswith("| FSM |"))
     assert fsm.startswith("| FSM | +0.010") and "**(worse)**" in fsm
+
+
+def test_the_follow_up_reads_its_primary_contrast_with_the_rank_based_reading_and_every_world():
+    ideal, cond = _results({}, worlds=14), _results({"fsm": 0.01}, worlds=14)
+    text = sensor.format_followup(ideal, cond, 14, "primary: the contrast")
+    assert "14 worlds, one look at the end, primary: the contrast. Read here: 14 worlds" in text
+    primary = next(line for line in text.splitlines() if line.startswith("**Primary:"))
+    assert "FSM's change - MCDP (m = 2)'s = +0.010" in primary and "13 df" in primary, primary
+    assert "Wilcoxon p = 0.000" in primary and "beyond the interval; the rank-based reading agrees" in primary
+    assert sum(line.startswith("| ") and line[2].isdigit() for line in text.splitlines()) == 14  # a row a world
+    # the t interval clears 0 but the ranks do not (a few worlds carry the mean): said, not hidden
+    n = {"mean": 0.01, "ci95": 0.008, "se": 0.004, "df": 13, "n_worlds": 14, "mde80": 0.011, "differs": 1}
+    rank = {"p": 0.2, "hl": 0.001, "ci": (-0.001, 0.01), "ci_level": 0.951}
+    lone = sensor._primary_line(n, rank, "FSM", "MCDP")
+    assert "beyond the interval; the rank-based reading does not reject, so a few worlds may carry it" in lone
+    assert "the opposite of the paper's argument" in sensor._primary_line({**n, "mean": -0.01, "differs": -1},
+                                                                          rank, "FSM", "MCDP")
+    null = next(line for line in sensor.format_followup(ideal, _results({}, seed=0, worlds=14), 14, "x").splitlines()
+                if line.startswith("**Primary:"))
+    assert "+0.0000 ± 0.0000" in null and "Not resolved" in null, null
