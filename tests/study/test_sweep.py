@@ -175,12 +175,12 @@ def _finite(x) -> bool:
 
 
 @pytest.mark.slow
-def test_ci_sweep_end_to_end_rerun_and_resume(tmp_path, capsys):
+def test_ci_sweep_end_to_end_rerun_and_resume(tmp_path, capsys, mini_sweep):
     out = tmp_path / "sweep"
-    keep = ["keep_last=true", "keep_best=true"]  # ci.yaml deletes the checkpoints after eval; this test resumes one
-    cfg = sweep.load_sweep_config(CI, keep)
+    # ci.yaml's keep_last / keep_best: false (its 14 runs kept would hold 6 GB); the resume below keeps one run
+    cfg = sweep.load_sweep_config(CI, [])
     n = len(cfg.overlaps) * len(cfg.methods) * len(cfg.seeds)
-    assert sweep_main([str(CI), "--out", str(out), "--no-progress", *keep]) == 0
+    assert sweep_main([str(CI), "--out", str(out), "--no-progress"]) == 0
     # overall progress (study.progress; jobs=2: runs reported as they finish): one line per stage and per run
     err = capsys.readouterr().err.splitlines()
     prog = [ln for ln in err if ln.startswith("[sweep] progress: ")]
@@ -217,7 +217,7 @@ def test_ci_sweep_end_to_end_rerun_and_resume(tmp_path, capsys):
         assert _finite(r["train_s"]) and _finite(r["eval_s"])
         run = Path(r["run_dir"])
         assert (run / "config.yaml").is_file() and (run / "metrics_test.json").is_file()
-        assert (run / "checkpoints" / "last.pt").is_file()
+        assert not (run / "checkpoints" / "last.pt").exists() and (run / "checkpoints" / "removed.json").is_file()
     assert seen == {(o, m) for o in cfg.overlaps for m in cfg.methods}
 
     for d in res["data"]:  # the constant-depth reference of every overlap
@@ -274,18 +274,23 @@ def test_ci_sweep_end_to_end_rerun_and_resume(tmp_path, capsys):
     assert "Does the refinement act, use the neighbours, and propagate?" in report and "Inert refinements" in report
 
     # rerun: a no-op that skips every stage and reports the same numbers
-    assert sweep_main([str(CI), "--out", str(out), "--no-progress", *keep]) == 0
+    assert sweep_main([str(CI), "--out", str(out), "--no-progress"]) == 0
     res2 = json.loads((out / "results.json").read_text())
     c2 = res2["counters"]
     assert (c2["rendered"], c2["trained"], c2["evaluated"]) == (0, 0, 0)
     assert (c2["render_skipped"], c2["train_skipped"], c2["eval_skipped"], c2["reference_skipped"]) == (2, n, n, 2)
     assert _evs(res2) == _evs(res)
 
-    # more steps for one run: training resumes from its checkpoint (step 2 -> 3), nothing is re-rendered
+    # more steps for one run kept to be resumed: training resumes from its checkpoint (step 2 -> 3), nothing is
+    # re-rendered (the session's rendered overlap 0.50 and pretraining, tests/study/conftest.py)
+    one = tmp_path / "resume"
+    mini_sweep.copy_to(one, "data", "pretrain")
+    kept = ["--out", str(one), "--no-progress", "methods=[mono2]", "overlaps=[0.5]", "jobs=1", "keep_last=true",
+            "keep_best=true"]
+    assert sweep_main([str(CI), *kept]) == 0
     steps3 = [s.replace("train.steps=2", "train.steps=3") for s in cfg.train_overrides]
-    assert sweep_main([str(CI), "--out", str(out), "--no-progress", "methods=[mono2]", "overlaps=[0.2]", *keep,
-                       "train_overrides=[" + ",".join(steps3) + "]"]) == 0
-    res3 = json.loads((out / "results.json").read_text())
+    assert sweep_main([str(CI), *kept, "train_overrides=[" + ",".join(steps3) + "]"]) == 0
+    res3 = json.loads((one / "results.json").read_text())
     c3 = res3["counters"]
     assert (c3["render_skipped"], c3["trained"], c3["train_resumed"], c3["evaluated"]) == (1, 1, 1, 1)
     assert res3["rows"][0]["steps"] == 3
