@@ -216,17 +216,31 @@ def _train(run: _Run, row: dict) -> bool:
     return True
 
 
+def _checkpoint_of(run_dir: Path, which: str) -> str:
+    """The name of the run's checkpoint the sweep evaluates (`mcdp.runs.find_checkpoint`); a checkpoint deleted
+    by other means than the sweep's clean-up (which records it) is a ConfigError that says what to do."""
+    from mcdp.runs import RunError, find_checkpoint
+
+    try:
+        return find_checkpoint(run_dir, which).name
+    except RunError as exc:
+        raise ConfigError(f"{exc}; the sweep reads it to evaluate the run or to skip it, and a checkpoint removed "
+                          "by hand is not recorded as removed: restore it, or delete the run folder to retrain "
+                          "it (keep_last / keep_best: false remove checkpoints with a record, and a rerun then "
+                          "skips the run)") from None
+
+
 def _evaluate(run: _Run, row: dict) -> tuple[dict[str, dict], str]:
     """Evaluate the run's checkpoint (or reuse the metrics of the same eval key); ({variant: metrics of its pass}
     (`study.probes.run_probes`), key)."""
     from mcdp.predict import run_record
-    from mcdp.runs import find_checkpoint, rig_differences
+    from mcdp.runs import rig_differences
 
     cfg, run_dir, status = run.cfg, run.run_dir, run.status
     ecfg = eval_config_for(cfg)
     # keep_best: false removed the evaluated checkpoint: its name is the recorded one (by name, as in remove_last)
     removed = bool(status.get("best_removed"))
-    ckpt_name = Path(status.get("checkpoint") or "").name if removed else find_checkpoint(run_dir, cfg.checkpoint).name
+    ckpt_name = Path(status.get("checkpoint") or "").name if removed else _checkpoint_of(run_dir, cfg.checkpoint)
     key = _eval_key(run.rhash, int(status.get("steps", -1)), config_to_dict(cfg.eval), run.data["config_hash"],
                     cfg.checkpoint, ckpt_name)
     metrics = read_json(metrics_path(run_dir, TRAINED))

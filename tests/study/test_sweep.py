@@ -295,6 +295,15 @@ def test_ci_sweep_end_to_end_rerun_and_resume(tmp_path, capsys, mini_sweep):
     assert (c3["render_skipped"], c3["trained"], c3["train_resumed"], c3["evaluated"]) == (1, 1, 1, 1)
     assert res3["rows"][0]["steps"] == 3
 
+    # its checkpoints deleted by hand (not by keep_*: false, which records it): a rerun says what to do
+    for f in (one / "runs" / "overlap_0.50" / "mono2_s0" / "checkpoints").glob("*.pt"):
+        f.unlink()
+    capsys.readouterr()
+    assert sweep_main([str(CI), *kept, "train_overrides=[" + ",".join(steps3) + "]"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert "has no checkpoint" in err[-1] and "removed by hand is not recorded" in err[-1], err[-3:]
+    assert "delete the run folder to retrain it" in err[-1] and "Traceback" not in "\n".join(err)
+
 
 @pytest.mark.slow
 def test_parallel_jobs_give_the_same_numbers_as_sequential(mini_sweep, tmp_path):
