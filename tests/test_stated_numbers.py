@@ -129,3 +129,20 @@ def test_no_page_counts_the_committed_sweeps_runs_by_hand():
     for page in sorted(RESULTS.glob("*/page.md")) + sorted(RESULTS.glob("*/preface.md")) + [ROOT / "README.md"]:
         for m in re.finditer(r"committed sweep's (\w+) (?:such )?runs", page.read_text()):
             assert _norm(m.group(1)) in (str(per_method), str(_runs(r))), f"{page}: {m.group(0)!r}"
+
+
+def test_the_sensor_follow_ups_stated_numbers_are_its_committed_results():
+    """The sensor preface's primary figure and wall times are those of docs/results/sensor14_*/results.json."""
+    from study.sensor import FIGURES, change, contrast
+
+    ideal, cond = _results("sensor14_ideal"), _results("sensor14_exposure")
+    text = " ".join(line.lstrip("> ") for line in (RESULTS / "sensor" / "preface.md").read_text().splitlines())
+    n = contrast(ideal, cond, FIGURES[0][0])
+    assert n["n_worlds"] == 14 and f"MCDP (m = 2)'s on median abs_rel is {n['mean']:+.4f} ± {n['ci95']:.4f}" in text
+    for m, label in (("mono2", "Mono2"), ("fsm", "FSM"), ("mcdp_m2", "MCDP (m = 2)")):
+        c = change(ideal, cond, m, FIGURES[0][0])
+        assert f"{label} {c['mean']:+.4f} ± {c['ci95']:.4f}" in text, label
+    dep = contrast(ideal, cond, FIGURES[1][0])
+    assert f"their difference, {dep['mean']:+.4f} ± {dep['ci95']:.4f}" in text
+    for name in ("sensor14_ideal", "sensor14_exposure"):
+        assert _hms(_results(name)["timing"]["this_invocation_s"]) in text, name
