@@ -68,7 +68,8 @@ def free_bytes(out: Path) -> int:
 def estimate(cfg: SweepConfig, render_bytes: int) -> dict:
     """What the whole sweep writes: ``renders`` (on disk), ``last`` / ``best`` (bytes of one run's checkpoint,
     the largest over its methods), ``runs``, ``checkpoints`` (the most on disk at once: those kept, the
-    ``jobs`` runs that hold both while they train, and the pretraining's), ``total``, and ``unsized`` (methods whose network could not be built on the meta device)."""
+    ``jobs`` runs that hold both while they train, and the pretraining's, sized as the runs' networks),
+    ``total``, and ``unsized`` (methods whose network could not be built on the meta device)."""
     runs = len(cfg.overlaps) * len(cfg.methods) * len(cfg.seeds)
     last = best = 0
     unsized = []
