@@ -143,7 +143,7 @@ def _primary_line(n: dict, rank: dict, a: str, b: str) -> str:
     """The follow-up's primary reading: the t interval with its p and MDE, the rank-based reading, the verdict."""
     from study.power import t_cdf
 
-    p = 2.0 * (1.0 - t_cdf(abs(n["mean"] / n["se"]), n["df"])) if n["se"] > 0 else math.nan
+    p = 2.0 * t_cdf(-abs(n["mean"] / n["se"]), n["df"]) if n["se"] > 0 else math.nan  # as study.design's looks
     lo, hi = rank["ci"]
     line = (f"**Primary: {a}'s change - {b}'s = {n['mean']:+.4f} ± {n['ci95']:.4f}** (95 % t over {n['n_worlds']} "
             f"worlds, {n['df']} df, p = {p:.3f}; detectable at 80 % power: {n['mde80']:.4f}). Rank-based: "
@@ -178,11 +178,11 @@ def format_followup(ideal: dict, cond: dict, planned: int, what: str) -> str:
     L = [f"Planned before the runs (configs/sweep/cpu_sensor.yaml's header): {planned} worlds, one look at the end, "
          f"{what}. Read here: {n['n_worlds']} worlds with every run of both conditions.\n",
          _primary_line(n, rank, a, b) + "\n"]
-    L += _pair_table(ideal, cond, _methods(ideal), f"Constant-depth reference on these worlds: "
+    methods = _methods(ideal)
+    L += _pair_table(ideal, cond, methods, f"Constant-depth reference on these worlds: "
                      f"{_yardstick(cond):.4f}. Change from the ideal camera, condition - ideal, paired by world, "
                      "**positive = worse**;")[:-1]  # its verdict sentence: the primary line above replaces it
     L.append("")
-    methods = _methods(ideal)
     per = {m: _diffs(ideal, cond, m, key) for m in methods}
     L += ["Per world, median abs_rel, condition - ideal:\n",
           "| world | " + " | ".join(short_label(m) for m in methods) + f" | {a} - {b} |",
