@@ -73,10 +73,14 @@ def _format_validation_error(err: ValidationError, source: str) -> str:
         key = ".".join(str(p) for p in e["loc"]) or "<root>"
         if e["type"] == "extra_forbidden":
             msg = "unknown key"
+        elif e["type"] == "value_error":  # a validator's own sentence, without pydantic's "Value error, "
+            msg = str(e.get("ctx", {}).get("error", e["msg"]))
         else:
             msg = e["msg"]
         got = e.get("input")
-        got_s = "" if isinstance(got, dict) else f" (got {_cut(repr(got))})"
+        # a validator's sentence that already says what it got is not echoed a second time
+        echoed = isinstance(got, dict) or (e["type"] == "value_error" and "got " in msg)
+        got_s = "" if echoed else f" (got {_cut(repr(got))})"
         lines.append(f"  {_cut(key)}: {_cut(msg, 400)}{got_s}")
     if len(errors) > MAX_ERROR_LINES:
         lines.append(f"  (+{len(errors) - MAX_ERROR_LINES} more)")

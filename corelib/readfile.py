@@ -28,6 +28,27 @@ def _kind(mode: int) -> str:
             else "not a regular file")
 
 
+#: the most one read asks for at once: a buffer of the bound itself (2 GiB for a dataset file) is asked of the
+#: allocator before a byte is read, and fails under an address-space limit whatever the file's size
+CHUNK_BYTES = 16 * 2**20
+
+
+def read_bounded(f, limit: int) -> bytes:
+    """At most ``limit + 1`` bytes of the open binary file ``f`` (one more than the bound, so the caller sees a
+    file that holds more), read in chunks of at most `CHUNK_BYTES`: the memory asked for follows the file,
+    never the bound (the first asks for the size the file has, plus one)."""
+    chunks, total = [], 0
+    want = os.fstat(f.fileno()).st_size + 1
+    while total <= limit:
+        chunk = f.read(max(1, min(want, CHUNK_BYTES, limit + 1 - total)))
+        want = CHUNK_BYTES
+        if not chunk:
+            break
+        chunks.append(chunk)
+        total += len(chunk)
+    return b"".join(chunks)
+
+
 def inside(path: str | Path, root: str | Path) -> Path:
     """``path`` when it resolves inside ``root`` (a link out of it, ``../``: `ReadRefused` naming both)."""
     path, root = Path(path), Path(root)
@@ -53,7 +74,7 @@ def read_inside(path: str | Path, root: str | Path, limit: int = MAX_BYTES) -> b
         if st.st_size > limit:
             raise ReadRefused(f"{path}: {st.st_size} bytes, more than such a file may hold ({limit}); refused")
         try:
-            data = f.read(limit + 1)
+            data = read_bounded(f, limit)
         except OSError as exc:
             raise ReadRefused(f"{path}: not readable ({exc.strerror or exc})") from None
     if len(data) > limit:

@@ -33,6 +33,7 @@ from corelib.configlib import StrictModel, added_key
 SENSOR_DRAWS, SENSOR_NOISE = 0x5E75, 0x5E76  # seed streams of their own (no other draw of a sequence moves)
 _LUMA = np.array([0.2126, 0.7152, 0.0722])  # Rec. 709 luminance of linear RGB
 MAX_EV = 8.0  # auto-exposure's correction is clamped to +-MAX_EV (a black or a white frame)
+MIN_NOISE = 1e-6  # the smallest sensor.noise above 0: the linear signal of one photo-electron
 MAX_SHUTTER_MS = 100.0  # an exposure or a rolling read-out longer than this is not a driving camera's
 #: the keys of the shutter (`synth.shutter`): they decide which times are rendered, not what the sensor does
 #: to a formed image, so `is_identity` does not look at them
@@ -106,6 +107,14 @@ class SensorConfig(StrictModel):
                              f"({', '.join(CAMERA_NAMES)}), got {len(v)}")
         if not all(math.isfinite(x) and abs(x) <= MAX_EV for x in vals):
             raise ValueError(f"EV offsets must be finite and within +-{MAX_EV:g}, got {v}")
+        return v
+
+    @field_validator("noise")
+    @classmethod
+    def _noise(cls, v):
+        if 0 < v < MIN_NOISE:  # 1 / noise electrons at white: numpy's Poisson refuses a mean above ~1e18
+            raise ValueError(f"0 (no noise) or at least {MIN_NOISE:g} (a million electrons at white; a real sensor "
+                             f"holds about 1e4), got {v:g}")
         return v
 
     @field_validator("white_balance")
