@@ -90,6 +90,14 @@ class ModelConfig(StrictModel):
         camera motion the ego odometry gives every method (`mcdp.rigid.odometry_camera_motion`, Mono2's too);
         ``assume`` uses the static rig extrinsics, as if the cameras fired together (the ablation of what
         ignoring the offsets costs). Equal on synchronous data; an added key (unset: the run's hash as before).
+    warm_start: false trains from scratch although ``init_from`` names a pretraining (random encoder and
+        decoder, the calibration's "from scratch" arm against a sweep's shared pretraining; Monodepth2's and
+        PackNet's "without ImageNet pretraining" rows). The run still records the file it did not read in its
+        hash. An added key.
+    feature_ego_mask: MCDP's weight networks see the ego body's features zeroed and a neighbour's warped
+        features invalid where they land on its ego body (default true, today's); false feeds them unmasked
+        (the calibration's "no self-occlusion masks" switch for the features; the public MCDP code masks
+        them). An added key.
     """
 
     method: str = Field("mcdp", pattern=r"^[a-z][a-z0-9_]{0,39}$")
@@ -108,6 +116,8 @@ class ModelConfig(StrictModel):
     mono_head: bool = False
     init_from: str | None = None
     sync: Literal["compensate", "assume"] = added_key("compensate")
+    warm_start: bool = added_key(True)
+    feature_ego_mask: bool = added_key(True)
 
     @model_validator(mode="after")
     def _check(self) -> "ModelConfig":
@@ -152,6 +162,19 @@ class LossConfig(StrictModel):
         the coarse-scale terms (which in Monodepth2 keep the per-pixel decoder
         out of local minima) would repeat the initial stage's signal at 4x the
         cost of the full-resolution term. Set 4 for the literal paper loss.
+    reprojection: how the sources' reprojection errors combine per pixel: ``min`` (default, Monodepth2's
+        per-pixel minimum) or ``mean`` (Monodepth2's ``--avg_reprojection`` ablation: the mean over the
+        sources that see the pixel, and with auto-masking the identity error is the sources' mean too, as
+        its ``trainer.py`` averages ``identity_reprojection_losses``). An added key.
+    multiscale: ``full_res`` (default, Monodepth2's: each decoder scale's depth upsampled to the full
+        resolution and the photometric loss computed there) or ``per_scale`` (Monodepth2's
+        ``--v1_multiscale`` ablation: each scale's depth at its own resolution, the images and K scaled to
+        it, as its ``trainer.py`` sets ``source_scale = scale``). An added key.
+    photometric_ego_mask: default true (today's): the photometric and smoothness losses skip the ego body's
+        pixels, and a source pixel that lands on the source's ego body is invalid; false: the masks are all
+        ones for both (the paper's Table 1 row "Mono2 without the self-occlusion masks"). An added key.
+    consistency_ego_mask: default true: L_con skips pixels on either camera's ego body; false: it does not
+        (its own switch, for MCDP's row of the same ablation). An added key.
     """
 
     ssim_alpha: Float = Field(0.85, ge=0.0, le=1.0)
@@ -160,6 +183,17 @@ class LossConfig(StrictModel):
     automask: bool = True
     out_of_view: Literal["identity", "border"] = "identity"
     refine_scales: int = Field(1, ge=1, le=4)
+    reprojection: Literal["min", "mean"] = added_key("min")
+    multiscale: Literal["full_res", "per_scale"] = added_key("full_res")
+    photometric_ego_mask: bool = added_key(True)
+    consistency_ego_mask: bool = added_key(True)
+
+    @model_validator(mode="after")
+    def _check(self) -> "LossConfig":
+        if self.reprojection == "mean" and self.out_of_view != "identity":
+            raise ValueError("loss.reprojection=mean needs loss.out_of_view=identity (the mean over the sources that "
+                             "see a pixel; an unseen pixel scores its identity error)")
+        return self
 
 
 class ScaleConfig(StrictModel):

@@ -139,6 +139,7 @@ def reprojection_loss(
     alpha: float = 0.85,
     out_of_view: str = "border",
     ident: Optional[torch.Tensor] = None,
+    reduce: str = "min",
 ):
     """Monodepth2 photometric loss: per-pixel minimum over sources, with auto-masking.
 
@@ -168,7 +169,10 @@ def reprojection_loss(
         out_of_view: ``"identity"`` or ``"border"`` (above).
         ident: (B, 1, H, W) the identity error min_s photometric_error(source_s, target), when
             the caller has it already: it does not depend on depth, so the training step computes
-            it once per batch (not once per stage and scale) and passes it here.
+            it once per batch (not once per stage and scale) and passes it here (with ``reduce="mean"``: the
+            sources' mean identity error).
+        reduce: ``min`` or ``mean`` over the sources (`identity_floored_error`; ``mean`` needs
+            ``out_of_view="identity"``).
 
     Returns:
         loss: scalar, masked_mean(per_pixel, used).
@@ -183,6 +187,8 @@ def reprojection_loss(
         raise ValueError(f"valid_list has {len(valid_list)} entries, warped_list {len(warped_list)}")
     if out_of_view not in ("identity", "border"):
         raise ValueError(f"out_of_view must be 'identity' or 'border', got {out_of_view!r}")
+    if reduce != "min" and out_of_view != "identity":
+        raise ValueError(f"reduce={reduce!r} needs out_of_view='identity' (the mean over the sources that see a pixel)")
     if (automask or out_of_view == "identity") and ident is None:
         if sources_list is None or len(sources_list) != len(warped_list):
             n = None if sources_list is None else len(sources_list)
@@ -202,9 +208,10 @@ def reprojection_loss(
         for s, src in enumerate(sources_list):
             _check4(src, f"sources_list[{s}]", channels=C, like=target, doc=f"({B}, {C}, {H}, {W})")
             idents.append(photometric_error(src, target, alpha))
-        ident = torch.cat(idents, 1).min(1, keepdim=True).values
+        ident = torch.cat(idents, 1)
+        ident = ident.min(1, keepdim=True).values if reduce == "min" else ident.mean(1, keepdim=True)
     if out_of_view == "identity":
-        per_pixel, used = identity_floored_error(errors, valid_list, ident, automask)
+        per_pixel, used = identity_floored_error(errors, valid_list, ident, automask, reduce)
         used = used * (mask > 0).to(used.dtype)
         return masked_mean(per_pixel, mask), per_pixel, used
     reproj, seen = min_reprojection(errors, valid_list)
@@ -224,7 +231,7 @@ def min_reprojection(errors: Sequence[torch.Tensor], valid_list: Sequence[torch.
 
 
 def identity_floored_error(errors: Sequence[torch.Tensor], valid_list: Sequence[torch.Tensor], ident: torch.Tensor,
-                           automask: bool = True):
+                           automask: bool = True, reduce: str = "min"):
     """Monodepth2's per-pixel loss with out-of-view pixels scored at their identity error.
 
     e = min over the sources that see the pixel of their reprojection error; a pixel
@@ -240,15 +247,24 @@ def identity_floored_error(errors: Sequence[torch.Tensor], valid_list: Sequence[
         valid_list: S tensors (B, 1, H, W) 0/1, the source sees the pixel.
         ident: (B, 1, H, W) min over sources of the identity error (no gradient needed).
         automask: take the minimum with ``ident`` at seen pixels too.
+        reduce: ``min`` (Monodepth2's per-pixel minimum over the sources) or ``mean`` (its ``--avg_reprojection``
+            ablation: the mean over the sources that see the pixel; the caller passes the sources' mean
+            identity error as ``ident``, as Monodepth2 averages its identity errors then).
 
     Returns:
         per_pixel (B, 1, H, W) and used (B, 1, H, W) float 0/1: pixels where the
         reprojection (not the identity) gives the value, i.e. those that carry gradient.
     """
+    if reduce not in ("min", "mean"):
+        raise ValueError(f"reduce must be 'min' or 'mean', got {reduce!r}")
     e = torch.cat(list(errors), 1)
     v = torch.cat([x > 0 for x in valid_list], 1)
-    best = torch.where(v, e, torch.full_like(e, INVALID_ERROR)).min(1, keepdim=True).values
     seen = v.any(1, keepdim=True)
+    if reduce == "min":
+        best = torch.where(v, e, torch.full_like(e, INVALID_ERROR)).min(1, keepdim=True).values
+    else:  # the mean over the sources that see the pixel (an unseen pixel takes ``ident`` below)
+        vf = v.to(e.dtype)
+        best = (e * vf).sum(1, keepdim=True) / vf.sum(1, keepdim=True).clamp(min=1.0)
     ident = ident.detach().to(best.dtype)
     if automask:
         use = seen & (best < ident)

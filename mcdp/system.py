@@ -41,7 +41,7 @@ import torch.nn.functional as F
 
 from mcdp.config import RunConfig
 from mcdp.data import directed_pairs, neighbour_table
-from mcdp.geometry import splat_depth, warp_by_depth
+from mcdp.geometry import scale_intrinsics, splat_depth, warp_by_depth
 from mcdp.inputs import RigBatch
 from mcdp.losses import consistency_loss, photometric_error, reprojection_loss, smoothness_loss
 from mcdp.methods import fields_of, method_of, method_params
@@ -178,33 +178,58 @@ class SelfSupervisedSystem(torch.nn.Module):
         target = rgb[:, :, 1].reshape(BN, C, H, W)
         sources = [rgb[:, :, 1 + o].reshape(BN, C, H, W) for o in (-1, 1)]
         mask = batch.mask.reshape(BN, 1, H, W).float()
+        if not cfg.loss.photometric_ego_mask:  # the ablation without self-occlusion masks (LossConfig)
+            mask = torch.ones_like(mask)
         K = batch.K.reshape(BN, 3, 3).float()
-        src_and_mask = [torch.cat([s, mask], 1) for s in sources]  # the ego body is static in each camera
         scales = list(range(cfg.model.scales))
         img_s = {s: target if s == 0 else F.avg_pool2d(target, 2**s) for s in scales}
         mask_s = {s: mask if s == 0 else resize_mask_to(mask, H // 2**s, W // 2**s) for s in scales}
         lam = cfg.loss.consistency_weight
         need_con = lam > 0 if need_con is None else need_con
+        need_ident = cfg.loss.automask or cfg.loss.out_of_view == "identity"
 
-        ident = None  # the identity error does not depend on depth: once per batch, not per stage and scale
-        if cfg.loss.automask or cfg.loss.out_of_view == "identity":
-            with torch.no_grad():
-                ident = torch.cat([photometric_error(sc, target, cfg.loss.ssim_alpha) for sc in sources], 1)
-                ident = ident.min(1, keepdim=True).values  # (BN, 1, H, W)
+        def level(s: int) -> tuple:
+            """(target, [source (3 ch) + its ego mask (1 ch)] per source, K, mask, identity error) at scale s:
+            full resolution, or scale s's own (``loss.multiscale=per_scale``, Monodepth2's v1_multiscale)."""
+            tgt, srcs, K_s = target, sources, K
+            if s > 0:
+                tgt, srcs = img_s[s], [F.avg_pool2d(x, 2**s) for x in sources]
+                K_s = scale_intrinsics(K, tgt.shape[-1] / W, tgt.shape[-2] / H)
+            ident = None  # the identity error does not depend on depth: once per batch, not per stage and scale
+            if need_ident:
+                with torch.no_grad():
+                    ident = torch.cat([photometric_error(sc, tgt, cfg.loss.ssim_alpha) for sc in srcs], 1)
+                    ident = (ident.min(1, keepdim=True).values if cfg.loss.reprojection == "min"
+                             else ident.mean(1, keepdim=True))  # (BN, 1, h, w)
+            m = mask_s[s]
+            return tgt, [torch.cat([x, m], 1) for x in srcs], K_s, m, ident  # the ego body is static in each camera
+
+        per_scale = cfg.loss.multiscale == "per_scale"
+        levels = {0: level(0)}
         losses: dict = {}
         total = 0.0
         for stage in outputs["stages"]:
             lp_sum = 0.0
             st_scales = scales[: cfg.loss.refine_scales] if is_refined(stage) else scales
             for s in st_scales:
-                depth = outputs["depth", stage, s].float()
+                if per_scale and s > 0:  # scale s's depth at its own resolution (disp = 1 / depth there)
+                    if s not in levels:
+                        levels[s] = level(s)
+                    tgt, src_and_mask, K_s, m_s, ident = levels[s]
+                    depth = 1.0 / outputs["disp", stage, s].float()
+                    if outputs.get("scale") is not None:  # the ORACLE scale mode's factor (1 otherwise)
+                        depth = depth * outputs["scale"].float().view(BN, 1, 1, 1)
+                else:
+                    tgt, src_and_mask, K_s, m_s, ident = levels[0]
+                    depth = outputs["depth", stage, s].float()
                 warped, valid = [], []
                 for o, sm in zip((-1, 1), src_and_mask):
-                    w, v = warp_by_depth(sm, depth, K, K, poses[o], padding_mode="border")
+                    w, v = warp_by_depth(sm, depth, K_s, K_s, poses[o], padding_mode="border")
                     warped.append(w[:, :C])
                     valid.append(v * (w[:, C:] > 0.99).to(v.dtype))  # not onto the source's ego body
-                rep, _, used = reprojection_loss(target, warped, valid, None, mask, cfg.loss.automask,
-                                                 cfg.loss.ssim_alpha, cfg.loss.out_of_view, ident=ident)
+                rep, _, used = reprojection_loss(tgt, warped, valid, None, m_s, cfg.loss.automask,
+                                                 cfg.loss.ssim_alpha, cfg.loss.out_of_view, ident=ident,
+                                                 reduce=cfg.loss.reprojection)
                 smooth = smoothness_loss(outputs["disp", stage, s].float(), img_s[s], mask_s[s])
                 lp_sum = lp_sum + rep + cfg.loss.smoothness_weight * smooth / (2**s)
                 if s == 0:
@@ -237,6 +262,8 @@ class SelfSupervisedSystem(torch.nn.Module):
         P = tgt.numel()
         d = depth.view(B, N, 1, H, W)
         m = batch.mask.float()
+        if not self.cfg.loss.consistency_ego_mask:  # L_con's own switch of the no-masks ablation (LossConfig)
+            m = torch.ones_like(m)
         K = batch.K.float()
         T = batch.T_ego_cam.float()
         T_tgt_src = torch.linalg.inv(T[:, tgt]) @ T[:, src]  # (B, P, 4, 4)

@@ -139,7 +139,7 @@ class Trainer:
                                                else None)
 
         self.init_from: dict | None = None
-        if ckpt is None and cfg.model.init_from is not None:
+        if ckpt is None and cfg.model.init_from is not None and cfg.model.warm_start:  # warm_start false: scratch
             self.init_from = warm_start(self.depth, cfg.model.init_from)
         self.step = 0
         self.skip_guard = SkipGuard()

@@ -191,6 +191,8 @@ class DepthModel(DepthNetwork):
         emit("init", torch.softmax(logits, 1), scale)
         if not self.weight_nets:
             return out
+        if not self.cfg.feature_ego_mask:  # the no-masks ablation of the weight networks' features (ModelConfig)
+            mask_f = torch.ones_like(mask_f)
         self._refine(out, feats, bases, logits, scale, inp.K, inp.T_ego_cam, mask_f, inp.nbr, emit, rgb.device.type)
         return out
 

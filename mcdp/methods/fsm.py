@@ -183,6 +183,8 @@ def fsm_loss(outputs: dict, batch, ctx: LossContext) -> dict:
     tgt, src = ctx.pairs
     motions = {o: p.reshape(B, N, 4, 4) for o, p in ctx.poses.items()}
     out: dict = {}
+    # loss.photometric_ego_mask false (the no-masks ablation) reaches the spatial terms too
+    mask = batch.mask if cfg.loss.photometric_ego_mask else torch.ones_like(batch.mask)
     if tgt.numel() > 0 and w.spatial_weight > 0:
         total = 0.0
         for stage in outputs["stages"]:
@@ -190,7 +192,7 @@ def fsm_loss(outputs: dict, batch, ctx: LossContext) -> dict:
             st = 0.0
             for s in scales:
                 depth = outputs["depth", stage, s].reshape(B, N, 1, H, W)
-                r = spatial_photometric(depth, rgb, batch.mask, batch.K, batch.T_ego_cam, motions,
+                r = spatial_photometric(depth, rgb, mask, batch.K, batch.T_ego_cam, motions,
                                         tgt, src, cfg.loss.ssim_alpha)
                 st = st + r["pair"].sum() / N
             total = total + st / len(scales)
