@@ -14,6 +14,7 @@ MODULES = (
     "mcdp.metrics",  # Metric, METRICS: a metric and its direction
     "study.variants",  # Variant, VARIANTS: a way the sweep evaluates a run
     "synth.label_kinds",  # LabelKind: a label a render writes
+    "synth.camera",  # CameraModel, MODELS: a lens model (project, unproject, resize, JSON)
 )
 
 
