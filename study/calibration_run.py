@@ -1,0 +1,104 @@
+"""``mcdp calibrate``: train every arm of the anchors file at the calibration recipe, one sweep folder per arm.
+
+Each arm is the sweep preset (``configs/sweep/cpu_calibration.yaml``) with ``methods: [arm.method]`` and the arm's
+overrides appended to ``train_overrides``; every arm's folder shares the first arm's pretraining and rendered
+worlds (hard links of its ``pretrain/``, ``data/`` and ``.mcdp/``, made before the arm's sweep starts), so the arms
+differ by their switch only and every world is rendered once. The sweeps run one after the other, in the file's
+``order``, each on the sweep's own engine (its ``jobs`` runs at a time): a session cut short has the first arms.
+A rerun resumes every arm (each sweep skips what it has). The calibration page reads the folders
+(`study.calibration`).
+
+Example::
+
+    mcdp calibrate configs/calibration/anchors.yaml configs/sweep/cpu_calibration.yaml --out sweeps/calibration
+    mcdp calibrate ... --arms mono2,mono2_nomask "train_overrides+=[train.steps=800]"   # the scale point
+"""
+from __future__ import annotations
+
+import argparse
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+from corelib.configlib import ConfigError
+
+#: what every arm's folder shares with the first arm's (the pretraining, the rendered worlds, the markers)
+SHARED = ("pretrain", "data", ".mcdp")
+
+
+def arm_overrides(base_overrides: list[str], arm_overrides: list[str], method: str) -> list[str]:
+    """The sweep overrides of one arm: its method, and the preset's train_overrides followed by the arm's."""
+    train = ", ".join(list(base_overrides) + list(arm_overrides))
+    return [f"methods=[{method}]", f"train_overrides=[{train}]"]
+
+
+def link_shared(first: Path, target: Path) -> list[str]:
+    """Hard-link ``first``'s shared folders into ``target`` where ``target`` has none yet; the folders linked."""
+    done = []
+    for name in SHARED:
+        src, dst = first / name, target / name
+        if src.is_dir() and not src.is_symlink() and not dst.exists():
+            target.mkdir(parents=True, exist_ok=True)
+            subprocess.run(["cp", "-al", str(src), str(dst)], check=True)
+            done.append(name)
+    return done
+
+
+def _args(argv: list[str] | None) -> argparse.Namespace:
+    p = argparse.ArgumentParser(prog="mcdp calibrate", description=__doc__.splitlines()[0])
+    p.add_argument("anchors", help="anchors file, e.g. configs/calibration/anchors.yaml")
+    p.add_argument("preset", help="sweep preset of the recipe, e.g. configs/sweep/cpu_calibration.yaml")
+    p.add_argument("--out", required=True, help="calibration folder: one sweep folder per arm under it")
+    p.add_argument("--arms", default="", help="comma-separated arms to run (default: every arm, in the file's order)")
+    p.add_argument("--extra", default="", help="train overrides added to every arm (the scale point), comma-separated")
+    p.add_argument("--dry-run", action="store_true", help="print each arm's sweep command and stop")
+    p.add_argument("overrides", nargs="*", help="sweep overrides for every arm, e.g. 'seeds=[700,701]'")
+    return p.parse_args(argv)
+
+
+def main(argv: list[str] | None = None) -> int:
+    from study.anchors import load_anchors
+    from study.config import load_sweep_config
+
+    args = _args(argv)
+    try:
+        anchors = load_anchors(args.anchors)
+        cfg = load_sweep_config(Path(args.preset), args.overrides)
+    except ConfigError as exc:
+        print(f"mcdp calibrate: {exc}", file=sys.stderr)
+        return 2
+    order = list(anchors.order)
+    if args.arms:
+        wanted = [a.strip() for a in args.arms.split(",") if a.strip()]
+        unknown = [a for a in wanted if a not in anchors.arms]
+        if unknown:
+            print(f"mcdp calibrate: --arms: {unknown[0]!r} is not an arm of {args.anchors} ({', '.join(order)})",
+                  file=sys.stderr)
+            return 2
+        order = [a for a in order if a in wanted]
+    extra = [x.strip() for x in args.extra.split(",") if x.strip()]
+    out = Path(args.out)
+    first = out / anchors.order[0]
+    worst = 0
+    for name in order:
+        arm = anchors.arms[name]
+        over = list(args.overrides) + arm_overrides(list(cfg.train_overrides) + extra, arm.overrides, arm.method)
+        cmd = [sys.executable, "-m", "study.cli", "sweep", args.preset, "--out", str(out / name), "--no-progress",
+               *over]
+        print(f"mcdp calibrate: arm {name}: {' '.join(cmd[2:])}", file=sys.stderr, flush=True)
+        if args.dry_run:
+            continue
+        if name != anchors.order[0]:
+            linked = link_shared(first, out / name)
+            if linked:
+                print(f"mcdp calibrate: arm {name}: shares {', '.join(linked)} with {first}", file=sys.stderr)
+        rc = subprocess.run(cmd, env=dict(os.environ)).returncode
+        if rc == 130:
+            return rc
+        worst = max(worst, rc)
+    return worst
+
+
+if __name__ == "__main__":
+    sys.exit(main())
