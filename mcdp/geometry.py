@@ -24,6 +24,8 @@ from typing import Optional, Sequence
 import torch
 import torch.nn.functional as F
 
+from mcdp.camera import project, unproject
+
 __all__ = [
     "scale_intrinsics",
     "pixel_grid",
@@ -57,7 +59,8 @@ def _check_batch(x: torch.Tensor, name: str, batch: int) -> None:
 
 # --------------------------------------------------------------------------- basics
 def scale_intrinsics(K: torch.Tensor, sx: float, sy: float) -> torch.Tensor:
-    """Intrinsics of an image resized by (sx, sy): diag(sx, sy, 1) @ K.
+    """Intrinsics of an image resized by (sx, sy): diag(sx, sy, 1) @ K (`synth.camera.resized`'s K, batched;
+    every row's distortion parameters are kept by a resize).
 
     Exact under the pixel-centre-at-+0.5 convention: resizing an H x W image to
     (sy H) x (sx W) maps every continuous pixel coordinate (u, v) to (sx u, sy v).
@@ -104,11 +107,8 @@ def depth_to_points(depth: torch.Tensor, K: torch.Tensor) -> torch.Tensor:
     """
     _check_shape(depth, "depth", (None, 1, None, None), "(B, 1, H, W)")
     _check_shape(K, "K", (None, 3, 3), "(B, 3, 3)")
-    B, _, H, W = depth.shape
-    _check_batch(K, "K", B)
-    pix = pixel_grid(H, W, device=depth.device, dtype=depth.dtype).view(1, 3, H * W)
-    rays = torch.linalg.inv(K.to(depth.dtype)) @ pix  # (B|1, 3, H*W), z component = 1
-    return (rays.view(-1, 3, H, W) * depth)
+    _check_batch(K, "K", depth.shape[0])
+    return unproject(depth, K, None, "pinhole")  # the camera table's pinhole row (mcdp.camera)
 
 
 def transform_points(T: torch.Tensor, points: torch.Tensor) -> torch.Tensor:
@@ -150,9 +150,7 @@ def points_to_pixels(points: torch.Tensor, K: torch.Tensor, eps: float = 1e-6):
     _check_shape(K, "K", (None, 3, 3), "(B, 3, 3)")
     B, _, H, W = points.shape
     _check_batch(K, "K", B)
-    p = points.reshape(B, 3, H * W)
-    Kp = K.to(points.dtype) @ p  # (B, 3, N)
-    uv = Kp[:, :2] / Kp[:, 2:3].clamp(min=eps)
+    uv, _ = project(points.reshape(B, 3, H * W), K, None, "pinhole", eps=eps)  # the camera table's pinhole row
     return uv.view(B, 2, H, W), points[:, 2:3]
 
 

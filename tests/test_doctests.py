@@ -15,6 +15,7 @@ MODULES = (
     "study.variants",  # Variant, VARIANTS: a way the sweep evaluates a run
     "synth.label_kinds",  # LabelKind: a label a render writes
     "synth.camera",  # CameraModel, MODELS: a lens model (project, unproject, resize, JSON)
+    "mcdp.camera",  # TorchModel, TORCH_MODELS: the lens models' torch twins
 )
 
 
