@@ -55,6 +55,29 @@ class LightingConfig(StrictModel):
         return self
 
 
+class EgoConfig(StrictModel):
+    """How the ego car's body (what the rig sees of its own car: the self-occlusion regions) looks.
+
+    ``appearance``: ``static`` (the default, and every render before the key) shades the body like the world,
+    diffuse paint under the sequence's fixed sun: on a straight road it looks the same in every frame (but for
+    the gain flicker and a passing shadow), so Monodepth2's auto-masking can hide it and training without the
+    ego masks may cost little, where the paper measured a large cost on DDAD (abs_rel 0.220 with the masks,
+    0.358 without). ``live`` makes the paint and the glass a clear coat that reflects the world around the car
+    as it moves and turns, as on a real car: per frame (per camera time), the scene without the ego is rendered
+    into a cube of ``reflection_px`` px faces above the roof, and each ego fragment mixes its diffuse colour
+    with the cube's colour along its mirrored view ray by Schlick's Fresnel term (F0 = 0.04, strong at the
+    grazing angles the side cameras see the roof at), plus the sun's highlight, both darkened by the shadow
+    map (shadows of passing objects move over it as before). The reflection normal leans towards a curved
+    body's, so the roof mirrors the horizon band where the world passes, not only the sky. Only the RGB of ego
+    pixels changes: depth, masks and labels are the static render's (`synth.gl_backend`;
+    tests/synth/test_ego_live.py). ``reflection_px``: the side of each cube face; the cost is six extra small
+    renders per frame (benchmarks/ego_costs.py: 1.6x the renderer's CPU time at 96x64; docs/DATASET.md).
+    """
+
+    appearance: Literal["static", "live"] = "static"
+    reflection_px: int = Field(64, ge=8, le=1024, description="cube-face side of the live reflection (pixels)")
+
+
 class RenderConfig(StrictModel):
     backend: Literal["auto", "egl", "osmesa"] = "auto"
     shadow_map_size: int = Field(2048, ge=256, le=8192)
@@ -93,6 +116,8 @@ class DataConfig(StrictModel):
     # acts on the formed image, `synth.sensor`; fog from the exact depth, `synth.weather`)
     sensor: SensorConfig = added_key(default_factory=SensorConfig)
     weather: WeatherConfig = added_key(default_factory=WeatherConfig)
+    # an added key (issue 57, item 6): static, the ego body is rendered as before and every hash stays
+    ego: EgoConfig = added_key(default_factory=EgoConfig)
 
     @model_validator(mode="after")
     def _rolling_flow(self) -> "DataConfig":

@@ -80,6 +80,29 @@ def projection_from_K(K: np.ndarray, width: int, height: int, znear: float, zfar
     return P
 
 
+@dataclass(frozen=True)
+class _EgoLive:
+    origin_ego: np.ndarray  # (3,) the cube's centre, ego frame (m)
+    size_px: int
+    matte_layer: float
+    box_centre: np.ndarray  # (3,) ego frame (m)
+    box_half: np.ndarray    # (3,) half extents (m)
+
+
+def _cube_faces() -> np.ndarray:
+    """(6, 3, 3) R_world_face of the live ego's cube: OpenCV cameras looking along world +x, -x, +y, -y, +z, -z
+    (the order `synth.shaders` picks a face by the major axis of a direction)."""
+    out = []
+    for f, down in [((1, 0, 0), (0, 0, -1)), ((-1, 0, 0), (0, 0, -1)), ((0, 1, 0), (0, 0, -1)),
+                    ((0, -1, 0), (0, 0, -1)), ((0, 0, 1), (1, 0, 0)), ((0, 0, -1), (1, 0, 0))]:
+        f, down = np.array(f, np.float64), np.array(down, np.float64)
+        out.append(np.column_stack([np.cross(down, f), down, f]))  # x right = y down x z forward
+    return np.stack(out)
+
+
+_ENV_R_WORLD_FACE = _cube_faces()
+
+
 class _GpuMesh:
     def __init__(self, GL, mesh: Mesh) -> None:
         self.GL = GL
@@ -144,6 +167,9 @@ class Renderer:
         self._shadow_frame: int | None = None
         self._light_vp = np.eye(4)
         self._uniform_cache: dict[tuple[int, str], int] = {}
+        self._ego_live: _EgoLive | None = None  # None: the ego body shaded like the world (static)
+        self._env_tex = None
+        self._env_frame: float | None = None
 
     # -- GL plumbing
     def _program(self, vs: str, fs: str) -> int:
@@ -241,6 +267,50 @@ class Renderer:
                      (GL.GL_TEXTURE_WRAP_S, GL.GL_REPEAT), (GL.GL_TEXTURE_WRAP_T, GL.GL_REPEAT)]:
             GL.glTexParameteri(GL.GL_TEXTURE_2D_ARRAY, p, v)
         self._shadow_frame = None
+        self._ego_live, self._env_frame = None, None
+
+    def set_ego_appearance(self, live: bool, matte_layer: int = -1, origin_ego=(0.8, 0.0, 1.6),
+                           size_px: int = 64, box_ego=((-0.33, -0.93, 0.0), (3.6, 0.93, 1.48))) -> None:
+        """``live``: from now until the next `load_scene`, the ego body's paint and glass are a clear coat
+        that reflects the world (`synth.config.EgoConfig`): per frame time, the scene without the ego is
+        rendered into six 90 deg cube faces of ``size_px`` px from ``origin_ego`` (ego frame, metres) and each
+        ego fragment mixes in the face's colour along its mirrored view ray (Schlick's Fresnel) and the sun's
+        highlight. ``box_ego``: the body's (min, max) corners, ego frame: its reflection normal leans half-way
+        towards the normal of the ellipsoid in that box (a real body's panels are curved, so they mirror the
+        horizon band where the moving world is, not only the sky above a flat roof).
+        ``matte_layer``: the texture layer that keeps its diffuse look (the tyres). Only the RGB of
+        ego pixels changes; depth, the ego flag, ids and layers are what a static render writes."""
+        lo, hi = np.asarray(box_ego, np.float64)
+        self._ego_live = _EgoLive(np.asarray(origin_ego, np.float64), int(size_px), float(matte_layer),
+                                  (lo + hi) / 2, (hi - lo) / 2) if live else None
+        self._env_frame = None
+
+    def _render_env(self, frame: float, light: LightState) -> None:
+        """The live ego's cube (`set_ego_appearance`): this frame's world (sky, static, movers; no ego) seen
+        from the ego's `origin_ego`, unit gain, uploaded as an sRGB texture array of six faces, rows top first."""
+        GL, live = self.GL, self._ego_live
+        S = live.size_px
+        T_world_ego = self._scene.ego_pose_at(frame)
+        origin = T_world_ego[:3, :3] @ live.origin_ego + T_world_ego[:3, 3]
+        K = np.array([[S / 2, 0.0, S / 2], [0.0, S / 2, S / 2], [0.0, 0.0, 1.0]])  # 90 deg
+        faces = np.empty((6, S, S, 3), np.uint8)
+        ego, self._ego, self._ego_live, self._env_frame = self._ego, None, None, frame  # no ego, no recursion
+        try:
+            for i, R in enumerate(_ENV_R_WORLD_FACE):
+                T = np.eye(4)
+                T[:3, :3], T[:3, 3] = R, origin
+                faces[i] = self.render(K, T, frame, light, size=(S, S))["rgb"]
+        finally:
+            self._ego, self._ego_live = ego, live
+        if self._env_tex is None:
+            self._env_tex = GL.glGenTextures(1)
+        GL.glActiveTexture(GL.GL_TEXTURE2)
+        GL.glBindTexture(GL.GL_TEXTURE_2D_ARRAY, self._env_tex)
+        GL.glPixelStorei(GL.GL_UNPACK_ALIGNMENT, 1)
+        GL.glTexImage3D(GL.GL_TEXTURE_2D_ARRAY, 0, GL.GL_SRGB8, S, S, 6, 0, GL.GL_RGB, GL.GL_UNSIGNED_BYTE, faces)
+        for p, v in [(GL.GL_TEXTURE_MIN_FILTER, GL.GL_LINEAR), (GL.GL_TEXTURE_MAG_FILTER, GL.GL_LINEAR),
+                     (GL.GL_TEXTURE_WRAP_S, GL.GL_CLAMP_TO_EDGE), (GL.GL_TEXTURE_WRAP_T, GL.GL_CLAMP_TO_EDGE)]:
+            GL.glTexParameteri(GL.GL_TEXTURE_2D_ARRAY, p, v)
 
     def _free_scene(self) -> None:
         for m in ([self._static, self._ego] + self._movers):
@@ -302,6 +372,8 @@ class Renderer:
         self._ctx.make_current()
         if light.shadows and self._shadow_frame != frame:
             self._render_shadow(frame, light)
+        if self._ego_live is not None and self._env_frame != frame:
+            self._render_env(frame, light)
         W, H = (self.width, self.height) if size is None else (int(size[0]), int(size[1]))
         GL.glBindFramebuffer(GL.GL_FRAMEBUFFER, self._main_framebuffer(W, H))
         GL.glViewport(0, 0, W, H)
@@ -342,6 +414,17 @@ class Renderer:
         GL.glActiveTexture(GL.GL_TEXTURE1)
         GL.glBindTexture(GL.GL_TEXTURE_2D, self._shadow_tex)
         GL.glUniform1i(self._loc(pm, "u_shadow"), 1)
+        GL.glUniform1i(self._loc(pm, "u_ego_live"), 0 if self._ego_live is None else 1)
+        if self._ego_live is not None:
+            GL.glActiveTexture(GL.GL_TEXTURE2)
+            GL.glBindTexture(GL.GL_TEXTURE_2D_ARRAY, self._env_tex)
+            GL.glUniform1i(self._loc(pm, "u_env"), 2)
+            self.GL.glUniformMatrix3fv(self._loc(pm, "u_env_R"), 6, GL.GL_FALSE,  # R_world_face: its transpose
+                                       np.ascontiguousarray(_ENV_R_WORLD_FACE, np.float32))
+            self._set_vec3(pm, "u_cam_pos", T_world_cam[:3, 3])
+            GL.glUniform1f(self._loc(pm, "u_ego_matte_layer"), self._ego_live.matte_layer)
+            self._set_vec3(pm, "u_ego_centre", self._ego_live.box_centre)
+            self._set_vec3(pm, "u_ego_half", self._ego_live.box_half)
 
         def draw(gm: _GpuMesh, T_world_obj: np.ndarray, is_ego: float, instance: float) -> None:
             self._set_mat4(pm, "u_model", T_world_obj)
@@ -379,6 +462,9 @@ class Renderer:
             return
         self._ctx.make_current()
         self._free_scene()
+        if self._env_tex is not None:
+            self.GL.glDeleteTextures(1, [self._env_tex])
+            self._env_tex = None
         self._ctx.release()
         self._ctx = None
 

@@ -126,6 +126,10 @@ def render_sequence(cfg_dict: dict, out_dir: str, index: int, progress_queue=Non
     masks = {name: read_png(out / "masks" / f"{name}.png", gray=True) for name in rig.names}
     r = renderer_for(cfg)
     r.load_scene(scene, make_ego_mesh(cfg))
+    if cfg.ego.appearance == "live":  # the body's clear coat reflects this sequence's world (synth.config.EgoConfig)
+        body = make_ego_mesh(cfg).positions
+        r.set_ego_appearance(True, LAYER["tyre"], (0.8, 0.0, cfg.rig.camera_height_m), cfg.ego.reflection_px,
+                             (body.min(0), body.max(0)))
     for name in rig.names:
         (partial / name).mkdir()
     frames_json = []

@@ -32,6 +32,8 @@ out float v_zcam;
 out float v_dist;
 out vec4 v_light;
 flat out float v_instance;
+out vec3 v_pos_w;
+out vec3 v_pos_o;
 void main() {
     v_instance = u_instance >= 0.0 ? u_instance : a_instance;
     vec4 pc = u_modelview * vec4(a_pos, 1.0);
@@ -43,6 +45,8 @@ void main() {
     v_layer = a_layer;
     v_tint = a_tint;
     v_light = u_light_vp * pw;
+    v_pos_w = pw.xyz;
+    v_pos_o = a_pos;
     gl_Position = u_proj * pc;
 }
 """
@@ -57,6 +61,8 @@ in float v_zcam;
 in float v_dist;
 in vec4 v_light;
 flat in float v_instance;
+in vec3 v_pos_w;
+in vec3 v_pos_o;
 uniform sampler2DArray u_tex;
 uniform sampler2DShadow u_shadow;
 uniform int u_use_shadow;
@@ -68,9 +74,25 @@ uniform vec3 u_fog_rgb;
 uniform float u_fog_dist;
 uniform float u_is_ego;
 uniform float u_zfar;        // the depth test compares camera-frame z / zfar (see gl_backend)
+// ego.appearance=live (synth.config.EgoConfig): the ego body's clear coat reflects the world around it
+uniform int u_ego_live;
+uniform sampler2DArray u_env;    // six sRGB cube faces of this frame's world without the ego, rows top first
+uniform mat3 u_env_R[6];         // face camera (OpenCV) <- world; face i looks along world +x, -x, +y, -y, +z, -z
+uniform vec3 u_cam_pos;          // world
+uniform float u_ego_matte_layer; // the tyres: no clear coat
+uniform mat4 u_model;            // world <- object (the vertex stage's)
+uniform vec3 u_ego_centre;       // the body's box (object frame): a real body's panels are curved, its
+uniform vec3 u_ego_half;         // reflection normal leans towards the box's ellipsoid's
 layout(location=0) out vec4 o_color;
 layout(location=1) out vec4 o_depth;
-%(to_srgb)svoid main() {
+%(to_srgb)s
+vec3 env_radiance(vec3 r) {  // linear RGB of the cube along world direction r
+    vec3 a = abs(r);
+    int i = (a.x >= a.y && a.x >= a.z) ? (r.x > 0.0 ? 0 : 1) : (a.y >= a.z ? (r.y > 0.0 ? 2 : 3) : (r.z > 0.0 ? 4 : 5));
+    vec3 q = u_env_R[i] * r;  // q.z: the major component, > 0; 90 deg faces: K = (S/2, S/2, S/2, S/2)
+    return texture(u_env, vec3(0.5 + 0.5 * q.x / q.z, 0.5 + 0.5 * q.y / q.z, float(i))).rgb;
+}
+void main() {
     vec3 n = normalize(v_nrm_w);
     if (!gl_FrontFacing) n = -n;
     vec3 albedo = texture(u_tex, vec3(v_uv, v_layer)).rgb * v_tint;
@@ -85,6 +107,17 @@ layout(location=1) out vec4 o_depth;
     }
     float sky_vis = 0.75 + 0.25 * n.z;
     vec3 c = albedo * (u_ambient_rgb * sky_vis + u_sun_rgb * ndl * lit);
+    if (u_ego_live == 1 && u_is_ego > 0.5 && abs(v_layer - u_ego_matte_layer) > 0.5) {
+        // a clear coat: Schlick's Fresnel (F0 = 0.04) mixes in the mirrored world and the sun's highlight,
+        // which the shadow map darkens with the rest
+        vec3 v = normalize(v_pos_w - u_cam_pos);
+        vec3 nr = normalize(n + normalize(mat3(u_model) * ((v_pos_o - u_ego_centre) / (u_ego_half * u_ego_half))));
+        if (dot(nr, v) > 0.0) nr = n;  // leaning away from the camera: the flat panel's
+        vec3 r = reflect(v, nr);
+        float F = 0.04 + 0.96 * pow(1.0 - clamp(-dot(v, nr), 0.0, 1.0), 5.0);
+        float spec = pow(max(dot(r, u_sun_dir), 0.0), 300.0) * 4.0 * lit;
+        c = mix(c, env_radiance(r), F) + F * spec * u_sun_rgb;
+    }
     float f = 1.0 - exp(-v_dist / u_fog_dist);
     c = mix(c, u_fog_rgb, f);
     o_color = vec4(to_srgb(c * u_gain), 1.0);
