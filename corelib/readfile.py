@@ -1,14 +1,24 @@
-"""The readers' rule for a folder a command publishes from (a sweep folder, docs/results/): only regular files
-that lie inside the folder (a symbolic link out of it is never followed), of a bounded size, opened so that a
-FIFO never blocks; anything else is `ReadRefused`, one line naming the file. `synth.files` holds the same rule
-for a dataset's files.
+"""The one rule for reading a file the project wrote or a user hands in: a regular file, reached without a
+symbolic link, opened non-blocking (a FIFO never blocks), bounded by a size stated per kind of file (`LIMITS`),
+read in chunks as large as the file (never a buffer of the bound), decoded with a one-line error naming the file
+and what is wrong (`ReadRefused`). `tests/test_own_files.py` scans the library for plain ``open()`` /
+``read_text()`` / ``read_bytes()`` of a project file outside this module and `synth.files` (a dataset's files,
+the same rule with its own error class).
+
+- `read_file` / `read_json_file`: the file's own name is never a link (``O_NOFOLLOW``); given ``root`` (the sweep
+  folder, the results folder), no folder between the root and the file is one either (`corelib.nolinks`).
+- `read_inside` / `read_text_inside`: a folder a command publishes from (docs/results/): links that stay inside
+  it are followed, one out of it is refused.
 
 Example::
 
+    status = read_json_file(sweep / "runs/overlap_0.50/mono2_s0/sweep_status.json", root=sweep, kind="record")
     data = read_inside(Path("docs/results/train_step/page.md"), Path("docs/results/train_step"))
 """
 from __future__ import annotations
 
+import errno
+import json
 import os
 import stat
 from pathlib import Path
@@ -17,9 +27,22 @@ from pathlib import Path
 MAX_BYTES = 64 * 2**20
 
 
+#: the bound of each kind of file the project reads of its own (bytes); a file over it is refused unread
+LIMITS = {
+    "record": 16 * 2**20,      # a sweep's status / metrics / overlap record (per-sequence sums: a few MB)
+    "results": 64 * 2**20,     # results.json / results.csv of a sweep
+    "page": 8 * 2**20,         # a published page, a preface (tens of kB)
+    "config": 1 * 2**20,       # a YAML preset, a recorded config
+}
+
+
 class ReadRefused(ValueError):
     """A file that is not read (outside its folder, not a regular file, too large, unreadable); the message
     names it."""
+
+
+class FileMissing(ReadRefused):
+    """No file at that name (a record not written yet): a caller may read it as absent."""
 
 
 def _kind(mode: int) -> str:
@@ -89,3 +112,80 @@ def read_text_inside(path: str | Path, root: str | Path, limit: int = MAX_BYTES)
         return data.decode("utf-8")
     except UnicodeDecodeError as exc:
         raise ReadRefused(f"{path}: not UTF-8 ({exc.reason} at byte {exc.start})") from None
+
+
+def _open_no_link(path: Path, root: Path | None) -> int:
+    """A non-blocking descriptor of ``path``, its own name never followed as a link; given ``root``, every folder
+    from the root down to it reached without a link (`corelib.nolinks.open_folder`)."""
+    from corelib.atomic import LinkRefused
+
+    flags = os.O_RDONLY | os.O_NONBLOCK | os.O_NOFOLLOW
+    dfd = None
+    if root is not None:
+        from corelib.nolinks import open_folder
+
+        try:
+            dfd = open_folder(root, path.parent)
+        except LinkRefused as exc:
+            raise ReadRefused(f"{path}: {exc.filename} is a symbolic link; a folder's own files are read only "
+                              "without following one") from None
+        except FileNotFoundError:
+            raise FileMissing(f"{path}: no such file") from None
+        except (OSError, ValueError) as exc:
+            raise ReadRefused(f"{path}: not readable ({getattr(exc, 'strerror', None) or exc})") from None
+    try:
+        return os.open(path.name if dfd is not None else path, flags, dir_fd=dfd)
+    except FileNotFoundError:
+        raise FileMissing(f"{path}: no such file") from None
+    except OSError as exc:
+        if exc.errno == errno.ELOOP:
+            raise ReadRefused(f"{path}: is a symbolic link; a file the project wrote is read only as itself, "
+                              "never through a link") from None
+        raise ReadRefused(f"{path}: not readable ({exc.strerror or exc})") from None
+    finally:
+        if dfd is not None:
+            os.close(dfd)
+
+
+def read_file(path: str | Path, root: str | Path | None = None, kind: str = "record") -> bytes:
+    """The bytes of the regular file ``path`` (the module's rule: no link, non-blocking, at most
+    ``LIMITS[kind]``); `FileMissing` when there is none, `ReadRefused` naming it otherwise."""
+    path = Path(path)
+    limit = LIMITS[kind]
+    fd = _open_no_link(path, Path(root) if root is not None else None)
+    with os.fdopen(fd, "rb") as f:
+        st = os.fstat(f.fileno())
+        if not stat.S_ISREG(st.st_mode):
+            raise ReadRefused(f"{path}: is {_kind(st.st_mode)}, not a regular file; refused without reading it")
+        if st.st_size > limit:
+            raise ReadRefused(f"{path}: {st.st_size} bytes, more than a {kind} may hold ({limit}); refused unread")
+        try:
+            data = read_bounded(f, limit)
+        except OSError as exc:
+            raise ReadRefused(f"{path}: not readable ({exc.strerror or exc})") from None
+    if len(data) > limit:
+        raise ReadRefused(f"{path}: grew past {limit} bytes while read; refused")
+    return data
+
+
+def read_text_file(path: str | Path, root: str | Path | None = None, kind: str = "page") -> str:
+    """`read_file` as UTF-8 text (`ReadRefused` naming the file and the byte otherwise)."""
+    data = read_file(path, root, kind)
+    try:
+        return data.decode("utf-8")
+    except UnicodeDecodeError as exc:
+        raise ReadRefused(f"{path}: not UTF-8 ({exc.reason} at byte {exc.start})") from None
+
+
+def read_json_file(path: str | Path, root: str | Path | None = None, kind: str = "record"):
+    """The JSON value of `read_file`'s bytes; `ReadRefused` naming the file for bytes that are not UTF-8 JSON
+    (NaN and Infinity are read, as the sweep writes them)."""
+    data = read_file(path, root, kind)
+    try:
+        return json.loads(data.decode("utf-8"))
+    except UnicodeDecodeError as exc:
+        raise ReadRefused(f"{path}: not UTF-8 text (byte {exc.start}), so not JSON") from None
+    except json.JSONDecodeError as exc:
+        raise ReadRefused(f"{path}: not valid JSON ({exc})") from None
+    except RecursionError:
+        raise ReadRefused(f"{path}: JSON nested too deep") from None

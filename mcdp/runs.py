@@ -112,17 +112,83 @@ def load_checkpoint(path: Path) -> dict:
         raise RunError(f"checkpoint {path} is unreadable or not a plain weights file: {load_error_line(exc)}") from None
     if not isinstance(ckpt, dict) or ckpt.get("version") != CHECKPOINT_VERSION or "config" not in ckpt:
         raise RunError(f"checkpoint {path} is not an mcdp checkpoint of version {CHECKPOINT_VERSION}")
+    check_weights(ckpt, path)
     return ckpt
 
 
-def restore_checkpoint(ckpt: dict, depth, pose, optimizer, scaler) -> dict:
+def non_finite(state) -> tuple[str, int] | None:
+    """(name, count) of the first floating-point tensor of the state dict ``state`` that holds a NaN or an
+    infinity, None when every one is finite."""
+    for name, t in state.items():
+        if torch.is_tensor(t) and t.is_floating_point():
+            bad = int((~torch.isfinite(t)).sum())
+            if bad:
+                return str(name), bad
+    return None
+
+
+def load_error_first(exc: Exception) -> str:
+    """The first problem of torch's many-line ``load_state_dict`` error, and how many more it lists."""
+    lines = [ln.strip() for ln in str(exc).splitlines()[1:] if ln.strip()] or [str(exc).strip()]
+    first = lines[0].rstrip(".")
+    return first[:300] + (f" (+{len(lines) - 1} more)" if len(lines) > 1 else "")
+
+
+def check_weights(ckpt: dict, path: Path) -> None:
+    """RunError, one line naming the file and the tensor, for a checkpoint whose weights are not finite (a
+    diverged run's: evaluated, it scores nothing without a word) or whose ``depth_model`` does not fit the network
+    its own config builds (a tensor of another shape; before: a many-line ``size mismatch`` traceback). The fit is
+    tried on PyTorch's ``meta`` device: no memory, no copy."""
+    for key in ("depth_model", "pose_model"):
+        state = ckpt.get(key)
+        if state is None and key == "pose_model":
+            continue
+        if not isinstance(state, dict):
+            raise RunError(f"checkpoint {path}: no {key} state (got {type(state).__name__}); not a training checkpoint")
+        bad = non_finite(state)
+        if bad is not None:
+            raise RunError(f"checkpoint {path}: {key}.{bad[0]} holds {bad[1]} non-finite value(s) (NaN or inf): "
+                           "the run diverged before it was written; refused (use an earlier checkpoint or retrain)")
+    try:
+        cfg = config_from_checkpoint(ckpt, source=str(path))
+    except Exception:  # noqa: BLE001 - the caller reads the config next and says what is wrong with it
+        return
+    import warnings
+
+    from mcdp.methods import build_network, method_params
+
+    try:
+        with torch.device("meta"):
+            net = build_network(cfg.model, method_params(cfg))
+    except Exception:  # noqa: BLE001 - a network that cannot be built on meta is checked when it is built
+        return
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")  # "copying ... to a meta parameter is a no-op": the point here
+            net.load_state_dict(ckpt["depth_model"])
+    except RuntimeError as exc:
+        raise RunError(f"checkpoint {path}: depth_model does not fit the {cfg.model.method} network its config "
+                       f"builds: {load_error_first(exc)}") from None
+
+
+def restore_checkpoint(ckpt: dict, depth, pose, optimizer, scaler, source: str = "checkpoint") -> dict:
     """Load a training checkpoint (`checkpoint_record`'s, read by `load_checkpoint`) into the networks, the
     optimiser, the scaler and torch's RNG; the rest of the trainer's state it holds: {"step", "best_val",
-    "val_history", "spread", "init_from", "world_size"}."""
-    depth.load_state_dict(ckpt["depth_model"])
-    if pose is not None:
-        pose.load_state_dict(ckpt["pose_model"])
-    optimizer.load_state_dict(ckpt["optimizer"])
+    "val_history", "spread", "init_from", "world_size"}. RunError, one line naming ``source`` (the file) and the
+    key, for a checkpoint without the state a resume needs (a weights-only one: no ``optimizer``) or with a tensor
+    that does not fit."""
+    wanted = ["depth_model", "optimizer", "torch_rng", "step"] + (["pose_model"] if pose is not None else [])
+    missing = [k for k in wanted if k not in ckpt]
+    if missing:
+        raise RunError(f"{source}: no {', '.join(missing)} in the checkpoint (a weights-only checkpoint, or not "
+                       "written by mcdp train), so training cannot resume from it; move it away to start afresh")
+    for key, net in (("depth_model", depth), ("pose_model", pose), ("optimizer", optimizer)):
+        if net is None:
+            continue
+        try:
+            net.load_state_dict(ckpt[key])
+        except (RuntimeError, ValueError, KeyError, TypeError) as exc:
+            raise RunError(f"{source}: its {key} does not fit this run's: {load_error_first(exc)}") from None
     if ckpt.get("scaler"):
         scaler.load_state_dict(ckpt["scaler"])
     torch.set_rng_state(ckpt["torch_rng"])

@@ -48,8 +48,8 @@ from mcdp.inputs import RigBatch
 from mcdp.logger import TrainLogger
 from mcdp.checkpoint_files import write_checkpoint
 from mcdp.methods import check_run
-from mcdp.runs import (RunError, check_resume, checkpoint_record, resolve_device, resolve_precision, restore_checkpoint,
-                       write_run_record)
+from mcdp.runs import (RunError, check_resume, checkpoint_record, non_finite, resolve_device, resolve_precision,
+                       restore_checkpoint, write_run_record)
 from mcdp.system import SelfSupervisedSystem
 from mcdp.validation import val_indices, validation_loss
 from mcdp.warmstart import warm_start
@@ -173,6 +173,12 @@ class Trainer:
         same weights)."""
         if not self.dist.is_main:
             return self.run_dir / "checkpoints" / name
+        for key, net in (("depth_model", self.depth), ("pose_model", self.pose)):
+            bad = non_finite(net.state_dict()) if net is not None else None
+            if bad is not None:  # a checkpoint is written with finite weights only: `_last_good` says so
+                raise TrainingDiverged(f"{key}.{bad[0]} holds {bad[1]} non-finite value(s) at step {self.step}; "
+                                       f"{name} not written" + self._last_good()
+                                       + "; try a lower train.lr or train.grad_clip=1.0")
         return write_checkpoint(self.run_dir, name, self.state(), self.step, weights_only)
 
     def _restore(self, ckpt: dict) -> None:
@@ -180,7 +186,8 @@ class Trainer:
         if self.dist.is_main:  # a run resumed by other code: one warning line (corelib.version)
             warn_other_code(f"checkpoint {self.run_dir / 'checkpoints' / 'last.pt'}",
                             ckpt.get("code_version"), log.warning)
-        rest = restore_checkpoint(ckpt, self.depth, self.pose, self.optimizer, self.scaler)
+        rest = restore_checkpoint(ckpt, self.depth, self.pose, self.optimizer, self.scaler,
+                                  source=str(self.run_dir / "checkpoints" / "last.pt"))
         self.step, self.best_val, self.val_history = rest["step"], rest["best_val"], rest["val_history"]
         self.spread, self.init_from = rest["spread"], rest["init_from"]
         if rest["world_size"] != self.dist.world and self.dist.is_main:
@@ -229,7 +236,8 @@ class Trainer:
 
     def _last_good(self) -> str:
         last = self.run_dir / "checkpoints" / "last.pt"
-        return f"; the last good checkpoint is {last}" if last.exists() else ""
+        # "good" only as far as it was checked: every checkpoint is written with finite weights (`save_checkpoint`)
+        return f"; the last checkpoint written (its weights finite when written) is {last}" if last.exists() else ""
 
     # ------------------------------------------------------------------ loop
     def train(self, until: int | None = None) -> dict:

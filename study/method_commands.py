@@ -44,7 +44,7 @@ from study.train_command import train, train_arguments
 #: (module, class) of every error a user can cause, and of a diverged training
 USER_ERRORS = [("corelib.configlib", "ConfigError"), ("corelib.rundir", "FolderError"), ("synth.files", "DatasetError"),
                ("synth.files", "OutputFolderError"), ("mcdp.runs", "RunError"), ("mcdp.networks", "NetworkError"),
-               ("mcdp.warmstart", "WarmStartError"), ("synth.view", "ViewError")]
+               ("mcdp.warmstart", "WarmStartError"), ("synth.view", "ViewError"), ("corelib.readfile", "ReadRefused")]
 DIVERGED = [("mcdp.trainer", "TrainingDiverged")]
 
 

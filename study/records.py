@@ -13,10 +13,20 @@ from corelib.atomic import atomic_write_json
 from mcdp.metrics import metric_names
 
 
-def read_json(path: Path) -> dict | None:
+def read_json(path: Path, root: Path | None = None) -> dict | None:
+    """A sweep's own record (``sweep_status.json``, ``metrics_test*.json``, ``data/overlap_X.status.json``) by the
+    one rule (`corelib.readfile.read_json_file`: no link, non-blocking, at most ``LIMITS["record"]``); None when
+    it is absent or not JSON (written again). A link (one from outside may hold forged numbers), a FIFO or a file
+    over the bound is `corelib.readfile.ReadRefused`, one line naming it: the sweep never made such a file."""
+    from corelib.readfile import FileMissing, ReadRefused, read_file
+
     try:
-        return json.loads(path.read_text())
-    except (OSError, ValueError):
+        data = read_file(path, root, "record")
+    except FileMissing:
+        return None
+    try:
+        return json.loads(data.decode("utf-8"))
+    except (ValueError, RecursionError):  # ValueError: UnicodeDecodeError and JSONDecodeError
         return None
 
 

@@ -128,7 +128,9 @@ class Dataset(LabelReader):
 
         cache = self.__dict__.setdefault("_pose_cache", {})
         if seq not in cache:
-            cache[seq] = camera_poses(self.ego(seq), self.cameras, self.root / seq / "ego.json")
+            trigger = self.manifest.get("trigger", {}).get("mode") if isinstance(self.manifest.get("trigger"), dict) \
+                else None  # checked by check_trigger_record
+            cache[seq] = camera_poses(self.ego(seq), self.cameras, self.root / seq / "ego.json", trigger)
         return cache[seq]
 
     def rgb_path(self, seq: str, cam: str, frame: int) -> Path:

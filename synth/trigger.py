@@ -123,11 +123,15 @@ def check_trigger_record(rec, cameras: list, mpath) -> None:
                                f"+-{MAX_TRIGGER_MS + 500.0:g}, got {str(v)[:40]}")
 
 
-def camera_poses(frames: list[dict], cameras: list, path) -> tuple[np.ndarray, np.ndarray]:
+def camera_poses(frames: list[dict], cameras: list, path, trigger: str | None = None) -> tuple[np.ndarray, np.ndarray]:
     """(F, N) timestamps in seconds and (F, N, 4, 4) T_ego_cam_at of every camera of every frame of a sequence
     (ego.json's ``frames``; module docstring): each camera's own pose at its own time in the ego frame of its
     frame's time. Without ``cameras`` in a frame (a synchronous rig, a dataset made before triggers): the
-    frame's timestamp and the static ``T_ego_cam`` itself. DatasetError naming the file for a bad entry."""
+    frame's timestamp and the static ``T_ego_cam`` itself; a dataset whose manifest records a ``trigger`` (its
+    mode, ``trigger``) gives every frame's ``cameras``, and a frame without them is refused (read as synchronous it
+    would be silently wrong). DatasetError naming the file, the frame and the key for a bad entry."""
+    import math
+
     from synth.files import DatasetError
 
     F, N = len(frames), len(cameras)
@@ -135,9 +139,16 @@ def camera_poses(frames: list[dict], cameras: list, path) -> tuple[np.ndarray, n
     T = np.empty((F, N, 4, 4), np.float64)
     static = np.stack([np.asarray(c.T_ego_cam, np.float64) for c in cameras])
     for f, fr in enumerate(frames):
-        per = fr.get("cameras")
+        per = fr.get("cameras") if isinstance(fr, dict) else None
         if per is None:
-            ts[f], T[f] = float(fr["timestamp_s"]), static
+            if trigger is not None:
+                raise DatasetError(f"{path}: frame {f} has no 'cameras' (each camera's timestamp_s and T_world_cam); "
+                                   f"the manifest's trigger is {str(trigger)[:40]}, so every frame gives them")
+            t = fr.get("timestamp_s") if isinstance(fr, dict) else None
+            if not (isinstance(t, (int, float)) and not isinstance(t, bool) and math.isfinite(t)):
+                raise DatasetError(f"{path}: frame {f}: timestamp_s must be a finite number of seconds, got "
+                                   f"{str(t)[:40] if t is not None else 'none'}")
+            ts[f], T[f] = float(t), static
             continue
         try:
             T_ego_world = np.linalg.inv(np.asarray(fr["T_world_ego"], np.float64))

@@ -101,3 +101,248 @@ def test_validator_value_echoed_once():
         load_data_config(ROOT / "configs/data/tiny.yaml", ["weather.fog_density=[0.5,0.1]"])
     assert str(e.value).splitlines()[-1] == ("  weather.fog_density: a fog density range is [lo, hi] with lo <= hi, "
                                              "got [0.5, 0.1]")
+
+
+# --- finding 8: checkpoints: a tensor of another shape, no optimizer, NaN weights, the divergence message ------
+
+TINY_TRAIN = ROOT / "configs/train/tiny"
+
+
+@pytest.fixture(scope="module")
+def mono2_state():
+    import torch
+
+    from corelib.configlib import config_to_dict, load_config
+    from mcdp.config import RunConfig
+    from mcdp.methods import build_network, method_params
+    from mcdp.runs import CHECKPOINT_VERSION
+
+    cfg = load_config(RunConfig, TINY_TRAIN / "mono2.yaml", [])
+    with torch.random.fork_rng():
+        torch.manual_seed(0)
+        net = build_network(cfg.model, method_params(cfg))
+    return {"version": CHECKPOINT_VERSION, "step": 3, "config": config_to_dict(cfg),
+            "depth_model": net.state_dict()}, cfg
+
+
+def _save(ckpt: dict, path: Path) -> Path:
+    from mcdp.runs import atomic_torch_save
+
+    path.parent.mkdir(parents=True, exist_ok=True)
+    atomic_torch_save(ckpt, path)
+    return path
+
+
+def test_checkpoint_tensor_of_another_shape_is_one_line(tmp_path, mono2_state):
+    import torch
+
+    from mcdp.runs import RunError, load_checkpoint
+
+    ckpt, _ = mono2_state
+    name = next(k for k, v in ckpt["depth_model"].items() if v.ndim == 4)
+    bad = {**ckpt, "depth_model": {**ckpt["depth_model"], name: torch.zeros(3, 3, 3, 3)}}
+    path = _save(bad, tmp_path / "best.pt")
+    with pytest.raises(RunError) as e:
+        load_checkpoint(path)
+    msg = str(e.value)
+    assert "\n" not in msg
+    assert msg.startswith(f"checkpoint {path}: depth_model does not fit the mono2 network its config builds: "
+                          f"size mismatch for {name}: copying a param with shape torch.Size([3, 3, 3, 3])")
+
+
+def test_checkpoint_with_nan_weights_refused(tmp_path, mono2_state):
+    import torch
+
+    from mcdp.runs import RunError, load_checkpoint
+
+    ckpt, _ = mono2_state
+    name = next(k for k, v in ckpt["depth_model"].items() if v.is_floating_point())
+    t = ckpt["depth_model"][name].clone()
+    t.view(-1)[:2] = float("nan")
+    path = _save({**ckpt, "depth_model": {**ckpt["depth_model"], name: t}}, tmp_path / "last.pt")
+    with pytest.raises(RunError) as e:
+        load_checkpoint(path)
+    assert str(e.value) == (f"checkpoint {path}: depth_model.{name} holds 2 non-finite value(s) (NaN or inf): the run "
+                            "diverged before it was written; refused (use an earlier checkpoint or retrain)")
+    assert load_checkpoint(_save(ckpt, tmp_path / "ok.pt"))["step"] == 3  # a finite one reads as before
+
+
+def test_resume_from_checkpoint_without_optimizer_is_one_line(mono2_state):
+    import torch
+
+    from mcdp.methods import build_network, method_params
+    from mcdp.runs import RunError, restore_checkpoint
+
+    ckpt, cfg = mono2_state
+    net = build_network(cfg.model, method_params(cfg))
+    opt = torch.optim.Adam(net.parameters())
+    with pytest.raises(RunError) as e:
+        restore_checkpoint({**ckpt, "torch_rng": torch.get_rng_state()}, net, None, opt, None, source="RUN/last.pt")
+    assert str(e.value) == ("RUN/last.pt: no optimizer in the checkpoint (a weights-only checkpoint, or not written by "
+                            "mcdp train), so training cannot resume from it; move it away to start afresh")
+
+
+def test_nan_weights_never_written_and_divergence_says_what_it_checked(tmp_path, mono2_state):
+    from types import SimpleNamespace
+
+    import torch
+
+    from mcdp.methods import build_network, method_params
+    from mcdp.trainer import Trainer, TrainingDiverged
+
+    _, cfg = mono2_state
+    net = build_network(cfg.model, method_params(cfg))
+    name, p = next(iter(net.named_parameters()))
+    with torch.no_grad():
+        p.view(-1)[0] = float("nan")
+    (tmp_path / "checkpoints").mkdir()
+    (tmp_path / "checkpoints" / "last.pt").write_bytes(b"written at step 2")
+    fake = SimpleNamespace(dist=SimpleNamespace(is_main=True), depth=net, pose=None, run_dir=tmp_path, step=5)
+    fake._last_good = lambda: Trainer._last_good(fake)
+    with pytest.raises(TrainingDiverged) as e:
+        Trainer.save_checkpoint(fake, "last.pt")
+    assert str(e.value) == (f"depth_model.{name} holds 1 non-finite value(s) at step 5; last.pt not written; the last "
+                            f"checkpoint written (its weights finite when written) is {tmp_path}/checkpoints/last.pt; "
+                            "try a lower train.lr or train.grad_clip=1.0")
+    assert (tmp_path / "checkpoints" / "last.pt").read_bytes() == b"written at step 2"
+
+
+# --- finding 3: a sweep's own records are read by the one rule (a FIFO, a huge file, a link out) -------------
+
+def _fifo(path: Path) -> Path:
+    import os
+
+    os.mkfifo(path)
+    return path
+
+
+def _huge(path: Path, size: int = 3 * 2**30) -> Path:
+    with open(path, "wb") as f:  # sparse: no block written
+        f.truncate(size)
+    return path
+
+
+@pytest.mark.parametrize("name", ["sweep_status.json", "metrics_test.json", "overlap_0.50.status.json"])
+def test_sweep_record_fifo_huge_or_link_refused_in_one_line(tmp_path, name):
+    from corelib.readfile import ReadRefused
+    from study.records import read_json
+
+    run = tmp_path / "sweep" / "runs" / "overlap_0.50" / "mono2_s0"
+    run.mkdir(parents=True)
+    path = run / name
+    _fifo(path)
+    with pytest.raises(ReadRefused) as e:  # before: blocked for good
+        read_json(path)
+    assert str(e.value) == f"{path}: is a FIFO (named pipe), not a regular file; refused without reading it"
+    path.unlink()
+    _huge(path)
+    with pytest.raises(ReadRefused) as e:  # before: read whole, past 6 GB
+        read_json(path)
+    assert str(e.value) == (f"{path}: 3221225472 bytes, more than a record may hold ({16 * 2**20}); refused unread")
+    path.unlink()
+    forged = tmp_path / "elsewhere.json"
+    forged.write_text('{"stages": {"final": {"none": {"mean": {"abs_rel": 1e308}}}}}')
+    path.symlink_to(forged)
+    with pytest.raises(ReadRefused) as e:  # before: trusted ("evaluated already, skipped")
+        read_json(path)
+    assert str(e.value) == (f"{path}: is a symbolic link; a file the project wrote is read only as itself, never "
+                            "through a link")
+    path.unlink()
+    assert read_json(path) is None  # absent: written again
+    path.write_text("{not json")
+    assert read_json(path) is None  # not JSON (never half-written: a crashed writer's temp): written again
+    path.write_text('{"a": NaN}')
+    assert read_json(path)["a"] != read_json(path)["a"]  # NaN, as the sweep writes it
+
+
+def test_sweep_record_under_a_linked_folder_refused_with_root(tmp_path):
+    from corelib.readfile import ReadRefused
+    from study.records import read_json
+
+    sweep, outside = tmp_path / "sweep", tmp_path / "outside"
+    (outside / "mono2_s0").mkdir(parents=True)
+    (outside / "mono2_s0" / "metrics_test.json").write_text("{}")
+    (sweep / "runs").mkdir(parents=True)
+    (sweep / "runs" / "overlap_0.50").symlink_to(outside)
+    path = sweep / "runs" / "overlap_0.50" / "mono2_s0" / "metrics_test.json"
+    with pytest.raises(ReadRefused) as e:
+        read_json(path, root=sweep)
+    assert str(e.value) == (f"{path}: {sweep}/runs/overlap_0.50 is a symbolic link; a folder's own files are read "
+                            "only without following one")
+
+
+def test_read_refused_is_one_line_exit_2():
+    from study.method_commands import USER_ERRORS
+
+    assert ("corelib.readfile", "ReadRefused") in USER_ERRORS
+
+
+# --- finding 10: ego.json frames: a bad timestamp_s and a triggered frame without camera times, one line ------
+
+def _cams(n: int = 2):
+    from types import SimpleNamespace
+
+    return [SimpleNamespace(name=f"CAM_{i}", T_ego_cam=np.eye(4)) for i in range(n)]
+
+
+@pytest.mark.parametrize("frame,shown", [({"T_world_ego": np.eye(4).tolist()}, "none"),
+                                         ({"timestamp_s": "soon", "T_world_ego": np.eye(4).tolist()}, "soon"),
+                                         ({"timestamp_s": float("nan")}, "nan")])
+def test_ego_frame_without_a_numeric_timestamp_is_one_line(frame, shown):
+    from synth.files import DatasetError
+    from synth.trigger import camera_poses
+
+    frames = [{"timestamp_s": 0.0, "T_world_ego": np.eye(4).tolist()}, frame]
+    with pytest.raises(DatasetError) as e:  # before: KeyError / ValueError traceback in mcdp eval
+        camera_poses(frames, _cams(), "SEQ/ego.json")
+    assert str(e.value) == f"SEQ/ego.json: frame 1: timestamp_s must be a finite number of seconds, got {shown}"
+
+
+def test_triggered_frame_without_camera_times_refused():
+    from types import SimpleNamespace
+
+    from synth.dataset import Dataset
+    from synth.files import DatasetError
+
+    frames = [{"timestamp_s": 0.0, "T_world_ego": np.eye(4).tolist()}]
+    fake = SimpleNamespace(manifest={"trigger": {"mode": "lidar_sweep", "offsets_ms": {}}}, cameras=_cams(),
+                           root=Path("DS"), ego=lambda seq: frames)
+    with pytest.raises(DatasetError) as e:  # before: silently read as synchronous
+        Dataset.camera_poses(fake, "seq_000")
+    assert str(e.value) == ("DS/seq_000/ego.json: frame 0 has no 'cameras' (each camera's timestamp_s and "
+                            "T_world_cam); the manifest's trigger is lidar_sweep, so every frame gives them")
+    fake = SimpleNamespace(manifest={}, cameras=_cams(), root=Path("DS"), ego=lambda seq: frames)
+    ts, T = Dataset.camera_poses(fake, "seq_000")  # a synchronous rig: the frame's time, the static pose
+    assert ts.tolist() == [[0.0, 0.0]] and np.array_equal(T[0, 1], np.eye(4))
+
+
+# --- finding 4: republish --list reads every page by the one rule -------------------------------------------
+
+@pytest.mark.parametrize("kind", ["fifo", "huge", "latin1", "link"])
+def test_republish_list_refuses_a_hostile_page_in_one_line(tmp_path, kind):
+    import importlib
+
+    rp = importlib.import_module("scripts.republish")
+    results = tmp_path / "results"
+    results.mkdir()
+    (results / "good.md").write_text("> Generated by `python scripts/publish_sweep.py --name good`\n")
+    page = results / "page.md"
+    if kind == "fifo":
+        _fifo(page)
+    elif kind == "huge":
+        _huge(page)
+    elif kind == "latin1":
+        page.write_bytes("> Generated by `python scripts/publish_sweep.py --name page` \xe9t\xe9\n".encode("latin-1"))
+    else:
+        (tmp_path / "outside.md").write_text("> Generated by `python scripts/publish_sweep.py --name page`\n")
+        page.symlink_to(tmp_path / "outside.md")
+    with pytest.raises(rp.RepublishError) as e:
+        rp.pages(results)
+    assert str(e.value) == {
+        "fifo": f"{page}: is a FIFO (named pipe), not a regular file; refused without reading it",
+        "huge": f"{page}: 3221225472 bytes, more than a page may hold ({8 * 2**20}); refused unread",
+        "latin1": f"{page}: not UTF-8 (invalid continuation byte at byte 61)",
+        "link": f"{page}: is a symbolic link; a file the project wrote is read only as itself, never through a link",
+    }[kind]
+    page.unlink()
+    assert rp.pages(results) == {"good": "publish_sweep"}
