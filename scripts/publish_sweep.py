@@ -3,8 +3,9 @@
     python scripts/publish_sweep.py --sweep sweeps/propagation --name propagation   # copy results, then build
     python scripts/publish_sweep.py --name propagation                              # rebuild from the committed data
 
-Writes docs/results/<name>/results.json and the rig previews (first form only: copied from the sweep), then from that file
-alone docs/results/<name>/results.csv, docs/results/<name>/plots/*.png and docs/results/<name>.md: the
+Writes docs/results/<name>/results.json and records.json.gz (the sweep's results, compact:
+`study.results_files.compact_results`; a committed results.json not compact yet is made so) and the rig previews
+(first form only: copied from the sweep), then from those files alone docs/results/<name>/results.csv, docs/results/<name>/plots/*.png and docs/results/<name>.md: the
 committed preface docs/results/<name>/preface.md (what the numbers cannot say themselves: the command,
 the measured wall time, the machine), then the sweep's report (`study.report`) with its plot links
 pointing into docs/results/<name>/.
@@ -72,6 +73,7 @@ def check_results(raw: bytes, path: Path) -> dict:
     """The results dict of a results.json's bytes, upgraded (`study.results.upgrade_results`); PublishError
     naming the file and the field of one that is not JSON or not a sweep's results."""
     from study.results import upgrade_results
+    from study.results_files import RECORDS_KEY
 
     try:
         obj = json.loads(raw.decode("utf-8"))
@@ -79,6 +81,8 @@ def check_results(raw: bytes, path: Path) -> dict:
         raise PublishError(f"{path}: not JSON ({str(exc)[:120]})") from None
     if not isinstance(obj, dict):
         raise PublishError(f"{path}: not a sweep's results (a JSON {type(obj).__name__}, not an object)")
+    if RECORDS_KEY in obj:  # a published, compact results.json: its records file beside it joined back
+        obj = _joined(obj, path)
     for field, kind, item in _FIELDS:
         if field == "previews" and field not in obj:
             continue
@@ -106,6 +110,18 @@ def check_results(raw: bytes, path: Path) -> dict:
         return upgrade_results(obj)
     except (ValueError, KeyError, TypeError, AttributeError) as exc:
         raise PublishError(f"{path}: field 'schema' or an evaluation's 'method' is malformed ({exc})") from None
+
+
+def _joined(summary: dict, path: Path) -> dict:
+    """The whole results of a compact results.json (`study.results_files.compact_results`): its records file
+    read beside it (a regular file inside its folder, `corelib.readfile`); PublishError naming the file."""
+    from corelib.readfile import read_inside
+    from study.results_files import RECORDS, join_results
+
+    try:
+        return join_results(summary, read_inside(path.parent / RECORDS, path.parent))
+    except ValueError as exc:
+        raise PublishError(f"{path.parent / RECORDS}: {str(exc)[:200]}") from None
 
 
 def _read_sweep(sweep: Path) -> tuple[bytes, dict, dict[str, bytes]]:
@@ -142,7 +158,7 @@ def publish(name: str, sweep: Path | None) -> str:
     `corelib.atomic`); the line to print. PublishError / ReadRefused (one line) before anything is written."""
     from corelib.atomic import atomic_write_bytes, atomic_write_text, make_folder
     from corelib.readfile import read_inside
-    from study.results_files import read_results
+    from study.results_files import RECORDS, RECORDS_KEY, compact_results, read_results
 
     if not _NAME.fullmatch(name):
         raise PublishError(f"--name {name[:80]!r}: not a report name (letters, digits, _ . -, not starting with a dot)")
@@ -151,8 +167,10 @@ def publish(name: str, sweep: Path | None) -> str:
     if sweep is not None:
         raw, results, previews = _read_sweep(sweep)
     elif os.path.lexists(out / "results.json"):
-        raw = None
-        results = check_results(read_inside(out / "results.json", RESULTS), out / "results.json")
+        raw = read_inside(out / "results.json", RESULTS)
+        results = check_results(raw, out / "results.json")
+        if b'"records"' in raw and RECORDS_KEY in json.loads(raw):
+            raw = None  # already compact: left as committed
     else:
         if not (out / "results.csv").is_file():
             raise PublishError(f"{out / 'results.json'}: no such file (nor a results.csv beside it)")
@@ -166,8 +184,11 @@ def publish(name: str, sweep: Path | None) -> str:
         shown = list(previews) if sweep is not None else None
         plots, text = _build(name, results, stage, shown)
         make_folder(out)
-        if raw is not None:
-            atomic_write_bytes(out / "results.json", raw, fsync=False)
+        if raw is not None:  # committed compact: the summary and its records (study.results_files.compact_results)
+            summary, blob = compact_results(results)
+            atomic_write_bytes(out / RECORDS, blob, fsync=False)
+            atomic_write_bytes(out / "results.json", (json.dumps(summary, indent=1, allow_nan=True) + "\n")
+                               .encode("utf-8"), fsync=False)
         for n, data in previews.items():
             atomic_write_bytes(out / n, data, fsync=False)
         atomic_write_bytes(out / "results.csv", (stage / "results.csv").read_bytes(), fsync=False)

@@ -1,7 +1,9 @@
 """A sweep's results on disk: results.csv written (`write_csv`: one row per overlap x method x variant x seed, with
 its world, then the yardsticks) beside its reader (`results_from_csv`), and `read_results`, which reads a
 results.json or a results.csv, also one written before the variant field (`study.results.upgrade_results`).
-results.json is `study.results.build_results`' dict as JSON (`study.outputs.write_all`).
+results.json is `study.results.build_results`' dict as JSON (`study.outputs.write_all`). A published one
+(docs/results/<name>/) is compact (`compact_results`): results.json keeps the summaries (config, timing, counters)
+and names records.json.gz beside it, the per-run and per-world records; `read_results` joins them back.
 
 Example::
 
@@ -10,12 +12,16 @@ Example::
 from __future__ import annotations
 
 import csv
+import gzip
 import io
 import json
+import zlib
 from pathlib import Path
 
 from corelib.atomic import atomic_write_text
-from study.results import SCHEMA, YARDSTICKS, aggregate_flat, evaluations_of, upgrade_results, yardstick_row
+from study.results import (LEGACY_ROW_KEYS, SCHEMA, YARDSTICKS, aggregate_flat, evaluations, evaluations_of,
+                           flat_rows, upgrade_results, yardstick_row)
+from study.variants import CUT
 from study.worlds import data_seeds
 
 
@@ -55,7 +61,118 @@ def read_results(path) -> dict:
     path = Path(path)
     if path.suffix == ".csv":
         return results_from_csv(path)
-    return upgrade_results(json.loads(path.read_text()))
+    obj = json.loads(path.read_text())
+    if isinstance(obj, dict) and RECORDS_KEY in obj:
+        obj = join_results(obj, (path.parent / obj[RECORDS_KEY]["file"]).read_bytes())
+    return upgrade_results(obj)
+
+
+# ------------------------------------------------------------------------------------------- compact results
+#: the file beside a published results.json that holds its records (gzip of compact JSON: the records are nested
+#: dicts whose keys vary by metric, region and variant, not one table; the standard library reads it, and a
+#: columnar file would store the same float64 values in about the same bytes, the floats being what is big)
+RECORDS = "records.json.gz"
+#: the key of a compact results.json that names its records file, and what it holds and left out
+RECORDS_KEY = "records"
+#: the parts of the results that go into the records file; ``flat`` and ``aggregate`` are recomputed on reading
+#: (`study.results.flat_rows`, `aggregate_flat`) where that gives them back exactly, else kept there too
+_HELD = ("data", "rows")
+_DERIVED = ("flat", "aggregate")
+#: the per-sequence records a page reads (the L_con page's variance split, `study.lcon.split_of`: each test
+#: sequence's abs_rel sums of the cut evaluation on non-overlap pixels); every other one is left out
+PER_SEQUENCE_KEPT = (CUT, "non_overlap")
+#: the region splits whose records keep abs_rel only, the one metric of them that results.csv and every page read
+#: (`study.records.flat_row`)
+ABS_REL_ONLY = ("bands", "classes", "motion", "road_bands")
+#: at most this many bytes of JSON out of a records file (a gzip bomb is refused, not unpacked)
+MAX_RECORDS_BYTES = 512 * 2**20
+LEFT_OUT = ("per-sequence records other than the cut evaluation's on non-overlap pixels (the L_con page's variance "
+            "split); the region splits (distance bands, classes, motion, road bands) other than abs_rel; the full "
+            "records are in the sweep's own results.json")
+
+
+def _prune(obj, keep_per_sequence: bool):
+    """``obj`` (a metrics summary, or anything holding some) without what `LEFT_OUT` names."""
+    if isinstance(obj, list):
+        return [_prune(v, keep_per_sequence) for v in obj]
+    if not isinstance(obj, dict):
+        return obj
+    out = {}
+    for k, v in obj.items():
+        if k == "per_sequence" and isinstance(v, dict):
+            if keep_per_sequence and PER_SEQUENCE_KEPT[1] in v:
+                out[k] = {PER_SEQUENCE_KEPT[1]: v[PER_SEQUENCE_KEPT[1]]}
+        elif k in ABS_REL_ONLY and isinstance(v, dict):
+            out[k] = {r: ({"abs_rel": x["abs_rel"]} if isinstance(x, dict) and "abs_rel" in x else x)
+                      for r, x in v.items()}
+        else:
+            out[k] = _prune(v, keep_per_sequence)
+    return out
+
+
+def _pruned_row(row: dict) -> dict:
+    if not isinstance(row.get("evaluations"), dict):  # a row written before them: its legacy keys
+        cut_key = LEGACY_ROW_KEYS[PER_SEQUENCE_KEPT[0]][0]
+        return {k: _prune(v, k == cut_key) for k, v in row.items()}
+    return {k: ({ev: _prune(e, ev == PER_SEQUENCE_KEPT[0]) for ev, e in v.items()} if k == "evaluations"
+                else _prune(v, False)) for k, v in row.items()}
+
+
+def _derive(results: dict, part: str) -> list:
+    if part == "flat":
+        return [f for r in results["rows"] for f in flat_rows(r)]
+    return aggregate_flat(results["flat"], [d["overlap"] for d in results["data"]], evaluations(results))
+
+
+def _dumps(obj) -> str:
+    return json.dumps(obj, separators=(",", ":"), allow_nan=True)
+
+
+def compact_results(results: dict) -> tuple[dict, bytes]:
+    """(the summary written as results.json, the bytes of `RECORDS` beside it) of a sweep's results (schema 2):
+    the records without what `LEFT_OUT` names, gzip at a fixed time stamp (the same results give the same bytes).
+    ``flat`` and ``aggregate`` are left to be recomputed where the pruned records give them back exactly."""
+    rows = [_pruned_row(r) for r in results["rows"]]
+    data = [_prune(d, False) for d in results["data"]]
+    held = {"data": data, "rows": rows}
+    probe = dict(results, data=data, rows=rows)
+    derived = []
+    for part in _DERIVED:  # flat first: the aggregate is recomputed from it
+        if _dumps(_derive(probe, part)) == _dumps(results[part]):
+            derived.append(part)
+        else:
+            held[part] = results[part]
+    summary = {}
+    for k, v in results.items():
+        if k not in _HELD and k not in _DERIVED:
+            summary[k] = v
+    summary[RECORDS_KEY] = {"file": RECORDS, "holds": list(held), "derived": derived, "order": list(results),
+                            "left_out": LEFT_OUT}
+    blob = gzip.compress(_dumps(held).encode("utf-8"), compresslevel=9, mtime=0)
+    return summary, blob
+
+
+def join_results(summary: dict, blob: bytes) -> dict:
+    """The results a compact results.json (``summary``) and its records file's bytes (``blob``) describe, in the
+    order of keys they were written in; ValueError naming what is wrong with a records file that is not one."""
+    rec = summary[RECORDS_KEY]
+    if not isinstance(rec, dict) or not isinstance(rec.get("order"), list):
+        raise ValueError(f"field '{RECORDS_KEY}' is not a records entry (file, holds, derived, order)")
+    try:
+        d = zlib.decompressobj(wbits=31)
+        raw = d.decompress(blob, MAX_RECORDS_BYTES)
+        if d.unconsumed_tail:
+            raise ValueError(f"{RECORDS}: more than {MAX_RECORDS_BYTES} bytes of JSON; refused")
+        held = json.loads(raw.decode("utf-8"))
+    except (zlib.error, UnicodeDecodeError, json.JSONDecodeError) as exc:
+        raise ValueError(f"{RECORDS}: not gzip of JSON ({str(exc)[:120]})") from None
+    if not isinstance(held, dict):
+        raise ValueError(f"{RECORDS}: not a JSON object")
+    whole = {k: v for k, v in summary.items() if k != RECORDS_KEY}
+    whole.update(held)
+    for part in rec.get("derived", []):
+        whole[part] = _derive(whole, part)
+    return {k: whole[k] for k in rec["order"] if k in whole}
 
 
 def results_from_csv(path) -> dict:

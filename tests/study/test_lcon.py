@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from study import lcon
-from study.results_files import write_csv
+from study.results_files import read_results, write_csv
 from study.primary import DELTA
 from study.variants import CUT
 
@@ -67,7 +67,7 @@ def test_the_world_column_is_each_rows_world_and_the_split_is_in_the_section(tmp
 def test_results_csv_world_is_the_data_seed_each_run_trained_on(tmp_path):
     """The committed propagation sweep: 3 worlds x 2 seeds (seeds 0, 1 on data seed 0, ...): the column is the data
     seed each run's world was rendered from."""
-    res = json.loads((ROOT / "docs/results/propagation/results.json").read_text())
+    res = read_results(ROOT / "docs/results/propagation/results.json")
     write_csv(res, tmp_path / "r.csv")
     rows = [r for r in csv.DictReader((tmp_path / "r.csv").open()) if r["status"] != "reference"]
     assert rows and {(r["seed"], r["world"]) for r in rows} == {("0", "0"), ("1", "0"), ("2", "1"), ("3", "1"),

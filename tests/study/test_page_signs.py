@@ -23,7 +23,9 @@ def _page(name: str) -> str:
 
 
 def _results(name: str) -> dict:
-    return upgrade_results(json.loads((RESULTS / name / "results.json").read_text()))
+    from study.results_files import read_results  # a compact results.json joined with its records
+
+    return upgrade_results(read_results(RESULTS / name / "results.json"))
 
 
 def _sign(x: float) -> int:

@@ -1,0 +1,71 @@
+"""Published results are compact (issue 60, item 5): docs/results/<name>/results.json keeps the summaries and names
+records.json.gz beside it; `read_results` joins them back, and the pages rebuild from them byte for byte
+(tests/test_results_docs.py)."""
+from __future__ import annotations
+
+import gzip
+import json
+from pathlib import Path
+
+import pytest
+
+from study import lcon
+from study.results_files import (ABS_REL_ONLY, PER_SEQUENCE_KEPT, RECORDS, RECORDS_KEY, compact_results,
+                                 join_results, read_results)
+from study.variants import CUT
+
+ROOT = Path(__file__).resolve().parents[2]
+RESULTS = ROOT / "docs" / "results"
+SWEEPS = sorted(p.parent for p in RESULTS.glob("*/results.json"))
+
+
+def test_every_published_sweep_is_compact_and_docs_results_is_small():
+    assert len(SWEEPS) >= 15
+    for folder in SWEEPS:
+        summary = json.loads((folder / "results.json").read_text())
+        assert summary[RECORDS_KEY]["file"] == RECORDS and (folder / RECORDS).is_file(), folder.name
+        assert "rows" not in summary and "flat" not in summary, folder.name
+        assert (folder / "results.json").stat().st_size < 60_000, folder.name
+    total = sum(p.stat().st_size for p in RESULTS.rglob("*") if p.is_file())
+    assert total < 18e6, f"docs/results holds {total / 1e6:.1f} MB (106 MB before issue 60)"
+
+
+def test_compacting_the_joined_results_gives_the_committed_bytes():
+    """join then compact is the identity on a committed pair (a fixed gzip time stamp: the same bytes anywhere)."""
+    folder = RESULTS / "sensor_ideal"
+    summary, blob = compact_results(read_results(folder / "results.json"))
+    assert blob == (folder / RECORDS).read_bytes()
+    assert summary == json.loads((folder / "results.json").read_text())
+
+
+def test_left_out_is_what_no_page_reads_and_the_rest_comes_back():
+    res = read_results(RESULTS / "lcon_pilot" / "results.json")
+    i = next(i for i, r in enumerate(res["rows"]) if CUT in r["evaluations"])
+    row = json.loads(json.dumps(res["rows"][i]))
+    for ev, m in ((e, row["evaluations"][e]["metrics"]["median"]) for e in ("trained", CUT)):
+        m["per_sequence"] = {"all": {"s0": {"sum": [1.0], "n": [4]}}, "non_overlap": {"s0": {"sum": [2.0], "n": [4]}}}
+        next(iter(m["bands"].values()))["a1"] = 0.5
+    res = dict(res, rows=res["rows"][:i] + [row] + res["rows"][i + 1:])
+    summary, blob = compact_results(res)
+    back = join_results(summary, blob)
+    assert list(back) == list(res) and back["data"] == res["data"] and back["aggregate"] == res["aggregate"]
+    got = {e: back["rows"][i]["evaluations"][e]["metrics"]["median"] for e in ("trained", CUT)}
+    assert "per_sequence" not in got["trained"]  # a page reads the cut's only, on non-overlap pixels
+    assert got[CUT]["per_sequence"] == {"non_overlap": {"s0": {"sum": [2.0], "n": [4]}}}
+    assert all(set(v) == {"abs_rel"} for v in got[CUT]["bands"].values())  # a split keeps abs_rel only
+    assert set(got[CUT]["non_overlap"]) > {"abs_rel", "a1"}  # a region keeps every metric
+    assert PER_SEQUENCE_KEPT == (lcon.cut(), lcon.REGION) and "bands" in ABS_REL_ONLY
+
+
+def test_a_records_file_that_is_not_one_is_refused_naming_it():
+    summary = json.loads((RESULTS / "sensor_ideal" / "results.json").read_text())
+    with pytest.raises(ValueError, match=r"records\.json\.gz: not gzip of JSON"):
+        join_results(summary, b"not gzip")
+    with pytest.raises(ValueError, match="more than"):  # a gzip bomb is not unpacked past the bound
+        import study.results_files as rf
+
+        old, rf.MAX_RECORDS_BYTES = rf.MAX_RECORDS_BYTES, 1000
+        try:
+            join_results(summary, gzip.compress(b" " * 5000 + b"{}"))
+        finally:
+            rf.MAX_RECORDS_BYTES = old
