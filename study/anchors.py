@@ -118,8 +118,9 @@ def load_anchors(path: str | Path) -> Anchors:
                 Anchor.model_validate(row)
             except ValidationError as exc:
                 err = exc.errors()[0]
-                where = ".".join(str(x) for x in err["loc"]) or "row"
-                raise ConfigError(f"{p}: anchor {name!r}: {where}: {err['msg']}") from None
+                msg = str(err["msg"]).removeprefix("Value error, ")
+                where = ".".join(str(x) for x in err["loc"])
+                raise ConfigError(f"{p}: anchor {name!r}: " + (f"{where}: {msg}" if where else msg)) from None
     try:
         out = Anchors.model_validate(raw)
     except ValidationError as exc:

@@ -1,0 +1,196 @@
+"""The calibration's reading: each anchor's synthetic effect over worlds beside its real one, and the figures of
+agreement (issue 57; the page docs/results/calibration.md, `scripts/publish_calibration.py`).
+
+- An anchor's synthetic effect is a paired difference over worlds, changed - base (positive = worse, as the anchors
+  file's convention), read from each arm's sweep folder (`arm_values`), with its 95 % t interval and its MDE at
+  80 % power. ``read: side_vs_front`` is one arm's four side cameras' mean minus its front camera; ``read:
+  metric_vs_median`` one arm's metric (unscaled) figure minus its median-scaled one.
+- Resolved: the interval excludes 0. Agrees: resolved with the real effect's sign. Unresolved anchors count neither
+  way and are listed apart with their MDE.
+- Agreement: the same-sign rate over resolved anchors with its Wilson 95 % interval (scipy's ``binomtest``);
+  Spearman and Kendall between real and synthetic effects over every measured anchor, with percentile bootstrap
+  intervals over anchors; each anchor's synthetic / real size ratio; the mean maximum rank violation of SIMPLER
+  (`simpler_env/utils/metrics.py`: for each anchor, the largest real gap to another anchor whose order the
+  benchmark inverts; averaged).
+
+Example::
+
+    anchors = load_anchors("configs/calibration/anchors.yaml")
+    values = {arm: arm_values(Path("sweeps/calibration") / arm) for arm in anchors.arms}
+    rows = read_anchors(anchors, values)
+    print(agreement(rows))
+"""
+from __future__ import annotations
+
+import csv
+import io
+import math
+from pathlib import Path
+
+import numpy as np
+
+from study.anchors import Anchor, Anchors
+
+#: the sweep's column names (results.csv) this module reads
+SIDE_CAMERAS = ("CAM_FRONT_RIGHT", "CAM_BACK_RIGHT", "CAM_BACK_LEFT", "CAM_FRONT_LEFT")
+FRONT = "CAM_FRONT"
+#: results.csv of one arm's sweep is read up to this many bytes
+MAX_CSV_BYTES = 64 << 20
+#: bootstrap resamples of the rank statistics, and their seed (fixed: the page rebuilds byte-identically)
+BOOT, BOOT_SEED = 2000, 0
+
+
+def _columns(anchors: Anchors) -> set[str]:
+    cols = {anchors.metric_of(a) for a in anchors.anchors}
+    cols |= {f"median.camera.{c}.abs_rel" for c in (FRONT, *SIDE_CAMERAS)}
+    cols |= {"none.mean.abs_rel", "median.mean.abs_rel"}
+    return cols
+
+
+def arm_values(folder: Path, columns: set[str]) -> dict[int, dict[str, float]]:
+    """{world: {column: value}} of one arm's sweep folder: its results.csv's as-trained rows that finished ("ok")."""
+    from corelib.readfile import read_text_inside
+
+    text = read_text_inside(Path(folder) / "results.csv", Path(folder), MAX_CSV_BYTES)
+    out: dict[int, dict[str, float]] = {}
+    for row in csv.DictReader(io.StringIO(text)):
+        if row.get("variant", "trained") != "trained" or row.get("status") != "ok":
+            continue
+        try:
+            world = int(row["world"])
+        except (KeyError, ValueError):
+            raise ValueError(f"{folder}/results.csv: a row without an integer world") from None
+        vals = {}
+        for c in columns:
+            try:
+                v = float(row.get(c, "nan") or "nan")
+            except ValueError:
+                raise ValueError(f"{folder}/results.csv: column {c!r} is not a number in world {world}") from None
+            vals[c] = v
+        out[world] = vals
+    return out
+
+
+def _one_arm(vals: dict[str, float], read: str, metric: str) -> float:
+    if read == "side_vs_front":
+        return float(np.mean([vals[f"median.camera.{c}.abs_rel"] for c in SIDE_CAMERAS])
+                     - vals[f"median.camera.{FRONT}.abs_rel"])
+    if read == "metric_vs_median":
+        return vals["none.mean.abs_rel"] - vals["median.mean.abs_rel"]
+    return vals[metric]
+
+
+def paired(diffs: list[float]) -> dict:
+    """Mean, sd, 95 % t interval, p (two-sided t), MDE at 80 % power of paired differences over worlds."""
+    from scipy import stats
+
+    d = np.asarray(diffs, dtype=float)
+    n = int(d.size)
+    out = {"n": n, "mean": float(d.mean()) if n else float("nan"), "diffs": [float(x) for x in d]}
+    if n < 2:
+        out.update(sd=float("nan"), half=float("nan"), p=float("nan"), mde=float("nan"))
+        return out
+    sd = float(d.std(ddof=1))
+    se = sd / math.sqrt(n)
+    tc = float(stats.t.ppf(0.975, n - 1))
+    out.update(sd=sd, half=tc * se, mde=(tc + float(stats.t.ppf(0.80, n - 1))) * se,
+               p=float(2 * stats.t.sf(abs(out["mean"]) / se, n - 1)) if se > 0 else float("nan"))
+    return out
+
+
+def read_anchor(anchors: Anchors, a: Anchor, values: dict[str, dict[int, dict[str, float]]]) -> dict:
+    """One anchor's row: its real effect, its synthetic paired difference over the worlds both arms have, and
+    whether it is resolved and agrees (module docstring). An arm not run yet: ``n`` 0."""
+    metric = anchors.metric_of(a)
+    base, changed = values.get(a.base, {}), values.get(a.changed, {})
+    worlds = sorted(set(base) & set(changed))
+    if a.read == "arms":
+        diffs = [changed[w][metric] - base[w][metric] for w in worlds]
+    else:
+        diffs = [_one_arm(base[w], a.read, metric) for w in worlds]
+    diffs = [x for x in diffs if math.isfinite(x)]
+    st = paired(diffs)
+    resolved = st["n"] >= 2 and math.isfinite(st["half"]) and abs(st["mean"]) > st["half"]
+    syn_sign = 0 if not resolved else (1 if st["mean"] > 0 else -1)
+    return {"name": a.name, "set": a.set, "effect": a.effect, "metric": metric, "read": a.read,
+            "base": a.base, "changed": a.changed, "worlds": worlds,
+            "source": f"{a.source.paper}, {a.source.table}, {a.source.dataset}",
+            "real_before": a.real.before, "real_after": a.real.after, "real": a.real.delta,
+            "also": [{"source": f"{x.paper}, {x.table}, {x.dataset}", "real": x.after - x.before} for x in a.also],
+            **{k: st[k] for k in ("n", "mean", "sd", "half", "p", "mde", "diffs")},
+            "resolved": bool(resolved), "agrees": bool(resolved and syn_sign == a.real_sign),
+            "ratio": st["mean"] / a.real.delta if st["n"] else float("nan")}
+
+
+def read_anchors(anchors: Anchors, values: dict[str, dict[int, dict[str, float]]]) -> list[dict]:
+    return [read_anchor(anchors, a, values) for a in anchors.anchors]
+
+
+def wilson(k: int, n: int) -> tuple[float, float]:
+    """The Wilson score 95 % interval of k successes in n (scipy.stats.binomtest's)."""
+    from scipy import stats
+
+    if n == 0:
+        return float("nan"), float("nan")
+    ci = stats.binomtest(k, n).proportion_ci(confidence_level=0.95, method="wilson")
+    return float(ci.low), float(ci.high)
+
+
+def rank_stats(real: list[float], syn: list[float], boot: int = BOOT, seed: int = BOOT_SEED) -> dict:
+    """Spearman's rho and Kendall's tau (scipy) between real and synthetic effects, with percentile bootstrap 95 %
+    intervals over the items (resamples with fewer than 3 distinct items, or a constant side, are skipped)."""
+    from scipy import stats
+
+    r, s = np.asarray(real, float), np.asarray(syn, float)
+    n = r.size
+    out = {"n": int(n), "spearman": float("nan"), "kendall": float("nan"), "spearman_ci": [float("nan")] * 2,
+           "kendall_ci": [float("nan")] * 2}
+    if n < 3:
+        return out
+    out["spearman"] = float(stats.spearmanr(r, s).statistic)
+    out["kendall"] = float(stats.kendalltau(r, s).statistic)
+    rng = np.random.default_rng(seed)
+    sp, kt = [], []
+    for _ in range(boot):
+        i = rng.integers(0, n, n)
+        if len(set(i.tolist())) < 3 or np.ptp(r[i]) == 0 or np.ptp(s[i]) == 0:
+            continue
+        sp.append(stats.spearmanr(r[i], s[i]).statistic)
+        kt.append(stats.kendalltau(r[i], s[i]).statistic)
+    sp, kt = np.asarray(sp, float), np.asarray(kt, float)
+    sp, kt = sp[np.isfinite(sp)], kt[np.isfinite(kt)]
+    if sp.size:
+        out["spearman_ci"] = [float(x) for x in np.percentile(sp, [2.5, 97.5])]
+    if kt.size:
+        out["kendall_ci"] = [float(x) for x in np.percentile(kt, [2.5, 97.5])]
+    return out
+
+
+def mmrv(real: list[float], syn: list[float]) -> float:
+    """SIMPLER's mean maximum rank violation: for each item i, max over j of |real_i - real_j| where the benchmark
+    orders i and j the other way round from the real data (ties count as no violation), averaged over items."""
+    r, s = np.asarray(real, float), np.asarray(syn, float)
+    n = r.size
+    if n < 2:
+        return float("nan")
+    worst = []
+    for i in range(n):
+        v = [abs(r[i] - r[j]) for j in range(n) if j != i and (r[i] < r[j]) != (s[i] < s[j])
+             and r[i] != r[j] and s[i] != s[j]]
+        worst.append(max(v) if v else 0.0)
+    return float(np.mean(worst))
+
+
+def agreement(rows: list[dict], which: str | None = None) -> dict:
+    """The calibration figures over ``rows`` (those of one set, or all when ``which`` is None)."""
+    rows = [r for r in rows if (which is None or r["set"] == which) and r["n"] >= 2]
+    resolved = [r for r in rows if r["resolved"]]
+    k = sum(r["agrees"] for r in resolved)
+    lo, hi = wilson(k, len(resolved))
+    real = [r["real"] for r in rows]
+    syn = [r["mean"] for r in rows]
+    return {"measured": len(rows), "resolved": len(resolved), "agree": k,
+            "rate": k / len(resolved) if resolved else float("nan"), "wilson": [lo, hi],
+            "ranks": rank_stats(real, syn), "mmrv": mmrv(real, syn),
+            "disagree": [r["name"] for r in resolved if not r["agrees"]],
+            "unresolved": [r["name"] for r in rows if not r["resolved"]]}
