@@ -65,6 +65,12 @@ def _check(K, dist, name, B):
                          f"{None if dist is None else tuple(dist.shape)}")
 
 
+def resized(K: torch.Tensor, sx: float, sy: float) -> torch.Tensor:
+    """(B, 3, 3) K of images resized by (sx, sy): diag(sx, sy, 1) K, as `synth.camera.resized` (every row
+    keeps its distortion parameters through a resize, so K is all that changes)."""
+    return K * torch.tensor([sx, sy, 1.0], dtype=K.dtype, device=K.device).view(1, 3, 1)
+
+
 def project(points: torch.Tensor, K: torch.Tensor, dist: torch.Tensor | None, model: str = "pinhole",
             eps: float = EPS_Z):
     """Camera-frame points (B, 3, N) -> pixel coordinates (B, 2, N) and valid (B, N) bool through row `model`.

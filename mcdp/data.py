@@ -23,6 +23,7 @@ import numpy as np
 import torch
 
 from mcdp.inputs import InputField, RigBatch, read_fields, stack
+from synth import camera
 
 FRAME_OFFSETS = (-1, 0, 1)
 #: how cross-camera warps treat cameras that fire at different times (`mcdp.config.ModelConfig.sync`)
@@ -46,10 +47,11 @@ def resize_mask(mask: np.ndarray, height: int, width: int) -> np.ndarray:
 
 
 def scaled_K(K: np.ndarray, src_hw: tuple[int, int], dst_hw: tuple[int, int]) -> np.ndarray:
-    """Intrinsics of an image resized from src_hw to dst_hw: diag(sx, sy, 1) @ K."""
+    """Intrinsics of an image resized from src_hw to dst_hw: diag(sx, sy, 1) K (the camera table's
+    `synth.camera.resized`, which keeps any distortion parameters as they are)."""
     sy = dst_hw[0] / src_hw[0]
     sx = dst_hw[1] / src_hw[1]
-    return np.diag([sx, sy, 1.0]) @ np.asarray(K, dtype=np.float64)
+    return camera.resized(np.asarray(K, dtype=np.float64), sx, sy)
 
 
 def neighbour_table(pairs: Sequence[Sequence[int]], n_cams: int) -> torch.Tensor:

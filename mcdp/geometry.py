@@ -24,7 +24,7 @@ from typing import Optional, Sequence
 import torch
 import torch.nn.functional as F
 
-from mcdp.camera import project, unproject
+from mcdp.camera import project, resized, unproject
 
 __all__ = [
     "scale_intrinsics",
@@ -74,8 +74,7 @@ def scale_intrinsics(K: torch.Tensor, sx: float, sy: float) -> torch.Tensor:
         (B, 3, 3) scaled intrinsics.
     """
     _check_shape(K, "K", (None, 3, 3), "(B, 3, 3)")
-    S = torch.tensor([sx, sy, 1.0], dtype=K.dtype, device=K.device)
-    return K * S.view(1, 3, 1)
+    return resized(K, sx, sy)
 
 
 def pixel_grid(H: int, W: int, device=None, dtype=None) -> torch.Tensor:

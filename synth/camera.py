@@ -198,6 +198,29 @@ def pinhole_K(cam) -> np.ndarray:
     return K
 
 
+def gl_projection(cam, width: int, height: int, znear: float, zfar: float) -> np.ndarray:
+    """(4, 4) OpenGL clip matrix of a pinhole camera (OpenCV axes: x right, y down, z forward); the rasteriser
+    draws pinhole images only (another model is refused). Maps pixel u (centres at +0.5) to window x = u and v
+    to window y = H - v."""
+    K = pinhole_K(cam)
+    fx, fy, cx, cy = K[0, 0], K[1, 1], K[0, 2], K[1, 2]
+    P = np.zeros((4, 4))
+    P[0, 0] = 2 * fx / width
+    P[0, 1] = 2 * K[0, 1] / width
+    P[0, 2] = 2 * cx / width - 1
+    P[1, 1] = -2 * fy / height
+    P[1, 2] = 1 - 2 * cy / height
+    P[2, 2] = (zfar + znear) / (zfar - znear)
+    P[2, 3] = -2 * zfar * znear / (zfar - znear)
+    P[3, 2] = 1.0
+    return P
+
+
+def pinhole_inverse(cam) -> np.ndarray:
+    """K^-1 of a pinhole camera: the ray matrix a shader applies to (u, v, 1) (`synth.shaders` FS_SKY)."""
+    return np.linalg.inv(pinhole_K(cam))
+
+
 # --------------------------------------------------------------------------- pinhole
 def _apply3(M: np.ndarray, p: np.ndarray) -> np.ndarray:
     """M @ p for (3, N) columns, element by element: (M0 x + M1 y) + M2 z (batch-independent rounding)."""

@@ -41,6 +41,7 @@ import numpy as np
 
 from scenes.model import Mesh, Scene
 
+from synth.camera import gl_projection, pinhole_inverse
 from synth.gl_context import RenderBackendError, create_context, select_backend
 from synth.shaders import FS_MAIN, FS_SHADOW, FS_SKY, VS_MAIN, VS_SHADOW, VS_SKY
 
@@ -62,22 +63,8 @@ class LightState:
     shadows: bool = True
 
 
-def projection_from_K(K: np.ndarray, width: int, height: int, znear: float, zfar: float) -> np.ndarray:
-    """OpenGL clip matrix for an OpenCV camera (x right, y down, z forward) with intrinsics K.
-
-    Maps pixel u (pixel centres at +0.5) to window x = u and v to window y = H - v.
-    """
-    fx, fy, cx, cy = K[0, 0], K[1, 1], K[0, 2], K[1, 2]
-    P = np.zeros((4, 4))
-    P[0, 0] = 2 * fx / width
-    P[0, 1] = 2 * K[0, 1] / width
-    P[0, 2] = 2 * cx / width - 1
-    P[1, 1] = -2 * fy / height
-    P[1, 2] = 1 - 2 * cy / height
-    P[2, 2] = (zfar + znear) / (zfar - znear)
-    P[2, 3] = -2 * zfar * znear / (zfar - znear)
-    P[3, 2] = 1.0
-    return P
+#: OpenGL clip matrix for an OpenCV camera with intrinsics K: the camera table's pinhole row (`synth.camera`)
+projection_from_K = gl_projection
 
 
 @dataclass(frozen=True)
@@ -387,7 +374,7 @@ class Renderer:
         GL.glUseProgram(self._prog_sky)
         ps = self._prog_sky
         self._set_mat3(ps, "u_R_world_cam", T_world_cam[:3, :3])
-        self._set_mat3(ps, "u_K_inv", np.linalg.inv(K))
+        self._set_mat3(ps, "u_K_inv", pinhole_inverse(K))
         GL.glUniform1f(self._loc(ps, "u_height"), float(H))
         for name, val in [("u_zenith_rgb", light.zenith_rgb), ("u_horizon_rgb", light.horizon_rgb),
                           ("u_sun_dir", sun), ("u_sun_rgb", light.sun_rgb), ("u_gain", gain)]:

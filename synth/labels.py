@@ -18,6 +18,7 @@ from __future__ import annotations
 import numpy as np
 
 from scenes.labels import CLASS, MATERIAL_CLASS
+from synth import camera
 from synth.protocol import pixel_rays
 
 #: flow validity: |z_rendered(t+1) - z_moved| <= Z_TOL_REL z + Z_TOL_ABS (metres), at one of 4 neighbours
@@ -71,10 +72,9 @@ def forward_flow(depth0: np.ndarray, inst0: np.ndarray, ego0: np.ndarray, K: np.
     p1[ego0] = p0[ego0]  # the body is fixed to the camera
     z1 = p1[..., 2]
     front = z1 > 1e-6
-    q = p1 @ K.T
-    with np.errstate(divide="ignore", invalid="ignore"):
-        u1 = np.where(front, q[..., 0] / np.where(front, z1, 1.0), -1.0)
-        v1 = np.where(front, q[..., 1] / np.where(front, z1, 1.0), -1.0)
+    uv1, _ = camera.project(K, p1.reshape(-1, 3).T)  # the camera table (front: its validity, z > 1e-6)
+    u1 = np.where(front, uv1[0].reshape(H, W), -1.0)
+    v1 = np.where(front, uv1[1].reshape(H, W), -1.0)
     flow = np.stack([u1 - u, v1 - v], -1).astype(np.float32)
     valid = (z > 0) & front & (u1 >= 0) & (u1 < W) & (v1 >= 0) & (v1 < H)
     seen = np.zeros_like(valid)

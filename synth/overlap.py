@@ -29,7 +29,9 @@ from __future__ import annotations
 
 import numpy as np
 
-EPS_Z = 1e-6
+from synth import camera
+
+EPS_Z = camera.EPS_Z  # 1e-6 m
 Z_TOL = 0.05
 
 
@@ -115,10 +117,7 @@ def _seen_by_j(pts: np.ndarray, T_j_i: np.ndarray, K_j: np.ndarray, near_j: np.n
     Hj, Wj = near_j.shape
     pj = _apply3(T_j_i[:3, :3], pts, T_j_i[:3, 3])
     zj = pj[2]
-    front = zj > EPS_Z
-    uvw = _apply3(K_j, pj)
-    zs = np.where(front, zj, 1.0)
-    uj, vj = uvw[0] / zs, uvw[1] / zs
+    (uj, vj), front = camera.project(K_j, pj)  # the camera table's pinhole row: front = z_j > EPS_Z
     idx = np.flatnonzero(front & (uj >= 0) & (uj < Wj) & (vj >= 0) & (vj < Hj))
     col = np.clip(np.floor(uj[idx]).astype(np.int64), 0, Wj - 1)
     row = np.clip(np.floor(vj[idx]).astype(np.int64), 0, Hj - 1)
@@ -158,8 +157,7 @@ def _rays(K, H: int, W: int) -> np.ndarray:
     K = _arr(K, "K", (3, 3))
 
     def make():
-        v, u = np.divmod(np.arange(H * W), W)
-        return _apply3(np.linalg.inv(K), np.stack([u + 0.5, v + 0.5, np.ones(u.size)]))
+        return camera.rays(K, H, W)  # the camera table's pinhole row
     if H * W > _CACHE_RAYS_MAX_PX:  # 24 bytes a pixel: kept for small images only, remade for large ones
         return make()
     return _cached(("rays", int(H), int(W), K.tobytes()), make)

@@ -23,6 +23,8 @@ from typing import Protocol, Sequence, runtime_checkable
 
 import numpy as np
 
+from synth import camera
+
 SPLITS = ("train", "val", "test")  # the split names `DatasetReader.split` knows
 
 
@@ -53,17 +55,17 @@ class Camera(Protocol):
         """The camera as plain JSON (a run's ``run.json`` ``rig``, compared by ``mcdp eval``)."""
 
 
-def pixel_rays(K: np.ndarray, width: int, height: int) -> np.ndarray:
-    """(height, width, 3) float64 rays K^-1 [u + 0.5, v + 0.5, 1] through every pixel centre, at z = 1 (a point
-    at z-depth d of pixel (v, u) is ``d * rays[v, u]``): the back-projection of the camera model above."""
-    u, v = np.meshgrid(np.arange(width) + 0.5, np.arange(height) + 0.5)
-    return np.stack([u, v, np.ones_like(u)], -1) @ np.linalg.inv(K).T
+def pixel_rays(K, width: int, height: int) -> np.ndarray:
+    """(height, width, 3) float64 rays through every pixel centre (a point at depth d of pixel (v, u) is
+    ``d * rays[v, u]``): the camera table's back-projection (`synth.camera.rays`; a bare K is the pinhole row,
+    rays K^-1 [u + 0.5, v + 0.5, 1] at z = 1)."""
+    return np.ascontiguousarray(camera.rays(K, height, width).T).reshape(height, width, 3)
 
 
-def pixel_rays_at(K: np.ndarray, u: np.ndarray, v: np.ndarray) -> np.ndarray:
-    """(3, M) float64 rays K^-1 [u + 0.5, v + 0.5, 1] at z = 1 of the M pixels of integer columns `u` and rows `v`
-    (1-D); one product for the batch, so a pixel's ray is the one `pixel_rays` gives up to rounding."""
-    return np.linalg.inv(np.asarray(K, np.float64)) @ np.stack([u + 0.5, v + 0.5, np.ones(np.shape(u))])
+def pixel_rays_at(K, u: np.ndarray, v: np.ndarray) -> np.ndarray:
+    """(3, M) float64 rays of the M pixels of integer columns `u` and rows `v` (1-D), element by element, so a
+    pixel's ray is the one `pixel_rays` gives, bit for bit (`synth.camera.rays_at`)."""
+    return camera.rays_at(K, u, v)
 
 
 @runtime_checkable
