@@ -46,6 +46,14 @@ _FIELDS = (("overlaps", list, (int, float)), ("methods", list, str), ("seeds", l
 _CONFIG_KEYS = ("checkpoint", "overlap_mode", "data", "data_overrides", "train_presets_dir", "train_overrides", "eval")
 
 
+#: the most of each list a report is built from (a sweep's are far smaller: 6 overlaps, 14 seeds, a few hundred rows)
+_COUNTS = {"overlaps": 64, "methods": 64, "seeds": 1000, "evaluations": 64, "data": 1000, "rows": 20000,
+           "flat": 200000, "aggregate": 200000, "previews": 64}
+#: the largest magnitude a number in a results.json may have (its largest, a wall time in seconds, is about 1e5;
+#: a value near the float's range makes a plot's axis uncomputable)
+_MAX_VALUE = 1e12
+
+
 class PublishError(ValueError):
     """A sweep folder or report that cannot be published; one line naming the file (and the field)."""
 
@@ -95,6 +103,7 @@ def check_results(raw: bytes, path: Path) -> dict:
         bad = [i for i, v in enumerate(obj[field]) if item is not None and not isinstance(v, item)]
         if bad:
             raise PublishError(f"{path}: field '{field}[{bad[0]}]' is not a {getattr(item, '__name__', 'number')}")
+    _check_values(obj, path)
     missing = [k for k in _CONFIG_KEYS if k not in obj["sweep_config"]]
     if missing:
         raise PublishError(f"{path}: field 'sweep_config.{missing[0]}' is missing; not a sweep's results")
@@ -110,6 +119,78 @@ def check_results(raw: bytes, path: Path) -> dict:
         return upgrade_results(obj)
     except (ValueError, KeyError, TypeError, AttributeError) as exc:
         raise PublishError(f"{path}: field 'schema' or an evaluation's 'method' is malformed ({exc})") from None
+
+
+def _bad_number(obj, where: str, finite: bool, depth: int = 0) -> str | None:
+    """The path of the first number under ``obj`` beyond +-`_MAX_VALUE` (or, with ``finite``, not finite: NaN is a
+    missing measurement in a row, never a setting of the sweep's config), None when there is none."""
+    import math
+
+    if depth > 64:
+        return where
+    if isinstance(obj, float):
+        return None if (math.isnan(obj) and not finite) or (math.isfinite(obj) and abs(obj) <= _MAX_VALUE) \
+            else where
+    if isinstance(obj, dict):
+        items = obj.items()
+    elif isinstance(obj, list):
+        items = enumerate(obj)
+    else:
+        return None
+    for k, v in items:
+        bad = _bad_number(v, f"{where}[{k}]" if isinstance(k, int) else f"{where}.{str(k)[:40]}", finite, depth + 1)
+        if bad is not None:
+            return bad
+    return None
+
+
+def _check_values(obj: dict, path: Path) -> None:
+    """What the report's builders read, checked before they run (PublishError naming the file and the field):
+    bounded counts, overlaps in [0, 1], methods from the method table (`mcdp.methods.METHODS`; a name with an
+    escape code is none), every row's method among them, every number within +-`_MAX_VALUE` (finite in the
+    sweep's config, which the report validates again)."""
+    import math
+
+    from mcdp.methods import METHODS
+
+    for field, most in _COUNTS.items():
+        if len(obj.get(field) or []) > most:
+            raise PublishError(f"{path}: field '{field}' has {len(obj[field])} entries, more than a report is built "
+                               f"from ({most})")
+    for i, v in enumerate(obj["overlaps"]):
+        if isinstance(v, bool) or not (math.isfinite(v) and 0.0 <= v <= 1.0):
+            raise PublishError(f"{path}: field 'overlaps[{i}]' is {str(v)[:40]}, not an overlap in [0, 1]")
+    for i, m in enumerate(obj["methods"]):
+        if m not in METHODS:
+            raise PublishError(f"{path}: field 'methods[{i}]' is {m[:40]!r}, not a method of mcdp/methods/__init__.py "
+                               f"({', '.join(METHODS)})")
+    for field in ("flat", "rows"):
+        for i, r in enumerate(obj[field]):
+            if "method" in r and r["method"] not in obj["methods"] and r["method"] not in METHODS:
+                raise PublishError(f"{path}: field '{field}[{i}].method' is {str(r['method'])[:40]!r}, not one of "
+                                   "the sweep's methods")
+    plan = obj["sweep_config"].get("plan")
+    if plan is not None:  # the L_con page's sequential reading reads it (scripts/publish_lcon.py)
+        from pydantic import ValidationError
+
+        from study.config import SweepPlan
+
+        try:
+            SweepPlan.model_validate(plan)
+        except ValidationError as exc:
+            e = exc.errors()[0]
+            where = ".".join(str(x) for x in e["loc"])
+            raise PublishError(f"{path}: field 'sweep_config.plan{'.' + where if where else ''}': "
+                               f"{str(e['msg'])[:160]}") from None
+    for field in ("sweep_config", "overlaps", "seeds"):
+        bad = _bad_number(obj[field], field, finite=True)
+        if bad is not None:
+            raise PublishError(f"{path}: field '{bad}' is not a finite number within +-{_MAX_VALUE:g}")
+    for field in ("rows", "flat", "aggregate", "data", "timing", "counters", "evaluations"):
+        bad = _bad_number(obj[field], field, finite=False)
+        if bad is not None:
+            raise PublishError(f"{path}: field '{bad}' is beyond +-{_MAX_VALUE:g} (NaN is a missing value; a number "
+                               "this large is no measurement)")
 
 
 def _joined(summary: dict, path: Path) -> dict:
@@ -152,6 +233,27 @@ def _build(name: str, results: dict, stage: Path, previews: list[str] | None) ->
     return plots, report_text(name, results, rel, previews)
 
 
+def _csv_results(csv: Path) -> dict:
+    """The results of a report committed with its results.csv only: the file checked by the one rule first
+    (`corelib.readfile.read_file`: a regular file inside docs/results/, no link, bounded), then parsed
+    (`study.results_files.read_results`); a csv that is not a sweep's is PublishError naming the file and the
+    column."""
+    from corelib.readfile import read_file
+    from study.results_files import read_results
+
+    read_file(csv, root=RESULTS, kind="results")  # ReadRefused, one line, for a link, a FIFO, 3 GB
+    try:
+        results = read_results(csv)
+    except KeyError as exc:
+        raise PublishError(f"{csv}: not a sweep's results.csv (no column {str(exc)[:60]})") from None
+    except (ValueError, TypeError, IndexError, UnicodeDecodeError) as exc:
+        raise PublishError(f"{csv}: not a sweep's results.csv ({str(exc)[:120]})") from None
+    bad = _bad_number(results.get("flat", []), "flat", finite=False)
+    if bad is not None:
+        raise PublishError(f"{csv}: field '{bad}' is beyond +-{_MAX_VALUE:g}")
+    return results
+
+
 def publish(name: str, sweep: Path | None) -> str:
     """Read and check everything (the sweep's files, or the committed results.json), build every output in a
     temporary folder, then write them into docs/results/ (whole files, never through a link:
@@ -172,11 +274,11 @@ def publish(name: str, sweep: Path | None) -> str:
         if b'"records"' in raw and RECORDS_KEY in json.loads(raw):
             raw = None  # already compact: left as committed
     else:
-        if not (out / "results.csv").is_file():
+        if not os.path.lexists(out / "results.csv"):
             raise PublishError(f"{out / 'results.json'}: no such file (nor a results.csv beside it)")
         from study.plots import make_plots
 
-        plots = make_plots(read_results(out / "results.csv"), make_folder(out) / "plots")
+        plots = make_plots(_csv_results(out / "results.csv"), make_folder(out) / "plots")
         return (f"wrote {len(plots)} plots from docs/results/{name}/results.csv (no results.json: "
                 f"docs/results/{name}.md not rebuilt)")
     with tempfile.TemporaryDirectory(prefix="publish_sweep.") as tmp:

@@ -346,3 +346,98 @@ def test_republish_list_refuses_a_hostile_page_in_one_line(tmp_path, kind):
     }[kind]
     page.unlink()
     assert rp.pages(results) == {"good": "publish_sweep"}
+
+
+# --- finding 5: publish_sweep's csv-only path by the rule; results validated before the builders use them ------
+
+@pytest.fixture()
+def ps(monkeypatch, tmp_path):
+    import importlib
+
+    mod = importlib.import_module("scripts.publish_sweep")
+    monkeypatch.setattr(mod, "RESULTS", tmp_path / "results")
+    (tmp_path / "results" / "old").mkdir(parents=True)
+    return mod
+
+
+@pytest.mark.parametrize("kind", ["link", "huge", "malformed"])
+def test_publish_csv_only_report_read_by_the_rule(ps, tmp_path, kind):
+    from corelib.readfile import ReadRefused
+
+    csv = tmp_path / "results" / "old" / "results.csv"
+    if kind == "link":
+        (tmp_path / "users").write_text("root:x:0:0:root:/root:/bin/bash\n")
+        csv.symlink_to(tmp_path / "users")
+    elif kind == "huge":
+        _huge(csv)
+    else:
+        csv.write_text("overlap,method,variant\n0.1,mono2,trained\n")
+    with pytest.raises(ReadRefused if kind != "malformed" else ps.PublishError) as e:  # before: tracebacks, 6 GB
+        ps.publish("old", None)
+    assert str(e.value) == {
+        "link": f"{csv}: is a symbolic link; a file the project wrote is read only as itself, never through a link",
+        "huge": f"{csv}: 3221225472 bytes, more than a results may hold ({64 * 2**20}); refused unread",
+        "malformed": f"{csv}: not a sweep's results.csv (no column 'seed')",
+    }[kind]
+    assert not (tmp_path / "results" / "old" / "plots").exists()  # nothing written
+
+
+@pytest.fixture(scope="module")
+def committed_results():
+    from study.results_files import read_results
+
+    return read_results(ROOT / "docs/results/propagation_budget/results.json")
+
+
+def _every_float(obj, value):
+    if isinstance(obj, dict):
+        return {k: _every_float(v, value) for k, v in obj.items()}
+    if isinstance(obj, list):
+        return [_every_float(v, value) for v in obj]
+    return value if isinstance(obj, float) else obj
+
+
+@pytest.mark.parametrize("case", ["nan", "big", "big_rows", "escape", "overlaps", "plan"])
+def test_results_checked_before_the_report_builders_use_them(ps, committed_results, case):
+    import copy
+    import json
+
+    from mcdp.methods import METHODS
+
+    r = copy.deepcopy(committed_results)
+    if case == "nan":
+        r = _every_float(r, float("nan"))
+    elif case == "big":
+        r = _every_float(r, 1e308)
+    elif case == "big_rows":
+        r["flat"] = _every_float(r["flat"], 1e308)
+    elif case == "escape":
+        m = r["methods"][0]
+        r = json.loads(json.dumps(r).replace(json.dumps(m), json.dumps(m + "\x1b[31m")))
+    elif case == "overlaps":
+        r["overlaps"] = [i / 100000 for i in range(100000)]
+    else:
+        r["sweep_config"]["plan"] = {"worlds": 5, "first_look": "soon"}
+    path = Path("SWEEP/results.json")
+    with pytest.raises(ps.PublishError) as e:  # before: pydantic / arange / KeyError tracebacks, 300 s and 3.2 GB
+        ps.check_results(json.dumps(r, allow_nan=True).encode(), path)
+    flat0 = next(k for k, v in r["flat"][0].items() if isinstance(v, float))
+    assert str(e.value) == {
+        "nan": "SWEEP/results.json: field 'overlaps[0]' is nan, not an overlap in [0, 1]",
+        "big": "SWEEP/results.json: field 'overlaps[0]' is 1e+308, not an overlap in [0, 1]",
+        "big_rows": f"SWEEP/results.json: field 'flat[0].{flat0}' is beyond +-1e+12 (NaN is a missing value; a number "
+                    "this large is no measurement)",
+        "escape": "SWEEP/results.json: field 'methods[0]' is 'mono2\\x1b[31m', not a method of "
+                  f"mcdp/methods/__init__.py ({', '.join(METHODS)})",
+        "overlaps": "SWEEP/results.json: field 'overlaps' has 100000 entries, more than a report is built from (64)",
+        "plan": "SWEEP/results.json: field 'sweep_config.plan.first_look': Input should be a valid integer",
+    }[case]
+
+
+def test_every_committed_results_passes_the_check(ps):
+    import glob
+
+    from corelib.readfile import read_inside
+
+    for p in sorted(glob.glob(str(ROOT / "docs/results/*/results.json"))):
+        ps.check_results(read_inside(p, ROOT / "docs/results"), Path(p))
