@@ -16,7 +16,8 @@ agreement (issue 57; the page docs/results/calibration.md, `scripts/publish_cali
 Example::
 
     anchors = load_anchors("configs/calibration/anchors.yaml")
-    values = {arm: arm_values(Path("sweeps/calibration") / arm) for arm in anchors.arms}
+    values = {arm: arm_values(Path("sweeps/calibration") / arm, columns(anchors), anchors.arms[arm].method)
+              for arm in anchors.arms}
     rows = read_anchors(anchors, values)
     print(agreement(rows))
 """
@@ -40,21 +41,23 @@ MAX_CSV_BYTES = 64 << 20
 BOOT, BOOT_SEED = 2000, 0
 
 
-def _columns(anchors: Anchors) -> set[str]:
+def columns(anchors: Anchors) -> set[str]:
+    """Every results.csv column an anchor of ``anchors`` reads."""
     cols = {anchors.metric_of(a) for a in anchors.anchors}
     cols |= {f"median.camera.{c}.abs_rel" for c in (FRONT, *SIDE_CAMERAS)}
     cols |= {"none.mean.abs_rel", "median.mean.abs_rel"}
     return cols
 
 
-def arm_values(folder: Path, columns: set[str]) -> dict[int, dict[str, float]]:
-    """{world: {column: value}} of one arm's sweep folder: its results.csv's as-trained rows that finished ("ok")."""
+def arm_values(folder: Path, columns: set[str], method: str) -> dict[int, dict[str, float]]:
+    """{world: {column: value}} of one arm's sweep folder: its results.csv's as-trained rows of ``method`` (the arm's,
+    or a yardstick's: ``constant_reference``, ``flat_road_prior``) that finished ("ok")."""
     from corelib.readfile import read_text_inside
 
     text = read_text_inside(Path(folder) / "results.csv", Path(folder), MAX_CSV_BYTES)
     out: dict[int, dict[str, float]] = {}
     for row in csv.DictReader(io.StringIO(text)):
-        if row.get("variant", "trained") != "trained" or row.get("status") != "ok":
+        if row.get("method") != method or row.get("variant", "trained") != "trained" or row.get("status") != "ok":
             continue
         try:
             world = int(row["world"])

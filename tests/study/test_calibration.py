@@ -106,3 +106,26 @@ def test_an_anchor_is_resolved_and_agrees_only_as_its_interval_says():
     assert (fig["resolved"], fig["agree"]) == (2, 1) and fig["unresolved"] == ["ego_masks_off"]
     missing = read_anchor(a, ego, {"mono2": base})
     assert missing["n"] == 0 and not missing["resolved"]
+
+
+def test_the_page_builds_from_values_with_its_headline_and_scatter(tmp_path, monkeypatch):
+    import importlib.util
+    import sys
+
+    spec = importlib.util.spec_from_file_location("publish_calibration",
+                                                  ANCHORS.parents[2] / "scripts" / "publish_calibration.py")
+    mod = importlib.util.module_from_spec(spec)
+    sys.modules["publish_calibration"] = mod
+    spec.loader.exec_module(mod)
+    monkeypatch.setattr(mod, "DIR", tmp_path)
+    a = load_anchors(ANCHORS)
+    cols = {"median.mean.abs_rel": 0.2, "none.mean.abs_rel": 0.25, "dep_con.mean": 0.1,
+            **{f"median.camera.{c}.abs_rel": 0.2 for c in ("CAM_FRONT", "CAM_FRONT_RIGHT", "CAM_BACK_RIGHT",
+                                                            "CAM_BACK_LEFT", "CAM_FRONT_LEFT")}}
+    shift = {"mono2_nomask": 0.05, "mono2_scratch": 0.03, "mcdp_m2": -0.01, "fsm": 0.02}
+    arms = {name: {str(w): {k: v + shift.get(name, 0.0) + 0.002 * w * (name != "mono2") for k, v in cols.items()}
+                   for w in range(4)} for name in a.arms if name in ("mono2", *shift)}
+    page = mod.build({"base": {"arms": arms, "yardsticks": {}, "train_s": {}}})
+    assert "**The benchmark reproduces 5 of 6 resolved real-data effects in sign**" in page
+    assert "| mcdp_vs_mono2 | test |" in page and "**agrees**" in page and "**disagrees**" in page
+    assert (tmp_path / "scatter.png").stat().st_size > 10_000
