@@ -181,6 +181,8 @@ def warp_by_depth(
     T_src_tgt: torch.Tensor,
     padding_mode: str = "zeros",
     eps: float = 1e-6,
+    lens_tgt: Optional[tuple[str, torch.Tensor]] = None,
+    lens_src: Optional[tuple[str, torch.Tensor]] = None,
 ):
     """Backward-warp a source image/feature map into the target view using target depth.
 
@@ -196,6 +198,9 @@ def warp_by_depth(
         T_src_tgt: (B, 4, 4) maps target-camera points into the source camera.
         padding_mode: ``grid_sample`` padding ("zeros", "border", "reflection").
         eps: a point is in front of the source camera when z > eps.
+        lens_tgt, lens_src: None (pinhole) or a camera-model row name and its (B, D) distortion parameters
+            (`mcdp.camera`); then ``depth_tgt`` is of the row's depth kind (range for kannala_brandt) and
+            valid also needs the source row's validity.
 
     Returns:
         warped: (B, C, H, W) source sampled at each target pixel's correspondence.
@@ -214,14 +219,19 @@ def warp_by_depth(
     _check_batch(T_src_tgt, "T_src_tgt", B)
     Hs, Ws = src.shape[-2:]
 
-    pts_tgt = depth_to_points(depth_tgt, K_tgt)
+    pts_tgt = depth_to_points(depth_tgt, K_tgt) if lens_tgt is None else unproject(depth_tgt, K_tgt, *lens_tgt[::-1])
     pts_src = transform_points(T_src_tgt, pts_tgt)
-    uv, z = points_to_pixels(pts_src, K_src, eps=eps)
+    if lens_src is None:
+        uv, z = points_to_pixels(pts_src, K_src, eps=eps)
+        front = z > eps
+    else:  # a pixel without a ray (NaN) samples outside the image
+        uv, front = project(pts_src.flatten(2), K_src, lens_src[1], lens_src[0], eps=eps)
+        uv, front = uv.nan_to_num(nan=-1e4).view(B, 2, *pts_src.shape[-2:]), front.view(B, 1, *pts_src.shape[-2:])
     grid = pixels_to_grid(uv, Hs, Ws).to(src.dtype)  # (B, H, W, 2)
     warped = F.grid_sample(src, grid, mode="bilinear", padding_mode=padding_mode, align_corners=False)
     with torch.no_grad():
         inside = (grid.abs() <= 1.0).all(dim=-1, keepdim=True).permute(0, 3, 1, 2)  # (B, 1, H, W)
-        valid = (inside & (z > eps)).to(src.dtype)
+        valid = (inside & front).to(src.dtype)
     return warped, valid
 
 

@@ -77,3 +77,59 @@ def test_a_range_row_unprojects_range_not_z_depth():
     _, Kt, dt = _cam("kannala_brandt")
     pts = TC.unproject(torch.full((1, 1, 4, 5), 3.0, dtype=torch.float64), Kt, dt, "kannala_brandt")
     assert torch.allclose(pts.norm(dim=1), torch.full((1, 4, 5), 3.0, dtype=torch.float64), rtol=0, atol=1e-12)
+
+
+# --------------------------------------------------------------------------- the generator-trainer convention
+BOX = np.array([[-6.0, -6.0, 0.0], [8.0, 6.0, 4.0]])  # a closed room, ego frame: every ray hits a wall
+
+
+def _T_ego_cam(yaw_deg, mount):
+    c, s = np.cos(np.radians(yaw_deg)), np.sin(np.radians(yaw_deg))
+    T = np.eye(4)
+    T[:3, :3] = np.column_stack([[s, -c, 0.0], [0.0, 0.0, -1.0], [c, s, 0.0]])  # x right, y down, z forward
+    T[:3, 3] = mount
+    return T
+
+
+def _render(cam, H, W, T):
+    """Depth (the row's kind) and a smooth texture of the room seen along the table's rays (a ray cast)."""
+    r = C.rays(cam, H, W)                       # (3, H*W) camera frame
+    d = T[:3, :3] @ r                           # ego frame
+    o = T[:3, 3][:, None]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        t = np.where(d > 0, (BOX[1][:, None] - o) / d, np.where(d < 0, (BOX[0][:, None] - o) / d, np.inf))
+    depth = t.min(0)                            # the ray parameter: z-depth (z = 1 rays) or range (unit rays)
+    p = o + depth * d
+    tex = 0.5 + 0.2 * np.sin(0.7 * p[0] + 0.5 * p[2]) + 0.2 * np.cos(0.6 * p[1] - 0.7 * p[2])
+    return depth.reshape(H, W), tex.reshape(H, W)
+
+
+@pytest.mark.parametrize("name", list(C.MODELS))
+def test_a_true_image_warped_with_true_depth_matches_its_neighbour(name):
+    """Generator (numpy rays) and trainer (torch twins, `warp_by_depth`) agree for every row: camera j's image
+    warped into camera i with i's true depth matches i's image on the overlap; a wrong depth, or (for a
+    distorted row) warping as if the camera were pinhole, does not."""
+    from mcdp.geometry import warp_by_depth
+
+    fish = name == "kannala_brandt"
+    H, W = (64, 64) if fish else (48, 64)
+    f = (W / 2) / np.radians(100.0) if fish else 32.0
+    K_ = np.array([[f, 0.0, W / 2], [0.0, f, H / 2], [0.0, 0.0, 1.0]])
+    dist = {"pinhole": (), "radtan": (-0.25, 0.06, 0.001, -0.001, 0.0), "kannala_brandt": (0.01, -0.002, 0.0, 0.0)}
+    cam = C.Intrinsics(name, K_, dist[name])
+    Ti, Tj = _T_ego_cam(0.0, [1.5, 0.0, 1.6]), _T_ego_cam(-60.0, [1.2, -0.7, 1.6])
+    di, ii = _render(cam, H, W, Ti)
+    _, ij = _render(cam, H, W, Tj)
+    Kt, lens = _t(K_)[None], (name, _t(dist[name]).view(1, -1))
+    T_j_i = _t(np.linalg.inv(Tj) @ Ti)[None]
+
+    def err(depth, lens_):
+        w, ok = warp_by_depth(_t(ij)[None, None], _t(depth)[None, None], Kt, Kt, T_j_i, lens_tgt=lens_, lens_src=lens_)
+        ok = ok[0, 0].bool()
+        return float((w[0, 0] - _t(ii)).abs()[ok].mean()), int(ok.sum())
+
+    e, n = err(di, lens)
+    assert n > 0.15 * H * W and e < 0.01
+    assert err(di * 1.3, lens)[0] > 2 * e
+    if name != "pinhole":
+        assert err(di, None)[0] > 2 * e   # the distorted images warped as if pinhole
