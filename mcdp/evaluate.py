@@ -3,6 +3,13 @@
 ``evaluate(ds, predict_fn, split, cfg)`` walks every rig sample (sequence,
 frame) of a split, asks ``predict_fn(seq, frame)`` for depth at the dataset
 resolution, and scores it against the rendered ground truth.
+``evaluate_passes(ds, {name: predict_fn}, ...)`` scores several passes (a sweep's variants) at once.
+
+Each thing is done once: a sample's ground truth, valid pixels, overlap, labels and regions are read once
+(`mcdp.eval_truth`) for every pass and stage scored on it (and for a predictor's own ground-truth stages,
+through a shared `TruthCache`); a stage whose depth equals an earlier one of the sample (the added "final", a cut
+pass's init) is scored once; a camera's metrics over every region and scaling are one product of its per-pixel
+terms with its region matrix, summed over images as they come (no per-image dicts are kept).
 
 Protocol (DESIGN.md, "Evaluation protocol"):
 
@@ -69,55 +76,41 @@ Example::
     ds = synth.open.open_dataset("data/tiny")
     m = evaluate(ds, lambda seq, f: {"init": model_depth(seq, f)}, "test", EvalConfig())
     print(mcdp.tables.format_tables(m))
+    both = evaluate_passes(ds, {"a": predict_a, "b": predict_b}, "test", EvalConfig())   # {"a": m_a, "b": m_b}
 
 The yardsticks' predictors (a constant depth, a flat road): `mcdp.priors`; labels' regions: `mcdp.label_regions`.
 """
 from __future__ import annotations
 
-from typing import Callable, Mapping
+from typing import Callable, Mapping, NamedTuple
 
 import numpy as np
 import torch
 
 from mcdp.config import EvalConfig
-from synth.overlap import BAND_NAMES, distance_bands, overlap_union
+from synth.overlap import BAND_NAMES
 from synth.protocol import DatasetReader
 
 from . import geometry
 from . import label_regions as LR
-from .per_sequence import per_sequence
-from .truth import camera_poses_at
-from .metrics import (
-    metric_names,
-    metric_terms,
-    ratio_of_medians,
-    reduce_terms,
-    clamp_depth,
-    dep_con,
-    nan_metrics,
-    valid_gt_mask,
-)
+from . import metrics as MT
+from .eval_truth import BANDS, REGIONS, TruthCache, _Rig, _Truth  # noqa: F401 (REGIONS, _Rig: re-exported)
+from .per_sequence import METRIC as PS_METRIC, REGIONS as PS_REGIONS, per_sequence_arrays
+from .metrics import clamp_depth, dep_con, metric_names, metric_terms, ratio_of_medians
 
-__all__ = ["EvalConfig", "SCALINGS", "evaluate"]
+__all__ = ["EvalConfig", "SCALINGS", "TruthCache", "evaluate", "evaluate_passes"]
 
 SCALINGS = ("none", "median", "rig_median")
-#: band regions: pixels binned by their distance to the nearest overlap pixel of the same image
-#: (`synth.overlap.distance_bands`; "band0" is the overlap itself)
-BANDS = tuple(f"band{k}" for k in range(len(BAND_NAMES)))
-REGIONS = ("all", "overlap", "non_overlap") + BANDS
 
 
 # --------------------------------------------------------------------------- helpers
-def _nanmean(values) -> float:
-    a = np.asarray(list(values), dtype=np.float64)
-    if a.size == 0 or np.all(np.isnan(a)):
-        return float("nan")
-    return float(np.nanmean(a))
-
-
-def _mean_dicts(dicts) -> dict:
-    dicts = list(dicts)
-    return {k: _nanmean(d[k] for d in dicts) for k in metric_names()} if dicts else nan_metrics()
+def _nanmean(a: np.ndarray, axis: int) -> np.ndarray:
+    """np.nanmean along ``axis``, NaN where every value is NaN (without its warning)."""
+    a = np.asarray(a, dtype=np.float64)
+    ok = ~np.isnan(a)
+    n = ok.sum(axis)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        return np.where(n > 0, np.where(ok, a, 0.0).sum(axis) / np.maximum(n, 1), np.nan)
 
 
 def eval_frames(n_frames: int, cfg: EvalConfig) -> range:
@@ -179,126 +172,155 @@ def _splat_pairs(depths, pairs, Ks, T_c_c, shapes, scene_masks):
     return d_out, h_out
 
 
-class _Rig:
-    """What `evaluate` reads of the rig once: camera names, sizes, K, T_ego_cam, scene masks, and the ordered
-    neighbour pairs (src j, tgt i) with their relative poses T_ci_cj."""
+class _Scored(NamedTuple):
+    """One stage's scores of one sample: ``vals`` (scalings, regions, cameras, metrics) per-image metrics (NaN:
+    nothing to score), ``dc`` (pairs,) Dep Con per ordered pair, ``spreads`` the p90/p10 of the cameras with >= 10
+    valid pixels, ``holes`` (scalings, kinds, 2) [pixels beyond HOLE_RATIO x their depth, pixels] (None: no labels)."""
 
-    def __init__(self, ds: DatasetReader) -> None:
-        self.names = list(ds.camera_names)
-        specs = list(ds.cameras)
-        self.shapes = [(int(s.height), int(s.width)) for s in specs]
-        self.Ks = [np.asarray(s.K, dtype=np.float64) for s in specs]
-        self.Ts = [np.asarray(s.T_ego_cam, dtype=np.float64) for s in specs]
-        self.masks = [np.asarray(ds.mask(n), dtype=bool) for n in self.names]
-        for c, (m, shp) in enumerate(zip(self.masks, self.shapes)):
-            if m.shape != shp:
-                raise ValueError(f"ds.mask({self.names[c]!r}) has shape {m.shape}, camera is {shp}")
-        self.pairs = []  # ordered (src j, tgt i)
-        for a, b in ds.neighbours:
-            self.pairs += [(int(a), int(b)), (int(b), int(a))]
-        self.nbrs = {i: sorted({j for j, t in self.pairs if t == i}) for i in range(len(self.names))}
-        self.T_c_c = {(i, j): np.linalg.inv(self.Ts[i]) @ self.Ts[j] for j, i in self.pairs}  # T_ci_cj
-        self.pair_key = {(j, i): f"{self.names[j]}->{self.names[i]}" for j, i in self.pairs}
-        self.labels = LR.LabelIndex.of(ds)  # None: no semantic labels, no class / motion regions
+    vals: np.ndarray
+    dc: np.ndarray
+    spreads: list
+    holes: np.ndarray | None
 
 
-class _Truth:
-    """One sample's ground truth: depth per camera, its valid pixels, and those pixels' depth, log depth and
-    region selectors (all / seen by a neighbour / not), gathered once (metrics only look at valid pixels)."""
-
-    def __init__(self, ds: DatasetReader, rig: _Rig, seq: str, f: int, cfg: EvalConfig) -> None:
-        self.gts = [np.asarray(ds.read_depth(seq, n, f), dtype=np.float64) for n in rig.names]
-        for c, g in enumerate(self.gts):
-            if g.shape != rig.shapes[c]:
-                raise ValueError(f"ds.read_depth({seq!r}, {rig.names[c]!r}, {f}) has shape {g.shape}, expected "
-                                 f"{rig.shapes[c]}")
-        self.valids = [valid_gt_mask(g, m, cfg.min_depth, cfg.max_depth) for g, m in zip(self.gts, rig.masks)]
-        Ts = camera_poses_at(ds, seq, f)  # each camera's own pose at its trigger time: the static rig when synchronous
-        self.T_c_c = {(i, j): np.linalg.inv(Ts[i]) @ Ts[j] for j, i in rig.pairs}  # T_ci_cj of this frame (Dep Con)
-        overlaps = [overlap_union(i, self.gts, rig.Ks, Ts, rig.masks, rig.nbrs[i]) for i in range(len(rig.names))]
-        self.g_v = [g[v] for g, v in zip(self.gts, self.valids)]  # 1-D, float64
-        self.lg_v = [np.log(g) for g in self.g_v]
-        ov_v = [o[v] for o, v in zip(overlaps, self.valids)]
-        self.region_sel = {"all": [None] * len(rig.names), "overlap": ov_v, "non_overlap": [~o for o in ov_v]}
-        bands_v = [distance_bands(o)[v] for o, v in zip(overlaps, self.valids)]
-        for k, name in enumerate(BANDS):
-            self.region_sel[name] = [b == k for b in bands_v]
-        self.overlaps = overlaps  # (H, W) bool per camera: the ORACLE of the overlap reads it
-        if rig.labels is not None:  # class groups and motion, on the valid pixels
-            sels = [rig.labels.selectors(np.asarray(ds.read_semantic(seq, n, f))[v])
-                    for n, v in zip(rig.names, self.valids)]
-            for r in LR.REGIONS:
-                self.region_sel[r] = [s[r] for s in sels]
-            for b in BANDS:  # the road alone by distance to the overlap: what the neighbours share most
-                self.region_sel[f"road_{b}"] = [bd & s["class_road"] for bd, s in zip(self.region_sel[b], sels)]
-            self.label_sel = sels
-
-
-def _score(preds: list, truth: _Truth, rig: _Rig, cfg: EvalConfig, acc: dict, dc_acc: dict, spreads: list,
-           holes: dict) -> None:
-    """Append one stage's per-image metrics of one sample (per scaling, region, camera) to `acc`, its Dep Con
-    per pair to `dc_acc`, its prediction spreads to `spreads` and its hole counts (with labels) to `holes`."""
-    n_cam = len(rig.names)
+def _score(preds: list, truth: _Truth, rig: _Rig, cfg: EvalConfig) -> _Scored:
+    """One stage's per-image metrics of one sample, every scaling and region of a camera in one product of its
+    per-pixel terms (rows: metric-major, then scaling) with the region matrix; its Dep Con, spreads and holes."""
+    table = MT.METRICS  # read when called: a metric is one row there
+    n_m, roots = len(table), np.array([m.root_after_mean for m in table])
+    vals = np.full((len(SCALINGS), len(truth.regions), len(rig.names), n_m), np.nan)
+    holes = None if rig.labels is None else np.zeros((len(SCALINGS), len(LR.HOLE_KINDS), 2), np.int64)
+    hole_regions = [truth.regions.index(r) for r in LR.HOLE_REGIONS] if holes is not None else []
     p_v = [p[v] for p, v in zip(preds, truth.valids)]
+    spreads = []
     for p in p_v:  # collapse diagnostic (mcdp.diagnostics): p90/p10 of the prediction
         if p.size >= 10:
             q10, q90 = np.percentile(p, [10, 90])
             spreads.append(float(q90 / max(q10, 1e-6)))
-    g_v = truth.g_v
-    rig_scale = ratio_of_medians(np.concatenate(g_v), np.concatenate(p_v))
-    scales = {
-        "none": [1.0] * n_cam,
-        "median": [ratio_of_medians(g, p) for g, p in zip(g_v, p_v)],
-        "rig_median": [rig_scale] * n_cam,
-    }
-    for sc in SCALINGS:
-        for c in range(n_cam):
-            s_c = scales[sc][c]
-            if g_v[c].size == 0 or np.isnan(s_c):
-                for r in truth.region_sel:
-                    acc[sc][r][c].append(nan_metrics())
-                continue
-            p_sc = clamp_depth(p_v[c] * s_c, cfg.min_depth, cfg.max_depth)
-            terms = metric_terms(g_v[c], p_sc, truth.lg_v[c])
-            for r, sel in truth.region_sel.items():
-                acc[sc][r][c].append(reduce_terms(terms, sel[c]))
-            if rig.labels is not None:
-                for kind, (n_far, n) in LR.hole_counts(p_sc, g_v[c], truth.label_sel[c]).items():
-                    h = holes.setdefault(sc, {}).setdefault(kind, [0, 0])
-                    h[0] += n_far
-                    h[1] += n
+    rig_scale = ratio_of_medians(np.concatenate(truth.g_v), np.concatenate(p_v))
+    for c, (g, p) in enumerate(zip(truth.g_v, p_v)):
+        if g.size == 0:
+            continue
+        scales = (1.0, ratio_of_medians(g, p), rig_scale)  # SCALINGS order
+        ks = [k for k, s in enumerate(scales) if not np.isnan(s)]
+        if not ks:
+            continue
+        n_s = len(ks)
+        p_sc = clamp_depth(np.stack([p * scales[k] for k in ks]), cfg.min_depth, cfg.max_depth)  # (S, N)
+        rows = metric_terms(np.tile(g, n_s), p_sc.reshape(-1), np.tile(truth.lg_v[c], n_s)).reshape(n_m * n_s, -1)
+        if holes is not None:
+            rows = np.concatenate([rows, (p_sc > LR.HOLE_RATIO * g).astype(np.float64)])
+        # (rows, regions); torch's product runs on the evaluation's torch threads (numpy's BLAS would spawn its own)
+        sums = (torch.from_numpy(np.ascontiguousarray(rows)) @ torch.from_numpy(truth.R[c]).T).numpy()
+        n = truth.counts[c]
+        with np.errstate(invalid="ignore", divide="ignore"):
+            means = (sums[: n_m * n_s] / n).reshape(n_m, n_s, -1)
+        means[..., n == 0] = np.nan
+        means[roots] = np.sqrt(means[roots])
+        vals[ks, :, c, :] = means.transpose(1, 2, 0)
+        for h, r in enumerate(hole_regions):
+            holes[ks, h, 0] += np.rint(sums[n_m * n_s:, r]).astype(np.int64)
+            holes[ks, h, 1] += int(n[r])
     # Dep Con: unscaled (metric) predictions, clamped like the "none" metrics
     metric_preds = [clamp_depth(p, cfg.min_depth, cfg.max_depth) for p in preds]
     d_hats, hits = _splat_pairs(metric_preds, rig.pairs, rig.Ks, truth.T_c_c, rig.shapes, rig.masks)
-    for (j, i), d_hat, hit in zip(rig.pairs, d_hats, hits):
-        dc_acc[(j, i)].append(dep_con(metric_preds[i], d_hat, truth.gts[i], truth.valids[i] & hit))
+    dc = np.array([dep_con(metric_preds[i], d_hat, truth.gts[i], truth.valids[i] & hit)
+                   for (j, i), d_hat, hit in zip(rig.pairs, d_hats, hits)], dtype=np.float64)
+    return _Scored(vals, dc, spreads, holes)
 
 
-def _summary(rig: _Rig, acc: dict, dc_acc: dict, spreads: list, holes: dict, seqs: list) -> dict:
-    """One stage's entry of metrics.json from its per-image values (means over images, then cameras)."""
-    names, st = rig.names, {}
-    for sc in SCALINGS:
-        per = {r: {names[c]: _mean_dicts(acc[sc][r][c]) for c in range(len(names))} for r in acc[sc]}
-        st[sc] = {
-            "mean": _mean_dicts(per["all"].values()),
-            "per_camera": per["all"],
-            "overlap": _mean_dicts(per["overlap"].values()),
-            "non_overlap": _mean_dicts(per["non_overlap"].values()),
-            "overlap_per_camera": per["overlap"],
-            "non_overlap_per_camera": per["non_overlap"],
-            "bands": {name: _mean_dicts(per[b].values()) for b, name in zip(BANDS, BAND_NAMES)},
-            "per_sequence": per_sequence(acc[sc], seqs),
-        }
+class _Stage:
+    """One stage's scores over the samples of a pass, summed as they come (`_summary` reduces them)."""
+
+    def __init__(self) -> None:
+        self.tot = self.cnt = self.holes = None
+        self.ps: list[np.ndarray] = []   # per image: (scalings, PS_REGIONS, cameras) abs_rel (mcdp.per_sequence)
+        self.dc: list[np.ndarray] = []
+        self.spreads: list[float] = []
+
+    def add(self, s: _Scored, ps_regions: list[int], metric: int | None) -> None:
+        ok = ~np.isnan(s.vals)
+        if self.tot is None:
+            self.tot, self.cnt = np.zeros_like(s.vals), np.zeros(s.vals.shape, np.int64)
+            self.holes = None if s.holes is None else np.zeros_like(s.holes)
+        self.tot += np.where(ok, s.vals, 0.0)
+        self.cnt += ok
+        nan = np.full((len(SCALINGS), len(ps_regions), s.vals.shape[2]), np.nan)
+        self.ps.append(nan if metric is None else s.vals[:, ps_regions][..., metric])
+        self.dc.append(s.dc)
+        self.spreads += s.spreads
+        if s.holes is not None:
+            self.holes += s.holes
+
+
+def _metrics(v: np.ndarray) -> dict:
+    return {k: float(x) for k, x in zip(metric_names(), v)}
+
+
+def _summary(rig: _Rig, regions: tuple, st: _Stage, seqs: list) -> dict:
+    """One stage's entry of metrics.json from its summed per-image values (means over images, then cameras)."""
+    names, out = rig.names, {}
+    with np.errstate(invalid="ignore", divide="ignore"):
+        per = np.where(st.cnt > 0, st.tot / np.maximum(st.cnt, 1), np.nan)  # (scalings, regions, cameras, metrics)
+    cams = _nanmean(per, axis=2)
+    at = {r: k for k, r in enumerate(regions)}
+    ps = np.stack(st.ps)  # (images, scalings, PS_REGIONS, cameras)
+    for k, sc in enumerate(SCALINGS):
+        def mean(r, k=k):
+            return _metrics(cams[k, at[r]])
+
+        def per_cam(r, k=k):
+            return {names[c]: _metrics(per[k, at[r], c]) for c in range(len(names))}
+
+        out[sc] = {"mean": mean("all"), "per_camera": per_cam("all"), "overlap": mean("overlap"),
+                   "non_overlap": mean("non_overlap"), "overlap_per_camera": per_cam("overlap"),
+                   "non_overlap_per_camera": per_cam("non_overlap"),
+                   "bands": {name: mean(b) for b, name in zip(BANDS, BAND_NAMES)},
+                   "per_sequence": per_sequence_arrays({r: ps[:, k, j] for j, r in enumerate(PS_REGIONS)}, seqs)}
         if rig.labels is not None:
-            st[sc]["classes"] = {g: _mean_dicts(per[f"class_{g}"].values()) for g in LR.GROUPS}
-            st[sc]["motion"] = {m: _mean_dicts(per[m].values()) for m in LR.MOTIONS}
-            st[sc]["holes"] = LR.hole_summary(holes.get(sc, {}))
-            st[sc]["road_bands"] = {name: _mean_dicts(per[f"road_{b}"].values()) for b, name in zip(BANDS, BAND_NAMES)}
-    per_pair = {rig.pair_key[p]: _nanmean(v) for p, v in dc_acc.items()}
-    per_cam = {names[i]: _nanmean(per_pair[rig.pair_key[(j, i)]] for j in rig.nbrs[i]) for i in range(len(names))}
-    st["dep_con"] = {"mean": _nanmean(per_pair.values()), "per_pair": per_pair, "per_camera": per_cam}
-    st["spread"] = {"ratio": float(np.median(spreads)) if spreads else float("nan")}
-    return st
+            out[sc]["classes"] = {g: mean(f"class_{g}") for g in LR.GROUPS}
+            out[sc]["motion"] = {m: mean(m) for m in LR.MOTIONS}
+            out[sc]["holes"] = LR.hole_summary({kind: st.holes[k, h].tolist() for h, kind in enumerate(LR.HOLE_KINDS)})
+            out[sc]["road_bands"] = {name: mean(f"road_{b}") for b, name in zip(BANDS, BAND_NAMES)}
+    pairs = _nanmean(np.stack(st.dc), axis=0) if rig.pairs else np.zeros(0)
+    per_pair = {rig.pair_key[p]: float(v) for p, v in zip(rig.pairs, pairs)}
+    per_cam = {names[i]: float(_nanmean(np.array([per_pair[rig.pair_key[(j, i)]] for j in rig.nbrs[i]]), axis=0))
+               for i in range(len(names))}
+    out["dep_con"] = {"mean": float(_nanmean(pairs, axis=0)), "per_pair": per_pair, "per_camera": per_cam}
+    out["spread"] = {"ratio": float(np.median(st.spreads)) if st.spreads else float("nan")}
+    return out
+
+
+class _Pass:
+    """One pass (one ``predict_fn``) of `evaluate_passes`: its stages, checked sample by sample, and their scores."""
+
+    def __init__(self) -> None:
+        self.stages: list[str] | None = None
+        self.acc: dict[str, _Stage] = {}
+
+    def add(self, seq: str, f: int, raw: Mapping, truth: _Truth, rig: _Rig, cfg: EvalConfig, done: list) -> None:
+        """Score one sample's stages ``raw``; ``done``: the sample's (predictions, scores) so far, of every pass (a
+        stage bitwise equal to one of them, e.g. "final" or a cut pass's init, is scored once)."""
+        raw = dict(raw)
+        if not raw:
+            raise ValueError(f"predict_fn({seq!r}, {f}) returned no stage")
+        keys = list(raw) + ([] if "final" in raw else ["final"])  # "final" added here = the last stage
+        if self.stages is None:
+            self.stages, self.acc = keys, {s: _Stage() for s in keys}
+        elif keys != self.stages:
+            raise ValueError(f"predict_fn({seq!r}, {f}) returned stages {keys}, earlier samples {self.stages}")
+        names = metric_names()
+        metric = names.index(PS_METRIC) if PS_METRIC in names else None
+        ps_regions = [truth.regions.index(r) for r in PS_REGIONS]
+        scored = None
+        for stage in keys:
+            if stage in raw:  # else "final" added: the last stage's scores again
+                preds = _as_stack(raw[stage], rig.names, rig.shapes, stage)
+                scored = next((s for p, s in done if all(np.array_equal(a, b) for a, b in zip(p, preds))), None)
+                if scored is None:
+                    scored = _score(preds, truth, rig, cfg)
+                    done.append((preds, scored))
+            self.acc[stage].add(scored, ps_regions, metric)
 
 
 # --------------------------------------------------------------------------- evaluation
@@ -329,66 +351,37 @@ def evaluate(
         ValueError: the split has no evaluable frame, or predict_fn returns the
             wrong shapes / an inconsistent set of stages.
     """
+    return evaluate_passes(ds, {"": predict_fn}, split, cfg, progress)[""]
+
+
+def evaluate_passes(ds: DatasetReader, passes: Mapping[str, Callable], split: str = "test",
+                    cfg: EvalConfig | None = None, progress: bool = True, truths: TruthCache | None = None) -> dict:
+    """`evaluate` of several passes over one split at once, {name: metrics.json dict} in ``passes`` order: sample by
+    sample, the ground truth is read once (``truths``: shared with a predictor's ground-truth stages; None: a cache
+    of its own) and each pass's ``predict_fn(seq, frame)`` is called in turn, then scored on it."""
     cfg = cfg if cfg is not None else EvalConfig()
-    rig = _Rig(ds)
+    truths = truths if truths is not None else TruthCache(ds, cfg)
+    rig = truths.rig
     samples = [(seq, f) for seq in ds.split(split) for f in eval_frames(ds.n_frames(seq), cfg)]
     if not samples:
         raise ValueError(f"split {split!r} has no frame to evaluate (skip_ends={cfg.skip_ends})")
-
-    stages: list[str] | None = None
-    # acc[stage][scaling][region][cam] -> list of per-image metric dicts
-    acc: dict = {}
-    dc_acc: dict = {}
-    regions = REGIONS + ((LR.REGIONS + tuple(f"road_{b}" for b in BANDS)) if rig.labels is not None else ())
+    state = {name: _Pass() for name in passes}
     it = samples
     if progress:
         from corelib.progress import progress_bar
 
         it = progress_bar(samples, desc=f"eval {split}", unit="sample")
+    regions: tuple = ()
     for seq, f in it:
-        truth = _Truth(ds, rig, seq, f, cfg)
-        raw = dict(predict_fn(seq, f))
-        if not raw:
-            raise ValueError(f"predict_fn({seq!r}, {f}) returned no stage")
-        keys = list(raw)
-        alias = None  # "final" added here = the last stage: copy its results instead of recomputing
-        if "final" not in raw:
-            alias = keys[-1]
-            keys.append("final")
-        if stages is None:
-            stages = keys
-            acc = {s: {sc: {r: [[] for _ in rig.names] for r in regions} for sc in SCALINGS} for s in stages}
-            dc_acc = {s: {p: [] for p in rig.pairs} for s in stages}
-            spread_acc = {s: [] for s in stages}
-            hole_acc: dict = {s: {} for s in stages}
-        elif keys != stages:
-            raise ValueError(f"predict_fn({seq!r}, {f}) returned stages {keys}, earlier samples {stages}")
-
-        for stage in stages:
-            if stage == "final" and alias is not None:
-                for sc in SCALINGS:
-                    for r in regions:
-                        for c in range(len(rig.names)):
-                            acc[stage][sc][r][c].append(acc[alias][sc][r][c][-1])
-                for p in rig.pairs:
-                    dc_acc[stage][p].append(dc_acc[alias][p][-1])
-                spread_acc[stage] = spread_acc[alias]
-                hole_acc[stage] = hole_acc[alias]
-                continue
-            preds = _as_stack(raw[stage], rig.names, rig.shapes, stage)
-            _score(preds, truth, rig, cfg, acc[stage], dc_acc[stage], spread_acc[stage], hole_acc[stage])
-
+        truth = truths.get(seq, f)
+        regions = truth.regions
+        done: list = []
+        for name, fn in passes.items():
+            state[name].add(seq, f, fn(seq, f), truth, rig, cfg, done)
     seqs = [seq for seq, _ in samples]
-    out_stages = {stage: _summary(rig, acc[stage], dc_acc[stage], spread_acc[stage], hole_acc[stage], seqs)
-                  for stage in stages}
-    return {
-        "split": split,
-        "n_samples": len(samples),
-        "min_depth": float(cfg.min_depth),
-        "max_depth": float(cfg.max_depth),
-        "frame_stride": int(cfg.frame_stride),
-        "skip_ends": bool(cfg.skip_ends),
-        "cameras": rig.names,
-        "ground_truth": dict(ds.ground_truth or {"kind": "unknown"}),  # read_depth's provenance
-        "stages": out_stages,
-    }
+    return {name: {"split": split, "n_samples": len(samples), "min_depth": float(cfg.min_depth),
+                   "max_depth": float(cfg.max_depth), "frame_stride": int(cfg.frame_stride),
+                   "skip_ends": bool(cfg.skip_ends), "cameras": list(rig.names),
+                   "ground_truth": dict(ds.ground_truth or {"kind": "unknown"}),  # read_depth's provenance
+                   "stages": {s: _summary(rig, regions, p.acc[s], seqs) for s in p.stages}}
+            for name, p in state.items()}

@@ -30,6 +30,8 @@ MOTIONS = ("static", "moving")
 REGIONS = tuple(f"class_{g}" for g in GROUPS) + MOTIONS
 HOLE_RATIO = 2.0
 HOLE_KINDS = ("moving", "parked")
+#: the region of each hole kind (`HOLE_KINDS` order)
+HOLE_REGIONS = ("class_vehicle_moving", "class_vehicle_parked")
 
 
 class LabelIndex:
@@ -66,7 +68,7 @@ def hole_counts(pred: np.ndarray, gt: np.ndarray, sel: dict[str, np.ndarray]) ->
     """{kind: (pixels predicted beyond HOLE_RATIO x their depth, pixels)} for moving and parked vehicles."""
     far = pred > HOLE_RATIO * gt
     out = {}
-    for kind, region in zip(HOLE_KINDS, ("class_vehicle_moving", "class_vehicle_parked")):
+    for kind, region in zip(HOLE_KINDS, HOLE_REGIONS):
         s = sel[region]
         out[kind] = (int(np.count_nonzero(far & s)), int(np.count_nonzero(s)))
     return out

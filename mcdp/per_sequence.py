@@ -20,6 +20,8 @@ from __future__ import annotations
 import math
 from collections.abc import Iterable, Mapping, Sequence
 
+import numpy as np
+
 #: the regions and the metric kept per sequence (a small record: 3 regions x cameras x sequences per scaling)
 REGIONS = ("all", "overlap", "non_overlap")
 METRIC = "abs_rel"
@@ -28,22 +30,43 @@ METRIC = "abs_rel"
 def per_sequence(per_image: Mapping[str, Sequence[Sequence[Mapping[str, float]]]], seqs: Sequence[str]) -> dict:
     """``{region: {seq: {"sum": [per camera], "n": [per camera]}}}`` from one scaling's per-image metrics
     ``per_image[region][camera][k]`` (k = the k-th sample, whose sequence is ``seqs[k]``)."""
-    out: dict = {}
+    arrays = {}
     for region in REGIONS:
         cams = per_image.get(region)
         if cams is None:
             continue
-        rec: dict = {}
         for c, values in enumerate(cams):
             if len(values) != len(seqs):
                 raise ValueError(f"per_sequence: camera {c} of region {region!r} has {len(values)} images, "
                                  f"expected {len(seqs)}")
-            for seq, m in zip(seqs, values):
-                r = rec.setdefault(seq, {"sum": [0.0] * len(cams), "n": [0] * len(cams)})
-                v = m.get(METRIC, math.nan)
-                if isinstance(v, (int, float)) and math.isfinite(v):
-                    r["sum"][c] += float(v)
-                    r["n"][c] += 1
+        arrays[region] = np.array([[_number(m.get(METRIC, math.nan)) for m in values] for values in cams],
+                                  dtype=np.float64).T.reshape(len(seqs), len(cams))
+    return per_sequence_arrays(arrays, seqs)
+
+
+def _number(v) -> float:
+    return float(v) if isinstance(v, (int, float)) else math.nan
+
+
+def per_sequence_arrays(values: Mapping[str, np.ndarray], seqs: Sequence[str]) -> dict:
+    """`per_sequence` from ``values[region]``: (images, cameras) float, image k of sequence ``seqs[k]``; a value
+    that is not finite is left out. The sums run over a sequence's images in order (as a loop adds them)."""
+    out: dict = {}
+    for region in REGIONS:
+        v = values.get(region)
+        if v is None:
+            continue
+        v = np.asarray(v, dtype=np.float64)
+        if v.shape[0] != len(seqs):
+            raise ValueError(f"per_sequence: region {region!r} has {v.shape[0]} images, expected {len(seqs)}")
+        ok = np.isfinite(v)
+        rec: dict = {}
+        for seq in dict.fromkeys(seqs):  # first-seen order
+            rows = [k for k, s in enumerate(seqs) if s == seq]
+            total = np.zeros(v.shape[1])
+            for k in rows:  # in image order, as the per-image loop summed them
+                total += np.where(ok[k], v[k], 0.0)
+            rec[seq] = {"sum": [float(x) for x in total], "n": [int(x) for x in ok[rows].sum(axis=0)]}
         out[region] = rec
     return out
 

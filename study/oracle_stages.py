@@ -32,28 +32,81 @@ def reads_no_other_camera(pred, oracle_range) -> bool:
 
 
 def _truth(probe, seq: str, frame: int, size: tuple[int, int]):
-    """(ground truth, its valid pixels, the overlap pixels), (N, 1, h, w) at ``size``, on the predictor's device."""
-    from mcdp.truth import ground_truth_at, overlap_at
-
+    """(ground truth, its valid pixels, the overlap pixels), (N, 1, h, w) at ``size``, on the predictor's device:
+    read once per sample (the probe's ``sample_memo``), from the evaluation's own reading of it when the probe has
+    one (``probe.truths``, `mcdp.evaluate.TruthCache`, of the same dataset), else from the dataset
+    (`mcdp.truth.ground_truth_at`, `mcdp.truth.overlap_at`: the same values)."""
     pred = probe.pred
-    gt, valid = ground_truth_at(pred.ds, pred.reader.mask_full, seq, frame, size, probe.oracle_range)
-    ov = overlap_at(pred.ds, pred.reader.mask_full, seq, frame, size)
-    return gt.to(pred.device), valid.to(pred.device), ov.to(pred.device)
+    key = ("truth", seq, frame, tuple(size), probe.oracle_range)
+    memo = probe.sample_memo
+    if key not in memo:
+        shared = probe.truths
+        if shared is not None and shared.ds is pred.ds:
+            gt, valid, ov = _truth_from(shared.get(seq, frame), pred.reader.mask_full, size, probe.oracle_range)
+        else:
+            from mcdp.truth import ground_truth_at, overlap_at
+
+            gt, valid = ground_truth_at(pred.ds, pred.reader.mask_full, seq, frame, size, probe.oracle_range)
+            ov = overlap_at(pred.ds, pred.reader.mask_full, seq, frame, size)
+        memo[key] = (gt.to(pred.device), valid.to(pred.device), ov.to(pred.device))
+    return memo[key]
+
+
+def _truth_from(truth, masks, size: tuple[int, int], depth_range: tuple[float, float]):
+    """`_truth`'s three maps from an evaluation's `mcdp.eval_truth._Truth` (its depth as read, float64, and its
+    overlap), by the very operations of `mcdp.truth.ground_truth_at` and `mcdp.truth.overlap_at`."""
+    import numpy as np
+    import torch
+    import torch.nn.functional as F
+
+    lo, hi = depth_range
+    gts, valids, ovs = [], [], []
+    for c, depth in enumerate(truth.gts):
+        g = torch.from_numpy(depth.astype("float32"))[None, None]
+        v = (g >= lo) & (g <= hi) & torch.as_tensor(masks[c], dtype=torch.bool)[None, None]
+        gts.append(F.interpolate(g, size=size, mode="nearest"))
+        valids.append(F.interpolate(v.float(), size=size, mode="nearest") > 0.5)
+        m = np.where(truth.overlaps[c], depth, 0.0).astype(np.float32)
+        ovs.append(F.interpolate(torch.from_numpy(m)[None, None], size=size, mode="nearest") > 0)
+    return torch.cat(gts), torch.cat(valids), torch.cat(ovs)
 
 
 def _fitted(probe, seq: str, frame: int, out: dict, overlap_only: bool) -> "torch.Tensor":
     """The run's bases at per-image weights fitted to the ground truth (on the overlap pixels only: no overlap
     pixel gives 1/n), times the network's scale."""
     from mcdp.methods.base import combine_bases
-    from mcdp.oracle import fit_oracle_weights
 
     net = probe.pred.network
     bases = out["bases"][0]  # (N, n, h, w)
-    gt, valid, ov = _truth(probe, seq, frame, tuple(bases.shape[-2:]))
-    wts = fit_oracle_weights(bases, gt, valid & ov if overlap_only else valid, net.to_depth)
+    wts = _weights(probe, seq, frame, bases, overlap_only)
     if not overlap_only:
         probe.accumulate("oracle_weight_move", (wts - 1.0 / wts.shape[1]).abs().mean(1).sum())
     return net.to_depth(combine_bases(bases.float(), wts))[1] * out["scale"].view(-1, 1, 1, 1)
+
+
+def _weights(probe, seq: str, frame: int, bases, overlap_only: bool) -> "torch.Tensor":
+    """(N, n) ORACLE weights of one sample (`mcdp.oracle.fit_oracle_weights`); when both ORACLE stages ride on the
+    pass, both fits run as one batch of 2N images, kept in the probe's ``sample_memo`` for the second stage: each
+    image's loss, gradient and Adam step are its own, so the weights are those of two separate fits."""
+    from mcdp.oracle import fit_oracle_weights
+
+    memo = probe.sample_memo
+    if ("oracle_weights", overlap_only) not in memo:
+        gt, valid, ov = _truth(probe, seq, frame, tuple(bases.shape[-2:]))
+        both = {ORACLE, ORACLE_OVL} <= {v.name for v in probe.extra}
+        kinds = (False, True) if both else (overlap_only,)
+        wts = fit_oracle_weights(torch_cat([bases] * len(kinds)), torch_cat([gt] * len(kinds)),
+                                 torch_cat([valid & ov if k else valid for k in kinds]), probe.pred.network.to_depth)
+        for k, w in zip(kinds, wts.split(bases.shape[0])):
+            memo["oracle_weights", k] = w
+    return memo["oracle_weights", overlap_only]
+
+
+def torch_cat(tensors: list) -> "torch.Tensor":
+    """``torch.cat`` of ``tensors``; one tensor as it is."""
+    import torch
+
+    return tensors[0] if len(tensors) == 1 else torch.cat(tensors)
 
 
 def oracle_depth(probe, seq: str, frame: int, out: dict, depth) -> "torch.Tensor":

@@ -19,12 +19,17 @@ inputs and observes its outputs, so that the predictor knows nothing of the expe
 This module knows no table: `run_probes` is given the variants (`study.variants.VARIANTS`), which name
 `trained_probe` / `cut_probe` and `trained_columns` / `cut_columns` as theirs.
 
+The passes are evaluated together, sample by sample (`mcdp.evaluate.evaluate_passes`): each sample's ground truth is
+read once, for every pass, and a probe's stages that read ground truth take it from the same `TruthCache`
+(``Probed.truths``); what one stage computes of a sample and another reuses lives in ``Probed.sample_memo``.
+
 Example::
 
     pred = Predictor(run_dir, ds)
     trained = Probed(pred, oracle_range=(0.5, 80.0), keep=True, stages=stages_on(TRAINED, pred, (0.5, 80.0)))
     cut = Probed(pred, CUT, reference=trained)
-    metrics = evaluate(ds, trained.predict, "test", ecfg); metrics["refinement"] = trained.refinement
+    passes = evaluate_passes(ds, {TRAINED: trained.predict, CUT: cut.predict}, "test", ecfg)
+    passes[TRAINED]["refinement"] = trained.refinement
 """
 from __future__ import annotations
 
@@ -85,14 +90,16 @@ def cut_columns(base: dict, own: dict, entry: dict) -> None:
 
 
 def run_probes(variants: Iterable, pred, oracle_range: tuple[float, float], evaluate,
-               log=lambda line: None) -> dict[str, dict]:
+               log=lambda line: None, truths=None) -> dict[str, dict]:
     """The probe loop over ``variants`` (`study.variants.VARIANTS`' values, in order): every variant with a probe of
-    its own that applies to the run, each a pass ``evaluate(probe.predict)`` -> its metrics with ``refinement``,
-    given the stages that ride on it (``stages_on``: `study.variants.stages_on`); {variant: metrics}
-    (`study.variants.entries_of` makes the run's {variant: entry} of them)."""
+    its own that applies to the run is a pass, given the stages that ride on it (``stages_on``:
+    `study.variants.stages_on`), and the passes are evaluated together, ``evaluate({variant: probe.predict})`` ->
+    {variant: metrics} (`mcdp.evaluate.evaluate_passes`: sample by sample, the ground truth read once for all);
+    each pass's metrics get its ``refinement``. ``truths``: the evaluation's `mcdp.evaluate.TruthCache`, handed to
+    each `Probed` so that its ground-truth stages read the sample's truth from it (None: they read their own).
+    Returns {variant: metrics} (`study.variants.entries_of` makes the run's {variant: entry} of them)."""
     variants = list(variants)
     probes: dict = {}
-    out: dict[str, dict] = {}
     for v in variants:
         if v.probe is None:
             continue
@@ -102,9 +109,12 @@ def run_probes(variants: Iterable, pred, oracle_range: tuple[float, float], eval
         if probe is None:
             continue
         log(f"{v.name}: {v.doc}" + (f" (+ {', '.join(s.name for s in stages)})" if stages else ""))
+        if isinstance(probe, Probed):
+            probe.truths = truths
         probes[v.name] = probe
-        out[v.name] = evaluate(probe.predict)
-        out[v.name]["refinement"] = probe.refinement
+    out = evaluate({name: probe.predict for name, probe in probes.items()})
+    for name, probe in probes.items():
+        out[name]["refinement"] = probe.refinement
     return out
 
 
@@ -130,6 +140,9 @@ class Probed:
 
     #: at most this many bytes of depth maps kept for a cut probe's comparison (``keep=True``)
     KEEP_BYTES = 64 << 20
+    #: the evaluation's ground truth of the sample being predicted (`mcdp.evaluate.TruthCache`, set by `run_probes`),
+    #: which a stage reading ground truth takes instead of reading it again (`study.oracle_stages`); None: its own
+    truths = None
 
     def __init__(self, pred, variant: str = TRAINED, oracle_range: tuple[float, float] | None = None,
                  keep: bool = False, reference: "Probed | None" = None, stages: Sequence = ()):
@@ -144,6 +157,9 @@ class Probed:
         self.reference = reference
         self._acc = {"images": 0, "weight_move": 0.0, "depth_change_m": 0.0, "cut_images": 0, "cut_change_m": 0.0}
         self._stage_acc: dict[str, float] = {}  # what the stages add to the record (`accumulate`)
+        #: what one stage computes of the sample being predicted and another of its stages reuses (e.g. the ground
+        #: truth at the training size), emptied at each new sample
+        self.sample_memo: dict = {}
 
     @property
     def stages(self) -> list[str]:
@@ -172,6 +188,7 @@ class Probed:
         """{stage: (N, H, W) float32 metres at the dataset resolution} of this variant, stages in order."""
         import torch
 
+        self.sample_memo = {}
         with torch.no_grad():
             inp = self.pred.inputs(seq, frame)
             out = self.pred.forward(cut_inputs(inp) if self.variant == CUT else inp)

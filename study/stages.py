@@ -307,13 +307,15 @@ def _row_line(tag: str, row: dict) -> str:
 def evaluate_run(cfg: SweepConfig, run_dir: Path, ds, ecfg, progress: bool, log, tag: str):
     """Evaluate one run's checkpoint as every variant that applies to it (`study.variants`: as trained with the
     ORACLE stages of a run with bases, with its neighbours cut for a network that reads them, ...;
-    `study.probes.run_probes`).
+    `study.probes.run_probes`), every pass at once, sample by sample (`mcdp.evaluate.evaluate_passes`): each test
+    sample's ground truth, overlap, labels and regions are read once and shared by every pass and stage, the
+    ORACLE stages' included.
 
     Returns ({variant: metrics of its pass, with ``refinement``}, the run's `mcdp.predict.Predictor`).
     """
     import torch
 
-    from mcdp.evaluate import evaluate
+    from mcdp.evaluate import TruthCache, evaluate_passes
     from mcdp.predict import Predictor
     from study.probes import run_probes
 
@@ -326,9 +328,10 @@ def evaluate_run(cfg: SweepConfig, run_dir: Path, ds, ecfg, progress: bool, log,
         torch.set_num_threads(pred.cfg.train.threads)
     log(f"{tag}: evaluating {pred.ckpt_path.name} (step {pred.step}) on the {SPLIT} split")
     try:
+        truths = TruthCache(ds, ecfg)  # each test sample's ground truth, read once for every pass and stage
         passes = run_probes(VARIANTS.values(), pred, (ecfg.min_depth, ecfg.max_depth),
-                            lambda predict: evaluate(ds, predict, SPLIT, ecfg, progress=progress),
-                            lambda line: log(f"{tag}: evaluating {line}"))
+                            lambda predicts: evaluate_passes(ds, predicts, SPLIT, ecfg, progress, truths),
+                            lambda line: log(f"{tag}: evaluating {line}"), truths)
         return passes, pred
     finally:
         torch.set_num_threads(threads_before)
