@@ -7,13 +7,24 @@ once filled the disk after 67 minutes: the sweep stopped cleanly (nothing half-w
 was lost. So the command line says the estimate beside the renders' size, and refuses a sweep that would write
 more than the space free where it writes, unless ``--yes``::
 
-    mcdp sweep: its checkpoints: 42 run(s) x (last.pt about 173 MB + best.pt 58 MB): 9.99 GB of checkpoints at
-    most (keep_last: true, keep_best: true); with the renders about 11.2 GB; 11.2 GB still to write, 35.8 GB free
+    mcdp sweep: its checkpoints: 14 run(s), each writing last.pt about 328 MB and best.pt 109 MB; no run keeps
+    its checkpoints, and 2 at a time hold both while they train (keep_last: false, keep_best: false), with the
+    pretraining: 0.983 GB of checkpoints on disk at most; with the renders about 1.98 GB; 1.98 GB still to write
+    (14 of 14 run(s) and 2 of 2 world(s) left), 76.8 GB free
 
 The checkpoint sizes come from the networks themselves, built on PyTorch's ``meta`` device (no memory, no
 weights read): the bytes of their state and of the trainable parameters' two Adam moments. A method whose
-network cannot be built that way is left out of the estimate, and the line says so. What is already under the
-sweep's folder (a resumed sweep) counts as written.
+network cannot be built that way is left out of the estimate, and the line says so.
+
+What is still to write (`still_to_write`) counts only what a resumed sweep has not done: the worlds without a
+manifest (a render's last file), the runs without their ``metrics_test.json``, the pretraining without its
+``pretrain.json``; a complete sweep writes nothing more and is never refused. Bytes on disk are counted as the
+blocks a file holds (a sparse file holds few), never its apparent size. The space free is measured where the
+bytes land (``data/`` for the renders, ``runs/`` and ``pretrain/`` for the checkpoints: a folder mounted there
+is its own file system); a symbolic link among the sweep's own folders (``data/``, ``pretrain/``, ``plots/``,
+and the folders in the first two) is refused before anything is written (`refuse_own_links`), so no writer
+writes outside ``--out``. (A run folder under ``runs/`` may be a link: another sweep's run reused read only,
+`study.stages`.)
 """
 from __future__ import annotations
 
@@ -45,7 +56,8 @@ def checkpoint_bytes(rcfg, n_cameras: int = 6) -> tuple[int, int]:
 
 
 def bytes_under(folder: Path) -> int:
-    """The bytes of the files under ``folder`` (links not followed; 0 when it does not exist)."""
+    """The bytes on disk of the files under ``folder``: the blocks each holds (a sparse file of 1 TB holds few),
+    links not followed (0 when it does not exist)."""
     total = 0
     for root, _dirs, files in os.walk(folder):
         for f in files:
@@ -53,8 +65,41 @@ def bytes_under(folder: Path) -> int:
                 st = os.lstat(os.path.join(root, f))
             except OSError:
                 continue
-            total += st.st_size
+            total += st.st_blocks * 512
     return total
+
+
+#: the sweep's own folders that no link may stand in for (``runs/``' run folders may: a reused run, read only)
+OWN_FOLDERS = ("data", "pretrain", "plots")
+
+
+def refuse_own_links(out: Path) -> None:
+    """`corelib.atomic.LinkRefused` (one line naming it) for a symbolic link at one of the sweep's own folders
+    (`OWN_FOLDERS`), at an entry of ``data/`` or ``pretrain/`` (a world, a pretraining) or at a folder of a
+    pretraining (``pretrain/<hash>/data``, ``run``): a writer would write through it, outside ``--out``, where
+    the disk check did not look."""
+    from corelib.atomic import LinkRefused
+
+    def entries(folder: Path):
+        try:
+            with os.scandir(folder) as it:
+                return sorted(e.name for e in it)
+        except (NotADirectoryError, FileNotFoundError):
+            return []
+
+    for name in OWN_FOLDERS:
+        top = Path(out) / name
+        if os.path.islink(top):
+            raise LinkRefused(top)
+        if name == "plots":
+            continue
+        for sub in entries(top):
+            if os.path.islink(top / sub):
+                raise LinkRefused(top / sub)
+            if name == "pretrain":
+                for inner in entries(top / sub):
+                    if os.path.islink(top / sub / inner) and inner in ("data", "run"):
+                        raise LinkRefused(top / sub / inner)
 
 
 def free_bytes(out: Path) -> int:
@@ -94,26 +139,88 @@ def _gb(n: int) -> str:
     return f"{n / 1e9:.3g} GB"
 
 
+def _is_file(path: Path) -> bool:
+    try:
+        return os.path.isfile(path) and not os.path.islink(path)
+    except OSError:
+        return False
+
+
+def still_to_write(cfg: SweepConfig, out: Path, est: dict) -> dict:
+    """What a (resumed) sweep has still to write: ``renders`` (the worlds without their manifest, each its share of
+    the renders), ``checkpoints`` (the runs without their metrics_test.json: those they keep and, ``jobs`` at a
+    time, those they delete; the pretraining's unless its pretrain.json is written), their sum ``total``, and the
+    counts ``runs_left``, ``worlds_left`` and ``worlds``."""
+    from study.config import overlap_key, world_key, worlds_of
+
+    out = Path(out)
+    worlds = [(o, w) for o in cfg.overlaps for w in worlds_of(cfg)]
+    worlds_left = sum(not _is_file(out / "data" / world_key(o, w) / "manifest.json") for o, w in worlds)
+    runs_left = sum(not _is_file(out / "runs" / overlap_key(o) / f"{m}_s{s}" / "metrics_test.json")
+                    for o in cfg.overlaps for m in cfg.methods for s in cfg.seeds)
+    last, best = est["last"], est["best"]
+    kept = runs_left * ((last if cfg.keep_last else 0) + (best if cfg.keep_best else 0))
+    transient = min(runs_left, cfg.jobs) * ((0 if cfg.keep_last else last) + (0 if cfg.keep_best else best))
+    pre_done = cfg.pretrain is None or any(_is_file(p) for p in (out / "pretrain").glob("*/pretrain.json"))
+    pre = 0 if pre_done else best + (last if cfg.keep_last else 0) + (best if cfg.keep_best else 0)
+    renders = est["renders"] * worlds_left // max(1, len(worlds))
+    checkpoints = kept + transient + pre
+    return {"renders": renders, "checkpoints": checkpoints, "total": renders + checkpoints, "runs_left": runs_left,
+            "worlds_left": worlds_left, "worlds": len(worlds)}
+
+
 def statement(est: dict, cfg: SweepConfig) -> str:
-    """One line: the checkpoints' estimate and the total with the renders."""
-    line = (f"{est['runs']} run(s) x (last.pt about {est['last'] / 1e6:.0f} MB + best.pt {est['best'] / 1e6:.0f} MB):"
-            f" {_gb(est['checkpoints'])} of checkpoints at most (keep_last: {str(cfg.keep_last).lower()}, keep_best: "
-            f"{str(cfg.keep_best).lower()}); with the renders about {_gb(est['total'])}")
+    """One line: what the checkpoints' figure sums (the most on disk at once, not runs x sizes) and the total with
+    the renders."""
+    kept = [n for n, on in (("last.pt", cfg.keep_last), ("best.pt", cfg.keep_best)) if on]
+    held = (f"every run keeps {' and '.join(kept)}" if kept else "no run keeps its checkpoints") + \
+        (f", and {min(est['runs'], cfg.jobs)} at a time hold both while they train" if len(kept) < 2 else "")
+    line = (f"{est['runs']} run(s), each writing last.pt about {est['last'] / 1e6:.0f} MB and best.pt "
+            f"{est['best'] / 1e6:.0f} MB; {held} (keep_last: {str(cfg.keep_last).lower()}, keep_best: "
+            f"{str(cfg.keep_best).lower()}){', with the pretraining' if cfg.pretrain is not None else ''}: "
+            f"{_gb(est['checkpoints'])} of checkpoints on disk at most; with the renders about {_gb(est['total'])}")
     if est["unsized"]:
         line += f" (not counted: {', '.join(est['unsized'])}, whose network was not built on the meta device)"
     return line
 
 
+def _where(out: Path, sub: str) -> Path:
+    """The nearest existing folder of ``out/sub`` (where its bytes land: a file system mounted there is its own)."""
+    p = Path(os.path.abspath(out / sub))
+    while not p.exists() and p != p.parent:
+        p = p.parent
+    return p
+
+
+def _device(path: Path) -> int:
+    """The file system ``path`` lies on."""
+    return os.stat(path).st_dev
+
+
 def check_disk(cfg: SweepConfig, out: str | Path, render_bytes: int, yes: bool) -> str:
-    """The checkpoints' line (`statement`); ConfigError when what is still to write (the estimate less what
-    is already under ``out``) is more than the space free there and the user did not say ``--yes``."""
+    """The checkpoints' line (`statement`) and what is still to write (`still_to_write`) against the space free
+    where it lands; ConfigError when it is more than that and the user did not say ``--yes``. A link among the
+    sweep's own folders is refused first (`refuse_own_links`), before anything is written."""
     out = Path(out)
+    refuse_own_links(out)
     est = estimate(cfg, render_bytes)
-    todo = max(0, est["total"] - bytes_under(out))
-    free = free_bytes(out)
-    if todo > free and not yes:
+    todo = still_to_write(cfg, out, est)
+    # the bytes by the file system they land on: renders in data/, checkpoints in runs/ and pretrain/
+    by_dev: dict[int, list] = {}
+    for sub, n in (("data", todo["renders"]), ("runs", todo["checkpoints"])):
+        where = _where(out, sub)
+        entry = by_dev.setdefault(_device(where), [where, 0])
+        entry[1] += n
+    short = [(where, n, free_bytes(where)) for where, n in by_dev.values()]
+    worst = max(short, key=lambda t: t[1] - t[2])
+    left = (f"{_gb(todo['total'])} still to write ({todo['runs_left']} of {est['runs']} run(s) and "
+            f"{todo['worlds_left']} of {todo['worlds']} world(s) left)")
+    free = ", ".join(f"{_gb(f)} free" + (f" on {w}" if len(short) > 1 else "") for w, _n, f in short)
+    if worst[1] > worst[2] and not yes:
         keys = [f"{k}: false" for k, on in (("keep_last", cfg.keep_last), ("keep_best", cfg.keep_best)) if on]
-        raise ConfigError(f"sweep --out {out}: it will write about {_gb(todo)} more ({statement(est, cfg)}) and "
-                          f"{_gb(free)} are free there; " + (f"set {' and '.join(keys)}, " if keys else "")
+        where = f" on {worst[0]}" if len(short) > 1 else ""
+        raise ConfigError(f"sweep --out {out}: it will write about {_gb(worst[1])} more{where} ({statement(est, cfg)}; "
+                          f"{left}) and {_gb(worst[2])} are free there; "
+                          + (f"set {' and '.join(keys)}, " if keys else "")
                           + "run fewer seeds / overlaps / methods, free some space, or pass --yes")
-    return statement(est, cfg) + f"; {_gb(todo)} still to write, {_gb(free)} free"
+    return statement(est, cfg) + f"; {left}, {free}"

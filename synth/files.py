@@ -25,7 +25,7 @@ import numpy as np
 
 from corelib.atomic import atomic_write_bytes, atomic_write_json
 from corelib.readfile import read_bounded
-from synth.image_headers import jpeg_size, check_jpeg_header, check_png_header
+from synth.image_headers import check_exr_single_part, check_jpeg_header, check_png_header, jpeg_size
 from synth.rig import MAX_CAMERA_PX
 
 DEPTH_CHANNEL = "Z"
@@ -302,24 +302,6 @@ def _quiet_fd2():
             os.close(saved)
 
 
-EXR_MAGIC = b"\x76\x2f\x31\x01"
-#: the version field's flags (OpenEXR's file layout): bit 11 deep ("non-image") data, bit 12 several parts
-_EXR_DEEP, _EXR_MULTIPART = 0x800, 0x1000
-
-
-def _check_single_part(path: Path, data: bytes) -> None:
-    """Refuse an OpenEXR file whose version field says it holds several parts or deep data, before OpenEXR
-    sees it: the header check reads part 0 only, and OpenEXR decodes every part (a 4 MB file whose part 1
-    claims 64 channels of 4096 x 4096 is gigabytes once decoded). A dataset's maps are single-part scanline
-    files (`_encode_exr`)."""
-    if len(data) >= 8 and data[:4] == EXR_MAGIC:
-        flags = int.from_bytes(data[4:8], "little")
-        if flags & (_EXR_MULTIPART | _EXR_DEEP):
-            kind = "several parts (multi-part)" if flags & _EXR_MULTIPART else "deep data"
-            raise DatasetError(f"{path}: an OpenEXR file of {kind}; a dataset's maps are single-part scanline "
-                               "files; refused before decoding")
-
-
 def _read_exr(path: str | Path, names: tuple[str, ...], what: str,
               size: tuple[int, int] | None = None) -> list[np.ndarray]:
     """The float32 (H, W) channels `names` of an OpenEXR file, all of one shape. The bytes are read by Python
@@ -331,7 +313,7 @@ def _read_exr(path: str | Path, names: tuple[str, ...], what: str,
     import OpenEXR
 
     raw = read_regular(path)
-    _check_single_part(path, raw)
+    check_exr_single_part(path, raw, DatasetError)
     data = io.BytesIO(raw)
     try:
         w, h, chans = _exr_header(data)  # what it claims, before its pixels are decoded

@@ -1,6 +1,7 @@
 """Image headers read before an image is decoded: a small PNG or JPEG may claim a size whose decoding takes
 gigabytes, so its header's size is checked against `synth.rig.MAX_CAMERA_PX` first (`synth.files` reads the files
-and passes its error class). The EXR readers check their header in `synth.files` (OpenEXR's header API)."""
+and passes its error class). The EXR readers check their header in `synth.files` (OpenEXR's header API), after
+its version field here (`check_exr_single_part`: one part, no deep data)."""
 from __future__ import annotations
 
 from pathlib import Path
@@ -19,6 +20,24 @@ def check_png_header(path: Path, data: bytes, error: type[Exception]) -> None:
                            "may have; refused before decoding")
 
 
+
+
+EXR_MAGIC = b"\x76\x2f\x31\x01"
+#: the version field's flags (OpenEXR's file layout): bit 11 deep ("non-image") data, bit 12 several parts
+_EXR_DEEP, _EXR_MULTIPART = 0x800, 0x1000
+
+
+def check_exr_single_part(path: Path, data: bytes, error: type[Exception]) -> None:
+    """Refuse an OpenEXR file whose version field says it holds several parts or deep data, before OpenEXR
+    sees it: the header check reads part 0 only, and OpenEXR decodes every part (a 4 MB file whose part 1
+    claims 64 channels of 4096 x 4096 is gigabytes once decoded). A dataset's maps are single-part scanline
+    files (`synth.files._encode_exr`)."""
+    if len(data) >= 8 and data[:4] == EXR_MAGIC:
+        flags = int.from_bytes(data[4:8], "little")
+        if flags & (_EXR_MULTIPART | _EXR_DEEP):
+            kind = "several parts (multi-part)" if flags & _EXR_MULTIPART else "deep data"
+            raise error(f"{path}: an OpenEXR file of {kind}; a dataset's maps are single-part scanline files; "
+                        "refused before decoding")
 
 
 #: the JPEG markers that start a frame header (SOF0..SOF15 but DHT C4, JPG C8, DAC CC): its size follows

@@ -441,3 +441,95 @@ def test_every_committed_results_passes_the_check(ps):
 
     for p in sorted(glob.glob(str(ROOT / "docs/results/*/results.json"))):
         ps.check_results(read_inside(p, ROOT / "docs/results"), Path(p))
+
+
+# --- findings 2, 7, 12: the sweep's writers stay inside --out; the disk check counts blocks and what is left ---
+
+SWEEP_CI = ROOT / "configs/sweep/ci.yaml"
+
+
+def _ci(*overrides):
+    from study.config import load_sweep_config
+
+    return load_sweep_config(SWEEP_CI, list(overrides), None)
+
+
+@pytest.fixture()
+def disk(monkeypatch):
+    from study import disk as mod
+
+    monkeypatch.setattr(mod, "checkpoint_bytes", lambda rcfg, n_cameras=6: (300_000_000, 100_000_000))
+    return mod
+
+
+@pytest.mark.parametrize("where", ["data", "pretrain", "plots", "data/overlap_0.20", "pretrain/abc123/run"])
+def test_a_link_among_the_sweeps_own_folders_is_refused_before_writing(disk, tmp_path, where):
+    from corelib.atomic import LinkRefused
+
+    out, elsewhere = tmp_path / "sweep", tmp_path / "small_fs"
+    elsewhere.mkdir()
+    (out / where).parent.mkdir(parents=True, exist_ok=True)
+    (out / where).symlink_to(elsewhere)
+    before = sorted(p.relative_to(tmp_path) for p in tmp_path.rglob("*"))
+    with pytest.raises(LinkRefused) as e:  # before: rendered / pretrained through the link, outside --out
+        disk.check_disk(_ci(), out, 0, yes=True)
+    assert str(e.value) == (f"{out / where} is a symbolic link; nothing is written through a link: remove the link "
+                            "(or use another output folder) and run the command again")
+    assert sorted(p.relative_to(tmp_path) for p in tmp_path.rglob("*")) == before
+
+
+def test_the_disk_check_measures_where_the_bytes_land(disk, tmp_path, monkeypatch):
+    out = tmp_path / "sweep"
+    (out / "data").mkdir(parents=True)  # a small file system mounted at data/
+    monkeypatch.setattr(disk, "_device", lambda p: 2 if p.name == "data" else 1)
+    monkeypatch.setattr(disk, "free_bytes", lambda p: 20_000_000 if p.name == "data" else 66_000_000_000)
+    with pytest.raises(Exception) as e:  # before: --out's 66 GB measured, the world rendered on 20 MB
+        disk.check_disk(_ci(), out, 3_000_000_000, yes=False)
+    assert f"it will write about 1 GB more on {out / 'data'} (" in str(e.value)
+    assert "and 0.02 GB are free there;" in str(e.value)
+
+
+def test_a_sparse_file_is_not_counted_as_written(disk, tmp_path, monkeypatch):
+    out = tmp_path / "sweep"
+    out.mkdir()
+    _huge(out / "sparse.bin", 2**40)  # 1 TB apparent, no block
+    monkeypatch.setattr(disk, "free_bytes", lambda p: 10**15)
+    line = disk.check_disk(_ci(), out, 3_000_000_000, yes=False)
+    assert "; 1.9 GB still to write (14 of 14 run(s) and 2 of 2 world(s) left), 1e+06 GB free" in line, line
+    assert disk.bytes_under(out) < 2**20  # before: 1 TB, "0 GB still to write"
+
+
+def _complete(out: Path, cfg) -> None:
+    from study.config import overlap_key, world_key, worlds_of
+
+    for o in cfg.overlaps:
+        for w in worlds_of(cfg):
+            (out / "data" / world_key(o, w)).mkdir(parents=True)
+            (out / "data" / world_key(o, w) / "manifest.json").write_text("{}")
+        for m in cfg.methods:
+            for s in cfg.seeds:
+                (out / "runs" / overlap_key(o) / f"{m}_s{s}").mkdir(parents=True)
+                (out / "runs" / overlap_key(o) / f"{m}_s{s}" / "metrics_test.json").write_text("{}")
+    (out / "pretrain" / "abc").mkdir(parents=True)
+    (out / "pretrain" / "abc" / "pretrain.json").write_text("{}")
+
+
+def test_a_complete_sweep_is_never_refused(disk, tmp_path, monkeypatch):
+    out = tmp_path / "sweep"
+    cfg = _ci()
+    _complete(out, cfg)
+    monkeypatch.setattr(disk, "free_bytes", lambda p: 0)  # a disk filled while the report was written
+    line = disk.check_disk(cfg, out, 3_000_000_000, yes=False)  # before: refused without --yes
+    assert line.endswith("; 0 GB still to write (0 of 14 run(s) and 0 of 2 world(s) left), 0 GB free"), line
+    (out / "runs" / "overlap_0.50" / "fsm_s0" / "metrics_test.json").unlink()  # one run left: its peak only
+    line = disk.check_disk(cfg, out, 3_000_000_000, yes=True)
+    assert "; 0.4 GB still to write (1 of 14 run(s) and 0 of 2 world(s) left)" in line, line
+
+
+def test_the_disk_line_says_what_it_sums(disk, tmp_path, monkeypatch):
+    monkeypatch.setattr(disk, "free_bytes", lambda p: 10**12)
+    line = disk.check_disk(_ci(), tmp_path / "sweep", 3_000_000_000, yes=False)
+    assert line.startswith(  # before: "14 run(s) x (last.pt about 328 MB + best.pt 109 MB): 0.983 GB", read as 6.1
+        "14 run(s), each writing last.pt about 300 MB and best.pt 100 MB; no run keeps its checkpoints, and 2 at a "
+        "time hold both while they train (keep_last: false, keep_best: false), with the pretraining: 0.9 GB of "
+        "checkpoints on disk at most; with the renders about 1.9 GB; 1.9 GB still to write"), line
