@@ -45,8 +45,8 @@ def link_shared(first: Path, target: Path) -> list[str]:
     return done
 
 
-def _args(argv: list[str] | None) -> argparse.Namespace:
-    p = argparse.ArgumentParser(prog="mcdp calibrate", description=__doc__.splitlines()[0])
+def calibrate_args(p: argparse.ArgumentParser) -> None:
+    """The arguments of ``mcdp calibrate``."""
     p.add_argument("anchors", help="anchors file, e.g. configs/calibration/anchors.yaml")
     p.add_argument("preset", help="sweep preset of the recipe, e.g. configs/sweep/cpu_calibration.yaml")
     p.add_argument("--out", required=True, help="calibration folder: one sweep folder per arm under it")
@@ -54,14 +54,19 @@ def _args(argv: list[str] | None) -> argparse.Namespace:
     p.add_argument("--extra", default="", help="train overrides added to every arm (the scale point), comma-separated")
     p.add_argument("--dry-run", action="store_true", help="print each arm's sweep command and stop")
     p.add_argument("overrides", nargs="*", help="sweep overrides for every arm, e.g. 'seeds=[700,701]'")
-    return p.parse_args(argv)
 
 
 def main(argv: list[str] | None = None) -> int:
+    p = argparse.ArgumentParser(prog="mcdp calibrate", description=__doc__.splitlines()[0])
+    calibrate_args(p)
+    return run_calibrate(p.parse_args(argv))
+
+
+def run_calibrate(args: argparse.Namespace) -> int:
+    """Run ``mcdp calibrate``: 0, or the worst exit status of the arms' sweeps; 2 for a bad file or argument."""
     from study.anchors import load_anchors
     from study.config import load_sweep_config
 
-    args = _args(argv)
     try:
         anchors = load_anchors(args.anchors)
         cfg = load_sweep_config(Path(args.preset), args.overrides)

@@ -15,7 +15,7 @@ import sys
 
 from corelib import exitcodes
 from corelib.cli import Command
-from study import command_common, method_commands
+from study import calibration_run, command_common, method_commands
 from corelib.presets import complete_presets, preset_path
 
 # the study's modules (and torch, which they import) are imported by the command that runs, once its
@@ -112,6 +112,9 @@ COMMANDS = [
             "config hash)", _pretrain_args, run_pretrain_command),
     Command("sweep", "render + train + eval every method over camera overlaps -> report.md, results.csv/json, "
             "plots", _sweep_args, run_sweep_command),
+    Command("calibrate", "train every arm of a calibration anchors file at a sweep recipe, one sweep folder per arm "
+            "(configs/calibration/anchors.yaml; the page: scripts/publish_calibration.py)",
+            calibration_run.calibrate_args, calibration_run.run_calibrate),
 ]
 
 

@@ -129,3 +129,17 @@ def test_the_page_builds_from_values_with_its_headline_and_scatter(tmp_path, mon
     assert "**The benchmark reproduces 5 of 6 resolved real-data effects in sign**" in page
     assert "| mcdp_vs_mono2 | test |" in page and "**agrees**" in page and "**disagrees**" in page
     assert (tmp_path / "scatter.png").stat().st_size > 10_000
+
+
+def test_calibrate_dry_run_names_every_arm_in_order_with_its_overrides(capsys, tmp_path):
+    from study.calibration_run import main
+
+    preset = ANCHORS.parents[1] / "sweep" / "cpu_calibration.yaml"
+    assert main([str(ANCHORS), str(preset), "--out", str(tmp_path), "--dry-run", "--extra", "train.steps=800"]) == 0
+    lines = [x for x in capsys.readouterr().err.splitlines() if x.startswith("mcdp calibrate: arm ")]
+    a = load_anchors(ANCHORS)
+    assert [x.split()[3].rstrip(":") for x in lines] == a.order
+    nomask = next(x for x in lines if "arm mono2_nomask:" in x)
+    assert "loss.photometric_ego_mask=false]" in nomask and "train.steps=800" in nomask
+    assert not any(tmp_path.iterdir())  # a dry run writes nothing
+    assert main([str(ANCHORS), str(preset), "--out", str(tmp_path), "--arms", "nope"]) == 2
