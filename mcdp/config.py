@@ -98,6 +98,10 @@ class ModelConfig(StrictModel):
         features invalid where they land on its ego body (default true, today's); false feeds them unmasked
         (the calibration's "no self-occlusion masks" switch for the features; the public MCDP code masks
         them). An added key.
+    encoder_layers: the depth encoder's ResNet depth, 18 (default), 34 or 50 (Monodepth2's ``--num_layers``; the
+        pose network stays ResNet-18, as Monodepth2's default). A pretraining or ``pretrained`` file of another
+        depth is refused naming the layer; train from scratch (``warm_start: false``) against a ResNet-18
+        pretraining. An added key.
     """
 
     method: str = Field("mcdp", pattern=r"^[a-z][a-z0-9_]{0,39}$")
@@ -117,6 +121,7 @@ class ModelConfig(StrictModel):
     init_from: str | None = None
     sync: Literal["compensate", "assume"] = added_key("compensate")
     warm_start: bool = added_key(True)
+    encoder_layers: Literal[18, 34, 50] = added_key(18)
     feature_ego_mask: bool = added_key(True)
 
     @model_validator(mode="after")

@@ -66,13 +66,26 @@ def load_resnet18_weights(path: str | Path) -> dict:
     return sd
 
 
+#: the encoder depths `ResnetEncoder` builds (Monodepth2's ``resnets``; 50 has bottleneck blocks, 4x the channels)
+ENCODER_LAYERS = (18, 34, 50)
+
+
+def encoder_channels(layers: int = 18) -> tuple[int, ...]:
+    """The five feature maps' channels of a ResNet trunk of ``layers`` (Monodepth2: ``num_ch_enc[1:] *= 4`` above 34)."""
+    if layers not in ENCODER_LAYERS:
+        raise ValueError(f"encoder layers must be one of {ENCODER_LAYERS}, got {layers}")
+    return (64, 64, 128, 256, 512) if layers <= 34 else (64, 256, 512, 1024, 2048)
+
+
 class ResnetEncoder(nn.Module):
-    """torchvision ResNet-18 trunk returning 5 feature maps (Monodepth2 ``ResnetEncoder``).
+    """torchvision ResNet-18 (or 34 / 50) trunk returning 5 feature maps (Monodepth2 ``ResnetEncoder``).
 
     Args:
         num_input_images: images stacked along channels (2 for the pose network;
             pretrained conv1 weights are repeated and divided as in Monodepth2).
-        pretrained: local state dict path or None (random init).
+        pretrained: local state dict path or None (random init); ResNet-18 weights only.
+        layers: 18 (default), 34 or 50 (`model.encoder_layers`; 50's features have 4x the channels from the
+            second map on: ``self.num_ch_enc``, as Monodepth2's encoder sets them).
 
     forward(x): x (B, 3*num_input_images, H, W) in [0, 1] ->
         [ (B, 64, H/2, W/2), (B, 64, H/4, W/4), (B, 128, H/8, W/8),
@@ -81,11 +94,15 @@ class ResnetEncoder(nn.Module):
 
     num_ch_enc = (64, 64, 128, 256, 512)
 
-    def __init__(self, num_input_images: int = 1, pretrained: str | None = None):
+    def __init__(self, num_input_images: int = 1, pretrained: str | None = None, layers: int = 18):
         super().__init__()
-        net = torchvision.models.resnet18(weights=None)
+        self.num_ch_enc = encoder_channels(layers)
+        net = {18: torchvision.models.resnet18, 34: torchvision.models.resnet34,
+               50: torchvision.models.resnet50}[layers](weights=None)
         if num_input_images > 1:
             net.conv1 = nn.Conv2d(3 * num_input_images, 64, kernel_size=7, stride=2, padding=3, bias=False)
+        if pretrained is not None and layers != 18:
+            raise NetworkError(f"model.pretrained: ResNet-18 weights only, the encoder has {layers} layers")
         if pretrained is not None:
             sd = load_resnet18_weights(pretrained)
             if num_input_images > 1:

@@ -79,14 +79,14 @@ class DepthModel(DepthNetwork):
         self.n_out = cfg.bases if self.has_bases else 1
         self.stages = (["mono"] if cfg.mono_head else []) + stage_names(cfg.refine_steps)
         self.slots = SLOTS[cfg.neighbours]
-        self.encoder = ResnetEncoder(1, cfg.pretrained)
+        self.encoder = ResnetEncoder(1, cfg.pretrained, cfg.encoder_layers)
         init_sig = None
         if cfg.init_depth is not None:  # invert disp_to_depth at init_depth
             min_disp, max_disp = 1.0 / cfg.max_depth, 1.0 / cfg.min_depth
             init_sig = (1.0 / cfg.init_depth - min_disp) / (max_disp - min_disp)
         n_dec = self.n_out + (1 if cfg.mono_head else 0)  # the mono head is the last channel
-        self.decoder = DepthDecoder(ResnetEncoder.num_ch_enc, n_out=n_dec, scales=cfg.scales, init_sigmoid=init_sig)
-        c_levels = ResnetEncoder.num_ch_enc[:3]  # features at 1/2, 1/4, 1/8: 64, 64, 128 channels
+        self.decoder = DepthDecoder(self.encoder.num_ch_enc, n_out=n_dec, scales=cfg.scales, init_sigmoid=init_sig)
+        c_levels = self.encoder.num_ch_enc[:3]  # features at 1/2, 1/4, 1/8: 64, 64, 128 channels
         self.weight_nets = nn.ModuleList(
             [
                 self.weight_net_class(

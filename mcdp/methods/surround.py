@@ -137,7 +137,7 @@ class SurroundDepthModel(MonoDepthModel):
 
     def __init__(self, cfg, params: SurroundParams | None = None):
         super().__init__(cfg, params if params is not None else SurroundParams())
-        self.cross_view = nn.ModuleDict({str(lv): CrossViewBlock(ResnetEncoder.num_ch_enc[lv], self.params)
+        self.cross_view = nn.ModuleDict({str(lv): CrossViewBlock(self.encoder.num_ch_enc[lv], self.params)
                                          for lv in self.params.levels})
 
     @property

@@ -154,3 +154,24 @@ def test_per_scale_loss_differs_from_full_resolution_only_at_the_coarse_scales()
     one_per = run_cfg({"method": "mono2", "bases": 1, "refine_steps": 0, "scales": 1}, scale={"source": "odometry"},
                       loss={"multiscale": "per_scale"})
     assert _step_losses(one, batch) == _step_losses(one_per, batch)
+
+
+@pytest.mark.parametrize("layers, deepest", [(34, 512), (50, 2048)])
+def test_encoder_depth_switch_builds_monodepth2s_trunks(layers, deepest):
+    batch = rig_batch()
+    inp = batch.depth_input(torch.tensor([[(i - 1) % N, (i + 1) % N] for i in range(N)]), {}, batch.rgb)
+    torch.manual_seed(0)
+    net = DepthModel(small_model_cfg(encoder_layers=layers, refine_steps=1)).eval()
+    assert net.encoder.num_ch_enc[-1] == deepest
+    with torch.no_grad():
+        out = net(inp, scales=1, refine_scales=1)
+    assert out["depth", "refine1", 0].shape == (N, 1, H, W)
+    n18 = sum(p.numel() for p in DepthModel(small_model_cfg()).encoder.parameters())
+    assert sum(p.numel() for p in net.encoder.parameters()) > 1.9 * n18  # 21.3 M / 23.5 M against 11.2 M
+
+
+def test_encoder_depth_refuses_resnet18_weights_in_another_trunk(tmp_path):
+    from mcdp.networks import NetworkError, ResnetEncoder
+
+    with pytest.raises(NetworkError, match="ResNet-18 weights only, the encoder has 50 layers"):
+        ResnetEncoder(1, str(tmp_path / "r18.pth"), 50)
