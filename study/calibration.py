@@ -197,3 +197,45 @@ def agreement(rows: list[dict], which: str | None = None) -> dict:
             "ranks": rank_stats(real, syn), "mmrv": mmrv(real, syn),
             "disagree": [r["name"] for r in resolved if not r["agrees"]],
             "unresolved": [r["name"] for r in rows if not r["resolved"]]}
+
+
+#: the second scale point reruns every anchor that disagrees or is unresolved at the first, plus this many that
+#: agree (those with the largest real effects), at most `SCALE_MAX_ARMS` arms, in the anchors file's order
+SCALE_AGREEING, SCALE_MAX_ARMS = 3, 8
+
+
+def scale_point_arms(anchors: Anchors, rows: list[dict]) -> list[str]:
+    """The arms the second scale point trains, by the rule stated before the runs (issue 57, item 4): every anchor
+    that disagrees or is unresolved at the first point, plus the `SCALE_AGREEING` agreeing anchors with the largest
+    real effects; their arms in the file's order, at most `SCALE_MAX_ARMS` (the rest is said not run). It returns
+    arms only: the verdicts of the test anchors are not shown by it."""
+    measured = [r for r in rows if r["n"] >= 2]
+    picked = [r for r in measured if not r["agrees"]]
+    agreeing = sorted((r for r in measured if r["agrees"]), key=lambda r: -abs(r["real"]))
+    picked += agreeing[:SCALE_AGREEING]
+    arms = {a for r in picked for a in (r["base"], r["changed"])}
+    return [a for a in anchors.order if a in arms][:SCALE_MAX_ARMS]
+
+
+def main(argv: list[str] | None = None) -> int:
+    """``python -m study.calibration scale-arms ANCHORS FOLDER``: the second scale point's arms, comma-separated."""
+    import sys
+
+    from study.anchors import load_anchors
+
+    args = list(sys.argv[1:] if argv is None else argv)
+    if len(args) != 3 or args[0] != "scale-arms":
+        print("usage: python -m study.calibration scale-arms ANCHORS FOLDER", file=sys.stderr)
+        return 2
+    anchors = load_anchors(args[1])
+    cols = columns(anchors)
+    values = {}
+    for name, arm in anchors.arms.items():
+        if (Path(args[2]) / name / "results.csv").is_file():
+            values[name] = arm_values(Path(args[2]) / name, cols, arm.method)
+    print(",".join(scale_point_arms(anchors, read_anchors(anchors, values))))
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

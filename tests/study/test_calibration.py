@@ -143,3 +143,17 @@ def test_calibrate_dry_run_names_every_arm_in_order_with_its_overrides(capsys, t
     assert "loss.photometric_ego_mask=false]" in nomask and "train.steps=800" in nomask
     assert not any(tmp_path.iterdir())  # a dry run writes nothing
     assert main([str(ANCHORS), str(preset), "--out", str(tmp_path), "--arms", "nope"]) == 2
+
+
+def test_the_scale_point_takes_every_unresolved_or_disagreeing_anchor_and_three_agreeing():
+    from study.calibration import scale_point_arms
+
+    a = load_anchors(ANCHORS)
+    rows = [{"name": x.name, "n": 4, "agrees": x.name in ("pretraining_off", "side_cameras", "mcdp_vs_mono2",
+                                                          "metric_scale"),
+             "real": x.real.delta, "base": x.base, "changed": x.changed} for x in a.anchors]
+    arms = scale_point_arms(a, [r for r in rows if r["name"] in ("ego_masks_off", "pretraining_off", "side_cameras",
+                                                                 "mcdp_vs_mono2", "metric_scale")])
+    # ego disagrees: its arms; agreeing by |real|: side_cameras 0.096, mcdp_vs_mono2 0.027, pretraining 0.017
+    assert arms == ["mono2", "mono2_nomask", "mono2_scratch", "mcdp_m2"]
+    assert len(scale_point_arms(a, rows)) == 8  # capped, in the file's order
