@@ -155,19 +155,37 @@ def render_size(cfg: DataConfig, shard_of: int = 1) -> dict:
     rig_frames = -(-cfg.dataset.sequences // shard_of) * cfg.dataset.frames
     images = rig_frames * len(sizes)
     pixels = sum(w * h for w, h in sizes.values())  # of one rig frame
-    return {"rig_frames": rig_frames, "images": images, "max_bytes": rig_frames * pixels * bytes_per_pixel(cfg)}
+    out = {"rig_frames": rig_frames, "images": images, "max_bytes": rig_frames * pixels * bytes_per_pixel(cfg)}
+    from synth.shutter import Shutter
+
+    shutter = Shutter.for_config(cfg)
+    if shutter is not None and shutter.renders_per_image() > 1:  # the render's time, multiplied (`size_statement`)
+        out["renders"] = images * shutter.renders_per_image()
+    return out
 
 
 def total_render_size(sizes) -> dict:
-    """The sum of several `render_size` results (a sweep's worlds)."""
+    """The sum of several `render_size` results (a sweep's worlds); ``renders`` when the shutter of any takes
+    more than one render an image."""
     sizes = list(sizes)
-    return {k: sum(s[k] for s in sizes) for k in ("rig_frames", "images", "max_bytes")}
+    out = {k: sum(s[k] for s in sizes) for k in ("rig_frames", "images", "max_bytes")}
+    if any("renders" in s for s in sizes):
+        out["renders"] = sum(s.get("renders", s["images"]) for s in sizes)
+    return out
 
 
 def size_statement(size: dict, what: str = "") -> str:
-    """One line: the rig-frames, images and bytes of a render (`render_size`), said before it starts."""
-    return (f"{size['rig_frames']} rig-frames, {size['images']} images{what} (RGB, depth and labels): "
+    """One line: the rig-frames, images and bytes of a render (`render_size`), said before it starts; when the
+    shutter (motion blur, rolling shutter: `synth.shutter`) takes several renders an image, how many, and so
+    about how many times longer the render takes than one of still images."""
+    line = (f"{size['rig_frames']} rig-frames, {size['images']} images{what} (RGB, depth and labels): "
             f"{size['max_bytes'] / 1e9:.3g} GB before compression, about a third of that on disk")
+    renders = size.get("renders", size["images"])
+    if renders > size["images"]:
+        each = renders / max(1, size["images"])
+        line += (f"; the shutter (sensor.subframes x sensor.rolling_bands) takes {each:.3g} renders an image, "
+                 f"{renders} in all, so its rendering takes up to {each:.3g} times as long as with still images")
+    return line
 
 
 def empty_split_warning(splits: dict[str, list], sequences: int) -> str | None:

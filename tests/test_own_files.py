@@ -533,3 +533,59 @@ def test_the_disk_line_says_what_it_sums(disk, tmp_path, monkeypatch):
         "14 run(s), each writing last.pt about 300 MB and best.pt 100 MB; no run keeps its checkpoints, and 2 at a "
         "time hold both while they train (keep_last: false, keep_best: false), with the pretraining: 0.9 GB of "
         "checkpoints on disk at most; with the renders about 1.9 GB; 1.9 GB still to write"), line
+
+
+# --- finding 11: every data preset's header true of what it renders (the claims a config can show) ------------
+
+def _header(path: Path) -> str:
+    lines = []
+    for line in path.read_text().splitlines():
+        if not line.startswith("#"):
+            break
+        lines.append(line.lstrip("# "))
+    return " ".join(lines)
+
+
+def _times(cfg) -> tuple:
+    from synth.sensor import SHUTTER_KEYS
+
+    return (cfg.rig.trigger, *(getattr(cfg.sensor, k) for k in SHUTTER_KEYS))
+
+
+@pytest.mark.parametrize("path", sorted((ROOT / "configs/data").glob("*.yaml")), ids=lambda p: p.stem)
+def test_a_data_presets_header_says_what_it_renders(path):
+    """Before: realistic.yaml said its ground truth was byte-identical to default.yaml's while its trigger and
+    rolling shutter moved every camera's time; nuscenes_like_sensor.yaml's trigger was said nowhere."""
+    import re
+
+    from synth.config import load_data_config
+    from synth.shutter import Shutter
+
+    cfg = load_data_config(path)
+    head = _header(path)
+    for negated, other in re.findall(r"(NOT to |not )?(?:byte-)?identical to (\w+)\.yaml", head):
+        same = _times(load_data_config(path.parent / f"{other}.yaml")) == _times(cfg)
+        assert same != bool(negated), f"{path.name}: says its ground truth is {negated}identical to {other}.yaml's"
+    if cfg.rig.trigger != "synchronous":
+        assert f"rig.trigger: {cfg.rig.trigger}" in head, path.name
+        assert f"{path.name}` (" in (ROOT / "docs/DATASET.md").read_text() and "lidar_sweep" in \
+            (ROOT / "docs/DATASET.md").read_text()
+    shutter = Shutter.for_config(cfg)
+    if shutter is not None and shutter.renders_per_image() > 1:
+        assert f"{shutter.renders_per_image()} renders an image" in head, path.name
+        assert re.search(r"[\d.]+ s a rig-frame", head) and re.search(r"[\d.]+ MB a rig-frame on disk", head), path.name
+
+
+# --- finding 13: the render's time cost stated beside its bytes when the shutter multiplies renders ------------
+
+def test_the_size_line_states_the_shutters_renders():
+    from synth.config import load_data_config, render_size, size_statement
+
+    cfg = load_data_config(ROOT / "configs/data/tiny.yaml", ["sensor.exposure_ms=100", "sensor.subframes=16",
+                                                             "sensor.rolling_shutter_ms=100", "sensor.rolling_bands=32"])
+    assert size_statement(render_size(cfg)) == (  # before: the bytes only
+        "18 rig-frames, 108 images (RGB, depth and labels): 0.00664 GB before compression, about a third of that on "
+        "disk; the shutter (sensor.subframes x sensor.rolling_bands) takes 544 renders an image, 58752 in all, so its "
+        "rendering takes up to 544 times as long as with still images")
+    still = load_data_config(ROOT / "configs/data/tiny.yaml")
+    assert "renders an image" not in size_statement(render_size(still))
