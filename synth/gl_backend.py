@@ -1,6 +1,7 @@
 """Off-screen OpenGL renderer (EGL, OSMesa fallback): RGB, exact z-depth and the ego mask.
 
-With `synth.gl_context` (EGL / OSMesa contexts) and `synth.shaders` (GLSL), the only code that imports OpenGL. It draws a `scenes.model.Scene` seen by
+With `synth.gl_context` (EGL / OSMesa contexts), `synth.shaders` (GLSL) and `synth.gl_objects` (buffers,
+textures, framebuffers, programs), the only code that touches OpenGL. It draws a `scenes.model.Scene` seen by
 one pinhole camera at a time and returns, for the stored image size (the renderer's own, or the
 camera's ``size`` when cameras differ: one framebuffer per size):
 
@@ -34,7 +35,6 @@ fallback. Example::
 """
 from __future__ import annotations
 
-import ctypes
 from dataclasses import dataclass
 
 import numpy as np
@@ -43,6 +43,7 @@ from scenes.model import Mesh, Scene
 
 from synth.camera import gl_projection, pinhole_inverse
 from synth.gl_context import RenderBackendError, create_context, select_backend
+from synth.gl_objects import GpuMesh, compile_program, main_framebuffer, shadow_target, srgb_texture_array
 from synth.shaders import FS_MAIN, FS_SHADOW, FS_SKY, VS_MAIN, VS_SHADOW, VS_SKY
 
 __all__ = ["LightState", "RenderBackendError", "Renderer", "projection_from_K", "select_backend"]
@@ -90,39 +91,6 @@ def _cube_faces() -> np.ndarray:
 _ENV_R_WORLD_FACE = _cube_faces()
 
 
-class _GpuMesh:
-    def __init__(self, GL, mesh: Mesh) -> None:
-        self.GL = GL
-        data = np.concatenate([mesh.positions, mesh.normals, mesh.uvs, mesh.layers[:, None].astype(np.float32),
-                               mesh.tints, mesh.instances[:, None].astype(np.float32)], axis=1).astype(np.float32)
-        data = np.ascontiguousarray(data)
-        self.vao = GL.glGenVertexArrays(1)
-        GL.glBindVertexArray(self.vao)
-        self.vbo = GL.glGenBuffers(1)
-        GL.glBindBuffer(GL.GL_ARRAY_BUFFER, self.vbo)
-        GL.glBufferData(GL.GL_ARRAY_BUFFER, data.nbytes, data, GL.GL_STATIC_DRAW)
-        stride = 13 * 4
-        for loc, (size, off) in enumerate([(3, 0), (3, 3), (2, 6), (1, 8), (3, 9), (1, 12)]):
-            GL.glEnableVertexAttribArray(loc)
-            GL.glVertexAttribPointer(loc, size, GL.GL_FLOAT, GL.GL_FALSE, stride, ctypes.c_void_p(off * 4))
-        self.ebo = GL.glGenBuffers(1)
-        GL.glBindBuffer(GL.GL_ELEMENT_ARRAY_BUFFER, self.ebo)
-        idx = np.ascontiguousarray(mesh.indices.reshape(-1), np.uint32)
-        GL.glBufferData(GL.GL_ELEMENT_ARRAY_BUFFER, idx.nbytes, idx, GL.GL_STATIC_DRAW)
-        self.count = int(idx.size)
-        GL.glBindVertexArray(0)
-
-    def draw(self) -> None:
-        if self.count:
-            self.GL.glBindVertexArray(self.vao)
-            self.GL.glDrawElements(self.GL.GL_TRIANGLES, self.count, self.GL.GL_UNSIGNED_INT, None)
-
-    def delete(self) -> None:
-        GL = self.GL
-        GL.glDeleteBuffers(2, [self.vbo, self.ebo])
-        GL.glDeleteVertexArrays(1, [self.vao])
-
-
 class Renderer:
     """One OpenGL context and a framebuffer of its image size (one more per other size asked of `render`);
     renders scenes camera by camera.
@@ -146,9 +114,9 @@ class Renderer:
         self._prog_sky = self._program(VS_SKY, FS_SKY)
         self._empty_vao = GL.glGenVertexArrays(1)
         self._make_framebuffers()
-        self._static: _GpuMesh | None = None
-        self._movers: list[_GpuMesh] = []
-        self._ego: _GpuMesh | None = None
+        self._static: GpuMesh | None = None
+        self._movers: list[GpuMesh] = []
+        self._ego: GpuMesh | None = None
         self._tex = None
         self._scene: Scene | None = None
         self._shadow_frame: int | None = None
@@ -160,14 +128,7 @@ class Renderer:
 
     # -- GL plumbing
     def _program(self, vs: str, fs: str) -> int:
-        GL = self.GL
-        from OpenGL.GL import shaders
-
-        try:
-            return shaders.compileProgram(shaders.compileShader(vs, GL.GL_VERTEX_SHADER),
-                                          shaders.compileShader(fs, GL.GL_FRAGMENT_SHADER), validate=False)
-        except Exception as exc:  # shader errors are bugs, but say where
-            raise RenderBackendError(f"shader compilation failed on {self.gl_renderer}: {exc}") from exc
+        return compile_program(self.GL, vs, fs, self.gl_renderer)
 
     def _loc(self, prog: int, name: str) -> int:
         key = (prog, name)
@@ -191,47 +152,14 @@ class Renderer:
         fbo = self._fbos.get((W, H))
         if fbo is not None:
             return fbo
-        GL = self.GL
-        fbo = GL.glGenFramebuffers(1)
-        GL.glBindFramebuffer(GL.GL_FRAMEBUFFER, fbo)
-        rb_color, rb_depthval, rb_z = GL.glGenRenderbuffers(3)
-        GL.glBindRenderbuffer(GL.GL_RENDERBUFFER, rb_color)
-        GL.glRenderbufferStorage(GL.GL_RENDERBUFFER, GL.GL_RGBA8, W, H)
-        GL.glFramebufferRenderbuffer(GL.GL_FRAMEBUFFER, GL.GL_COLOR_ATTACHMENT0, GL.GL_RENDERBUFFER, rb_color)
-        GL.glBindRenderbuffer(GL.GL_RENDERBUFFER, rb_depthval)
-        GL.glRenderbufferStorage(GL.GL_RENDERBUFFER, GL.GL_RGBA32F, W, H)
-        GL.glFramebufferRenderbuffer(GL.GL_FRAMEBUFFER, GL.GL_COLOR_ATTACHMENT1, GL.GL_RENDERBUFFER, rb_depthval)
-        GL.glBindRenderbuffer(GL.GL_RENDERBUFFER, rb_z)
-        GL.glRenderbufferStorage(GL.GL_RENDERBUFFER, GL.GL_DEPTH_COMPONENT32F, W, H)
-        GL.glFramebufferRenderbuffer(GL.GL_FRAMEBUFFER, GL.GL_DEPTH_ATTACHMENT, GL.GL_RENDERBUFFER, rb_z)
-        GL.glDrawBuffers(2, [GL.GL_COLOR_ATTACHMENT0, GL.GL_COLOR_ATTACHMENT1])
-        if GL.glCheckFramebufferStatus(GL.GL_FRAMEBUFFER) != GL.GL_FRAMEBUFFER_COMPLETE:
-            raise RenderBackendError(f"main framebuffer {W}x{H} incomplete")
+        fbo = main_framebuffer(self.GL, W, H)
         self._fbos[(W, H)] = fbo
         return fbo
 
     def _make_framebuffers(self) -> None:
-        GL = self.GL
         self._fbos: dict[tuple[int, int], int] = {}
         self._main_framebuffer(self.width, self.height)
-        # shadow map
-        S = self.shadow_size
-        self._shadow_tex = GL.glGenTextures(1)
-        GL.glBindTexture(GL.GL_TEXTURE_2D, self._shadow_tex)
-        GL.glTexImage2D(GL.GL_TEXTURE_2D, 0, GL.GL_DEPTH_COMPONENT32F, S, S, 0, GL.GL_DEPTH_COMPONENT, GL.GL_FLOAT,
-                        None)
-        for p, v in [(GL.GL_TEXTURE_MIN_FILTER, GL.GL_LINEAR), (GL.GL_TEXTURE_MAG_FILTER, GL.GL_LINEAR),
-                     (GL.GL_TEXTURE_WRAP_S, GL.GL_CLAMP_TO_EDGE), (GL.GL_TEXTURE_WRAP_T, GL.GL_CLAMP_TO_EDGE),
-                     (GL.GL_TEXTURE_COMPARE_MODE, GL.GL_COMPARE_REF_TO_TEXTURE),
-                     (GL.GL_TEXTURE_COMPARE_FUNC, GL.GL_LEQUAL)]:
-            GL.glTexParameteri(GL.GL_TEXTURE_2D, p, v)
-        self._shadow_fbo = GL.glGenFramebuffers(1)
-        GL.glBindFramebuffer(GL.GL_FRAMEBUFFER, self._shadow_fbo)
-        GL.glFramebufferTexture2D(GL.GL_FRAMEBUFFER, GL.GL_DEPTH_ATTACHMENT, GL.GL_TEXTURE_2D, self._shadow_tex, 0)
-        GL.glDrawBuffer(GL.GL_NONE)
-        GL.glReadBuffer(GL.GL_NONE)
-        if GL.glCheckFramebufferStatus(GL.GL_FRAMEBUFFER) != GL.GL_FRAMEBUFFER_COMPLETE:
-            raise RenderBackendError("shadow framebuffer incomplete")
+        self._shadow_tex, self._shadow_fbo = shadow_target(self.GL, self.shadow_size)  # shadow map
 
     # -- scene
     def load_scene(self, scene: Scene, ego_mesh: Mesh | None) -> None:
@@ -240,19 +168,10 @@ class Renderer:
         self._ctx.make_current()
         self._free_scene()
         self._scene = scene
-        self._static = _GpuMesh(GL, scene.static)
-        self._movers = [_GpuMesh(GL, m.mesh) for m in scene.movers]
-        self._ego = _GpuMesh(GL, ego_mesh) if ego_mesh is not None else None
-        tex = np.ascontiguousarray(scene.textures)
-        L, S = tex.shape[0], tex.shape[1]
-        self._tex = GL.glGenTextures(1)
-        GL.glBindTexture(GL.GL_TEXTURE_2D_ARRAY, self._tex)
-        GL.glPixelStorei(GL.GL_UNPACK_ALIGNMENT, 1)
-        GL.glTexImage3D(GL.GL_TEXTURE_2D_ARRAY, 0, GL.GL_SRGB8, S, S, L, 0, GL.GL_RGB, GL.GL_UNSIGNED_BYTE, tex)
-        GL.glGenerateMipmap(GL.GL_TEXTURE_2D_ARRAY)
-        for p, v in [(GL.GL_TEXTURE_MIN_FILTER, GL.GL_LINEAR_MIPMAP_LINEAR), (GL.GL_TEXTURE_MAG_FILTER, GL.GL_LINEAR),
-                     (GL.GL_TEXTURE_WRAP_S, GL.GL_REPEAT), (GL.GL_TEXTURE_WRAP_T, GL.GL_REPEAT)]:
-            GL.glTexParameteri(GL.GL_TEXTURE_2D_ARRAY, p, v)
+        self._static = GpuMesh(GL, scene.static)
+        self._movers = [GpuMesh(GL, m.mesh) for m in scene.movers]
+        self._ego = GpuMesh(GL, ego_mesh) if ego_mesh is not None else None
+        self._tex = srgb_texture_array(GL, None, np.ascontiguousarray(scene.textures), tiled=True)
         self._shadow_frame = None
         self._ego_live, self._env_frame = None, None
 
@@ -289,15 +208,7 @@ class Renderer:
                 faces[i] = self.render(K, T, frame, light, size=(S, S))["rgb"]
         finally:
             self._ego, self._ego_live = ego, live
-        if self._env_tex is None:
-            self._env_tex = GL.glGenTextures(1)
-        GL.glActiveTexture(GL.GL_TEXTURE2)
-        GL.glBindTexture(GL.GL_TEXTURE_2D_ARRAY, self._env_tex)
-        GL.glPixelStorei(GL.GL_UNPACK_ALIGNMENT, 1)
-        GL.glTexImage3D(GL.GL_TEXTURE_2D_ARRAY, 0, GL.GL_SRGB8, S, S, 6, 0, GL.GL_RGB, GL.GL_UNSIGNED_BYTE, faces)
-        for p, v in [(GL.GL_TEXTURE_MIN_FILTER, GL.GL_LINEAR), (GL.GL_TEXTURE_MAG_FILTER, GL.GL_LINEAR),
-                     (GL.GL_TEXTURE_WRAP_S, GL.GL_CLAMP_TO_EDGE), (GL.GL_TEXTURE_WRAP_T, GL.GL_CLAMP_TO_EDGE)]:
-            GL.glTexParameteri(GL.GL_TEXTURE_2D_ARRAY, p, v)
+        self._env_tex = srgb_texture_array(GL, self._env_tex, faces, tiled=False, unit=GL.GL_TEXTURE2)
 
     def _free_scene(self) -> None:
         for m in ([self._static, self._ego] + self._movers):
@@ -413,7 +324,7 @@ class Renderer:
             self._set_vec3(pm, "u_ego_centre", self._ego_live.box_centre)
             self._set_vec3(pm, "u_ego_half", self._ego_live.box_half)
 
-        def draw(gm: _GpuMesh, T_world_obj: np.ndarray, is_ego: float, instance: float) -> None:
+        def draw(gm: GpuMesh, T_world_obj: np.ndarray, is_ego: float, instance: float) -> None:
             self._set_mat4(pm, "u_model", T_world_obj)
             self._set_mat4(pm, "u_modelview", T_cam_world @ T_world_obj)
             GL.glUniform1f(self._loc(pm, "u_is_ego"), is_ego)
