@@ -28,7 +28,13 @@ _SOLVED: dict[str, dict] = {}
 
 def geometric_rig(cfg):
     """The `synth.rig.RigConfig` the cameras are built from: ``cfg.rig`` itself (``angle``), or a copy with
-    the solved geometric overlap (``pixels``; not re-validated: it may exceed the knob's 0.60)."""
+    the solved geometric overlap (``pixels``; not re-validated: it may exceed the knob's 0.60). Every render's
+    rig comes from here, so a lens other than pinhole is refused here in one line: the rasteriser draws pinhole
+    images, and the remap of face renders that forms another lens's image is not built yet (issue 59 item 3)."""
+    lenses = {n: o.model for n, o in cfg.rig.cameras.items() if o.model not in (None, "pinhole")}
+    if lenses:
+        raise ValueError(f"rendering is pinhole only (image formation of other lenses: issue 59 item 3); "
+                         f"rig.cameras {', '.join(f'{n}.model={m}' for n, m in lenses.items())}")
     if cfg.rig.overlap_target == "angle":
         return cfg.rig
     return cfg.rig.model_copy(update={"overlap": calibration(cfg)["geometric"], "overlap_target": "angle"})

@@ -41,6 +41,7 @@ Example::
 """
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 from functools import lru_cache
 from typing import Callable, Literal
@@ -219,6 +220,27 @@ def gl_projection(cam, width: int, height: int, znear: float, zfar: float) -> np
 def pinhole_inverse(cam) -> np.ndarray:
     """K^-1 of a pinhole camera: the ray matrix a shader applies to (u, v, 1) (`synth.shaders` FS_SKY)."""
     return np.linalg.inv(pinhole_K(cam))
+
+
+def unit_focal_radius(name: str, dist, angle_rad: float) -> float:
+    """How far from the principal point (in focal lengths) row `name` images a ray at `angle_rad` from its axis:
+    tan for pinhole, the distorted radius for radtan, theta_d for kannala_brandt (a K's focal length from a
+    field of view, `synth.rig.intrinsics_for`). ValueError where the row has no image of that angle."""
+    cam = Intrinsics(name, np.eye(3), tuple(dist))
+    uv, ok = project(cam, np.array([[math.sin(angle_rad)], [0.0], [math.cos(angle_rad)]]))
+    if not ok[0] or not uv[0, 0] > 0:
+        raise ValueError(f"camera model {name!r} with dist {tuple(dist)} does not image {math.degrees(angle_rad):g} "
+                         "degrees from its axis (half the field of view)")
+    return float(uv[0, 0])
+
+
+def pinhole_only(cameras, what: str) -> None:
+    """ValueError in one line unless every camera (``.name``, ``.model``) is pinhole: for what is pinhole by its
+    format or its maths (the rasteriser until image formation exists, nuScenes' and glTF's cameras)."""
+    other = [f"{c.name} ({c.model})" for c in cameras if c.model != "pinhole"]
+    if other:
+        raise ValueError(f"{what} is pinhole only; camera(s) {', '.join(other)[:200]} have another lens model "
+                         "(rig.cameras.<CAM>.model)")
 
 
 # --------------------------------------------------------------------------- pinhole

@@ -6,7 +6,8 @@ Layout (docs/DATASET.md)::
       manifest.json          written LAST (schema_version, generator version, resolved config,
                              seed, cameras, image size (and each camera's, where one differs), fps,
                              splits, overlap, sha256 of every file)
-      rig.json               cameras [{name, width, height, K, T_ego_cam, hfov_deg, yaw_deg}], neighbours
+      rig.json               cameras [{name, width, height, K, T_ego_cam, hfov_deg, yaw_deg; model, dist: a lens
+                             other than pinhole (`synth.camera`)}], neighbours
       masks/<CAM>.png        uint8, 255 = scene, 0 = ego body (each file at its camera's size)
       <seq>/ego.json         per frame: timestamp_s, T_world_ego (4x4), lighting
       <seq>/<CAM>/<frame:06d>.png         RGB uint8 sRGB (.jpg: a JPEG, with the manifest's ``rgb.format`` jpeg)
@@ -31,6 +32,7 @@ from pathlib import Path
 
 import numpy as np
 
+from synth import camera
 from synth.files import (RGB_SUFFIXES, DatasetError, frame_stem, is_plain_name, read_depth_exr, read_image, read_json,
                          read_png, read_regular, short_list, within)
 from synth.label_reader import LabelReader, check_labels_record
@@ -326,6 +328,13 @@ def check_rig(rig, manifest: dict, rpath: Path) -> None:
             raise DatasetError(f"{rpath}: {field}.K must be a finite 3x3 matrix")
         if not _matrix(c.get("T_ego_cam"), 4):
             raise DatasetError(f"{rpath}: {field}.T_ego_cam must be a finite 4x4 matrix")
+        if "model" in c or "dist" in c:  # a lens other than pinhole (issue 59): the camera table's row and parameters
+            try:
+                if not isinstance(c.get("model"), str):
+                    raise ValueError(f"model must be a camera model's name, got {str(c.get('model'))[:40]}")
+                camera.Intrinsics.from_json({"model": c.get("model"), "K": c["K"], "dist": c.get("dist")})
+            except (ValueError, TypeError) as e:
+                raise DatasetError(f"{rpath}: {field}: {str(e)[:300]}") from None
     n = len(names)
     nb = rig.get("neighbours")
     if not isinstance(nb, list) or not all(isinstance(p, list) and len(p) == 2 and all(

@@ -9,7 +9,9 @@ says which reader it has (``ds.format == "synth"``: the manifest, ``read_bytes``
 sweeps), never by probing with ``getattr`` / ``hasattr``. docs/INTERFACES.md lists the same members.
 
 Conventions (docs/INTERFACES.md): metres; OpenCV camera axes; ``T_a_b`` maps points of frame b into
-frame a; `K` in pixels of the stored image with pixel centres at +0.5; depth is z-depth, 0 = no value.
+frame a; `K` in pixels of the stored image with pixel centres at +0.5; depth is of the camera's lens's depth kind
+(`Camera.intrinsics`, `synth.camera`): z-depth for pinhole and radtan, range (ray length) for kannala_brandt; 0 =
+no value.
 
 Image size is per camera: `Camera.width` x `Camera.height`, which may differ between the cameras of one
 rig (``rig.cameras.<CAM>.width``; a nuScenes dataroot's channels); `read_rgb`, `read_depth` and `mask` of a
@@ -45,7 +47,12 @@ class Camera(Protocol):
 
     @property
     def K(self) -> np.ndarray:
-        """(3, 3) float64 pinhole matrix in pixels of this camera's stored image."""
+        """(3, 3) float64 camera matrix in pixels of this camera's stored image (its lens: `intrinsics`)."""
+
+    @property
+    def intrinsics(self) -> camera.Intrinsics:
+        """Its lens: the camera-table row, `K` and the distortion parameters (a pinhole camera: ``model ==
+        "pinhole"``, no parameters). Every projection of this camera goes through it (`synth.camera`)."""
 
     @property
     def T_ego_cam(self) -> np.ndarray:
@@ -132,7 +139,8 @@ class DatasetReader(Protocol):
         """(H, W, 3) uint8 RGB at the camera's size (its ``height``, ``width``)."""
 
     def read_depth(self, seq: str, cam: str, frame: int) -> np.ndarray:
-        """(H, W) float32 z-depth in metres at the camera's size, 0 = no value."""
+        """(H, W) float32 depth in metres at the camera's size, of its lens's depth kind (z-depth; range for
+        kannala_brandt), 0 = no value."""
 
     def mask(self, cam: str) -> np.ndarray:
         """(H, W) bool at the camera's size, True = scene, False = ego body."""

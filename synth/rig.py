@@ -33,6 +33,7 @@ from pydantic import Field, field_validator, model_validator
 
 from scenes.model import Mesh
 from corelib.configlib import StrictModel, added_key
+from synth import camera as camera_table
 
 CAMERA_NAMES = ("CAM_FRONT", "CAM_FRONT_RIGHT", "CAM_BACK_RIGHT", "CAM_BACK", "CAM_BACK_LEFT", "CAM_FRONT_LEFT")
 # adjacent pairs in ring order: (0,1) (1,2) ... (5,0)
@@ -45,6 +46,8 @@ _R_BODY_CV = np.array([[0.0, 0.0, 1.0], [-1.0, 0.0, 0.0], [0.0, -1.0, 0.0]])
 #: the largest image side of a camera (pixels): the config's bound, and what a manifest may claim and a reader
 #: decodes (`synth.dataset.check_manifest_keys`, `synth.files.read_png`)
 MAX_CAMERA_PX = 4096
+#: the widest horizontal field of view of a z-depth (pinhole-like) camera, and of a range (fisheye) one (degrees)
+MAX_PINHOLE_HFOV, MAX_FISHEYE_HFOV = 150.0, 220.0
 #: the largest trigger offset of a camera from its frame's time (ms, either way): `RigConfig.trigger_offsets_ms`
 MAX_TRIGGER_MS = 500.0
 
@@ -60,7 +63,10 @@ class CameraConfig(StrictModel):
 class CameraOverride(StrictModel):
     """One camera's own settings over the rig's (``rig.cameras.<CAM>.<key>``; null = the rig's).
 
-    hfov_deg: its horizontal field of view (its K: square pixels, centred principal point).
+    hfov_deg: its horizontal field of view (its K: square pixels, centred principal point; the focal length
+        that maps the half-angle to the half-width through its lens model, `intrinsics_for`).
+    model / dist: its lens (issue 59), a row of `synth.camera.MODELS` and that row's distortion parameters in
+        order (radtan: k1 k2 p1 p2 k3; kannala_brandt: k1 k2 k3 k4); null = pinhole.
     width / height: its image size in pixels (bounded like ``camera.width`` / ``camera.height``), instead of
         the dataset's ``camera.width`` x ``camera.height``; its K is made from its own size and hfov, and its
         images, depth maps and mask are written at that size (the manifest's ``camera_sizes``).
@@ -70,12 +76,34 @@ class CameraOverride(StrictModel):
         of the roof mount at ``camera_height_m``.
     """
 
-    hfov_deg: float | None = Field(None, gt=20.0, le=150.0)
+    hfov_deg: float | None = Field(None, gt=20.0, le=MAX_FISHEYE_HFOV)  # above 150: a fisheye `model` only
     width: int | None = added_key(None, ge=16, le=MAX_CAMERA_PX)  # added_key: a rig.cameras entry keeps its hash
     height: int | None = added_key(None, ge=16, le=MAX_CAMERA_PX)
     yaw_deg: float | None = Field(None, ge=-180.0, le=180.0)
     pitch_deg: float | None = Field(None, ge=-45.0, le=45.0)
     mount_m: list[float] | None = None  # [x, y, z]
+    # issue 59: the lens, a row of the camera-model table (`synth.camera.MODELS`) and its distortion parameters in
+    # the row's order; null = pinhole (added keys: a pinhole camera's entry keeps its hash, its rig.json its bytes)
+    model: str | None = added_key(None)
+    dist: list[float] | None = added_key(None)
+
+    @field_validator("model")
+    @classmethod
+    def _model(cls, v):
+        if v is not None and v not in camera_table.MODELS:
+            raise ValueError(f"unknown camera model {str(v)[:40]!r}; the table has {', '.join(camera_table.MODELS)}")
+        return v
+
+    @model_validator(mode="after")
+    def _lens(self) -> "CameraOverride":
+        names = camera_table.model(self.model or "pinhole").dist_names
+        if len(self.dist or ()) != len(names) or not all(math.isfinite(d) and abs(d) <= 10.0 for d in self.dist or ()):
+            raise ValueError(f"dist must be {len(names)} finite numbers within 10 ({', '.join(names) or 'none'}) for "
+                             f"camera model {self.model or 'pinhole'}, got {str(self.dist)[:200]}")
+        if self.hfov_deg is not None and self.hfov_deg > MAX_PINHOLE_HFOV and camera_table.depth_kind(self.model or "pinhole") == "z_depth":
+            raise ValueError(f"hfov_deg {self.hfov_deg:g} needs a range-depth (fisheye) camera model; "
+                             f"camera model {self.model or 'pinhole'} allows up to {MAX_PINHOLE_HFOV:g}")
+        return self
 
     @field_validator("mount_m")
     @classmethod
@@ -148,7 +176,10 @@ class RigConfig(StrictModel):
 
 @dataclass(frozen=True)
 class CameraSpec:
-    """One camera: image size, pinhole `K` (pixels), `T_ego_cam` (camera -> ego), angles in degrees."""
+    """One camera: image size, `K` (pixels), `T_ego_cam` (camera -> ego), angles in degrees, and its lens:
+    `model` (a row of `synth.camera.MODELS`) and `dist` (that row's parameters in order). JSON (rig.json): a
+    pinhole camera has no ``model`` / ``dist`` keys (every dataset rendered before lenses reads as it was, its
+    bytes unchanged); another has ``"model"`` and ``"dist": {name: value}``."""
 
     name: str
     width: int
@@ -158,19 +189,31 @@ class CameraSpec:
     hfov_deg: float
     yaw_deg: float
     pitch_deg: float
+    model: str = "pinhole"
+    dist: tuple[float, ...] = ()
+
+    @property
+    def intrinsics(self) -> camera_table.Intrinsics:
+        """The camera-table camera (model, K, dist): what every projection of this camera goes through."""
+        return camera_table.Intrinsics(self.model, self.K, self.dist)
 
     def to_json(self) -> dict:
-        return {
+        out = {
             "name": self.name, "width": self.width, "height": self.height,
             "K": self.K.tolist(), "T_ego_cam": self.T_ego_cam.tolist(),
             "hfov_deg": self.hfov_deg, "yaw_deg": self.yaw_deg, "pitch_deg": self.pitch_deg,
         }
+        if self.model != "pinhole":
+            out.update(self.intrinsics.to_json(), K=out["K"])  # model, dist {name: value}; K in its place
+        return out
 
     @staticmethod
     def from_json(d: dict) -> "CameraSpec":
+        lens = camera_table.Intrinsics.from_json({"model": d["model"], "K": d["K"], "dist": d["dist"]}) \
+            if "model" in d else None
         return CameraSpec(d["name"], int(d["width"]), int(d["height"]), np.asarray(d["K"], np.float64),
                           np.asarray(d["T_ego_cam"], np.float64), float(d["hfov_deg"]), float(d["yaw_deg"]),
-                          float(d.get("pitch_deg", 0.0)))
+                          float(d.get("pitch_deg", 0.0)), *((lens.model, lens.dist) if lens else ()))
 
 
 @dataclass(frozen=True)
@@ -210,6 +253,15 @@ def sizes_text(sizes: dict[str, tuple[int, int]]) -> str:
         counts[wh] = counts.get(wh, 0) + 1
     common = max(counts, key=counts.get)
     return ", ".join([f"{common[0]}x{common[1]}"] + [f"{n} {w}x{h}" for n, (w, h) in sizes.items() if (w, h) != common])
+
+
+def intrinsics_for(width: int, height: int, hfov_deg: float, model: str = "pinhole", dist=()) -> np.ndarray:
+    """K with square pixels and the principal point at the image centre whose lens maps the half hfov to the
+    half width (`synth.camera.unit_focal_radius`); a pinhole camera's is `intrinsics_from_hfov`, as ever."""
+    if model == "pinhole":
+        return intrinsics_from_hfov(width, height, hfov_deg)
+    fx = (width / 2.0) / camera_table.unit_focal_radius(model, dist, math.radians(hfov_deg) / 2.0)
+    return np.array([[fx, 0.0, width / 2.0], [0.0, fx, height / 2.0], [0.0, 0.0, 1.0]])
 
 
 def intrinsics_from_hfov(width: int, height: int, hfov_deg: float) -> np.ndarray:
@@ -286,8 +338,8 @@ def build_rig(rig: RigConfig, camera: CameraConfig) -> Rig:
         mx, my, mz = _MOUNTS[name]
         T[:3, 3] = (mx, my, rig.camera_height_m + mz) if o.mount_m is None else o.mount_m
         w, ht = sizes[name]
-        K = intrinsics_from_hfov(w, ht, h)
-        cams.append(CameraSpec(name, w, ht, K, T, h, yaw, pitch))
+        lens = (o.model or "pinhole", tuple(o.dist or ()))
+        cams.append(CameraSpec(name, w, ht, intrinsics_for(w, ht, h, *lens), T, h, yaw, pitch, *lens))
     return Rig(tuple(cams), RING_PAIRS, rig.overlap, rig.overlap_mode, s)
 
 
