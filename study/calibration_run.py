@@ -23,7 +23,8 @@ from pathlib import Path
 
 from corelib.configlib import ConfigError
 
-#: what every arm's folder shares with the first arm's (the pretraining, the rendered worlds, the markers)
+#: what every arm's folder shares with the first arm's (the pretraining, the rendered worlds, the folder's marker
+#: file, without which a sweep refuses a folder that is not empty)
 SHARED = ("pretrain", "data", ".mcdp")
 
 
@@ -38,10 +39,14 @@ def link_shared(first: Path, target: Path) -> list[str]:
     done = []
     for name in SHARED:
         src, dst = first / name, target / name
-        if src.is_dir() and not src.is_symlink() and not dst.exists():
-            target.mkdir(parents=True, exist_ok=True)
+        if src.is_symlink() or not src.exists() or os.path.lexists(dst):
+            continue
+        target.mkdir(parents=True, exist_ok=True)
+        if src.is_dir():
             subprocess.run(["cp", "-al", str(src), str(dst)], check=True)
-            done.append(name)
+        else:  # the sweep folder's marker file (`corelib.rundir`)
+            os.link(src, dst)
+        done.append(name)
     return done
 
 

@@ -157,3 +157,17 @@ def test_the_scale_point_takes_every_unresolved_or_disagreeing_anchor_and_three_
     # ego disagrees: its arms; agreeing by |real|: side_cameras 0.096, mcdp_vs_mono2 0.027, pretraining 0.017
     assert arms == ["mono2", "mono2_nomask", "mono2_scratch", "mcdp_m2"]
     assert len(scale_point_arms(a, rows)) == 8  # capped, in the file's order
+
+
+def test_link_shared_hard_links_the_first_arms_folders_and_marker(tmp_path):
+    from study.calibration_run import link_shared
+
+    first = tmp_path / "mono2"
+    (first / "data" / "w").mkdir(parents=True)
+    (first / "data" / "w" / "x.exr").write_bytes(b"x")
+    (first / "pretrain").mkdir()
+    (first / ".mcdp").write_text("sweep\n")
+    assert link_shared(first, tmp_path / "arm") == ["pretrain", "data", ".mcdp"]
+    assert (tmp_path / "arm" / "data" / "w" / "x.exr").stat().st_ino == (first / "data" / "w" / "x.exr").stat().st_ino
+    assert (tmp_path / "arm" / ".mcdp").stat().st_ino == (first / ".mcdp").stat().st_ino
+    assert link_shared(first, tmp_path / "arm") == []  # already there: nothing again
