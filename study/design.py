@@ -15,6 +15,9 @@ outlying world cannot carry alone (issue 47; docs/results/lcon.md).
 - `sequential_look`: one look of a sweep: the t statistic of the worlds so far against the look's boundary,
   as its nominal two-sided level (a z boundary b is the nominal level 2 (1 - Phi(b)), and the t test at
   that level with worlds - 1 degrees of freedom: the usual small-sample reading of a z boundary).
+- `reading_over_worlds`: the one reading of a paired difference over worlds that every page gives (lcon,
+  primary, sensor): `study.power.nested` (clustered by world), the two-sided t p-value (`t_p_two_sided`), the MDE
+  at 80 % power, TOST against the plan's ``delta`` and the signed-rank reading of the world means.
 - `signed_rank`: Wilcoxon's signed-rank test over worlds (exact without ties or zeros and n <= 50, else the
   normal approximation with the tie correction: scipy.stats.wilcoxon's defaults) with the Hodges-Lehmann
   estimate and its confidence interval (the Walsh averages' order statistics at the exact critical value).
@@ -31,12 +34,12 @@ Example::
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
+from collections.abc import Iterable, Mapping, Sequence
 
-from study.power import t_cdf, t_ppf
+from study.power import mde, nested, t_cdf, t_ppf, tost
 
 __all__ = ["worlds_needed", "obf_bounds", "obf_inflation", "sequential_look", "signed_rank", "norm_cdf",
-           "norm_ppf"]
+           "norm_ppf", "t_p_two_sided", "reading_over_worlds"]
 
 _PANELS = 4000  # Simpson panels of the bivariate normal integrals (even)
 
@@ -153,8 +156,39 @@ def sequential_look(diffs: Sequence[float], planned: int, final: bool, t1: float
     mean = math.fsum(x) / n
     sd = math.sqrt(math.fsum((v - mean) ** 2 for v in x) / (n - 1))
     t = mean / (sd / math.sqrt(n)) if sd > 0 else math.copysign(math.inf, mean) if mean else 0.0
-    p = 2.0 * t_cdf(-abs(t), n - 1) if math.isfinite(t) else 0.0
+    p = t_p_two_sided(t, n - 1)
     return {**out, "mean": mean, "t": t, "df": n - 1, "p": p, "stop": p <= nominal}
+
+
+def t_p_two_sided(t: float, df: float) -> float:
+    """The two-sided p-value of a t statistic with ``df`` degrees of freedom: 2 t_cdf(-|t|) (no 1 - x
+    cancellation); 0 for an infinite t (no spread, a mean off zero), NaN for NaN or df < 1."""
+    if math.isnan(t) or not df >= 1:
+        return math.nan
+    return 2.0 * t_cdf(-abs(t), df) if math.isfinite(t) else 0.0
+
+
+def reading_over_worlds(diffs: Mapping[object, Iterable[float]], plan: Mapping) -> dict:
+    """The one reading of a paired difference over worlds (every page's: `study.lcon`, `study.primary`,
+    `study.sensor`). ``diffs`` maps a world to its seeds' paired differences (`study.power.nested`); ``plan`` is
+    the sweep's pre-stated analysis (its ``delta``, the equivalence bound; absent: no TOST).
+
+    Returns `study.power.nested`'s dict (mean, se, df, ci95, the variance split, ``values``: the per-world rows)
+    with ``p`` (two-sided t, `t_p_two_sided`), ``mde80`` (80 % power), ``tost`` (against ``plan["delta"]``:
+    {"p", "equivalent", ...}; p NaN and not equivalent with fewer than 2 worlds or no delta) and ``rank``
+    (`signed_rank` of the world means: Wilcoxon p, Hodges-Lehmann and its interval)."""
+    n = nested(diffs)
+    enough = n["n_worlds"] >= 2
+    n["p"] = t_p_two_sided(n["mean"] / n["se"], n["df"]) if enough and n["se"] > 0 else math.nan
+    n["mde80"] = mde(n["se"], n["df"]) if enough else math.nan
+    delta = plan.get("delta")
+    n["tost"] = tost(n["mean"], n["se"], n["df"], float(delta)) if enough and delta else \
+        {"p": math.nan, "equivalent": False}
+    means: dict = {}
+    for w, v in n["values"]:
+        means.setdefault(w, []).append(v)
+    n["rank"] = signed_rank([math.fsum(v) / len(v) for v in means.values()])
+    return n
 
 
 def _signed_rank_counts(n: int) -> list[int]:

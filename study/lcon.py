@@ -21,11 +21,10 @@ from __future__ import annotations
 import math
 from pathlib import Path
 
-from study.design import sequential_look, signed_rank, worlds_needed
-from study.power import mde, nested, tost
+from study.design import reading_over_worlds, sequential_look, worlds_needed
 from study.primary import DELTA, PRIMARY_OVERLAP, SCALINGS, has_control, measure
 from study.reach import lcon_pairs, local
-from study.results import row_evaluations
+from study.results import fmt_diff, row_evaluations
 from study.worlds import data_seeds
 from study.variance import forest_plot, variance_split
 from study.variants import Evaluation, cut
@@ -90,15 +89,9 @@ def world_means(ps: list[dict], sc: str) -> dict:
 
 
 def reading(ps: list[dict], sc: str) -> dict:
-    """(b) over the worlds at one scaling: nested (clustered by world), MDE, TOST, and the signed-rank test over the
-    world means."""
-    groups = world_means(ps, sc)
-    n = nested(groups)
-    n["mde80"] = mde(n["se"], n["df"]) if n["n_worlds"] >= 2 else math.nan
-    n["tost"] = tost(n["mean"], n["se"], n["df"], DELTA) if n["n_worlds"] >= 2 else {"p": math.nan,
-                                                                                      "equivalent": False}
-    n["rank"] = signed_rank([math.fsum(v) / len(v) for v in groups.values() if v])
-    return n
+    """(b) over the worlds at one scaling: `study.design.reading_over_worlds` (nested, clustered by world; MDE;
+    TOST; the signed-rank test over the world means)."""
+    return reading_over_worlds(world_means(ps, sc), {"delta": DELTA})
 
 
 def answer(n: dict) -> str:
@@ -107,12 +100,12 @@ def answer(n: dict) -> str:
     if n["n_worlds"] < 2:
         return "Not measured (fewer than 2 worlds)"
     if n["differs"] == 1:
-        return f"L_con improves non-overlap depth by {n['mean']:+.4f} ± {n['ci95']:.4f}"
+        return f"L_con improves non-overlap depth by {fmt_diff(n, 4)}"
     if n["differs"] == -1:
-        return f"L_con makes non-overlap depth worse by {-n['mean']:.4f} ± {n['ci95']:.4f}"
+        return f"L_con makes non-overlap depth worse: {fmt_diff(n, 4)}"
     if n["tost"]["equivalent"]:
-        return f"Equivalent to 0 within ±{DELTA:g} ({n['mean']:+.4f} ± {n['ci95']:.4f}, TOST p = {n['tost']['p']:.3f})"
-    return (f"Not resolved with {n['n_worlds']} worlds ({n['mean']:+.4f} ± {n['ci95']:.4f}); detectable at "
+        return f"Equivalent to 0 within ±{DELTA:g} ({fmt_diff(n, 4)}, TOST p = {n['tost']['p']:.3f})"
+    return (f"Not resolved with {n['n_worlds']} worlds ({fmt_diff(n, 4)}); detectable at "
             f"{n['mde80']:.4f}")
 
 
@@ -181,7 +174,7 @@ def format_lcon(results: dict, plot_dir: Path | None = None, o: float = PRIMARY_
             readings[sc] = n
             r = n["rank"]
             pos = sum(1 for v in world_means(ps, sc).values() if math.fsum(v) > 0)
-            add(f"| {sc} | {_f(n['mean'])} ± {n['ci95']:.4f} | {n['mde80']:.4f} | {n['tost']['p']:.3f} | "
+            add(f"| {sc} | {fmt_diff(n, 4)} | {n['mde80']:.4f} | {n['tost']['p']:.3f} | "
                 f"{r['p']:.3f} | {_f(r['hl'])} [{_f(r['ci'][0])}, {_f(r['ci'][1])}]{_level(r)} | {pos} / {n['n_worlds']} | "
                 f"{answer(n)} |")
         add("")
@@ -295,8 +288,8 @@ def budget_reading(budget: dict, short: dict | None, o: float = PRIMARY_OVERLAP)
     ``budget``: a sweep with the L_con pair and, as the control, the local yardstick (ORACLE-local) trained at the
     same budget; ``short``: a sweep of the same worlds at the shorter budget (or None). Returns {"b": {scaling:
     `reading`}, "control": `study.primary.measure` of emptied - filled on non-overlap pixels (None without it),
-    "short": {scaling: `reading` of the shorter budget on the worlds both have}, "change": {scaling: `nested` of
-    (b) long - (b) short, paired by world}}."""
+    "short": {scaling: `reading` of the shorter budget on the worlds both have}, "change": {scaling:
+    `study.design.reading_over_worlds` of (b) long - (b) short, paired by world}}."""
     ps = pairs(budget, o)
     out: dict = {"b": {sc: reading(ps, sc) for sc in SCALINGS}, "control": None, "short": None, "change": None}
     if has_control(budget):
@@ -307,8 +300,8 @@ def budget_reading(budget: dict, short: dict | None, o: float = PRIMARY_OVERLAP)
         sp = [p for p in pairs(short, o) if p["world"] in long_w]
         if len(sp) >= 2:
             out["short"] = {sc: reading(sp, sc) for sc in SCALINGS}
-            out["change"] = {sc: nested({p["world"]: [long_w[p["world"]]["d"][sc] - p["d"][sc]] for p in sp})
-                             for sc in SCALINGS}
+            out["change"] = {sc: reading_over_worlds({p["world"]: [long_w[p["world"]]["d"][sc] - p["d"][sc]]
+                                                      for p in sp}, {"delta": DELTA}) for sc in SCALINGS}
     return out
 
 
@@ -326,14 +319,14 @@ def format_budget(r: dict, steps: str, short_steps: str) -> str:
                 "budget too short for any propagation")
         L.append(f"Positive control at the same budget ({steps} steps), ORACLE-local emptied - filled, abs_rel on "
                  f"non-overlap pixels, positive = the overlap's depth helps outside it: "
-                 + "; ".join(f"{sc} {_f(c[sc]['mean'])} ± {c[sc]['ci95']:.4f}" for sc in SCALINGS)
+                 + "; ".join(f"{sc} {fmt_diff(c[sc], 4)}" for sc in SCALINGS)
                  + f" over {n.get('n_worlds', 0)} worlds: {word}. (b) at the same budget, median: "
-                 f"{_f(r['b']['median']['mean'])} ± {r['b']['median']['ci95']:.4f}.\n")
+                 f"{fmt_diff(r['b']['median'], 4)}.\n")
     if r["change"] is not None:
         s, ch = r["short"], r["change"]
         L.append(f"The same worlds at {short_steps} steps (the main run, exploratory beside it): (b) "
-                 + "; ".join(f"{sc} {_f(s[sc]['mean'])} ± {s[sc]['ci95']:.4f}" for sc in SCALINGS)
+                 + "; ".join(f"{sc} {fmt_diff(s[sc], 4)}" for sc in SCALINGS)
                  + f". Change from {short_steps} to {steps} steps, paired by world: "
-                 + "; ".join(f"{sc} {_f(ch[sc]['mean'])} ± {ch[sc]['ci95']:.4f}" for sc in SCALINGS)
+                 + "; ".join(f"{sc} {fmt_diff(ch[sc], 4)}" for sc in SCALINGS)
                  + f" over {ch['median']['n_worlds']} worlds.\n")
     return "\n".join(L)

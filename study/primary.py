@@ -30,10 +30,11 @@ from __future__ import annotations
 
 import math
 
-from study.power import mde, nested, tost
+from study.design import reading_over_worlds
+from study.power import nested
 from mcdp.methods import baseline, reading, short_label
 from study.reach import band_names, lcon_pairs, local
-from study.results import flat_of
+from study.results import flat_of, fmt_diff
 from study.variants import Evaluation, cut, having
 
 #: the equivalence bound of every primary null, median abs_rel (stated in the preset's header before the run)
@@ -65,9 +66,8 @@ def design(results: dict) -> str:
             f"clustered by world (mean of the world means, t with {n_w - 1} degrees of freedom)")
 
 
-def paired_nested(results: dict, o: float, a: tuple, b: tuple) -> dict:
-    """`study.power.nested` of column a[1] of evaluation a[0] minus column b[1] of evaluation b[0], per
-    (world, seed) pair, grouped by world."""
+def paired_groups(results: dict, o: float, a: tuple, b: tuple) -> dict:
+    """{world: [column a[1] of evaluation a[0] minus column b[1] of evaluation b[0], per seed of that world]}."""
     wo = world_of(results)
     va = {f["seed"]: f.get(a[1]) for f in flat_of(results, o, a[0])}
     vb = {f["seed"]: f.get(b[1]) for f in flat_of(results, o, b[0])}
@@ -76,7 +76,12 @@ def paired_nested(results: dict, o: float, a: tuple, b: tuple) -> dict:
         y = vb.get(s)
         if s in wo and all(isinstance(v, (int, float)) and math.isfinite(v) for v in (x, y)):
             groups.setdefault(wo[s], []).append(float(x) - float(y))
-    return nested(groups)
+    return groups
+
+
+def paired_nested(results: dict, o: float, a: tuple, b: tuple) -> dict:
+    """`study.power.nested` of `paired_groups`: a - b per (world, seed) pair, grouped by world."""
+    return nested(paired_groups(results, o, a, b))
 
 
 def _has(results: dict, ev) -> bool:
@@ -151,15 +156,9 @@ def _key(sc: str, region: str) -> str:
 
 
 def measure(results: dict, o: float, a, b, region: str) -> dict:
-    """One comparison at every scaling: {scaling: nested dict + "mde80" + "tost"}."""
-    res = {}
-    for sc in SCALINGS:
-        k = _key(sc, region)
-        n = paired_nested(results, o, (a, k), (b, k))
-        n["mde80"] = mde(n["se"], n["df"]) if n.get("n_worlds", 0) >= 2 else math.nan
-        n["tost"] = tost(n["mean"], n["se"], n["df"], DELTA) if n.get("n_worlds", 0) >= 2 else None
-        res[sc] = n
-    return res
+    """One comparison at every scaling: {scaling: `study.design.reading_over_worlds` of a - b}."""
+    return {sc: reading_over_worlds(paired_groups(results, o, (a, _key(sc, region)), (b, _key(sc, region))),
+                                    {"delta": DELTA}) for sc in SCALINGS}
 
 
 def verdict(cid: str, m: dict, control: bool | None) -> str:
@@ -171,9 +170,9 @@ def verdict(cid: str, m: dict, control: bool | None) -> str:
         return "one world: no interval, no verdict"
     t = n["tost"] or {}
     if n["differs"] == 1:
-        word = f"**helps**: +{n['mean']:.4f}, beyond the interval"
+        word = f"**helps**: {fmt_diff(n, 4)}, beyond the interval"
     elif n["differs"] == -1:
-        word = f"**hurts**: {n['mean']:.4f}, beyond the interval"
+        word = f"**hurts**: {fmt_diff(n, 4)}, beyond the interval"
     elif t.get("equivalent"):
         word = f"**no effect larger than ±{DELTA:g}** (equivalent at 95 %, TOST p = {t['p']:.3f})"
     else:
@@ -186,10 +185,7 @@ def verdict(cid: str, m: dict, control: bool | None) -> str:
 
 
 def _cell(n: dict, digits: int = 4) -> str:
-    if not n.get("n"):
-        return "—"
-    mu, hw = n["mean"], n["ci95"]
-    return f"{mu:+.{digits}f}" + (f" ± {hw:.{digits}f}" if math.isfinite(hw) else "")
+    return fmt_diff(n, digits) if n.get("n") else "—"
 
 
 def _pct(x: float) -> str:

@@ -44,14 +44,21 @@ USE_FLOOR = 0.0005
 
 
 def fmt_diff(pd: dict, digits: int = 3) -> str:
-    """A paired difference 'mean ± half-width'; a non-zero mean that rounds to zero at `digits` is
-    written in scientific notation (so '+0.0000' never stands for a difference that is there)."""
-    mu, ci = pd["mean"], pd["ci95"]
+    """The one formatter of a paired difference (every page's tables, verdicts and headlines): 'mean ± half-width'
+    of a dict with ``mean`` and ``ci95`` (`paired_difference`, `study.power.nested`, `study.design.reading_over_worlds`).
+    A non-zero mean that rounds to zero at `digits` is written in scientific notation (so '+0.0000' never stands
+    for a difference that is there); a mean without an interval (one world or seed) says so, '+0.0123 (no
+    interval)', never '± nan'; nothing measured (no finite mean) is '—'. The sign is the page's, one for the
+    whole project: positive = helps (docs/DESIGN.md, "Sign convention")."""
+    mu, ci = pd.get("mean"), pd.get("ci95")
     if not (isinstance(mu, (int, float)) and math.isfinite(mu)):
-        return f"nan ± {fmt_num(ci, digits)}"
-    if mu != 0 and abs(mu) < 0.5 * 10 ** -digits:
-        return f"{mu:+.1e} ± " + (f"{ci:.1e}" if isinstance(ci, (int, float)) and math.isfinite(ci) else "nan")
-    return f"{mu:+.{digits}f} ± {fmt_num(ci, digits)}"
+        return "—"
+    has_ci = isinstance(ci, (int, float)) and math.isfinite(ci)
+    tiny = mu != 0 and abs(mu) < 0.5 * 10 ** -digits
+    head = f"{mu:+.1e}" if tiny else f"{mu:+.{digits}f}"
+    if not has_ci:
+        return f"{head} (no interval)"
+    return f"{head} ± " + (f"{ci:.1e}" if tiny else f"{ci:.{digits}f}")
 
 
 def verdict_word(pd: dict, floor: float = 0.0, *, key: str) -> str:

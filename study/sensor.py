@@ -15,8 +15,8 @@ from __future__ import annotations
 import math
 
 from mcdp.methods import short_label
-from study.power import mde, nested
-from study.results import flat_of
+from study.design import reading_over_worlds
+from study.results import flat_of, fmt_diff
 
 #: the figures compared (flat-row keys), each lower-is-better: primary accuracy and cross-camera consistency
 FIGURES = (("median.mean.abs_rel", "abs_rel (median)"), ("dep_con.mean", "Dep Con"))
@@ -36,10 +36,9 @@ def _by_world(results: dict, method: str, key: str) -> dict:
 
 
 def _over_worlds(diffs: dict) -> dict:
-    """`study.power.nested` of one paired difference per world, with ``mde80``."""
-    n = nested({w: [diffs[w]] for w in sorted(diffs)})
-    n["mde80"] = mde(n["se"], n["df"]) if n["n_worlds"] >= 2 else math.nan
-    return n
+    """`study.design.reading_over_worlds` of one paired difference per world (no equivalence bound: the sensor
+    study states none)."""
+    return reading_over_worlds({w: [diffs[w]] for w in sorted(diffs)}, {})
 
 
 def _diffs(ideal: dict, cond: dict, method: str, key: str) -> dict:
@@ -77,9 +76,8 @@ def _yardstick(results: dict) -> float:
 def _cell(n: dict) -> str:
     if not n.get("n_worlds"):
         return "—"
-    hw = n["ci95"]
     mark = " **(worse)**" if n["differs"] == 1 else " **(better)**" if n["differs"] == -1 else ""
-    return f"{n['mean']:+.4f}" + (f" ± {hw:.4f}" if math.isfinite(hw) else "") + mark
+    return fmt_diff(n, 4) + mark
 
 
 def _pair_table(base: dict, cond: dict, methods: list[str], intro: str) -> list[str]:
@@ -141,11 +139,9 @@ def format_between(base: tuple[str, dict], cond: tuple[str, dict]) -> str:
 
 def _primary_line(n: dict, rank: dict, a: str, b: str) -> str:
     """The follow-up's primary reading: the t interval with its p and MDE, the rank-based reading, the verdict."""
-    from study.power import t_cdf
-
-    p = 2.0 * t_cdf(-abs(n["mean"] / n["se"]), n["df"]) if n["se"] > 0 else math.nan  # as study.design's looks
+    p = n["p"]  # two-sided t (study.design.t_p_two_sided)
     lo, hi = rank["ci"]
-    line = (f"**Primary: {a}'s change - {b}'s = {n['mean']:+.4f} ± {n['ci95']:.4f}** (95 % t over {n['n_worlds']} "
+    line = (f"**Primary: {a}'s change - {b}'s = {fmt_diff(n, 4)}** (95 % t over {n['n_worlds']} "
             f"worlds, {n['df']} df, p = {p:.3f}; detectable at 80 % power: {n['mde80']:.4f}). Rank-based: "
             f"Wilcoxon p = {rank['p']:.3f}, Hodges-Lehmann {rank['hl']:+.4f} [{lo:+.4f}, {hi:+.4f}] "
             f"({100 * rank['ci_level']:.1f} %).")
@@ -169,12 +165,10 @@ def format_followup(ideal: dict, cond: dict, planned: int, what: str) -> str:
     preset's header before the runs): the primary contrast (FSM's change - MCDP's on median abs_rel) with its
     t interval, p, MDE and the rank-based reading (`study.design.signed_rank`), each method's change, and the
     per-world values, so that no world is hidden behind the mean."""
-    from study.design import signed_rank
-
     a, b = (short_label(m) for m in CONTRAST)
     key = FIGURES[0][0]
     n = contrast(ideal, cond, key)
-    rank = signed_rank([v for _, v in n["values"]])
+    rank = n["rank"]
     L = [f"Planned before the runs (configs/sweep/cpu_sensor.yaml's header): {planned} worlds, one look at the end, "
          f"{what}. Read here: {n['n_worlds']} worlds with every run of both conditions.\n",
          _primary_line(n, rank, a, b) + "\n"]

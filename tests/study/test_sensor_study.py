@@ -61,7 +61,7 @@ def test_the_follow_up_reads_its_primary_contrast_with_the_rank_based_reading_an
     assert "Wilcoxon p = 0.000" in primary and "beyond the interval; the rank-based reading agrees" in primary
     assert sum(line.startswith("| ") and line[2].isdigit() for line in text.splitlines()) == 14  # a row a world
     # the t interval clears 0 but the ranks do not (a few worlds carry the mean): said, not hidden
-    n = {"mean": 0.01, "ci95": 0.008, "se": 0.004, "df": 13, "n_worlds": 14, "mde80": 0.011, "differs": 1}
+    n = {"mean": 0.01, "ci95": 0.008, "se": 0.004, "df": 13, "n_worlds": 14, "mde80": 0.011, "differs": 1, "p": 0.03}
     rank = {"p": 0.2, "hl": 0.001, "ci": (-0.001, 0.01), "ci_level": 0.951}
     lone = sensor._primary_line(n, rank, "FSM", "MCDP")
     assert "beyond the interval; the rank-based reading does not reject, so a few worlds may carry it" in lone
