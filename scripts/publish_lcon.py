@@ -76,7 +76,8 @@ def build(stage: Path) -> tuple[str, list[tuple[Path, str]]]:
     """The page's text and its plots [(file in ``stage``, name under docs/results/lcon/plots/)]."""
     from corelib.readfile import read_text_inside
     from study.lcon import answer, format_selection, pairs, reading, selection_effect
-    from study.primary import SCALINGS
+    from study.primary import SCALINGS, plan_of
+    from study.results import fmt_diff
 
     parts = {p: load_part(p) for p in PARTS}
     br = None  # (b) at the long budget beside its control: the opening lines and its section read it
@@ -88,9 +89,11 @@ def build(stage: Path) -> tuple[str, list[tuple[Path, str]]]:
     preface = RESULTS / NAME / "preface.md"
     main = parts["lcon_main"]
     if main is not None:
+        plan = plan_of(main)
         ps = pairs(main)
-        n = {sc: reading(ps, sc) for sc in SCALINGS}
-        L.append(f"**{answer(n['median'])}** (median abs_rel on non-overlap pixels at overlap 0.10, {n['median']['n_worlds']} "
+        n = {sc: reading(ps, sc, plan) for sc in SCALINGS}
+        L.append(f"**{answer(n['median'])}** (median abs_rel on non-overlap pixels at overlap {plan['overlap']:.2f}, "
+                 f"{n['median']['n_worlds']} "
                  f"worlds, positive = L_con helps; both arms at one step). Without scaling: {_lc(answer(n['none']))}. At "
                  f"`rig_median`: {_lc(answer(n['rig_median']))}. Hodges-Lehmann (median): "
                  f"{n['median']['rank']['hl']:+.4f} [{n['median']['rank']['ci'][0]:+.4f}, "
@@ -100,15 +103,15 @@ def build(stage: Path) -> tuple[str, list[tuple[Path, str]]]:
             b, c = br["b"]["median"], br["control"]
             L.append(f"At {_steps(budget)} steps on {b['n_worlds']} of these worlds (secondary, sized by its cost): "
                      f"{_lc(answer(b))}"
-                     + (f", beside a positive control that propagates by {c['median']['mean']:+.4f} ± "
-                        f"{c['median']['ci95']:.4f} (ORACLE-local emptied - filled)" if c is not None else "")
+                     + (f", beside a positive control that propagates by {fmt_diff(c['median'], 4)} "
+                        "(ORACLE-local emptied - filled)" if c is not None else "")
                      + f". At `rig_median` there: {_lc(answer(br['b']['rig_median']))}.\n")
         pilot = parts["lcon_pilot"]
         if pilot is not None:  # exploratory: the pilot's worlds had 8 test sequences, the main run's 32
-            pooled = {sc: reading(ps + pairs(pilot), sc) for sc in SCALINGS}
+            pooled = {sc: reading(ps + pairs(pilot), sc, plan) for sc in SCALINGS}
             L.append("Pooled with the pilot's worlds (exploratory: not the pre-stated test; the pilot's worlds have a "
                      "quarter of the test sequences): " + "; ".join(
-                         f"{sc} {pooled[sc]['mean']:+.4f} ± {pooled[sc]['ci95']:.4f} over {pooled[sc]['n_worlds']} "
+                         f"{sc} {fmt_diff(pooled[sc], 4)} over {pooled[sc]['n_worlds']} "
                          f"worlds (MDE {pooled[sc]['mde80']:.4f})" for sc in SCALINGS) + ".\n")
     if os.path.lexists(preface):
         L.append(read_text_inside(preface, RESULTS).rstrip() + "\n")

@@ -39,16 +39,25 @@ class SweepEvalConfig(StrictModel):
 
 
 class SweepPlan(StrictModel):
-    """A plan stated in the preset before the run (issue 47): how many worlds the primary comparison needs and
-    where the group-sequential design looks first (`study.lcon`: O'Brien-Fleming bounds at both looks)."""
+    """The analysis stated in the preset before the run (issues 47, 60), saved with the run (the resolved config,
+    results.json's ``sweep_config.plan``) and read from there by the report (`study.primary.plan_of`):
 
-    worlds: int = Field(ge=2, le=10_000)
+    overlap: the overlap of the primary comparisons (one of the sweep's ``overlaps``).
+    delta: the equivalence bound of a primary null, median abs_rel (TOST at 95 %).
+    worlds / first_look: how many worlds the primary comparison needs and where the group-sequential design
+        looks first (`study.lcon`: O'Brien-Fleming bounds at both looks); null: one look at the end.
+    why: what sized it.
+    """
+
+    overlap: float = added_key(0.10, ge=0.10, le=0.60, allow_inf_nan=False)
+    delta: float = added_key(0.005, gt=0.0, le=1.0, allow_inf_nan=False)
+    worlds: int | None = Field(None, ge=2, le=10_000)
     first_look: int | None = Field(None, ge=2, le=10_000)
     why: str = Field("", max_length=300)
 
     @model_validator(mode="after")
     def _look(self) -> "SweepPlan":
-        if self.first_look is not None and self.first_look >= self.worlds:
+        if self.first_look is not None and (self.worlds is None or self.first_look >= self.worlds):
             raise ValueError(f"plan.first_look ({self.first_look}) must be below plan.worlds ({self.worlds})")
         return self
 
@@ -85,8 +94,9 @@ class SweepConfig(StrictModel):
         machine's cores); unused when ``RAY_ADDRESS`` names a cluster to join.
     device: training / inference device.
     preview: write a preview sheet of one rig at the smallest and largest overlap.
-    plan: the primary comparison's plan, stated before the run (`SweepPlan`: planned worlds, first look); the
-        report reads it (null: no plan, no sequential reading).
+    plan: the pre-stated analysis (`SweepPlan`: the primary overlap, the equivalence bound delta, planned
+        worlds and first look); the report reads it from the recorded config (null: today's defaults, 0.10 and
+        0.005, and no sequential reading).
     pretrain: a shared self-supervised pretraining (`study.pretrain.PretrainConfig`) that every
         run starts from (``model.init_from``), made once into ``SWEEP/pretrain/<hash>/`` and
         reused by its config hash; null = every run from scratch.
@@ -142,6 +152,9 @@ class SweepConfig(StrictModel):
             if len(self.seeds) % self.seeds_per_world:
                 raise ValueError(f"seeds_per_world: {self.seeds_per_world} must divide the number of seeds "
                                  f"({len(self.seeds)})")
+        if self.plan is not None and not any(abs(self.plan.overlap - o) < 1e-9 for o in self.overlaps):
+            raise ValueError(f"plan.overlap: {self.plan.overlap:g} is not one of the swept overlaps "
+                             f"({', '.join(f'{o:g}' for o in self.overlaps)})")
         return self
 
     @field_validator("overlaps")

@@ -175,7 +175,8 @@ def reading_over_worlds(diffs: Mapping[object, Iterable[float]], plan: Mapping) 
 
     Returns `study.power.nested`'s dict (mean, se, df, ci95, the variance split, ``values``: the per-world rows)
     with ``p`` (two-sided t, `t_p_two_sided`), ``mde80`` (80 % power), ``tost`` (against ``plan["delta"]``:
-    {"p", "equivalent", ...}; p NaN and not equivalent with fewer than 2 worlds or no delta) and ``rank``
+    {"p", "equivalent", ...}; p NaN and not equivalent with fewer than 2 worlds or no delta; ``delta``: the bound)
+    and ``rank``
     (`signed_rank` of the world means: Wilcoxon p, Hodges-Lehmann and its interval)."""
     n = nested(diffs)
     enough = n["n_worlds"] >= 2
@@ -184,6 +185,7 @@ def reading_over_worlds(diffs: Mapping[object, Iterable[float]], plan: Mapping) 
     delta = plan.get("delta")
     n["tost"] = tost(n["mean"], n["se"], n["df"], float(delta)) if enough and delta else \
         {"p": math.nan, "equivalent": False}
+    n["delta"] = delta
     means: dict = {}
     for w, v in n["values"]:
         means.setdefault(w, []).append(v)

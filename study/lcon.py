@@ -2,11 +2,11 @@
 overlap make depth better outside it?
 
 Primary comparison (b), named in the presets' headers before their runs: MCDP (w/o L_con) cut - MCDP cut,
-abs_rel on non-overlap pixels at `study.primary.PRIMARY_OVERLAP`, median scaling (with ``none`` and
+abs_rel on non-overlap pixels at the plan's overlap (`study.primary.plan_of`), median scaling (with ``none`` and
 ``rig_median`` beside it), **positive = L_con helps**, one training seed per world, **both arms scored at one
 pre-stated step** (the sweep's ``checkpoint: last``; a pair scored at two steps is said so). Read:
 
-- over worlds: the mean with its t interval, the MDE at 80 % power, TOST against `study.primary.DELTA`
+- over worlds: the mean with its t interval, the MDE at 80 % power, TOST against the plan's ``delta``
   (`study.power`), and Wilcoxon's signed-rank test with the Hodges-Lehmann estimate and interval
   (`study.design.signed_rank`), so one outlying world cannot carry the verdict alone;
 - where the spread between worlds comes from: each world's bootstrap over its test sequences, the split into
@@ -22,7 +22,7 @@ import math
 from pathlib import Path
 
 from study.design import reading_over_worlds, sequential_look, worlds_needed
-from study.primary import DELTA, PRIMARY_OVERLAP, SCALINGS, has_control, measure
+from study.primary import SCALINGS, has_control, measure, plan_of
 from study.reach import lcon_pairs, local
 from study.results import fmt_diff, row_evaluations
 from study.worlds import data_seeds
@@ -64,11 +64,12 @@ def _per_seq(row: dict, sc: str, region: str = REGION):
     return ((m.get(sc) or {}).get("per_sequence") or {}).get(region)
 
 
-def pairs(results: dict, o: float = PRIMARY_OVERLAP) -> list[dict]:
-    """Per world: {"world", "seed", "steps": (arm a's, arm b's scored step), "same_step", "d": {scaling: a - b}}."""
+def pairs(results: dict, o: float | None = None) -> list[dict]:
+    """At overlap ``o`` (default: the plan's, `study.primary.plan_of`), per world: {"world", "seed", "steps": (arm a's, arm b's scored step), "same_step", "d": {scaling: a - b}}."""
     arms = lcon_arms(results)
     if arms is None:
         return []
+    o = plan_of(results)["overlap"] if o is None else o
     ra, rb = _rows(results, o, arms[0]), _rows(results, o, arms[1])
     seeds = data_seeds(results)
     out = []
@@ -88,15 +89,15 @@ def world_means(ps: list[dict], sc: str) -> dict:
     return out
 
 
-def reading(ps: list[dict], sc: str) -> dict:
+def reading(ps: list[dict], sc: str, plan: dict) -> dict:
     """(b) over the worlds at one scaling: `study.design.reading_over_worlds` (nested, clustered by world; MDE;
-    TOST; the signed-rank test over the world means)."""
-    return reading_over_worlds(world_means(ps, sc), {"delta": DELTA})
+    TOST against ``plan["delta"]``; the signed-rank test over the world means)."""
+    return reading_over_worlds(world_means(ps, sc), plan)
 
 
 def answer(n: dict) -> str:
     """The one sentence that answers (b) at one scaling, by the primary test: helps / hurts beyond the interval,
-    equivalent within ±DELTA, or not resolved with its MDE."""
+    equivalent within ±delta (the plan's, carried by the reading), or not resolved with its MDE."""
     if n["n_worlds"] < 2:
         return "Not measured (fewer than 2 worlds)"
     if n["differs"] == 1:
@@ -104,7 +105,7 @@ def answer(n: dict) -> str:
     if n["differs"] == -1:
         return f"L_con makes non-overlap depth worse: {fmt_diff(n, 4)}"
     if n["tost"]["equivalent"]:
-        return f"Equivalent to 0 within ±{DELTA:g} ({fmt_diff(n, 4)}, TOST p = {n['tost']['p']:.3f})"
+        return f"Equivalent to 0 within ±{n['delta']:g} ({fmt_diff(n, 4)}, TOST p = {n['tost']['p']:.3f})"
     return (f"Not resolved with {n['n_worlds']} worlds ({fmt_diff(n, 4)}); detectable at "
             f"{n['mde80']:.4f}")
 
@@ -131,13 +132,15 @@ def _f(x: float, d: int = 4) -> str:
     return f"{x:+.{d}f}" if isinstance(x, (int, float)) and math.isfinite(x) else "—"
 
 
-def format_lcon(results: dict, plot_dir: Path | None = None, o: float = PRIMARY_OVERLAP) -> tuple[str, list]:
+def format_lcon(results: dict, plot_dir: Path | None = None, o: float | None = None) -> tuple[str, list]:
     """Markdown of the L_con section for every overlap of the sweep (the primary one first), and the forest plots
     written into ``plot_dir`` (their paths); ('', []) for a sweep without an L_con pair or without worlds."""
     arms = lcon_arms(results)
     cfg = results.get("sweep_config", {})
     if arms is None or cfg.get("worlds") != "per_seed":
         return "", []
+    plan = plan_of(results)
+    o = plan["overlap"] if o is None else o
     overlaps = sorted(d["overlap"] for d in results["data"])
     overlaps = [x for x in overlaps if abs(x - o) < 1e-9] + [x for x in overlaps if abs(x - o) >= 1e-9]
     L, plots = [], []
@@ -152,7 +155,7 @@ def format_lcon(results: dict, plot_dir: Path | None = None, o: float = PRIMARY_
            f"each run scored at the checkpoint `{ck}` picks (`auto`: its own lowest validation loss, which for MCDP "
            "(m = 2) includes λ·L_con and for the arm without it does not)")
         + ". Over worlds: mean ± 95 % t interval, MDE at 80 % power, TOST against "
-        f"±{DELTA:g}, and Wilcoxon's signed-rank test with the Hodges-Lehmann estimate and its interval. Primary: "
+        f"±{plan['delta']:g}, and Wilcoxon's signed-rank test with the Hodges-Lehmann estimate and its interval. Primary: "
         f"overlap {o:.2f}, median scaling; every other overlap is exploratory.\n")
     for ov in overlaps:
         ps = pairs(results, ov)
@@ -170,7 +173,7 @@ def format_lcon(results: dict, plot_dir: Path | None = None, o: float = PRIMARY_
         add("|---|---|---|---|---|---|---|---|")
         readings = {}
         for sc in SCALINGS:
-            n = reading(ps, sc)
+            n = reading(ps, sc, plan)
             readings[sc] = n
             r = n["rank"]
             pos = sum(1 for v in world_means(ps, sc).values() if math.fsum(v) > 0)
@@ -181,9 +184,8 @@ def format_lcon(results: dict, plot_dir: Path | None = None, o: float = PRIMARY_
         n = readings["median"]
         if n["n_worlds"] >= 2 and math.isfinite(n["se"]):
             sd = n["se"] * math.sqrt(n["n_worlds"])
-            add(f"Spread between worlds (median): sd {sd:.4f}; worlds for an MDE of {DELTA:g} at 80 % power at this "
-                f"spread: {worlds_needed(sd, DELTA)}.\n")
-        plan = cfg.get("plan") or {}
+            add(f"Spread between worlds (median): sd {sd:.4f}; worlds for an MDE of {plan['delta']:g} at 80 % power at "
+                f"this spread: {worlds_needed(sd, plan['delta'])}.\n")
         if abs(ov - o) < 1e-9 and plan.get("worlds"):
             add(_looks(ps, plan))
         sp = split_of(ps, "median")
@@ -238,7 +240,7 @@ def _split_text(sp: dict, ps: list[dict]) -> str:
     return out + "\n"
 
 
-def selection_effect(last: dict, auto: dict, o: float = PRIMARY_OVERLAP) -> dict | None:
+def selection_effect(last: dict, auto: dict, o: float | None = None) -> dict | None:
     """The same runs read twice, every arm at the last step and each at its own `auto` checkpoint: per world the
     steps and (b) (median scaling) both ways, the between-world variance each way, and the share of the `auto`
     reading's variance that the selection added (1 - var_last / var_auto). None without common worlds."""
@@ -282,7 +284,7 @@ def format_selection(sel: dict) -> str:
     return "\n".join(L) + "\n"
 
 
-def budget_reading(budget: dict, short: dict | None, o: float = PRIMARY_OVERLAP) -> dict:
+def budget_reading(budget: dict, short: dict | None, o: float | None = None) -> dict:
     """(b) at a longer budget beside its positive control, and against the shorter budget on the same worlds.
 
     ``budget``: a sweep with the L_con pair and, as the control, the local yardstick (ORACLE-local) trained at the
@@ -290,8 +292,10 @@ def budget_reading(budget: dict, short: dict | None, o: float = PRIMARY_OVERLAP)
     `reading`}, "control": `study.primary.measure` of emptied - filled on non-overlap pixels (None without it),
     "short": {scaling: `reading` of the shorter budget on the worlds both have}, "change": {scaling:
     `study.design.reading_over_worlds` of (b) long - (b) short, paired by world}}."""
+    plan = plan_of(budget)
+    o = plan["overlap"] if o is None else o
     ps = pairs(budget, o)
-    out: dict = {"b": {sc: reading(ps, sc) for sc in SCALINGS}, "control": None, "short": None, "change": None}
+    out: dict = {"b": {sc: reading(ps, sc, plan) for sc in SCALINGS}, "control": None, "short": None, "change": None}
     if has_control(budget):
         loc = local()
         out["control"] = measure(budget, o, Evaluation(loc, cut()), Evaluation(loc), REGION)
@@ -299,9 +303,9 @@ def budget_reading(budget: dict, short: dict | None, o: float = PRIMARY_OVERLAP)
         long_w = {p["world"]: p for p in ps}
         sp = [p for p in pairs(short, o) if p["world"] in long_w]
         if len(sp) >= 2:
-            out["short"] = {sc: reading(sp, sc) for sc in SCALINGS}
+            out["short"] = {sc: reading(sp, sc, plan) for sc in SCALINGS}
             out["change"] = {sc: reading_over_worlds({p["world"]: [long_w[p["world"]]["d"][sc] - p["d"][sc]]
-                                                      for p in sp}, {"delta": DELTA}) for sc in SCALINGS}
+                                                      for p in sp}, plan) for sc in SCALINGS}
     return out
 
 

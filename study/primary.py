@@ -9,11 +9,11 @@ with the control's **copy test**, then gives each comparison named before the ru
   world part and a seed part;
 - its **minimum detectable effect** at 80 % power (`study.power.mde`) from that observed spread;
 - for a null, an **equivalence test** at 95 % (two one-sided tests, `study.power.tost`) against the bound
-  `DELTA`;
+  ``delta`` of the sweep's pre-stated plan (`plan_of`: the preset's ``plan``, saved with the run);
 - the figure at ``none`` and ``rig_median`` scaling next to ``median`` (per-image median scaling erases
   a scale-only effect, which is what the overlap is known to carry).
 
-Every gain is **positive when it helps** (worse minus better). The comparisons, at `PRIMARY_OVERLAP`:
+Every gain is **positive when it helps** (worse minus better). The comparisons, at the plan's ``overlap``:
 
 - (a) inference-time propagation of MCDP (m = 2) and MCDP-local: cut - as trained, non-overlap pixels;
 - (b) training-time propagation of L_con: MCDP (w/o L_con) cut - MCDP (m = 2) cut, non-overlap pixels;
@@ -37,13 +37,24 @@ from study.reach import band_names, lcon_pairs, local
 from study.results import flat_of, fmt_diff
 from study.variants import Evaluation, cut, having
 
-#: the equivalence bound of every primary null, median abs_rel (stated in the preset's header before the run)
-DELTA = 0.005
-#: the overlap of the primary comparisons
-PRIMARY_OVERLAP = 0.10
 #: the copy test's bound: ORACLE-local filled / Mono2, median abs_rel on the overlap pixels
 COPY_MAX = 0.5
 SCALINGS = ("median", "none", "rig_median")
+
+
+def plan_of(results: dict) -> dict:
+    """The sweep's pre-stated analysis (`study.config.SweepPlan`: ``overlap``, ``delta``, ``worlds``,
+    ``first_look``, ``why``) as its run recorded it (``sweep_config.plan``); a key a sweep recorded before it
+    existed reads as the key's default (the values those sweeps were analysed with: delta 0.005, overlap 0.10,
+    or where the sweep did not run 0.10, its first overlap)."""
+    from study.config import SweepPlan
+
+    rec = (results.get("sweep_config") or {}).get("plan") or {}
+    out = {k: rec.get(k, f.get_default()) for k, f in SweepPlan.model_fields.items()}
+    swept = results.get("overlaps") or []
+    if "overlap" not in rec and swept and not any(abs(o - out["overlap"]) < 1e-9 for o in swept):
+        out["overlap"] = swept[0]
+    return out
 
 
 def world_of(results: dict):
@@ -127,7 +138,7 @@ def control_passes(results: dict) -> bool | None:
     return all(r["passes"] for r in rows) if rows else None
 
 
-def comparisons(results: dict, o: float = PRIMARY_OVERLAP) -> list[tuple[str, str, tuple, tuple, str]]:
+def comparisons(results: dict, o: float | None = None) -> list[tuple[str, str, tuple, tuple, str]]:
     """The primary comparisons present: (id, name, a, b, region) with a - b = the gain (positive helps); a and
     b are (evaluation, column prefix) and region a column suffix's region (``non_overlap`` or a band)."""
     out = []
@@ -158,7 +169,7 @@ def _key(sc: str, region: str) -> str:
 def measure(results: dict, o: float, a, b, region: str) -> dict:
     """One comparison at every scaling: {scaling: `study.design.reading_over_worlds` of a - b}."""
     return {sc: reading_over_worlds(paired_groups(results, o, (a, _key(sc, region)), (b, _key(sc, region))),
-                                    {"delta": DELTA}) for sc in SCALINGS}
+                                    plan_of(results)) for sc in SCALINGS}
 
 
 def verdict(cid: str, m: dict, control: bool | None) -> str:
@@ -168,15 +179,15 @@ def verdict(cid: str, m: dict, control: bool | None) -> str:
         return "not measured"
     if n["n_worlds"] < 2:
         return "one world: no interval, no verdict"
-    t = n["tost"] or {}
+    t, delta = n["tost"] or {}, n["delta"]
     if n["differs"] == 1:
         word = f"**helps**: {fmt_diff(n, 4)}, beyond the interval"
     elif n["differs"] == -1:
         word = f"**hurts**: {fmt_diff(n, 4)}, beyond the interval"
     elif t.get("equivalent"):
-        word = f"**no effect larger than ±{DELTA:g}** (equivalent at 95 %, TOST p = {t['p']:.3f})"
+        word = f"**no effect larger than ±{delta:g}** (equivalent at 95 %, TOST p = {t['p']:.3f})"
     else:
-        word = (f"inconclusive: neither beyond the interval nor within ±{DELTA:g} "
+        word = (f"inconclusive: neither beyond the interval nor within ±{delta:g} "
                 f"(TOST p = {t.get('p', math.nan):.3f}); "
                 f"detectable at 80 % power: ±{n['mde80']:.4f}")
     if control is False and cid in ("a", "b"):  # a null of a mechanism leans on the control
@@ -192,12 +203,14 @@ def _pct(x: float) -> str:
     return f"{100 * x:.0f} %" if math.isfinite(x) else "—"
 
 
-def format_primary(results: dict, o: float = PRIMARY_OVERLAP) -> str:
+def format_primary(results: dict, o: float | None = None) -> str:
     """Markdown: the copy test, then the primary comparisons with power, bounds and scalings, the variance split,
     the control and the hand-built propagator by distance band, and how much of each yardstick the mechanisms
     recover; '' for a sweep without the positive control (ORACLE-local): the propagation experiment's section only."""
     if not has_control(results):  # the propagation experiment is the sweep with the positive control
         return ""
+    plan = plan_of(results)
+    o = plan["overlap"] if o is None else o
     comps = comparisons(results, o)
     ct = copy_test(results)
     control = control_passes(results)
@@ -205,7 +218,7 @@ def format_primary(results: dict, o: float = PRIMARY_OVERLAP) -> str:
     add = L.append
     add("## The primary comparisons: copy test, power and bounds\n")
     add(f"Named in the preset's header before the run; every other table of this report is exploratory. Design: "
-        f"{design(results)}. Equivalence bound δ = {DELTA:g} median abs_rel (two one-sided tests at 95 %); MDE = "
+        f"{design(results)}. Equivalence bound δ = {plan['delta']:g} median abs_rel (two one-sided tests at 95 %); MDE = "
         "the effect a two-sided test at 5 % would detect with 80 % power, from the observed spread. Positive = "
         "helps.\n")
     if ct:
@@ -283,9 +296,12 @@ def _recovered(measured: list) -> str:
             if lines else "")
 
 
-def headline(results: dict, o: float = PRIMARY_OVERLAP) -> str:
+def headline(results: dict, o: float | None = None) -> str:
     """The one-line answer: "nothing propagates (< δ)" only when the control passes and every mechanism's gain
-    is equivalent to 0 within δ; otherwise what propagates, or why the answer is inconclusive."""
+    is equivalent to 0 within δ; otherwise what propagates, or why the answer is inconclusive (δ and the
+    overlap: the sweep's plan, `plan_of`)."""
+    plan = plan_of(results)
+    o, delta = plan["overlap"] if o is None else o, plan["delta"]
     control = control_passes(results)
     mech = [(name, measure(results, o, a, b, r)["median"]) for cid, name, a, b, r in comparisons(results, o)
             if cid in ("a", "b")]
@@ -295,11 +311,11 @@ def headline(results: dict, o: float = PRIMARY_OVERLAP) -> str:
     if helps:
         return "propagates: " + "; ".join(helps)
     if mech and all((n.get("tost") or {}).get("equivalent") for _, n in mech):
-        return f"nothing propagates (< {DELTA:g})"
+        return f"nothing propagates (< {delta:g})"
     short = lambda name: (name.replace(" inference-time propagation (cut - as trained)", " at inference")  # noqa: E731
                           .replace(" training-time propagation (w/o L_con cut - with L_con cut)", " in training"))
     eq = [short(name) for name, n in mech if (n.get("tost") or {}).get("equivalent")]
     open_ = [f"{short(name)} (detectable at 80 %: {n.get('mde80', math.nan):.4f})" for name, n in mech
              if not (n.get("tost") or {}).get("equivalent")]
-    return ("nothing is seen to propagate: " + (f"{', '.join(eq)} below ±{DELTA:g}; " if eq else "")
+    return ("nothing is seen to propagate: " + (f"{', '.join(eq)} below ±{delta:g}; " if eq else "")
             + "not resolved: " + ", ".join(open_))

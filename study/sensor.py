@@ -25,8 +25,11 @@ CONTRAST = ("fsm", "mcdp_m2")
 
 
 def _by_world(results: dict, method: str, key: str) -> dict:
-    """{world: value} of one method's as-trained runs (the row's ``world``, else its seed)."""
-    o = results["overlaps"][0]
+    """{world: value} of one method's as-trained runs at the plan's overlap (`study.primary.plan_of`; the row's
+    ``world``, else its seed)."""
+    from study.primary import plan_of
+
+    o = plan_of(results)["overlap"]
     out = {}
     for f in flat_of(results, o, method):
         v = f.get(key)

@@ -10,7 +10,10 @@ import pytest
 
 from study import lcon
 from study.results_files import read_results, write_csv
-from study.primary import DELTA
+from study.primary import plan_of
+
+PLAN = {"delta": 0.005}  # today's bound (study.config.SweepPlan's default, the committed presets' plan.delta)
+DELTA = PLAN["delta"]
 from study.variants import CUT
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -49,11 +52,11 @@ def test_a_pair_is_scored_at_one_step_and_said_so():
 
 
 def test_answer_follows_the_primary_test():
-    helps = lcon.reading(lcon.pairs(_results([0.010, 0.012, 0.011, 0.009, 0.013, 0.010])), "median")
+    helps = lcon.reading(lcon.pairs(_results([0.010, 0.012, 0.011, 0.009, 0.013, 0.010])), "median", PLAN)
     assert lcon.answer(helps).startswith("L_con improves non-overlap depth by +0.0103 ± 0.0021")  # noise 0.002 per sequence
-    null = lcon.reading(lcon.pairs(_results([0.0005, -0.0004, 0.0002, -0.0001, 0.0003, -0.0002])), "median")
+    null = lcon.reading(lcon.pairs(_results([0.0005, -0.0004, 0.0002, -0.0001, 0.0003, -0.0002])), "median", PLAN)
     assert lcon.answer(null).startswith(f"Equivalent to 0 within ±{DELTA:g}")
-    wide = lcon.reading(lcon.pairs(_results([0.03, -0.02, 0.01, -0.025])), "median")
+    wide = lcon.reading(lcon.pairs(_results([0.03, -0.02, 0.01, -0.025])), "median", PLAN)
     assert lcon.answer(wide).startswith("Not resolved with 4 worlds") and "detectable at" in lcon.answer(wide)
 
 
@@ -97,7 +100,7 @@ def test_the_readme_opens_with_the_committed_answer():
     from study.results_files import read_results
 
     res = read_results(ROOT / "docs/results/lcon_main/results.json")
-    n = lcon.reading(lcon.pairs(res), "median")
+    n = lcon.reading(lcon.pairs(res), "median", plan_of(res))
     said = lcon.answer(n)
     readme = " ".join((ROOT / "README.md").read_text().split())
     page = (ROOT / "docs/results/lcon.md").read_text()
