@@ -39,7 +39,14 @@ def link_shared(first: Path, target: Path) -> list[str]:
     done = []
     for name in SHARED:
         src, dst = first / name, target / name
-        if src.is_symlink() or not src.exists() or os.path.lexists(dst):
+        if src.is_symlink() or not src.exists():
+            continue
+        if os.path.lexists(dst):  # a folder shared before: the first arm's worlds (or pretrainings) it lacks
+            if src.is_dir() and dst.is_dir() and not dst.is_symlink():
+                for child in sorted(src.iterdir()):
+                    if not child.is_symlink() and not os.path.lexists(dst / child.name):
+                        subprocess.run(["cp", "-al", str(child), str(dst / child.name)], check=True)
+                        done.append(f"{name}/{child.name}")
             continue
         target.mkdir(parents=True, exist_ok=True)
         if src.is_dir():

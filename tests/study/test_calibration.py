@@ -171,3 +171,5 @@ def test_link_shared_hard_links_the_first_arms_folders_and_marker(tmp_path):
     assert (tmp_path / "arm" / "data" / "w" / "x.exr").stat().st_ino == (first / "data" / "w" / "x.exr").stat().st_ino
     assert (tmp_path / "arm" / ".mcdp").stat().st_ino == (first / ".mcdp").stat().st_ino
     assert link_shared(first, tmp_path / "arm") == []  # already there: nothing again
+    (first / "data" / "w2").mkdir()  # a world the first arm rendered later (more seeds)
+    assert link_shared(first, tmp_path / "arm") == ["data/w2"]
