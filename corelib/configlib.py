@@ -20,6 +20,7 @@ import yaml
 from pydantic import BaseModel, ConfigDict, Field, ValidationError
 
 from corelib.hashing import json_sha256
+from corelib.readfile import ReadRefused, read_text_file
 
 T = TypeVar("T", bound="StrictModel")
 
@@ -231,7 +232,9 @@ def read_yaml(path: str | Path) -> dict[str, Any]:
     if size > MAX_CONFIG_BYTES:
         raise ConfigError(f"config file {name} is {size} bytes, more than the {MAX_CONFIG_BYTES} a config may have")
     try:
-        data = load_yaml_text(p.read_text())
+        data = load_yaml_text(read_text_file(p, kind="config", link_ok=True))  # the one rule (corelib.readfile)
+    except ReadRefused as exc:
+        raise ConfigError(f"config file {name}: {_short(exc)}") from None
     except (yaml.YAMLError, UnicodeDecodeError) as exc:
         raise ConfigError(f"config file {name} is not valid YAML: {_short(exc)}") from None
     if data is None:

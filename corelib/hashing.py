@@ -15,8 +15,10 @@ from typing import Any
 
 
 def sha256_file(path: str | Path, chunk: int = 1 << 20) -> str:
+    from corelib.readfile import open_file
+
     h = hashlib.sha256()
-    with open(path, "rb") as f:
+    with open_file(path, kind="hashed", link_ok=True) as f:  # regular, never a FIFO's blocking read
         while True:
             b = f.read(chunk)
             if not b:

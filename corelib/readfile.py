@@ -33,6 +33,8 @@ LIMITS = {
     "results": 64 * 2**20,     # results.json / results.csv of a sweep
     "page": 8 * 2**20,         # a published page, a preface (tens of kB)
     "config": 1 * 2**20,       # a YAML preset, a recorded config
+    "checkpoint": 16 * 2**30,  # a run's last.pt / best.pt, a pretraining (hundreds of MB)
+    "hashed": 2**40,           # a file hashed as it streams (sha256 of a dataset's file): never held whole
 }
 
 
@@ -114,12 +116,13 @@ def read_text_inside(path: str | Path, root: str | Path, limit: int = MAX_BYTES)
         raise ReadRefused(f"{path}: not UTF-8 ({exc.reason} at byte {exc.start})") from None
 
 
-def _open_no_link(path: Path, root: Path | None) -> int:
-    """A non-blocking descriptor of ``path``, its own name never followed as a link; given ``root``, every folder
-    from the root down to it reached without a link (`corelib.nolinks.open_folder`)."""
+def _open_no_link(path: Path, root: Path | None, link_ok: bool = False) -> int:
+    """A non-blocking descriptor of ``path``, its own name never followed as a link (``link_ok``: a path the user
+    named may be one); given ``root``, every folder from the root down to it reached without a link
+    (`corelib.nolinks.open_folder`)."""
     from corelib.atomic import LinkRefused
 
-    flags = os.O_RDONLY | os.O_NONBLOCK | os.O_NOFOLLOW
+    flags = os.O_RDONLY | os.O_NONBLOCK | (0 if link_ok else os.O_NOFOLLOW)
     dfd = None
     if root is not None:
         from corelib.nolinks import open_folder
@@ -147,18 +150,32 @@ def _open_no_link(path: Path, root: Path | None) -> int:
             os.close(dfd)
 
 
-def read_file(path: str | Path, root: str | Path | None = None, kind: str = "record") -> bytes:
-    """The bytes of the regular file ``path`` (the module's rule: no link, non-blocking, at most
-    ``LIMITS[kind]``); `FileMissing` when there is none, `ReadRefused` naming it otherwise."""
+def open_file(path: str | Path, root: str | Path | None = None, kind: str = "record", link_ok: bool = False):
+    """The regular file ``path`` open for reading in binary (the module's rule: no link unless ``link_ok``,
+    non-blocking, at most ``LIMITS[kind]`` bytes by its size), for a reader that streams it (a hash, a
+    checkpoint); `FileMissing` when there is none, `ReadRefused` naming it otherwise. The caller closes it."""
     path = Path(path)
     limit = LIMITS[kind]
-    fd = _open_no_link(path, Path(root) if root is not None else None)
-    with os.fdopen(fd, "rb") as f:
+    f = os.fdopen(_open_no_link(path, Path(root) if root is not None else None, link_ok), "rb")
+    try:
         st = os.fstat(f.fileno())
         if not stat.S_ISREG(st.st_mode):
             raise ReadRefused(f"{path}: is {_kind(st.st_mode)}, not a regular file; refused without reading it")
         if st.st_size > limit:
             raise ReadRefused(f"{path}: {st.st_size} bytes, more than a {kind} may hold ({limit}); refused unread")
+        os.set_blocking(f.fileno(), True)  # a regular file: blocking reads from here on
+        return f
+    except BaseException:
+        f.close()
+        raise
+
+
+def read_file(path: str | Path, root: str | Path | None = None, kind: str = "record", link_ok: bool = False) -> bytes:
+    """The bytes of the regular file ``path`` (`open_file`'s rule, read in chunks as large as the file);
+    `FileMissing` when there is none, `ReadRefused` naming it otherwise."""
+    path = Path(path)
+    limit = LIMITS[kind]
+    with open_file(path, root, kind, link_ok) as f:
         try:
             data = read_bounded(f, limit)
         except OSError as exc:
@@ -168,19 +185,20 @@ def read_file(path: str | Path, root: str | Path | None = None, kind: str = "rec
     return data
 
 
-def read_text_file(path: str | Path, root: str | Path | None = None, kind: str = "page") -> str:
+def read_text_file(path: str | Path, root: str | Path | None = None, kind: str = "page",
+                   link_ok: bool = False) -> str:
     """`read_file` as UTF-8 text (`ReadRefused` naming the file and the byte otherwise)."""
-    data = read_file(path, root, kind)
+    data = read_file(path, root, kind, link_ok)
     try:
         return data.decode("utf-8")
     except UnicodeDecodeError as exc:
         raise ReadRefused(f"{path}: not UTF-8 ({exc.reason} at byte {exc.start})") from None
 
 
-def read_json_file(path: str | Path, root: str | Path | None = None, kind: str = "record"):
+def read_json_file(path: str | Path, root: str | Path | None = None, kind: str = "record", link_ok: bool = False):
     """The JSON value of `read_file`'s bytes; `ReadRefused` naming the file for bytes that are not UTF-8 JSON
     (NaN and Infinity are read, as the sweep writes them)."""
-    data = read_file(path, root, kind)
+    data = read_file(path, root, kind, link_ok)
     try:
         return json.loads(data.decode("utf-8"))
     except UnicodeDecodeError as exc:

@@ -30,7 +30,6 @@ Example::
 """
 from __future__ import annotations
 
-import json
 import os
 import stat
 from pathlib import Path
@@ -39,6 +38,7 @@ from typing import Callable
 from filelock import FileLock, Timeout
 
 from corelib.atomic import atomic_write_json, check_writable, naming, remove_stale_temps
+from corelib.readfile import read_file, read_json_file
 
 MARKER = ".mcdp"
 LOCK = ".lock"
@@ -68,8 +68,8 @@ def _write_pid(fd: int) -> None:
 
 def _kind_of(folder: Path) -> str | None:
     try:
-        return str(json.loads((folder / MARKER).read_text()).get("kind"))
-    except (OSError, ValueError, AttributeError):
+        return str(read_json_file(folder / MARKER, kind="record").get("kind"))
+    except (OSError, ValueError, AttributeError):  # ValueError: corelib.readfile.ReadRefused too
         return None
 
 
@@ -107,8 +107,8 @@ def lock_folder(folder: str | Path, lock_file: str | Path = LOCK) -> FolderLock:
             lock.acquire()
     except Timeout:
         try:
-            holder = path.read_text(errors="replace").strip()[:20] or "?"
-        except OSError:
+            holder = read_file(path, kind="record").decode(errors="replace").strip()[:20] or "?"
+        except (OSError, ValueError):  # a FIFO or a link put there: corelib.readfile.ReadRefused
             holder = "?"
         raise FolderError(f"{folder} is being written by another process (pid {holder}); wait for it or use "
                           "another --out") from None

@@ -34,8 +34,11 @@ def read_weights_file(path: str | Path, field: str, hint: str, error: type[Excep
     p = Path(path)
     if not p.is_file():
         raise error(f"{field}: weights file {p} does not exist ({hint})")
+    from corelib.readfile import open_file
+
     try:
-        return torch.load(p, map_location="cpu", weights_only=True)
+        with open_file(p, kind="checkpoint", link_ok=True) as f:  # regular, bounded, never a FIFO's blocking read
+            return torch.load(f, map_location="cpu", weights_only=True)
     except Exception as exc:  # noqa: BLE001 - any unreadable file is a user error
         raise error(f"{field}: cannot read {p} as a plain weights file: {load_error_line(exc)}") from None
 

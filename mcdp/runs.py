@@ -24,7 +24,6 @@ Example::
 from __future__ import annotations
 
 import functools
-import json
 import math
 from pathlib import Path
 
@@ -33,6 +32,7 @@ import torch
 
 from corelib.atomic import atomic_write_json
 from corelib.configlib import build_config, config_hash, config_to_dict, hashed_dict
+from corelib.readfile import read_json_file
 from corelib.version import code_version
 from mcdp.checkpoint_files import REMOVED, atomic_torch_save, removed_checkpoints  # noqa: F401 (names callers use)
 from mcdp.config import RunConfig, resume_conflicts, upgrade_config_dict
@@ -105,7 +105,10 @@ def load_checkpoint(path: Path) -> dict:
         raise RunError(f"checkpoint {path} does not exist")
     try:
         # weights_only: tensors and plain containers only; a pickle that would run code is refused
-        ckpt = torch.load(path, map_location="cpu", weights_only=True)
+        from corelib.readfile import open_file
+
+        with open_file(path, kind="checkpoint", link_ok=True) as f:  # regular, bounded, never a FIFO's read
+            ckpt = torch.load(f, map_location="cpu", weights_only=True)
     except Exception as exc:  # noqa: BLE001
         from mcdp.networks import load_error_line  # torch's advice to load it unsafely is left out
 
@@ -278,7 +281,7 @@ def rig_differences(run: Path, ds) -> list[str] | None:
     """How the dataset's rig (per camera: size, K, T_ego_cam) differs from the one the run was trained on
     (``run.json``'s ``rig``; None for a run written before it was recorded): [] when it is the same."""
     try:
-        trained = json.loads((run / "run.json").read_text()).get("rig")
+        trained = read_json_file(run / "run.json", kind="record").get("rig")
     except (OSError, ValueError, AttributeError):
         return None
     if not isinstance(trained, list):
@@ -308,7 +311,7 @@ def write_run_record(run: Path, ds, step: int, oracle: bool, init_from, warn) ->
     old = {}
     if step > 0:
         try:
-            old = json.loads((run / "run.json").read_text()[:1 << 24])
+            old = read_json_file(run / "run.json", kind="record")
         except (OSError, ValueError, UnicodeDecodeError):
             old = {}
         old = old if isinstance(old, dict) else {}

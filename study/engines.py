@@ -33,6 +33,7 @@ from corelib import exitcodes
 from corelib.cluster import error_line
 from corelib.configlib import ConfigError
 from corelib.logs import logger
+from corelib.readfile import read_file
 from study.config import SweepConfig, run_config_for
 from study.stages import Counters, run_dir_for, run_stage
 
@@ -137,8 +138,8 @@ def _ray_job(cfg: SweepConfig, d: dict, method: str, seed: int, out: Path, init_
 
 def _count_lines(p: Path) -> int:
     try:
-        return len(p.read_text().splitlines())
-    except OSError:
+        return len(read_file(p, kind="record").decode(errors="replace").splitlines())
+    except (OSError, ValueError):  # ValueError: corelib.readfile.ReadRefused
         return 0
 
 

@@ -9,17 +9,17 @@ Example::
 from __future__ import annotations
 
 import argparse
-import json
 import sys
 from pathlib import Path
 
 from corelib.atomic import atomic_write_json
+from corelib.readfile import read_json_file
 from study.command_common import open_dataset, outside_datasets, require_split
 
 
 def _is_metrics(path: Path) -> bool:
     try:
-        return isinstance(json.loads(path.read_text()[:1 << 26]).get("run", {}).get("checkpoint"), str)
+        return isinstance(read_json_file(path, kind="record").get("run", {}).get("checkpoint"), str)
     except (OSError, ValueError, UnicodeDecodeError, AttributeError):
         return False
 

@@ -10,11 +10,11 @@ Example::
 from __future__ import annotations
 
 import argparse
-import json
 import sys
 from pathlib import Path
 
 from corelib.atomic import atomic_write_json, check_writable
+from corelib.readfile import read_json_file
 from study.command_common import open_dataset, outside_datasets, require_split
 
 
@@ -99,7 +99,7 @@ def _record_source(out: Path, run: str, pred, data: str) -> None:
     p = out / "predict.json"
     if p.is_file():
         try:
-            old = json.loads(p.read_text()[:1 << 20])
+            old = read_json_file(p, kind="record")
         except (OSError, ValueError, UnicodeDecodeError):
             old = None
         old = {k: old.get(k) for k in rec} if isinstance(old, dict) else old

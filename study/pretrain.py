@@ -29,7 +29,6 @@ interrupted pretraining resumes (render and training both resume).
 """
 from __future__ import annotations
 
-import json
 import time
 from pathlib import Path
 from typing import Callable
@@ -38,6 +37,7 @@ from pydantic import Field
 
 from corelib.atomic import atomic_write_json
 from corelib.logs import logger
+from corelib.readfile import read_json_file
 from corelib.configlib import ConfigError, StrictModel, config_hash, config_to_dict, hashed_dict, load_config, resolve_path
 from corelib.version import code_version, warn_other_code
 
@@ -89,8 +89,8 @@ def cached(out: Path, h: str) -> dict | None:
     if not marker.is_file():
         return None
     try:
-        rec = json.loads(marker.read_text())
-    except (OSError, ValueError):
+        rec = read_json_file(marker, kind="record")
+    except (OSError, ValueError):  # ValueError: corelib.readfile.ReadRefused (a link, a FIFO, not JSON)
         raise ConfigError(f"{marker} is unreadable; delete {out} to pretrain again") from None
     if rec.get("config_hash") != h:
         raise ConfigError(f"{out} holds another pretraining (config hash {str(rec.get('config_hash'))[:12]}, "
@@ -132,7 +132,7 @@ def _pretrain(cfg: PretrainConfig, out: Path, dcfg, rcfg, h: str, progress: bool
     from synth.render import render_dataset
 
     started = out / "pretrain.config.json"
-    if started.is_file() and json.loads(started.read_text()).get("config_hash") != h:
+    if started.is_file() and read_json_file(started, kind="record").get("config_hash") != h:
         raise ConfigError(f"{out} holds an unfinished pretraining with another config; use a new --out "
                           f"or delete {out}")
     resolved = {"pretrain": config_to_dict(cfg), "data": config_to_dict(dcfg), "run": config_to_dict(rcfg)}

@@ -25,6 +25,7 @@ import numpy as np
 from PIL import Image, PngImagePlugin
 
 from corelib.atomic import atomic_write_bytes
+from corelib.readfile import open_file
 from corelib.rundir import FolderError, check_output_file
 from synth.dataset import Dataset, dataset_containing
 from synth.overlap import overlaps_by_neighbour
@@ -49,8 +50,8 @@ def is_preview(path: Path) -> bool:
     try:
         with warnings.catch_warnings():
             warnings.simplefilter("ignore", Image.DecompressionBombWarning)
-            with Image.open(path, formats=["PNG"]) as im:
-                return im.info.get("Software") == SOFTWARE
+            with open_file(path, kind="hashed", link_ok=True) as fh, Image.open(fh, formats=["PNG"]) as im:
+                return im.info.get("Software") == SOFTWARE  # (open_file: never a FIFO's blocking read)
     except (OSError, SyntaxError, ValueError, Image.DecompressionBombError):  # not a PNG, or a broken one
         return False
 

@@ -56,6 +56,7 @@ from typing import Iterator
 import numpy as np
 
 from corelib.atomic import atomic_pipe
+from corelib.readfile import open_file
 from corelib.rundir import FolderError, check_output_file
 from synth.extras import VIZ_INSTALL as INSTALL
 from synth.overlap import neighbours_of, overlaps_by_neighbour
@@ -113,9 +114,9 @@ def pick_sequence(ds, seq: str | None) -> str:
 
 def _is_rrd(p: Path) -> bool:
     try:
-        with open(p, "rb") as fh:
+        with open_file(p, kind="hashed", link_ok=True) as fh:  # never a FIFO's blocking read
             return fh.read(3) == RRD_MAGIC
-    except OSError:
+    except (OSError, ValueError):  # ValueError: corelib.readfile.ReadRefused
         return False
 
 

@@ -434,13 +434,12 @@ def test_results_checked_before_the_report_builders_use_them(ps, committed_resul
     }[case]
 
 
-def test_every_committed_results_passes_the_check(ps):
-    import glob
-
+@pytest.mark.parametrize("name", ["lcon_main", "sweep_cpu"])  # a recorded plan; three overlaps, three seeds
+def test_committed_results_pass_the_check(ps, name):
     from corelib.readfile import read_inside
 
-    for p in sorted(glob.glob(str(ROOT / "docs/results/*/results.json"))):
-        ps.check_results(read_inside(p, ROOT / "docs/results"), Path(p))
+    p = ROOT / "docs/results" / name / "results.json"
+    ps.check_results(read_inside(p, ROOT / "docs/results"), p)
 
 
 # --- findings 2, 7, 12: the sweep's writers stay inside --out; the disk check counts blocks and what is left ---
@@ -589,3 +588,84 @@ def test_the_size_line_states_the_shutters_renders():
         "rendering takes up to 544 times as long as with still images")
     still = load_data_config(ROOT / "configs/data/tiny.yaml")
     assert "renders an image" not in size_statement(render_size(still))
+
+
+# --- the one rule: no plain read of a project file outside corelib.readfile (and synth.files, its twin) ---------
+
+#: the library's packages and scripts the scan reads
+SCANNED = ("corelib", "synth", "scenes", "mcdp", "study", "scripts")
+#: the rule itself, written once, and its twin for a dataset's files (the same rule, `DatasetError`)
+RULE_MODULES = {"corelib/readfile.py", "synth/files.py"}
+#: justified exceptions: (file, a part of the call's source line) -> why it is not a plain read of a project file
+ALLOWED = {
+    ("corelib/version.py", "pyproject.read_text()"): "the package's own pyproject.toml, to say its version",
+    ("corelib/version.py", "p.read_bytes()"): "the package's own source files, hashed into the code version",
+    ("synth/nuscenes/export.py", "ds.read_bytes(dsrc)"): "the dataset reader's own method (read_regular)",
+    ("synth/nuscenes/export.py", "ds.read_bytes(ds.rgb_path("): "the dataset reader's own method (read_regular)",
+    ("synth/nuscenes/lidarseg.py", "self.ds.read_bytes(src)"): "the dataset reader's own method (read_regular)",
+    ("synth/view.py", "ds.read_bytes(src)"): "the dataset reader's own method (read_regular)",
+    ("synth/preview.py", "Image.open(fh,"): "fh is corelib.readfile.open_file's (regular, never blocking)",
+    ("mcdp/networks.py", "torch.load(f,"): "f is corelib.readfile.open_file's (regular, bounded, non-blocking)",
+    ("mcdp/runs.py", "torch.load(f,"): "f is corelib.readfile.open_file's (regular, bounded, non-blocking)",
+    ("scripts/publish_sweep.py", '(stage / "results.csv").read_bytes()'): "the temporary folder this process "
+                                                                           "made a moment before",
+    ("scripts/publish_sweep.py", "p.read_bytes()"): "a plot in the temporary folder this process made",
+    ("scripts/publish_lcon.py", "p.read_bytes()"): "a plot in the temporary folder this process made",
+    # issue 61: left as they are this round (study/results*.py is another change's); publish_sweep reads a
+    # results.csv by the rule first (`_csv_results`), check_results reads results.json by `read_inside`
+    ("study/results_files.py", "json.loads(path.read_text())"): "pending: read_results, its file owned elsewhere",
+    ("study/results_files.py", '.read_bytes())'): "pending: read_results' records file, owned elsewhere",
+    ("study/results_files.py", "open(path, newline=\"\")"): "pending: results_from_csv, its file owned elsewhere",
+}
+
+
+def _plain_reads(path: Path):
+    """(line, source) of every call in ``path`` that reads a file plainly: ``open()`` for reading,
+    ``.read_text()``, ``.read_bytes()``, ``x.open()`` (but ``os.open``, the rule's primitive, and archives'
+    members), ``json.load`` / ``torch.load`` / ``np.load`` / ``pickle.load``."""
+    import ast
+
+    text = path.read_text()
+    lines = text.splitlines()
+    for node in ast.walk(ast.parse(text, str(path))):
+        if not isinstance(node, ast.Call):
+            continue
+        f = node.func
+        if isinstance(f, ast.Name) and f.id == "open":
+            mode = node.args[1] if len(node.args) > 1 else next((k.value for k in node.keywords if k.arg == "mode"), None)
+            m = mode.value if isinstance(mode, ast.Constant) else "r"
+            hit = isinstance(m, str) and not any(c in m for c in "wax")
+        elif isinstance(f, ast.Attribute):
+            recv = f.value.id if isinstance(f.value, ast.Name) else None
+            hit = f.attr in ("read_text", "read_bytes") \
+                or (f.attr == "open" and recv not in ("os", "gzip", "zipfile", "tarfile", "zf")) \
+                or (f.attr == "load" and recv in ("json", "torch", "np", "pickle"))
+        else:
+            hit = False
+        if hit:
+            yield node.lineno, lines[node.lineno - 1].strip()
+
+
+def test_no_plain_read_of_a_project_file_outside_the_rule():
+    found, used = [], set()
+    for pkg in SCANNED:
+        for path in sorted((ROOT / pkg).rglob("*.py")):
+            rel = path.relative_to(ROOT).as_posix()
+            if rel in RULE_MODULES:
+                continue
+            for line, src in _plain_reads(path):
+                key = next((k for k in ALLOWED if k[0] == rel and k[1] in src), None)
+                if key is None:
+                    found.append(f"{rel}:{line}: {src}")
+                else:
+                    used.add(key)
+    assert found == [], ("a plain read of a file: read it by corelib.readfile (read_file, read_json_file, "
+                         "read_text_file, open_file), or add it to ALLOWED with its reason:\n" + "\n".join(found))
+    assert set(ALLOWED) - used == set(), "ALLOWED entries that match nothing any more"
+
+
+def test_the_scan_finds_a_plain_read(tmp_path):
+    (tmp_path / "m.py").write_text("import json\nfrom pathlib import Path\n"
+                                   "a = json.loads(Path('x').read_text())\nb = open('y')\nc = open('z', 'wb')\n"
+                                   "import os\nd = os.open('w', os.O_RDONLY)\n")
+    assert sorted(ln for ln, _ in _plain_reads(tmp_path / "m.py")) == [3, 4]  # not the write, not os.open
