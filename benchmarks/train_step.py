@@ -130,6 +130,7 @@ def worker(preset: str, H: int, W: int, steps: int, device: str, threads: int = 
         losses._box3 = lambda t: F.avg_pool2d(t, 3, 1)
     opt = torch.optim.Adam(system.parameters(), lr=1e-4, fused=precision != "before")
     batch = synthetic_batch(H, W).to(dev)
+    batch.fields = {k: v for k, v in batch.fields.items() if k in {f.name for f in system.fields}}  # the declared only
 
     def sync():
         if dev.type == "cuda":

@@ -1,0 +1,187 @@
+#!/usr/bin/env bash
+# The device check (issue 58 item 4): what the first GPU lent to this project should tell us, in one run of under
+# 8 minutes on one GPU (16 CPU cores), written as a report that can be committed as docs/results/device.md.
+#
+#   scripts/device_check.sh                          # on a GPU machine: --device cuda, the full check
+#   scripts/device_check.sh --device cpu --tiny      # its CPU path (tests/test_device_check.py runs it): seconds
+#   scripts/device_check.sh --out /tmp/dc            # where the renders, the train table and device.md go
+#
+# It
+#   1. renders a small world of the default preset (the tiny preset with --tiny) twice: through EGL on the device
+#      (render.backend=egl; with --device cpu the auto back end) and through OSMesa on the CPU
+#      (render.backend=osmesa); prints each render's throughput (camera images per second) and compares every
+#      depth map: identical, or the largest difference and the share of valid pixels beyond DEPTH_TOL relative
+#      (the check passes at most DEPTH_SHARE of them: a GPU rasteriser may put a silhouette's edge pixel on the
+#      other side);
+#   2. times training steps of Mono2 and MCDP (m = 2) at 96x64, 192x128 and 320x192 in fp32 and bf16
+#      (benchmarks/train_step.py: steps per second, peak memory; --tiny: 96x64, fp32, 2 steps);
+#   3. takes one training step on the CPU and one on the device from the same weights and batch (TF32 off) and
+#      compares the loss, every gradient and the weights after one Adam step: within STEP_TOL relative (--device cpu:
+#      the CPU against itself, which must be exact);
+#   4. writes OUT/device.md (the device's name, torch's version, each figure) and exits 1 if a check failed.
+#
+# PYTHON (default .venv/bin/python) is the interpreter. Nothing is written outside OUT.
+set -euo pipefail
+
+DEVICE=cuda
+TINY=0
+OUT="${TMPDIR:-/tmp}/device_check"
+while [ $# -gt 0 ]; do
+    case "$1" in
+        --device) DEVICE="${2:?--device needs cpu or cuda}"; shift 2 ;;
+        --tiny) TINY=1; shift ;;
+        --out) OUT="${2:?--out needs a folder}"; shift 2 ;;
+        -h|--help) sed -n '2,25p' "$0"; exit 0 ;;
+        *) echo "device_check: unknown argument '$1' (--device cpu|cuda, --tiny, --out DIR)" >&2; exit 2 ;;
+    esac
+done
+case "$DEVICE" in cpu|cuda) ;; *) echo "device_check: --device must be cpu or cuda, got '$DEVICE'" >&2; exit 2 ;; esac
+
+ROOT="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
+PY="${PYTHON:-$ROOT/.venv/bin/python}"
+mkdir -p "$OUT"
+OUT="$(cd "$OUT" && pwd)"
+cd "$ROOT"
+
+DEPTH_TOL=1e-3     # relative depth difference a pixel may have between the device and the CPU render
+DEPTH_SHARE=0.001  # share of valid pixels allowed beyond DEPTH_TOL
+STEP_TOL=1e-3      # relative difference allowed between a CPU and a device step (loss, gradients, weights)
+
+if [ "$TINY" = 1 ]; then
+    PRESET=configs/data/tiny.yaml; DATA_SET=(); SIZES=(64x96); MODES=(fp32); STEPS=2; THREADS=1
+else
+    PRESET=configs/data/default.yaml; DATA_SET=(dataset.sequences=4 dataset.frames=10)
+    SIZES=(64x96 128x192 192x320); MODES=(fp32 bf16); STEPS=200; THREADS=0
+fi
+if [ "$DEVICE" = cuda ]; then DEVICE_BACKEND=egl; else DEVICE_BACKEND=auto; fi
+
+echo "device_check: 1/3 render ($PRESET) on the device (render.backend=$DEVICE_BACKEND) and on the CPU (osmesa)" >&2
+rm -rf "$OUT/render_device" "$OUT/render_cpu"
+render() {  # render(FOLDER, BACKEND): seconds on stdout
+    local t0 t1
+    t0=$(date +%s.%N)
+    "$PY" -m synth render "$PRESET" --out "$1" "render.backend=$2" "${DATA_SET[@]}" --no-progress -q >&2
+    t1=$(date +%s.%N)
+    awk -v a="$t0" -v b="$t1" 'BEGIN { printf "%.3f\n", b - a }'
+}
+RENDER_DEVICE_S=$(render "$OUT/render_device" "$DEVICE_BACKEND")
+RENDER_CPU_S=$(render "$OUT/render_cpu" osmesa)
+
+echo "device_check: 2/3 training steps (benchmarks/train_step.py)" >&2
+"$PY" benchmarks/train_step.py --device "$DEVICE" --tiny --sizes "${SIZES[@]}" --presets mono2 mcdp_m2 \
+    --modes "${MODES[@]}" --rounds 1 --steps "$STEPS" --threads "$THREADS" --set scale.source=odometry \
+    --record "$OUT/train_step.txt" >/dev/null
+
+echo "device_check: 3/3 one CPU step against one $DEVICE step, and the report" >&2
+"$PY" - "$OUT" "$DEVICE" "$TINY" "$RENDER_DEVICE_S" "$RENDER_CPU_S" "$DEPTH_TOL" "$DEPTH_SHARE" "$STEP_TOL" <<'EOF'
+import datetime, platform, sys
+from pathlib import Path
+
+import numpy as np
+import torch
+
+if sys.argv[3] == "1":
+    torch.set_num_threads(1)
+out, device, tiny = Path(sys.argv[1]), sys.argv[2], sys.argv[3] == "1"
+render_dev_s, render_cpu_s, depth_tol, depth_share, step_tol = map(float, sys.argv[4:9])
+sys.path.insert(0, ".")
+from synth.open import open_dataset
+
+# --- 1. the two renders' depth
+a, b = open_dataset(out / "render_device"), open_dataset(out / "render_cpu")
+images = identical = 0
+worst, beyond, valid = 0.0, 0, 0
+for seq in a.sequences:
+    for f in range(a.n_frames(seq)):
+        for cam in a.camera_names:
+            da, db = a.read_depth(seq, cam, f), b.read_depth(seq, cam, f)
+            images += 1
+            identical += int(np.array_equal(da, db))
+            v = (da > 0) | (db > 0)
+            rel = np.abs(da.astype(np.float64) - db) / np.maximum(np.maximum(da, db), 1e-6)
+            worst = max(worst, float(rel[v].max()) if v.any() else 0.0)
+            beyond += int((rel[v] > depth_tol).sum())
+            valid += int(v.sum())
+share = beyond / max(valid, 1)
+render_ok = share <= depth_share
+
+# --- 3. one CPU step against one device step, same weights and batch
+from benchmarks.train_step import synthetic_batch
+from corelib.configlib import load_config
+from mcdp.config import RunConfig
+from mcdp.system import SelfSupervisedSystem
+
+torch.backends.cuda.matmul.allow_tf32 = False
+torch.backends.cudnn.allow_tf32 = False
+H, W = 64, 96
+cfg = load_config(RunConfig, Path("configs/train/tiny/mcdp_m2.yaml"),
+                  [f"train.height={H}", f"train.width={W}", "train.batch_size=1", "scale.source=odometry"])
+pairs = [(i, (i + 1) % 6) for i in range(6)]
+
+
+def one_step(dev):
+    torch.manual_seed(0)
+    system = SelfSupervisedSystem(cfg, pairs, 6).to(dev)
+    opt = torch.optim.Adam(system.parameters(), lr=1e-4)
+    batch = synthetic_batch(H, W).to(dev)
+    batch.fields = {k: v for k, v in batch.fields.items() if k in {f.name for f in system.fields}}
+    _, losses = system.process_batch(batch, 0, train=True)
+    opt.zero_grad(set_to_none=True)
+    losses["loss"].backward()
+    grads = {n: p.grad.detach().double().cpu() for n, p in system.named_parameters() if p.grad is not None}
+    opt.step()
+    weights = {n: p.detach().double().cpu() for n, p in system.named_parameters()}
+    return float(losses["loss"].detach()), grads, weights
+
+
+def rel(x, y):
+    return float((x - y).norm() / max(float(y.norm()), 1e-12))
+
+
+loss_c, grads_c, w_c = one_step(torch.device("cpu"))
+loss_d, grads_d, w_d = one_step(torch.device(device))
+loss_rel = abs(loss_d - loss_c) / max(abs(loss_c), 1e-12)
+grad_rel = max(rel(grads_d[n], grads_c[n]) for n in grads_c)
+weight_rel = max(rel(w_d[n], w_c[n]) for n in w_c)
+step_ok = max(loss_rel, grad_rel, weight_rel) <= (0.0 if device == "cpu" else step_tol)
+
+# --- 4. the report
+if device == "cuda":
+    name = torch.cuda.get_device_name(0)
+else:
+    name = next((l.split(":", 1)[1].strip() for l in open("/proc/cpuinfo") if l.startswith("model name")),
+                platform.processor() or "CPU")
+n_img = images
+lines = [
+    "# Device check",
+    "",
+    f"{datetime.date.today().isoformat()}: `scripts/device_check.sh --device {device}{' --tiny' if tiny else ''}` on "
+    f"**{name}** (torch {torch.__version__}).",
+    "",
+    "## Render: device against CPU",
+    "",
+    f"- device render ({'EGL' if device == 'cuda' else 'auto back end'}): {render_dev_s:.1f} s, "
+    f"{n_img / render_dev_s:.1f} camera images/s; CPU render (OSMesa): {render_cpu_s:.1f} s, "
+    f"{n_img / render_cpu_s:.1f} camera images/s ({n_img} camera images)",
+    f"- depth: {identical} of {n_img} maps identical; largest relative difference {worst:.3g}; "
+    f"{share:.4%} of valid pixels beyond {depth_tol:g} (allowed {depth_share:.2%}): "
+    f"{'pass' if render_ok else 'FAIL'}",
+    "",
+    "## Training steps",
+    "",
+    "```",
+    (out / "train_step.txt").read_text().strip("\n"),
+    "```",
+    "",
+    f"## One CPU step against one {device} step (MCDP (m = 2), 96x64, same weights and batch, TF32 off)",
+    "",
+    f"- loss {loss_c:.6g} (CPU) against {loss_d:.6g}: relative {loss_rel:.2e}",
+    f"- gradients: largest relative difference (L2, per parameter) {grad_rel:.2e}",
+    f"- weights after one Adam step: largest relative difference {weight_rel:.2e}",
+    f"- agreement: {'pass' if step_ok else 'FAIL'} (allowed {0.0 if device == 'cpu' else step_tol:g})",
+    "",
+]
+(out / "device.md").write_text("\n".join(lines))
+print("\n".join(lines))
+sys.exit(0 if render_ok and step_ok else 1)
+EOF

@@ -1,0 +1,41 @@
+"""scripts/device_check.sh's CPU path (``--device cpu --tiny``): it renders the tiny world through both back ends,
+times the two presets' training steps, takes one step twice from the same weights and batch, and writes a report
+whose checks pass (the CPU against itself: identical depth, an exact step)."""
+from __future__ import annotations
+
+import os
+import re
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+@pytest.mark.slow  # two tiny renders, four training-step workers and two steps: about a minute on 2 cores
+def test_the_cpu_path_writes_a_passing_report(tmp_path):
+    out = tmp_path / "dc"
+    env = {**os.environ, "PYTHON": sys.executable, "TMPDIR": str(tmp_path)}
+    res = subprocess.run(["bash", str(ROOT / "scripts" / "device_check.sh"), "--device", "cpu", "--tiny",
+                          "--out", str(out)], capture_output=True, text=True, env=env, timeout=600)
+    assert res.returncode == 0, res.stderr[-3000:]
+    report = (out / "device.md").read_text()
+    assert report.startswith("# Device check\n")
+    m = re.search(r"depth: (\d+) of (\d+) maps identical", report)
+    assert m and m.group(1) == m.group(2) and int(m.group(2)) == 3 * 6 * 6  # 3 sequences x 6 frames x 6 cameras
+    assert "0.0000% of valid pixels beyond" in report
+    assert re.search(r"mono2 .*64x96|64x96.*mono2", report) and "mcdp_m2" in report
+    assert "agreement: pass (allowed 0)" in report
+    assert re.search(r"loss (\S+) \(CPU\) against \1: relative 0\.00e\+00", report)
+
+
+def test_a_wrong_argument_is_one_line_and_exit_2(tmp_path):
+    res = subprocess.run(["bash", str(ROOT / "scripts" / "device_check.sh"), "--device", "tpu"],
+                         capture_output=True, text=True, timeout=30)
+    assert res.returncode == 2
+    assert res.stderr == "device_check: --device must be cpu or cuda, got 'tpu'\n"
+    res = subprocess.run(["bash", str(ROOT / "scripts" / "device_check.sh"), "--fast"],
+                         capture_output=True, text=True, timeout=30)
+    assert res.returncode == 2 and "unknown argument '--fast'" in res.stderr
