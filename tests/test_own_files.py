@@ -91,6 +91,16 @@ def test_tiny_sensor_noise_refused_naming_key():
     load_data_config(ROOT / "configs/data/tiny.yaml", ["sensor.noise=1e-6"])  # the smallest allowed renders
 
 
+def test_tiny_sensor_noise_refused_before_a_sweep_starts():
+    from corelib.configlib import ConfigError
+    from study.config import check_nested_configs, load_sweep_config
+
+    cfg = load_sweep_config(ROOT / "configs/sweep/ci.yaml", ["data_overrides=[sensor.noise=1e-20]"], None)
+    with pytest.raises(ConfigError) as e:  # before: a traceback 45 s in, when the first world rendered
+        check_nested_configs(cfg, yes=True)  # what `mcdp sweep` does before anything is written
+    assert str(e.value).splitlines()[-1].startswith("  sensor.noise: 0 (no noise) or at least 1e-06")
+
+
 # --- finding 12 (last part): a validator's value is echoed once ----------------------------------------------
 
 def test_validator_value_echoed_once():
