@@ -99,7 +99,7 @@ def render_stage(cfg: SweepConfig, overlap: float, sweep_dir: Path, counters: Co
     wkey = world_key(overlap, world)
     out = sweep_dir / "data" / wkey
     ds = _rendered(out)
-    status = read_json(out.parent / f"{wkey}.status.json") or {}
+    status = read_json(out.parent / f"{wkey}.status.json", root=sweep_dir) or {}  # never through a link
     if ds is not None and ds.config_hash == h:
         counters.bump("render_skipped")
         log(f"[sweep] {wkey}: dataset {out} is complete (config hash {h[:12]}), reused")
@@ -147,7 +147,7 @@ def reference_stage(cfg: SweepConfig, d: dict, sweep_dir: Path, counters: Counte
     path = sweep_dir / "data" / f"{world_key(o, d.get('world'))}.reference.json"
     key = config_hash({"data": d["config_hash"], "eval": config_to_dict(cfg.eval),
                        "reference": "constant_train_median+flat_road+labels"})
-    cached = read_json(path)
+    cached = read_json(path, root=sweep_dir)
     if cached is not None and cached.get("key") == key:
         counters.bump("reference_skipped")
         warn_other_code(f"yardsticks {path}", cached.get("code_version"), lambda line: log(f"[sweep] {line}"))
