@@ -9,7 +9,9 @@ so each is a yardstick, never a method. Their rows are in `study.variants` (``ad
   corrected from the overlap's ground truth alone (`mcdp.oracle.spread_from_overlap`): how much the overlap could
   tell the rest of the image through a simple propagator that needs no training, whatever the budget.
 
-Every stage reads the ground truth within the probe's ``oracle_range`` (metres) and works at the training size.
+Every stage reads the ground truth within the probe's ``oracle_range`` (metres) and works at the training size: once
+per sample (the probe's ``sample_memo``), taken from the evaluation's own reading of the sample when the sweep shares
+it (``Probed.truths``, `mcdp.evaluate.TruthCache`); both ORACLE fits of a sample run as one batch.
 """
 from __future__ import annotations
 
