@@ -1,4 +1,4 @@
-"""What the evaluation (`mcdp.evaluate`) reads once: of the rig (`_Rig`) and of each test sample (`_Truth`, held
+"""What the evaluation (`mcdp.evaluate`) reads once: of the rig (`EvalRig`) and of each test sample (`SampleTruth`, held
 by `TruthCache` and shared by every pass and stage scored on the sample, and by the ORACLE stages that read the same
 ground truth, `study.oracle_stages`).
 
@@ -30,7 +30,7 @@ BANDS = tuple(f"band{k}" for k in range(len(BAND_NAMES)))
 REGIONS = ("all", "overlap", "non_overlap") + BANDS
 
 
-class _Rig:
+class EvalRig:
     """What `evaluate` reads of the rig once: camera names, sizes, K, T_ego_cam, scene masks, and the ordered
     neighbour pairs (src j, tgt i) with their relative poses T_ci_cj."""
 
@@ -53,14 +53,14 @@ class _Rig:
         self.labels = LR.LabelIndex.of(ds)  # None: no semantic labels, no class / motion regions
 
 
-class _Truth:
+class SampleTruth:
     """One sample's ground truth, read once and shared by every stage and pass scored on it: depth per camera, its
     valid pixels, those pixels' depth and log depth, the overlap, and per camera the region matrix ``R[c]``
     (len(regions), N_c) float 0/1 over the camera's valid pixels (``regions``: all, overlap, non_overlap, the bands,
     and with labels the class groups, motion and the road by band) with its pixel counts ``counts[c]``: a stage's
     per-region sums of every metric's per-pixel terms are then one matrix product per camera (`_score`)."""
 
-    def __init__(self, ds: DatasetReader, rig: _Rig, seq: str, f: int, cfg: EvalConfig) -> None:
+    def __init__(self, ds: DatasetReader, rig: EvalRig, seq: str, f: int, cfg: EvalConfig) -> None:
         self.gts = [np.asarray(ds.read_depth(seq, n, f), dtype=np.float64) for n in rig.names]
         for c, g in enumerate(self.gts):
             if g.shape != rig.shapes[c]:
@@ -91,17 +91,17 @@ class _Truth:
 
 
 class TruthCache:
-    """The ground truth of the sample under evaluation (`_Truth`), read once and shared by every pass and stage that
+    """The ground truth of the sample under evaluation (`SampleTruth`), read once and shared by every pass and stage that
     `evaluate_passes` scores on it, and by a stage of a predictor that reads the same ground truth (the ORACLE
     stages, `study.oracle_stages`, through ``get``). Holds one sample: the passes are scored sample by sample."""
 
     def __init__(self, ds: DatasetReader, cfg: EvalConfig) -> None:
-        self.ds, self.cfg, self.rig = ds, cfg, _Rig(ds)
+        self.ds, self.cfg, self.rig = ds, cfg, EvalRig(ds)
         self._key: tuple | None = None
-        self._truth: _Truth | None = None
+        self._truth: SampleTruth | None = None
 
-    def get(self, seq: str, frame: int) -> _Truth:
+    def get(self, seq: str, frame: int) -> SampleTruth:
         """The ground truth of sample (seq, frame), read when it is not the one held."""
         if self._key != (seq, frame):
-            self._truth, self._key = _Truth(self.ds, self.rig, seq, frame, self.cfg), (seq, frame)
+            self._truth, self._key = SampleTruth(self.ds, self.rig, seq, frame, self.cfg), (seq, frame)
         return self._truth

@@ -94,7 +94,7 @@ from synth.protocol import DatasetReader
 from . import geometry
 from . import label_regions as LR
 from . import metrics as MT
-from .eval_truth import BANDS, REGIONS, TruthCache, _Rig, _Truth  # noqa: F401 (REGIONS, _Rig: re-exported)
+from .eval_truth import BANDS, REGIONS, TruthCache, EvalRig, SampleTruth  # noqa: F401 (REGIONS: re-exported)
 from .per_sequence import METRIC as PS_METRIC, REGIONS as PS_REGIONS, per_sequence_arrays
 from .metrics import clamp_depth, dep_con, metric_names, metric_terms, ratio_of_medians
 
@@ -183,7 +183,7 @@ class _Scored(NamedTuple):
     holes: np.ndarray | None
 
 
-def _score(preds: list, truth: _Truth, rig: _Rig, cfg: EvalConfig) -> _Scored:
+def _score(preds: list, truth: SampleTruth, rig: EvalRig, cfg: EvalConfig) -> _Scored:
     """One stage's per-image metrics of one sample, every scaling and region of a camera in one product of its
     per-pixel terms (rows: metric-major, then scaling) with the region matrix; its Dep Con, spreads and holes."""
     table = MT.METRICS  # read when called: a metric is one row there
@@ -257,7 +257,7 @@ def _metrics(v: np.ndarray) -> dict:
     return {k: float(x) for k, x in zip(metric_names(), v)}
 
 
-def _summary(rig: _Rig, regions: tuple, st: _Stage, seqs: list) -> dict:
+def _summary(rig: EvalRig, regions: tuple, st: _Stage, seqs: list) -> dict:
     """One stage's entry of metrics.json from its summed per-image values (means over images, then cameras)."""
     names, out = rig.names, {}
     with np.errstate(invalid="ignore", divide="ignore"):
@@ -298,7 +298,7 @@ class _Pass:
         self.stages: list[str] | None = None
         self.acc: dict[str, _Stage] = {}
 
-    def add(self, seq: str, f: int, raw: Mapping, truth: _Truth, rig: _Rig, cfg: EvalConfig, done: list) -> None:
+    def add(self, seq: str, f: int, raw: Mapping, truth: SampleTruth, rig: EvalRig, cfg: EvalConfig, done: list) -> None:
         """Score one sample's stages ``raw``; ``done``: the sample's (predictions, scores) so far, of every pass (a
         stage bitwise equal to one of them, e.g. "final" or a cut pass's init, is scored once)."""
         raw = dict(raw)

@@ -55,7 +55,7 @@ def _truth(probe, seq: str, frame: int, size: tuple[int, int]):
 
 
 def _truth_from(truth, masks, size: tuple[int, int], depth_range: tuple[float, float]):
-    """`_truth`'s three maps from an evaluation's `mcdp.eval_truth._Truth` (its depth as read, float64, and its
+    """`_truth`'s three maps from an evaluation's `mcdp.eval_truth.SampleTruth` (its depth as read, float64, and its
     overlap), by the very operations of `mcdp.truth.ground_truth_at` and `mcdp.truth.overlap_at`."""
     import numpy as np
     import torch

@@ -131,7 +131,7 @@ def _summary(rig, acc, dc_acc, spreads, holes, seqs) -> dict:
 def reference_evaluate(ds, predict_fn, split="test", cfg=None) -> dict:
     """The evaluation as it was before the ground truth was shared and the scoring vectorised (one pass)."""
     cfg = cfg or EvalConfig()
-    rig = E._Rig(ds)
+    rig = E.EvalRig(ds)
     samples = [(seq, f) for seq in ds.split(split) for f in E.eval_frames(ds.n_frames(seq), cfg)]
     regions = E.REGIONS + ((LR.REGIONS + tuple(f"road_{b}" for b in BANDS)) if rig.labels is not None else ())
     stages, acc, dc_acc, spread_acc, hole_acc = None, {}, {}, {}, {}

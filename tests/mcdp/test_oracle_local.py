@@ -178,16 +178,16 @@ def test_the_copy_test_scores_exactly_the_hinted_pixels(ds):
     scene mask) is the set of pixels where `overlap_truth` is > 0 and in that range, on every test image; a
     predictor that is the ground truth there and wrong elsewhere scores 0 on the overlap (scaling none)."""
     from mcdp.config import EVAL_MAX_DEPTH, EVAL_MIN_DEPTH, EvalConfig
-    from mcdp.evaluate import eval_frames, _Rig, _Truth, evaluate
+    from mcdp.evaluate import eval_frames, EvalRig, SampleTruth, evaluate
 
     cfg = EvalConfig()
     assert (cfg.min_depth, cfg.max_depth) == (EVAL_MIN_DEPTH, EVAL_MAX_DEPTH)
     masks = [np.asarray(ds.mask(n), bool) for n in ds.camera_names]
-    rig = _Rig(ds)
+    rig = EvalRig(ds)
     n_hinted = n_images = 0
     for seq in ds.split("test"):
         for f in eval_frames(ds.n_frames(seq), cfg):
-            truth = _Truth(ds, rig, seq, f, cfg)
+            truth = SampleTruth(ds, rig, seq, f, cfg)
             for c, m in enumerate(overlap_truth(ds, masks, seq, f)):
                 hinted = (m > 0) & (m >= EVAL_MIN_DEPTH) & (m <= EVAL_MAX_DEPTH) & masks[c]
                 assert np.array_equal(hinted, truth.overlaps[c] & truth.valids[c]), (seq, f, c)
