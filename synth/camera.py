@@ -234,12 +234,12 @@ def unit_focal_radius(name: str, dist, angle_rad: float) -> float:
     return float(uv[0, 0])
 
 
-def pinhole_only(cameras, what: str) -> None:
-    """ValueError in one line unless every camera (``.name``, ``.model``) is pinhole: for what is pinhole by its
-    format or its maths (the rasteriser until image formation exists, nuScenes' and glTF's cameras)."""
+def pinhole_only(cameras, what: str, error: type[Exception] = ValueError) -> None:
+    """`error` in one line unless every camera (``.name``, ``.model``) is pinhole: for what is pinhole by its
+    format (nuScenes' calibrated_sensor has a camera_intrinsic only, glTF's cameras are perspective)."""
     other = [f"{c.name} ({c.model})" for c in cameras if c.model != "pinhole"]
     if other:
-        raise ValueError(f"{what} is pinhole only; camera(s) {', '.join(other)[:200]} have another lens model "
+        raise error(f"{what} is pinhole only; camera(s) {', '.join(other)[:200]} have another lens model "
                          "(rig.cameras.<CAM>.model)")
 
 

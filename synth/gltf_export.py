@@ -34,6 +34,7 @@ import numpy as np
 from corelib.atomic import atomic_write_bytes
 from corelib.configlib import build_config
 from corelib.rundir import FolderError, claim
+from synth.camera import pinhole_only
 from synth.extras import VIZ_INSTALL as INSTALL
 from synth.files import DatasetError, read_json, write_json
 
@@ -191,6 +192,7 @@ def export_gltf(dataset: str | Path, out: str | Path, progress: bool = False) ->
     if ds.format != "synth" or "config" not in ds.manifest:
         raise DatasetError(f"{src}: a glTF export needs a synth dataset (its scenes are rebuilt from the manifest's "
                            "config), not a nuScenes dataroot")
+    pinhole_only(ds.cameras, f"{src}: a glTF export (glTF cameras are perspective)", DatasetError)
     if dataset_containing(out) is not None or out.resolve() == src.resolve():
         raise FolderError(f"--out {out} is inside the dataset {dataset_containing(out) or src}; export outside it")
     cfg_hash = str(ds.manifest.get("config_hash") or "")

@@ -29,6 +29,7 @@ import numpy as np
 
 from corelib.atomic import atomic_write_bytes
 from corelib.rundir import lock_folder
+from synth.camera import pinhole_only
 from synth.files import DatasetError, encode_jpeg, is_plain_name, read_png, write_json, write_png
 from synth.lidar import LidarConfig, luma
 from synth.nuscenes.layout import (EXPORT_DIR, FORMAT, LIDAR_CHANNEL, LOCK, MARKER, MASKS_DIR, OWNED, SPLITS_FILE,
@@ -87,6 +88,7 @@ class _Export:
         if ds.format != "synth":
             raise ExportError(f"{src}: a {ds.format} dataset, not one mcdp-synth rendered; only a rendered dataset "
                               "exports")
+        pinhole_only(ds.cameras, f"{src}: a nuScenes export (camera_intrinsic: a pinhole K)", ExportError)
         if src.resolve() == out.resolve() or out.resolve().is_relative_to(src.resolve()):
             raise ExportError(f"{out}: inside the source dataset {src}; choose a folder outside it")
         if not ds.has_depth and lidar is not None:

@@ -103,3 +103,25 @@ def test_the_reader_refuses_a_bad_lens_in_rig_json():
     j["cameras"][0]["model"] = None
     with pytest.raises(DatasetError, match=r"cameras\[CAM_FRONT\]: model must be a camera model's name, got None"):
         check_rig(j, manifest, "rig.json")
+
+
+def test_the_pinhole_exports_refuse_a_lens_in_one_line(tmp_path, monkeypatch):
+    from types import SimpleNamespace
+
+    import synth.gltf_export as G
+    import synth.open
+    from synth.files import DatasetError
+    from synth.nuscenes.export import export_nuscenes
+    from synth.nuscenes.layout import ExportError
+
+    ds = SimpleNamespace(format="synth", root=tmp_path / "ds", cameras=_rig(CAM_BACK=KB).cameras,
+                         manifest={"config": {}})
+    with pytest.raises(ExportError, match=r"^.*ds: a nuScenes export \(camera_intrinsic: a pinhole K\) is pinhole only; "
+                                          r"camera\(s\) CAM_BACK \(kannala_brandt\) have another lens model"):
+        export_nuscenes(ds, tmp_path / "out")
+    monkeypatch.setattr(G, "import_trimesh", lambda: None)
+    monkeypatch.setattr(synth.open, "open_dataset", lambda src: ds)
+    with pytest.raises(DatasetError, match=r"a glTF export \(glTF cameras are perspective\) is pinhole only; "
+                                           r"camera\(s\) CAM_BACK \(kannala_brandt\)"):
+        G.export_gltf(tmp_path / "ds", tmp_path / "out")
+    assert not (tmp_path / "out").exists()  # refused before a byte is written
