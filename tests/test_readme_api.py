@@ -16,10 +16,10 @@ ROOT = Path(__file__).resolve().parents[1]
 
 
 def readme_python_block() -> str:
-    text = (ROOT / "README.md").read_text()
+    text = (ROOT / "docs" / "GUIDE.md").read_text()  # moved from the README (issue 60)
     section = text.split("### Python API\n", 1)[1]
     m = re.search(r"```python\n(.*?)```", section, re.S)
-    assert m, "no ```python block under '### Python API' in README.md"
+    assert m, "no ```python block under '### Python API' in docs/GUIDE.md"
     return m.group(1)
 
 

@@ -1,8 +1,9 @@
-"""The README's ```bash blocks run top to bottom, in order, from a new shell in an empty folder (issue 41, item 11:
+"""The README's ```bash blocks, then the user guide's (docs/GUIDE.md, where the README's other blocks moved in issue
+60), run top to bottom, in order, from a new shell in an empty folder (issue 41, item 11:
 the viz block came before the commands that make data/tiny and runs/m2, a block wrote data/d five times with
 different configs, later blocks used bare `synth` / `mcdp` without a word on activating .venv).
 
-How: every ```bash block of README.md, in order, becomes one bash script (`set -e`) run in a temporary folder that
+How: every ```bash block of README.md and then of docs/GUIDE.md (`DOCS`), in order, becomes one bash script (`set -e`) run in a temporary folder that
 holds only links to configs/ and benchmarks/ and `.venv`, a link to the environment running this test (with
 PYTHONPATH naming this checkout, so the code under test runs). Each command line is looked up in `PLAN` (the
 longest matching prefix): run as written, run with the overrides that scale it down, or skipped with the reason
@@ -55,8 +56,12 @@ PLAN = {
 }
 
 
+#: the files whose ```bash blocks run, in this order: the README's quickstart, then the user guide
+DOCS = (ROOT / "README.md", ROOT / "docs" / "GUIDE.md")
+
+
 def bash_blocks() -> list[str]:
-    return re.findall(r"^```bash\n(.*?)^```", (ROOT / "README.md").read_text(), re.S | re.M)
+    return [b for doc in DOCS for b in re.findall(r"^```bash\n(.*?)^```", doc.read_text(), re.S | re.M)]
 
 
 def command_lines(block: str) -> list[tuple[str, str]]:
@@ -121,12 +126,12 @@ def test_the_readme_blocks_run_in_order_from_an_empty_folder(tmp_path):
     print("skipped:\n" + "\n".join(skipped))
     print({p: _du(tmp_path / p) for p in ("data/tiny", "data/w64", "pretrain/tiny", "runs/m2", "sweeps/ci")})
     # what the blocks made, in the order they made it
-    for made in ("data/tiny/manifest.json", "data/d/manifest.json", "data/full/manifest.json", "data/d_ns",
-                 "sheet.png", "pretrain/tiny/pretrained.pt", "runs/m2/metrics_test.json", "sweeps/ci/report.md"):
+    for made in ("data/tiny/manifest.json", "tiny_sheet.png", "data/d/manifest.json", "data/full/manifest.json",
+                 "data/d_ns", "sheet.png", "pretrain/tiny/pretrained.pt", "runs/m2/metrics_test.json", "sweeps/ci/report.md"):
         assert (tmp_path / made).exists(), made
     # the smoke sweep's stated sizes: 68 MB from an empty folder for 14 runs (the pretraining's 57 MB
     # pretrained.pt, 2 MB of worlds, 4.4 MB of runs), no checkpoint but pretrained.pt; here 2 runs of them
-    text = (ROOT / "README.md").read_text()
+    text = (ROOT / "docs" / "GUIDE.md").read_text()
     total, pre, runs = (float(x) for x in re.search(r"configs/sweep/ci.yaml --out sweeps/ci`, (\d+) MB of disk from an "
                                                     r"empty folder\s+\(`du -sb`, [\d-]+: the pretraining's (\d+) MB "
                                                     r"`pretrained.pt`, \d+ MB of worlds, ([\d.]+) MB of runs\)", text,

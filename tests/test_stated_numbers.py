@@ -65,17 +65,17 @@ def _inert(r: dict, method: str) -> tuple[int, int]:
 CLAIMS = [
     ("README.md", r"main job on its defaults: .*?\((\d+) min measured", "sweep_cpu",
      lambda r: (str(round(float(_from_empty_min("sweep_cpu")))),)),
-    ("README.md", r"one\s+run from an empty folder, ([\d.]+) min measured", "sweep_cpu",
+    ("docs/RESULTS.md", r"one\s+run from an empty folder, ([\d.]+) min measured", "sweep_cpu",
      lambda r: (_from_empty_min("sweep_cpu"),)),
-    ("README.md", r"with seed k on world k \((\w+) \(world, seed\) pairs", "sweep_cpu", lambda r: (len(r["seeds"]),)),
-    ("README.md", r"paired over the (\w+) \(world, seed\) pairs", "sweep_cpu", lambda r: (len(r["seeds"]),)),
-    ("README.md", r"`cpu.yaml`: [\d.]+ GB of disk for its (\d+) runs", "sweep_cpu", lambda r: (_runs(r),)),
-    ("README.md", r"Without L_con the refinement barely moves: .*?(\d+) of (\d+) runs stay under 1 cm", "sweep_cpu",
+    ("docs/RESULTS.md", r"with seed k on world k \((\w+) \(world, seed\) pairs", "sweep_cpu", lambda r: (len(r["seeds"]),)),
+    ("docs/RESULTS.md", r"paired over the (\w+) \(world, seed\) pairs", "sweep_cpu", lambda r: (len(r["seeds"]),)),
+    ("docs/GUIDE.md", r"`cpu.yaml`: [\d.]+ GB of disk for its (\d+) runs", "sweep_cpu", lambda r: (_runs(r),)),
+    ("docs/RESULTS.md", r"Without L_con the refinement barely moves: .*?(\d+) of (\d+) runs stay under 1 cm", "sweep_cpu",
      lambda r: _inert(r, "mcdp_m1_nocon")),
-    ("README.md", r"cpu_compare.yaml --out sweeps/cpu`, (\d+) min measured", "sweep_compare",
+    ("docs/RESULTS.md", r"cpu_compare.yaml --out sweeps/cpu`, (\d+) min measured", "sweep_compare",
      lambda r: (round(_wall_min(r)),)),
-    ("README.md", r"reusing its\s+runs; (\w+) \(world, seed\) pairs\)", "sweep_compare", lambda r: (len(r["seeds"]),)),
-    ("README.md", r"90 min measured, (\w+) worlds x (\w+)\s+seeds", "propagation",
+    ("docs/RESULTS.md", r"reusing its\s+runs; (\w+) \(world, seed\) pairs\)", "sweep_compare", lambda r: (len(r["seeds"]),)),
+    ("docs/RESULTS.md", r"90 min measured, (\w+) worlds x (\w+)\s+seeds", "propagation",
      lambda r: (len(r["seeds"]) // r["sweep_config"]["seeds_per_world"], r["sweep_config"]["seeds_per_world"])),
 ]
 for _name in ("sweep_cpu", "propagation", "sweep_compare", "propagation_budget"):
@@ -117,9 +117,9 @@ def test_each_preface_states_its_latest_invocations_wall_time(name):
 
 def test_the_main_job_has_one_disk_size_in_the_readme():
     """"3.2 GB of disk" at the top and "2.1 GB" for its 27 runs further down: one figure, stated the same way."""
-    text = (ROOT / "README.md").read_text()
-    top = re.search(r"main job on its defaults: .*?\d+ min measured, ([\d.]+) GB of disk", text).group(1)
-    limits = re.search(r"`cpu.yaml`: ([\d.]+) GB of disk for its", text).group(1)
+    top = re.search(r"main job on its defaults: .*?\d+ min measured, ([\d.]+) GB of disk",
+                    (ROOT / "README.md").read_text()).group(1)
+    limits = re.search(r"`cpu.yaml`: ([\d.]+) GB of disk for its", (ROOT / "docs" / "GUIDE.md").read_text()).group(1)
     assert top == limits
 
 
@@ -128,7 +128,8 @@ def test_no_page_counts_the_committed_sweeps_runs_by_hand():
     said "nine" of a sweep that has 12 such runs; it now names the 2026-12-02 data it was measured from)."""
     r = _results("sweep_cpu")
     per_method = len(r["overlaps"]) * len(r["seeds"])
-    for page in sorted(RESULTS.glob("*/page.md")) + sorted(RESULTS.glob("*/preface.md")) + [ROOT / "README.md"]:
+    docs = [ROOT / "README.md", ROOT / "docs" / "GUIDE.md", ROOT / "docs" / "RESULTS.md"]
+    for page in sorted(RESULTS.glob("*/page.md")) + sorted(RESULTS.glob("*/preface.md")) + docs:
         for m in re.finditer(r"committed sweep's (\w+) (?:such )?runs", page.read_text()):
             assert _norm(m.group(1)) in (str(per_method), str(_runs(r))), f"{page}: {m.group(0)!r}"
 
