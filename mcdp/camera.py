@@ -98,7 +98,83 @@ def unproject(depth: torch.Tensor, K: torch.Tensor, dist: torch.Tensor | None, m
     v, u = torch.meshgrid(torch.arange(H, device=depth.device, dtype=depth.dtype) + 0.5,
                           torch.arange(W, device=depth.device, dtype=depth.dtype) + 0.5, indexing="ij")
     rays = unproject_pixels(torch.stack([u, v]).view(1, 2, H * W), K, dist, model)
-    return rays.view(-1, 3, H, W) * depth
+    return rays.nan_to_num(0.0).view(-1, 3, H, W) * depth  # no ray: the point (0, 0, 0), which no row sees
+
+
+# --------------------------------------------------------------------------- a batch's lenses
+@dataclass(frozen=True)
+class Lens:
+    """The lenses of a rig's cameras (issue 59): ``models`` (N,) row names in rig order and ``dist`` (N, D) or,
+    in a batch, (B, N, D) float32, each camera's parameters in its row's order padded with zeros to the longest
+    row's D. A rig whose cameras are all pinhole has no Lens (None): its warps are the pinhole path, unchanged."""
+
+    models: tuple[str, ...]
+    dist: torch.Tensor
+
+    @staticmethod
+    def of_cameras(cameras) -> "Lens | None":
+        """The Lens of a reader's cameras (``.intrinsics``: `synth.protocol.Camera`), None when all are pinhole."""
+        cams = [c.intrinsics for c in cameras]
+        if all(c.model == "pinhole" for c in cams):
+            return None
+        D = max(len(c.dist) for c in cams)
+        return Lens(tuple(c.model for c in cams),
+                    torch.tensor([list(c.dist) + [0.0] * (D - len(c.dist)) for c in cams], dtype=torch.float32))
+
+    def map(self, fn) -> "Lens":
+        """The same Lens with ``fn`` applied to ``dist`` (``.to(device)``, ``pin_memory``)."""
+        return Lens(self.models, fn(self.dist))
+
+    def of(self, cams: torch.Tensor | None = None) -> tuple[tuple[str, ...], torch.Tensor]:
+        """The per-item lens of a batch's cameras ``cams`` (P,) (None: all N in rig order), flattened in (b, p)
+        order as the warps flatten images: (B * P row names, (B * P, D) dist); what `mcdp.geometry.warp_by_depth`
+        and `splat_depth` take as ``lens_tgt`` / ``lens_src``."""
+        if self.dist.ndim != 3:
+            raise ValueError(f"Lens.of needs a batch's dist (B, N, D), got {tuple(self.dist.shape)}")
+        B, N, D = self.dist.shape
+        idx = list(range(N)) if cams is None else cams.tolist() if torch.is_tensor(cams) else [int(c) for c in cams]
+        return tuple(self.models[c] for _ in range(B) for c in idx), self.dist[:, idx].reshape(-1, D)
+
+
+def _row_dist(dist, name: str):
+    D = len(MODELS[name].dist_names)
+    return dist[:, :D] if D else None
+
+
+def _by_row(fn, models, B: int, K: torch.Tensor, dist: torch.Tensor, x: torch.Tensor, *args):
+    """``fn(x, K, dist, name, *args)`` of items whose rows are ``models`` (one name, or one per item of B),
+    each row's items in one call, the outputs put back in item order (differentiable: index_copy)."""
+    if isinstance(models, str) or len(set(models)) == 1:
+        name = models if isinstance(models, str) else models[0]
+        return fn(x, K, _row_dist(dist, name), name, *args)
+    if len(models) != B:
+        raise ValueError(f"a lens names {len(models)} camera models, the batch has {B} items")
+    K, dist, x = K.expand(B, 3, 3), dist.expand(B, -1), x.expand(B, *x.shape[1:])
+    outs = None
+    for name in dict.fromkeys(models):
+        idx = torch.tensor([i for i, m in enumerate(models) if m == name], device=x.device)
+        part = fn(x[idx], K[idx], _row_dist(dist[idx], name), name, *args)
+        part = part if isinstance(part, tuple) else (part,)
+        if outs is None:
+            outs = [torch.zeros((B, *p.shape[1:]), dtype=p.dtype, device=p.device) for p in part]
+        outs = [o.index_copy(0, idx, p) for o, p in zip(outs, part)]
+    return tuple(outs) if len(outs) > 1 else outs[0]
+
+
+def project_lens(points: torch.Tensor, K: torch.Tensor, lens, eps: float = EPS_Z):
+    """`project` through ``lens`` = (row name or (B,) row names, (B|1, D) dist): (B, 3, N) -> ((B, 2, N), (B, N))."""
+    return _by_row(lambda x, k, d, n: project(x, k, d, n, eps), lens[0], points.shape[0], K, lens[1], points)
+
+
+def unproject_lens(depth: torch.Tensor, K: torch.Tensor, lens):
+    """`unproject` through ``lens`` (as `project_lens`): depth (B, 1, H, W) of each item's depth kind -> (B, 3, H, W)."""
+    return _by_row(lambda x, k, d, n: unproject(x, k, d, n), lens[0], depth.shape[0], K, lens[1], depth)
+
+
+def range_items(lens, B: int, device=None) -> torch.Tensor:
+    """(B, 1) bool: which items' rows have depth kind ``range`` (their depth is a point's norm, not its z)."""
+    models = (lens[0],) * B if isinstance(lens[0], str) else lens[0]
+    return torch.tensor([MODELS[m].depth_kind == "range" for m in models], device=device).view(-1, 1)
 
 
 # --------------------------------------------------------------------------- pinhole: mcdp.geometry's arithmetic
@@ -113,6 +189,13 @@ def _pinhole_unproject(K, dist, uv):
 
 
 # --------------------------------------------------------------------------- the distorted rows
+def _tol(x: torch.Tensor) -> tuple[float, float]:
+    """(Newton's stopping residual, the residual below which a pixel has a ray) in normalised units: the table's
+    in float64; in float32 (training), where a residual stalls at a few ulps (~1e-7), 1e-6 and 1e-4 (1e-4 focal
+    lengths: 0.04 px at f = 400 px; a pixel beyond a row's range misses by far more)."""
+    return (NEWTON_TOL, 1e3 * NEWTON_TOL) if x.dtype == torch.float64 else (1e-6, 1e-4)
+
+
 def _to_pixels(K, xd, yd):
     return torch.stack([K[:, 0, 0:1] * xd + K[:, 0, 1:2] * yd + K[:, 0, 2:3], K[:, 1, 1:2] * yd + K[:, 1, 2:3]], 1)
 
@@ -170,12 +253,12 @@ def _radtan_unproject(K, d, uv):
         x, y = xd.detach(), yd.detach()
         for _ in range(NEWTON_ITERS):
             x, y, res = _radtan_step(d.detach(), x, y, xd.detach(), yd.detach())
-            if bool((res < NEWTON_TOL).all()):
+            if bool((res < _tol(uv)[0]).all()):
                 break
     x, y, _ = _radtan_step(d, x, y, xd, yd)  # with the graph: the implicit gradient
     with torch.no_grad():
         fx, fy, r2, _ = _radtan(d, x, y)
-        ok = ((fx - xd).abs() + (fy - yd).abs() < 1e3 * NEWTON_TOL) & (r2 < _radtan_rmax(d) ** 2)
+        ok = ((fx - xd).abs() + (fy - yd).abs() < _tol(uv)[1]) & (r2 < _radtan_rmax(d) ** 2)
     rays = torch.stack([x, y, torch.ones_like(x)], 1)
     return torch.where(ok[:, None], rays, torch.full_like(rays, math.nan))
 
@@ -192,7 +275,7 @@ def _kb_tmax(d):
 
 
 def _kb_project(K, d, p, eps):
-    rho = torch.sqrt(p[:, 0] ** 2 + p[:, 1] ** 2)
+    rho = torch.sqrt(p[:, 0] ** 2 + p[:, 1] ** 2 + torch.finfo(p.dtype).tiny)  # tiny: a finite gradient on the axis
     theta = torch.atan2(rho, p[:, 2])
     ok = (torch.sqrt(rho**2 + p[:, 2] ** 2) > eps) & (theta < _kb_tmax(d))
     rs = torch.where(rho > 0, rho, torch.ones_like(rho))
@@ -209,18 +292,18 @@ def _kb_step(d, t, td):
 
 def _kb_unproject(K, d, uv):
     xd, yd = _to_normalised(K, uv)
-    td = torch.sqrt(xd**2 + yd**2)
+    td = torch.sqrt(xd**2 + yd**2 + torch.finfo(xd.dtype).tiny)
     tmax = _kb_tmax(d)
     with torch.no_grad():
         t = torch.minimum(td, tmax)
         for _ in range(NEWTON_ITERS):
             t_new, res = _kb_step(d, t, td)
-            if bool((res < NEWTON_TOL).all()):
+            if bool((res < _tol(uv)[0]).all()):
                 break
             t = torch.minimum(torch.clamp(t_new, min=0.0), tmax)
     t, _ = _kb_step(d, t, td)  # with the graph
     with torch.no_grad():
-        ok = ((_kb_theta_d(d, t) - td).abs() < 1e3 * NEWTON_TOL) & (t < tmax)
+        ok = ((_kb_theta_d(d, t) - td).abs() < _tol(uv)[1]) & (t < tmax)
     s = torch.sin(t) / torch.where(td > 0, td, torch.ones_like(td))
     rays = torch.stack([s * xd, s * yd, torch.cos(t)], 1)
     return torch.where(ok[:, None], rays, torch.full_like(rays, math.nan))

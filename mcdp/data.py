@@ -22,6 +22,7 @@ import cv2
 import numpy as np
 import torch
 
+from mcdp.camera import Lens
 from mcdp.inputs import InputField, RigBatch, read_fields, stack
 from synth import camera
 
@@ -98,6 +99,7 @@ class RigReader:
             [scaled_K(c.K, (c.height, c.width), (self.height, self.width)) for c in ds.cameras]
         ).astype(np.float32)  # (N, 3, 3)
         self.T_ego_cam = np.stack([np.asarray(c.T_ego_cam, dtype=np.float64) for c in ds.cameras]).astype(np.float32)
+        self.lens = Lens.of_cameras(ds.cameras)  # None for a pinhole rig (a resize keeps every distortion parameter)
         self.mask_full = [np.asarray(ds.mask(n), dtype=bool) for n in self.cam_names]  # dataset resolution
         self.mask = np.stack([resize_mask(m, self.height, self.width) for m in self.mask_full])[:, None].astype(
             np.float32
@@ -190,6 +192,8 @@ class RigDataset(torch.utils.data.Dataset):
             "frame": torch.tensor(t, dtype=torch.long),
             "fields": read_fields(self.fields, r, seq, t),
         }
+        if r.lens is not None:
+            item["lens"] = r.lens
         return item
 
 

@@ -24,7 +24,7 @@ from typing import Optional, Sequence
 import torch
 import torch.nn.functional as F
 
-from mcdp.camera import project, resized, unproject
+from mcdp.camera import project, project_lens, range_items, resized, unproject, unproject_lens
 
 __all__ = [
     "scale_intrinsics",
@@ -198,9 +198,9 @@ def warp_by_depth(
         T_src_tgt: (B, 4, 4) maps target-camera points into the source camera.
         padding_mode: ``grid_sample`` padding ("zeros", "border", "reflection").
         eps: a point is in front of the source camera when z > eps.
-        lens_tgt, lens_src: None (pinhole) or a camera-model row name and its (B, D) distortion parameters
-            (`mcdp.camera`); then ``depth_tgt`` is of the row's depth kind (range for kannala_brandt) and
-            valid also needs the source row's validity.
+        lens_tgt, lens_src: None (pinhole) or a camera-model row name (or one per item, B names) and the
+            (B, D) distortion parameters (`mcdp.camera`; `mcdp.camera.Lens.of` of a batch); then ``depth_tgt``
+            is of the row's depth kind (range for kannala_brandt) and valid also needs the source row's validity.
 
     Returns:
         warped: (B, C, H, W) source sampled at each target pixel's correspondence.
@@ -219,13 +219,13 @@ def warp_by_depth(
     _check_batch(T_src_tgt, "T_src_tgt", B)
     Hs, Ws = src.shape[-2:]
 
-    pts_tgt = depth_to_points(depth_tgt, K_tgt) if lens_tgt is None else unproject(depth_tgt, K_tgt, *lens_tgt[::-1])
+    pts_tgt = depth_to_points(depth_tgt, K_tgt) if lens_tgt is None else unproject_lens(depth_tgt, K_tgt, lens_tgt)
     pts_src = transform_points(T_src_tgt, pts_tgt)
     if lens_src is None:
         uv, z = points_to_pixels(pts_src, K_src, eps=eps)
         front = z > eps
     else:  # a pixel without a ray (NaN) samples outside the image
-        uv, front = project(pts_src.flatten(2), K_src, lens_src[1], lens_src[0], eps=eps)
+        uv, front = project_lens(pts_src.flatten(2), K_src, lens_src, eps=eps)
         uv, front = uv.nan_to_num(nan=-1e4).view(B, 2, *pts_src.shape[-2:]), front.view(B, 1, *pts_src.shape[-2:])
     grid = pixels_to_grid(uv, Hs, Ws).to(src.dtype)  # (B, H, W, 2)
     warped = F.grid_sample(src, grid, mode="bilinear", padding_mode=padding_mode, align_corners=False)
@@ -244,6 +244,8 @@ def splat_depth(
     W_tgt: int,
     valid_src: Optional[torch.Tensor] = None,
     eps: float = 1e-6,
+    lens_src: Optional[tuple] = None,
+    lens_tgt: Optional[tuple] = None,
 ):
     """Forward-project source depth into the target camera with a z-buffer.
 
@@ -266,6 +268,9 @@ def splat_depth(
         valid_src: optional (B, 1, Hs, Ws) mask; source pixels with valid_src <= 0
             are not splatted (e.g. the ego-body self-occlusion mask).
         eps: points with target z <= eps are dropped.
+        lens_src, lens_tgt: None (pinhole) or a lens as `warp_by_depth` takes it; then ``depth_src`` is of the
+            source row's depth kind, a point is kept where the target row images it, and the z-buffer and the
+            returned depth are of the target row's depth kind (range: the point's norm).
 
     Returns:
         depth_in_tgt: (B, 1, H_tgt, W_tgt) target z-depth of the nearest splatted
@@ -285,14 +290,25 @@ def splat_depth(
     if H_tgt <= 0 or W_tgt <= 0:
         raise ValueError(f"H_tgt and W_tgt must be positive, got {H_tgt}, {W_tgt}")
 
-    pts = transform_points(T_tgt_src, depth_to_points(depth_src, K_src))
-    uv, z = points_to_pixels(pts, K_tgt, eps=eps)
+    if lens_src is None and lens_tgt is None:
+        pts = transform_points(T_tgt_src, depth_to_points(depth_src, K_src))
+        uv, z = points_to_pixels(pts, K_tgt, eps=eps)
+        seen = None
+    else:  # through the lenses: z is the target's depth of its kind, seen where its row images the point
+        pts = depth_to_points(depth_src, K_src) if lens_src is None else unproject_lens(depth_src, K_src, lens_src)
+        pts = transform_points(T_tgt_src, pts).flatten(2)  # (B, 3, Ns)
+        lens_t = lens_tgt if lens_tgt is not None else ("pinhole", pts.new_zeros(1, 0))
+        uv, seen = project_lens(pts, K_tgt, lens_t, eps=eps)
+        z = torch.where(range_items(lens_t, B, pts.device), pts.norm(dim=1), pts[:, 2])
+        uv = uv.nan_to_num(nan=-1.0)
     u = uv[:, 0].reshape(B, -1).detach()  # (B, N)
     v = uv[:, 1].reshape(B, -1).detach()
     z = z.reshape(B, -1)  # differentiable
     zd = z.detach()
 
     ok = (zd > eps) & (depth_src.detach().reshape(B, -1) > 0)
+    if seen is not None:
+        ok &= seen
     ok &= (u >= 0) & (u < W_tgt) & (v >= 0) & (v < H_tgt)  # False for NaN too
     if valid_src is not None:
         ok &= valid_src.reshape(B, -1) > 0

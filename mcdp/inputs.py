@@ -24,6 +24,11 @@ training size)::
     seq_index    (B,)               int64               index into `mcdp.data.RigDataset.seqs`
     frame        (B,)               int64               frame t
     fields       {name: (B, N, ...)}                    the declared `InputField`s, nothing else
+    lens         `mcdp.camera.Lens` or None             the cameras' lens models, dist (B, N, D) (issue 59);
+                                                        None: every camera pinhole (depth then z-depth)
+
+With a lens, each camera's depth is of its row's depth kind (range for kannala_brandt) and every warp of the
+step goes through the lens (`mcdp.camera.Lens.of`); a pinhole rig has no lens and its step is unchanged.
 
 Ground truth enters a batch only through a field that says so (``InputField.truth``: an ORACLE's input, a
 yardstick); the rows whose networks read one are labelled ORACLE in every report.
@@ -54,6 +59,8 @@ from dataclasses import dataclass, field
 from typing import Any, Callable, Mapping
 
 import torch
+
+from mcdp.camera import Lens
 
 
 @dataclass(frozen=True)
@@ -92,7 +99,8 @@ class DepthInput:
 
     rgb (B, N, 3, H, W) float32 in [0, 1]; K (B, N, 3, 3); T_ego_cam (B, N, 4, 4); mask (B, N, 1, H, W) 1 =
     scene; nbr (N, 2) int64 [left, right] neighbour of each camera, -1 for none (`mcdp.data.neighbour_table`);
-    fields: {name: (B, N, ...)} the declared `InputField`s (``declared``: what they are), an emptied one absent.
+    fields: {name: (B, N, ...)} the declared `InputField`s (``declared``: what they are), an emptied one absent;
+    lens: the cameras' lenses (`mcdp.camera.Lens`, dist (B, N, D)), None for a pinhole rig.
     """
 
     rgb: torch.Tensor
@@ -102,10 +110,12 @@ class DepthInput:
     nbr: torch.Tensor
     fields: Mapping[str, torch.Tensor] = field(default_factory=dict)
     declared: tuple[InputField, ...] = ()
+    lens: Lens | None = None
 
     @classmethod
     def filled(cls, rgb: torch.Tensor, K: torch.Tensor, T_ego_cam: torch.Tensor, mask: torch.Tensor, nbr: torch.Tensor,
-               values: Mapping[str, torch.Tensor], declared: tuple[InputField, ...]) -> "DepthInput":
+               values: Mapping[str, torch.Tensor], declared: tuple[InputField, ...],
+               lens: Lens | None = None) -> "DepthInput":
         """The one constructor of a network's input from read data, used by the data reader's batches
         (`RigBatch.depth_input`) and the predictor (`mcdp.predict.Predictor.inputs`): frame t of the rig and the
         values of the declared fields. A declared field may be absent (the network runs without it); a value that
@@ -114,7 +124,7 @@ class DepthInput:
         extra = sorted(set(values) - known)
         if extra:
             raise ValueError(f"input field {extra[0]!r} is not declared (declared: {', '.join(sorted(known)) or 'none'})")
-        return cls(rgb, K, T_ego_cam, mask, nbr, dict(values), tuple(declared))
+        return cls(rgb, K, T_ego_cam, mask, nbr, dict(values), tuple(declared), lens)
 
     def get(self, f: InputField | str) -> torch.Tensor | None:
         """The field's value, or None when it was not filled (not declared, or emptied)."""
@@ -140,11 +150,13 @@ class RigBatch:
     seq_index: torch.Tensor
     frame: torch.Tensor
     fields: dict[str, torch.Tensor] = field(default_factory=dict)
+    lens: Lens | None = None
 
     def _map(self, fn) -> "RigBatch":
-        """The same batch with ``fn`` applied to every tensor, the fields' too."""
-        core = (fn(getattr(self, f.name)) for f in dataclasses.fields(self) if f.name != "fields")
-        return RigBatch(*core, fields={k: fn(v) for k, v in self.fields.items()})
+        """The same batch with ``fn`` applied to every tensor, the fields' and the lens's too."""
+        core = (fn(getattr(self, f.name)) for f in dataclasses.fields(self) if f.name not in ("fields", "lens"))
+        return RigBatch(*core, fields={k: fn(v) for k, v in self.fields.items()},
+                        lens=None if self.lens is None else self.lens.map(fn))
 
     def to(self, device, non_blocking: bool = False) -> "RigBatch":
         """The same batch on ``device``."""
@@ -159,11 +171,15 @@ class RigBatch:
         """Frame t as a network reads it. ``rgb``: (B, N, 3, 3, H, W) images to use instead of ``self.rgb``
         (e.g. colour-augmented); ``declared``: the fields the network was filled with."""
         images = self.rgb if rgb is None else rgb
-        return DepthInput.filled(images[:, :, 1], self.K, self.T_ego_cam, self.mask, nbr, self.fields, tuple(declared))
+        return DepthInput.filled(images[:, :, 1], self.K, self.T_ego_cam, self.mask, nbr, self.fields, tuple(declared),
+                                 self.lens)
 
 
 def stack(items: list[Mapping[str, Any]]) -> RigBatch:
-    """Rig samples (dicts with the batch schema's keys, ``fields`` a dict) stacked into a `RigBatch`."""
-    core = {k: torch.stack([it[k] for it in items]) for k in items[0] if k != "fields"}
+    """Rig samples (dicts with the batch schema's keys, ``fields`` a dict, ``lens`` a `Lens` of (N, D) or absent)
+    stacked into a `RigBatch`."""
+    core = {k: torch.stack([it[k] for it in items]) for k in items[0] if k not in ("fields", "lens")}
     names = items[0].get("fields", {})
-    return RigBatch(**core, fields={k: torch.stack([it["fields"][k] for it in items]) for k in names})
+    lens = items[0].get("lens")
+    lens = None if lens is None else Lens(lens.models, torch.stack([it["lens"].dist for it in items]))
+    return RigBatch(**core, fields={k: torch.stack([it["fields"][k] for it in items]) for k in names}, lens=lens)

@@ -97,6 +97,7 @@ class Predictor:
         self.K = torch.from_numpy(self.reader.K).to(self.device)[None]
         self.T_ego_cam = torch.from_numpy(self.reader.T_ego_cam).to(self.device)[None]
         self.mask = torch.from_numpy(self.reader.mask).to(self.device)[None]
+        self.lens = None if self.reader.lens is None else self.reader.lens.map(lambda d: d.to(self.device)[None])
         self.oracle = self.cfg.scale.oracle
         self.stages = list(self.network.stages)
         self.n_out = self.network.n_out  # depth bases of the network (1: nothing to weight)
@@ -107,7 +108,7 @@ class Predictor:
         values = {k: v.to(self.device)[None] for k, v in read_fields(self.fields, self.reader, seq, frame).items()}
         T = torch.from_numpy(self.reader.T_ego_cam_at(seq, frame)).to(self.device)[None]  # model.sync, as trained
         net = DepthInput.filled(torch.from_numpy(rgb).to(self.device)[None], self.K, T, self.mask, self.nbr,
-                                values, self.fields)
+                                values, self.fields, self.lens)
         return Inputs(seq, frame, rgb, net)
 
     @torch.no_grad()

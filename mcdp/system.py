@@ -181,6 +181,7 @@ class SelfSupervisedSystem(torch.nn.Module):
         if not cfg.loss.photometric_ego_mask:  # the ablation without self-occlusion masks (LossConfig)
             mask = torch.ones_like(mask)
         K = batch.K.reshape(BN, 3, 3).float()
+        lens = None if batch.lens is None else batch.lens.of()  # each item's lens (None: pinhole, the path of before)
         scales = list(range(cfg.model.scales))
         img_s = {s: target if s == 0 else F.avg_pool2d(target, 2**s) for s in scales}
         mask_s = {s: mask if s == 0 else resize_mask_to(mask, H // 2**s, W // 2**s) for s in scales}
@@ -224,7 +225,8 @@ class SelfSupervisedSystem(torch.nn.Module):
                     depth = outputs["depth", stage, s].float()
                 warped, valid = [], []
                 for o, sm in zip((-1, 1), src_and_mask):
-                    w, v = warp_by_depth(sm, depth, K_s, K_s, poses[o], padding_mode="border")
+                    w, v = warp_by_depth(sm, depth, K_s, K_s, poses[o], padding_mode="border", lens_tgt=lens,
+                                         lens_src=lens)
                     warped.append(w[:, :C])
                     valid.append(v * (w[:, C:] > 0.99).to(v.dtype))  # not onto the source's ego body
                 rep, _, used = reprojection_loss(tgt, warped, valid, None, m_s, cfg.loss.automask,
@@ -275,5 +277,7 @@ class SelfSupervisedSystem(torch.nn.Module):
             H,
             W,
             valid_src=m[:, src].reshape(B * P, 1, H, W),
+            lens_src=None if batch.lens is None else batch.lens.of(src),
+            lens_tgt=None if batch.lens is None else batch.lens.of(tgt),
         )
         return consistency_loss(d[:, tgt].reshape(B * P, 1, H, W), d_hat, hit, m[:, tgt].reshape(B * P, 1, H, W))

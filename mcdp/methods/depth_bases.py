@@ -193,14 +193,17 @@ class DepthModel(DepthNetwork):
             return out
         if not self.cfg.feature_ego_mask:  # the no-masks ablation of the weight networks' features (ModelConfig)
             mask_f = torch.ones_like(mask_f)
-        self._refine(out, feats, bases, logits, scale, inp.K, inp.T_ego_cam, mask_f, inp.nbr, emit, rgb.device.type)
+        self._refine(out, feats, bases, logits, scale, inp.K, inp.T_ego_cam, mask_f, inp.nbr, emit, rgb.device.type,
+                     inp.lens)
         return out
 
     def _refine(self, out: dict, feats: list, bases: dict, logits: torch.Tensor, scale: torch.Tensor, K: torch.Tensor,
-                T_ego_cam: torch.Tensor, mask_f: torch.Tensor, nbr: torch.Tensor, emit, device_type: str) -> None:
+                T_ego_cam: torch.Tensor, mask_f: torch.Tensor, nbr: torch.Tensor, emit, device_type: str,
+                lens=None) -> None:
         """The refinement steps: each weight network reads the target's reduced features and its neighbours',
         warped into it with the previous stage's depth, and moves the basis weights' logits; `emit` writes
-        each refined stage into `out`. mask_f: (B*N, 1, H, W); K, T_ego_cam: (B, N, ...)."""
+        each refined stage into `out`. mask_f: (B*N, 1, H, W); K, T_ego_cam: (B, N, ...); lens: the cameras'
+        `mcdp.camera.Lens` (None: pinhole)."""
         B, N = K.shape[:2]
         BN, (H, W), n = B * N, mask_f.shape[-2:], self.n_out
         # Feature pyramid at 1/2 resolution (paper: 1/2, 1/4, 1/8 resized to 1/2), reduced by each
@@ -223,7 +226,7 @@ class DepthModel(DepthNetwork):
             depth_h = (self.to_depth(sig_h)[1] * scale.view(BN, 1, 1, 1)).detach()
             red = weight_net.reduce(feats[:3]) * mask_h  # (BN, c, h, w)
             parts, valids = self._neighbour_features(red, mask_h, depth_h, K_h, T_ego_cam, T_cam_ego, nbr,
-                                                     device_type)
+                                                     device_type, lens)
             delta = weight_net(torch.cat(parts + valids, 1))  # (BN, n), or (BN, n, h', w') per pixel
             if delta.dim() == 4 and logits.dim() == 2:
                 logits = logits[:, :, None, None]
@@ -232,11 +235,11 @@ class DepthModel(DepthNetwork):
 
     def _neighbour_features(self, red: torch.Tensor, mask_h: torch.Tensor, depth_h: torch.Tensor, K_h: torch.Tensor,
                             T_ego_cam: torch.Tensor, T_cam_ego: torch.Tensor, nbr: torch.Tensor,
-                            device_type: str) -> tuple[list, list]:
+                            device_type: str, lens=None) -> tuple[list, list]:
         """([own features, each slot's warped neighbour features], [each slot's validity]) at the feature
         resolution: a neighbour's reduced features (and ego mask) warped into the target camera with `depth_h`
         through the rig extrinsics; valid where it lands on the neighbour's scene pixels and a neighbour exists
-        (`nbr` -1: none, e.g. cut)."""
+        (`nbr` -1: none, e.g. cut). lens: the cameras' `mcdp.camera.Lens` (None: pinhole)."""
         B, N = K_h.shape[:2]
         BN, (c, h, w) = B * N, red.shape[1:]
         has = (nbr >= 0).float()  # (N, 2)
@@ -251,6 +254,8 @@ class DepthModel(DepthNetwork):
                 warped, valid = warp_by_depth(
                     src.float(), depth_h.float(), K_h.reshape(BN, 3, 3).float(),
                     K_h[:, j].reshape(BN, 3, 3).float(), T_src_tgt.float(),
+                    lens_tgt=None if lens is None else lens.of(),
+                    lens_src=None if lens is None else lens.of(j),
                 )
             warped = warped.to(red.dtype)
             valid = valid.to(red.dtype)

@@ -90,7 +90,7 @@ class FsmDepthModel(MonoDepthModel):
 
 def spatial_photometric(depth: torch.Tensor, rgb: torch.Tensor, mask: torch.Tensor, K: torch.Tensor,
                         T_ego_cam: torch.Tensor, motions: dict, tgt: torch.Tensor, src: torch.Tensor,
-                        alpha: float = 0.85, contexts=CONTEXTS) -> dict:
+                        alpha: float = 0.85, contexts=CONTEXTS, lens=None) -> dict:
     """FSM's spatial (+ spatio-temporal) photometric error of every directed camera pair (tgt, src).
 
     Args:
@@ -102,6 +102,8 @@ def spatial_photometric(depth: torch.Tensor, rgb: torch.Tensor, mask: torch.Tens
         tgt, src: (P,) int64 camera indices of the directed pairs.
         alpha: SSIM weight of the photometric error.
         contexts: which times of the source camera are warped: 0 (spatial), -1 / +1 (spatio-temporal).
+        lens: the cameras' lenses (`mcdp.camera.Lens`, dist (B, N, D)), None for a pinhole rig; with one, depth
+            is of each camera's depth kind and the warps go through the lenses.
 
     Returns:
         {"pair": (P,) mean over seen pixels of the per-pixel minimum (0 for a pair that sees nothing),
@@ -124,7 +126,9 @@ def spatial_photometric(depth: torch.Tensor, rgb: torch.Tensor, mask: torch.Tens
     for o in contexts:
         T_ctx = T_src_tgt if o == 0 else motions[o][:, src].float() @ T_src_tgt
         src_img = torch.cat([rgb[:, src, 1 + o].reshape(BP, 3, H, W).float(), m_src], 1)
-        w, v = warp_by_depth(src_img, d, K_t, K_s, T_ctx.reshape(BP, 4, 4), padding_mode="border")
+        w, v = warp_by_depth(src_img, d, K_t, K_s, T_ctx.reshape(BP, 4, 4), padding_mode="border",
+                             lens_tgt=None if lens is None else lens.of(tgt),
+                             lens_src=None if lens is None else lens.of(src))
         v = v * (w[:, 3:] > 0.99).to(v.dtype) * m_tgt  # self-occlusion on both sides of the warp
         errors.append(photometric_error(w[:, :3], target, alpha))
         valid.append(v)
@@ -193,7 +197,7 @@ def fsm_loss(outputs: dict, batch, ctx: LossContext) -> dict:
             for s in scales:
                 depth = outputs["depth", stage, s].reshape(B, N, 1, H, W)
                 r = spatial_photometric(depth, rgb, mask, batch.K, batch.T_ego_cam, motions,
-                                        tgt, src, cfg.loss.ssim_alpha)
+                                        tgt, src, cfg.loss.ssim_alpha, lens=batch.lens)
                 st = st + r["pair"].sum() / N
             total = total + st / len(scales)
         out["fsm/spatial"] = w.spatial_weight * total

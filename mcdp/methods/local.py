@@ -32,6 +32,7 @@ from __future__ import annotations
 import torch
 import torch.nn as nn
 
+from mcdp.camera import range_items, unproject_lens
 from mcdp.geometry import depth_to_points, transform_points, warp_by_depth
 from mcdp.methods.depth_bases import DepthModel
 from mcdp.networks import PyramidReduce, conv_bn_relu
@@ -79,10 +80,11 @@ class LocalDepthModel(DepthModel):
 
     weight_net_class = LocalWeightNet
 
-    def _neighbour_features(self, red, mask_h, depth_h, K_h, T_ego_cam, T_cam_ego, nbr, device_type):
-        """MCDP's inputs (`DepthModel._neighbour_features`) + one warped-depth log ratio per neighbour slot."""
+    def _neighbour_features(self, red, mask_h, depth_h, K_h, T_ego_cam, T_cam_ego, nbr, device_type, lens=None):
+        """MCDP's inputs (`DepthModel._neighbour_features`) + one warped-depth log ratio per neighbour slot (with a
+        lens, `mcdp.camera.Lens`: both depths of the neighbour's depth kind)."""
         parts, valids = super()._neighbour_features(red, mask_h, depth_h, K_h, T_ego_cam, T_cam_ego, nbr,
-                                                    device_type)
+                                                    device_type, lens)
         B, N = K_h.shape[:2]
         BN, (h, w) = B * N, depth_h.shape[-2:]
         idx = nbr.clamp(min=0)
@@ -93,8 +95,16 @@ class LocalDepthModel(DepthModel):
             T_src_tgt = (T_cam_ego[:, j] @ T_ego_cam).reshape(BN, 4, 4).float()
             K_t, K_s = K_h.reshape(BN, 3, 3).float(), K_h[:, j].reshape(BN, 3, 3).float()
             with torch.autocast(device_type, enabled=False):
-                d_nbr, _ = warp_by_depth(d_src[:, j].reshape(BN, 1, h, w).float(), depth_h.float(), K_t, K_s, T_src_tgt)
-                z_in_nbr = transform_points(T_src_tgt, depth_to_points(depth_h.float(), K_t))[:, 2:3]
+                if lens is None:
+                    d_nbr, _ = warp_by_depth(d_src[:, j].reshape(BN, 1, h, w).float(), depth_h.float(), K_t, K_s, T_src_tgt)
+                    z_in_nbr = transform_points(T_src_tgt, depth_to_points(depth_h.float(), K_t))[:, 2:3]
+                else:  # the neighbour's depth of its kind (range: the point's norm) against what it sees there
+                    lt, ls = lens.of(), lens.of(j)
+                    d_nbr, _ = warp_by_depth(d_src[:, j].reshape(BN, 1, h, w).float(), depth_h.float(), K_t, K_s,
+                                             T_src_tgt, lens_tgt=lt, lens_src=ls)
+                    p = transform_points(T_src_tgt, unproject_lens(depth_h.float(), K_t, lt))
+                    z_in_nbr = torch.where(range_items(ls, BN, p.device).view(BN, 1, 1, 1), p.norm(dim=1, keepdim=True),
+                                           p[:, 2:3])
                 r = torch.log(d_nbr.clamp(min=1e-3) / z_in_nbr.clamp(min=1e-3)).clamp(-LOG_RATIO_MAX, LOG_RATIO_MAX)
             ratios.append(r.to(red.dtype) * valid)
         return parts, valids + ratios
