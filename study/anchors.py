@@ -2,8 +2,9 @@
 (`configs/calibration/anchors.yaml`, issue 57). Loaded strictly: a row without a source, a real figure or a set,
 or naming an arm that is not declared, is refused in one line naming the row and the field.
 
-Convention (the file's): an anchor's effect is metric(changed) - metric(base), positive = the change made depth
-worse; ``real.after - real.before`` is the source's effect in the same direction.
+The file holds each source's before (= the base arm's configuration) and after (= the changed arm's) figures; the
+reading (`study.calibration`) takes both effects as base - changed, before - after: positive = the change helps,
+the project's one sign convention.
 
 Example::
 
@@ -76,10 +77,6 @@ class Anchor(StrictModel):
             raise ValueError("base and changed are the same arm; only read: side_vs_front / metric_vs_median "
                              "compares one arm with itself")
         return self
-
-    @property
-    def real_sign(self) -> int:
-        return 1 if self.real.delta > 0 else -1
 
 
 class Anchors(StrictModel):

@@ -1,10 +1,11 @@
 """The calibration's reading: each anchor's synthetic effect over worlds beside its real one, and the figures of
 agreement (issue 57; the page docs/results/calibration.md, `scripts/publish_calibration.py`).
 
-- An anchor's synthetic effect is a paired difference over worlds, changed - base (positive = worse, as the anchors
-  file's convention), read from each arm's sweep folder (`arm_values`), with its 95 % t interval and its MDE at
-  80 % power. ``read: side_vs_front`` is one arm's four side cameras' mean minus its front camera; ``read:
-  metric_vs_median`` one arm's metric (unscaled) figure minus its median-scaled one.
+- An anchor's synthetic effect is a paired difference over worlds, base - changed: **positive = the change helps**,
+  the project's one sign convention (docs/DESIGN.md, "Conventions"); its real effect is the source's before - after,
+  the same way round. Read from each arm's sweep folder (`arm_values`), with its 95 % t interval and its MDE at
+  80 % power. ``read: side_vs_front`` is one arm's front camera minus its four side cameras' mean (negative: the
+  sides are worse); ``read: metric_vs_median`` one arm's median-scaled figure minus its metric (unscaled) one.
 - Resolved: the interval excludes 0. Agrees: resolved with the real effect's sign. Unresolved anchors count neither
   way and are listed apart with their MDE.
 - Agreement: the same-sign rate over resolved anchors with its Wilson 95 % interval (scipy's ``binomtest``);
@@ -75,29 +76,28 @@ def arm_values(folder: Path, columns: set[str], method: str) -> dict[int, dict[s
 
 
 def _one_arm(vals: dict[str, float], read: str, metric: str) -> float:
-    if read == "side_vs_front":
-        return float(np.mean([vals[f"median.camera.{c}.abs_rel"] for c in SIDE_CAMERAS])
-                     - vals[f"median.camera.{FRONT}.abs_rel"])
-    if read == "metric_vs_median":
-        return vals["none.mean.abs_rel"] - vals["median.mean.abs_rel"]
+    if read == "side_vs_front":  # base = the front camera, changed = the side cameras: base - changed
+        return float(vals[f"median.camera.{FRONT}.abs_rel"]
+                     - np.mean([vals[f"median.camera.{c}.abs_rel"] for c in SIDE_CAMERAS]))
+    if read == "metric_vs_median":  # base = median-scaled, changed = metric
+        return vals["median.mean.abs_rel"] - vals["none.mean.abs_rel"]
     return vals[metric]
 
 
 def paired(diffs: list[float]) -> dict:
-    """Mean, sd, 95 % t interval, p (two-sided t), MDE at 80 % power of paired differences over worlds."""
-    from scipy import stats
+    """Mean, sd, 95 % t interval (``half``), p (two-sided t), MDE at 80 % power of paired differences, one per world:
+    the project's one reading over worlds (`study.design.reading_over_worlds`), without an equivalence bound."""
+    from study.design import reading_over_worlds
 
-    d = np.asarray(diffs, dtype=float)
-    n = int(d.size)
-    out = {"n": n, "mean": float(d.mean()) if n else float("nan"), "diffs": [float(x) for x in d]}
+    d = [float(x) for x in diffs]
+    n = len(d)
+    out = {"n": n, "mean": float(np.mean(d)) if n else float("nan"), "diffs": d, "sd": float("nan"),
+           "half": float("nan"), "p": float("nan"), "mde": float("nan")}
     if n < 2:
-        out.update(sd=float("nan"), half=float("nan"), p=float("nan"), mde=float("nan"))
         return out
-    sd = float(d.std(ddof=1))
-    se = sd / math.sqrt(n)
-    tc = float(stats.t.ppf(0.975, n - 1))
-    out.update(sd=sd, half=tc * se, mde=(tc + float(stats.t.ppf(0.80, n - 1))) * se,
-               p=float(2 * stats.t.sf(abs(out["mean"]) / se, n - 1)) if se > 0 else float("nan"))
+    r = reading_over_worlds({w: [x] for w, x in enumerate(d)}, {})
+    out.update(mean=float(r["mean"]), sd=float(np.std(d, ddof=1)), half=float(r["ci95"]), p=float(r["p"]),
+               mde=float(r["mde80"]))
     return out
 
 
@@ -108,21 +108,22 @@ def read_anchor(anchors: Anchors, a: Anchor, values: dict[str, dict[int, dict[st
     base, changed = values.get(a.base, {}), values.get(a.changed, {})
     worlds = sorted(set(base) & set(changed))
     if a.read == "arms":
-        diffs = [changed[w][metric] - base[w][metric] for w in worlds]
+        diffs = [base[w][metric] - changed[w][metric] for w in worlds]  # positive = the change helps
     else:
         diffs = [_one_arm(base[w], a.read, metric) for w in worlds]
     diffs = [x for x in diffs if math.isfinite(x)]
     st = paired(diffs)
     resolved = st["n"] >= 2 and math.isfinite(st["half"]) and abs(st["mean"]) > st["half"]
     syn_sign = 0 if not resolved else (1 if st["mean"] > 0 else -1)
+    real = a.real.before - a.real.after  # positive = the change helps, as the synthetic effect
     return {"name": a.name, "set": a.set, "effect": a.effect, "metric": metric, "read": a.read,
             "base": a.base, "changed": a.changed, "worlds": worlds,
             "source": f"{a.source.paper}, {a.source.table}, {a.source.dataset}",
-            "real_before": a.real.before, "real_after": a.real.after, "real": a.real.delta,
-            "also": [{"source": f"{x.paper}, {x.table}, {x.dataset}", "real": x.after - x.before} for x in a.also],
+            "real_before": a.real.before, "real_after": a.real.after, "real": real,
+            "also": [{"source": f"{x.paper}, {x.table}, {x.dataset}", "real": x.before - x.after} for x in a.also],
             **{k: st[k] for k in ("n", "mean", "sd", "half", "p", "mde", "diffs")},
-            "resolved": bool(resolved), "agrees": bool(resolved and syn_sign == a.real_sign),
-            "ratio": st["mean"] / a.real.delta if st["n"] else float("nan")}
+            "resolved": bool(resolved), "agrees": bool(resolved and syn_sign == (1 if real > 0 else -1)),
+            "ratio": st["mean"] / real if st["n"] else float("nan")}
 
 
 def read_anchors(anchors: Anchors, values: dict[str, dict[int, dict[str, float]]]) -> list[dict]:
