@@ -112,6 +112,7 @@ def test_an_added_key_at_its_default_keeps_every_hash():
     assert d["rig"]["cameras"] == {} and d["rig"]["overlap_target"] == "angle"
     del d["rig"]["cameras"], d["rig"]["overlap_target"], d["labels"]  # labels: added with issue 40, all on
     del d["sensor"], d["weather"]  # the sensor model and fog (issue 48): every knob off by default
+    del d["ego"]  # the ego body's appearance (issue 57): static by default
     del d["rig"]["trigger"], d["rig"]["trigger_offsets_ms"], d["rig"]["lidar_hz"]  # trigger times (issue 48): synchronous
     assert d["scene"]["family_weights"] == {"urban": 1.0, "residential": 1.0, "highway": 1.0}
     d["scene"]["family_weights"] = [1.0, 1.0, 1.0]  # hashed in its positional form of old (SceneConfig.hashed_form)
@@ -122,7 +123,9 @@ def test_an_added_key_at_its_default_keeps_every_hash():
     bd = config_to_dict(back)
     assert bd["rig"]["cameras"]["CAM_BACK"]["width"] is None and bd["rig"]["cameras"]["CAM_BACK"]["height"] is None
     del bd["rig"]["cameras"]["CAM_BACK"]["width"], bd["rig"]["cameras"]["CAM_BACK"]["height"]
-    del bd["rig"]["overlap_target"], bd["labels"], bd["sensor"], bd["weather"]
+    for key in ("model", "dist"):  # a camera's lens (issue 59): pinhole by default
+        bd["rig"]["cameras"]["CAM_BACK"].pop(key, None)
+    del bd["rig"]["overlap_target"], bd["labels"], bd["sensor"], bd["weather"], bd["ego"]
     del bd["rig"]["trigger"], bd["rig"]["trigger_offsets_ms"], bd["rig"]["lidar_hz"]
     bd["scene"]["family_weights"] = [1.0, 1.0, 1.0]
     assert config_hash(back) == json_sha256(bd)
