@@ -80,7 +80,8 @@ def _row_cells(r: dict) -> str:
     else:
         syn = f"{fmt_diff({'mean': r['mean'], 'ci95': r['half']})} ({r['n']} worlds)"
         verdict = ("**agrees**" if r["agrees"] else "**disagrees**") if r["resolved"] else \
-            f"unresolved (MDE {r['mde']:.3f})"
+            (f"**absent** (unresolved, MDE {r['mde']:.3f}, excludes a tenth of the real)" if r["absent"] else
+             f"unresolved (MDE {r['mde']:.3f})")
     also = "".join(f"<br>{a['source']}: {_fmt(a['real'])}" for a in r["also"])
     ratio = "n/a" if r["n"] < 2 else f"{r['ratio']:+.2f}"
     return (f"| {r['name']} | {r['set']} | {r['effect']} | {r['source']}{also} | {r['real_before']:.3f} → "
@@ -109,11 +110,11 @@ def scatter(rows_by_point: dict[str, list[dict]], path: Path) -> None:
     colours = {"tuning": "tab:blue", "test": "tab:orange"}
     for point, rows in rows_by_point.items():
         for r in rows:
-            if r["n"] < 2:
+            if r["n"] < 2 or (point == "live" and r["set"] != "tuning"):  # the live point judges tuning anchors
                 continue
             ax.errorbar(r["real"], r["mean"], yerr=r["half"], fmt=markers.get(point, "o"),
                         color=colours[r["set"]], alpha=0.85, capsize=3, markersize=6)
-            if point == "base":
+            if point == "base" and (r["resolved"] or r["absent"] or abs(r["real"]) >= 0.02):  # the crowd at 0 unnamed
                 ax.annotate(r["name"], (r["real"], r["mean"]), fontsize=7, xytext=(4, 3), textcoords="offset points")
     lim = max([abs(r["real"]) for rows in rows_by_point.values() for r in rows] + [0.05]) * 1.1
     ax.axhline(0, color="grey", lw=0.6)
@@ -128,7 +129,8 @@ def scatter(rows_by_point: dict[str, list[dict]], path: Path) -> None:
                                                                                      ", 200 steps"))
     ax.set_xlabel("real effect (source's before - after; positive = the change helps)")
     ax.set_ylabel("synthetic effect, base - changed, over worlds (95 % t interval)")
-    ax.set_title("Does the benchmark reproduce real-data effects? (one point per anchor)")
+    ax.set_title("Does the benchmark reproduce real-data effects? (one point per anchor;\n"
+                 "unnamed points near 0: unresolved anchors whose real effect is under 0.02)", fontsize=10)
     ax.legend(fontsize=7, loc="upper left")
     fig.tight_layout()
     from corelib.atomic import atomic_path
@@ -161,7 +163,8 @@ def build(values: dict) -> str:
             f"synthetic effect sizes ρ = {a['ranks']['spearman']:+.2f} [{a['ranks']['spearman_ci'][0]:+.2f}, "
             f"{a['ranks']['spearman_ci'][1]:+.2f}] (Kendall τ = {a['ranks']['kendall']:+.2f}), against "
             f"{REAL_TO_REAL['spearman']} / {REAL_TO_REAL['kendall']} between two real datasets (DDAD against "
-            f"nuScenes). Anchors that disagree: {', '.join(a['disagree']) or 'none'}.\n")
+            f"nuScenes). Anchors that disagree in sign: {', '.join(a['disagree']) or 'none'}; absent here (unresolved, "
+            f"the interval excluding a tenth of the real effect): {', '.join(a['absent']) or 'none'}.\n")
     else:
         lines.append("No anchor is resolved yet.\n")
     lines += ["Convention (the project's one): an effect is base - changed, **positive = the change helps**; the real "
@@ -172,10 +175,11 @@ def build(values: dict) -> str:
     lvl = values.get("base", {}).get("arms", {}).get(anchors.order[0], {})
     if lvl:
         m = [v["median.mean.abs_rel"] for v in lvl.values()]
-        ys = [f"{y} {sum(v['median.mean.abs_rel'] for v in d.values()) / len(d):.3f}"
-              for y, d in yard.items() if d]
-        lines.append(f"Level and yardsticks (median-scaled abs_rel, mean over the worlds): the base arm Mono2 "
-                     f"{sum(m) / len(m):.3f} (DDAD Mono2: 0.220, nuScenes 0.309); {'; '.join(ys)}.\n")
+        words = {"constant_reference": "a constant depth (the reference)", "flat_road_prior": "the flat-road prior"}
+        ys = [f"{words.get(y, y)} {d['-1']['median.mean.abs_rel']:.3f}" for y, d in yard.items() if "-1" in d]
+        lines.append(f"Level and yardsticks (median-scaled abs_rel over the six cameras): the base arm Mono2 "
+                     f"{sum(m) / len(m):.3f} (mean over {len(m)} worlds; DDAD Mono2: 0.220, nuScenes 0.309); "
+                     f"{'; '.join(ys) or 'no yardstick recorded'} (over the same worlds, no training).\n")
     lines += ["## The figures of agreement\n",
               "| anchors | measured | same sign (resolved) | Spearman ρ [bootstrap 95 %] | Kendall τ | mean max. "
               "rank violation |", "|---|---|---|---|---|---|",
@@ -185,7 +189,8 @@ def build(values: dict) -> str:
               "(six surround methods, DDAD against nuScenes). The rank violation is SIMPLER's, in the real effects' "
               "units (abs_rel).\n", "![scatter](calibration/scatter.png)\n",
               f"## Every anchor ({POINT_WORDS['base']})\n",
-              "| anchor | set | effect | source | real | synthetic, changed - base | verdict | synthetic / real |",
+              "| anchor | set | effect | source | real, before → after (before - after) | synthetic, base - changed | verdict | "
+              "synthetic / real |",
               "|---|---|---|---|---|---|---|---|"]
     lines += [_row_cells(r) for r in base]
     unres = [r for r in base if r["n"] >= 2 and not r["resolved"]]
@@ -196,13 +201,14 @@ def build(values: dict) -> str:
     for point in ("x4", "live"):
         if point not in rows:
             continue
-        pr = [r for r in rows[point] if r["n"] >= 2]
+        pr = [r for r in rows[point] if r["n"] >= 2 and (point != "live" or r["set"] == "tuning")]  # live: tuning only
         lines += [f"\n## {POINT_WORDS[point]}\n", "| anchor | base point | this point | verdict here |",
                   "|---|---|---|---|"]
         by = {r["name"]: r for r in base}
         for r in pr:
             b = by[r["name"]]
-            v = ("agrees" if r["agrees"] else "disagrees") if r["resolved"] else f"unresolved (MDE {r['mde']:.3f})"
+            v = ("agrees" if r["agrees"] else "disagrees") if r["resolved"] else \
+                (f"absent (MDE {r['mde']:.3f})" if r["absent"] else f"unresolved (MDE {r['mde']:.3f})")
             lines.append(f"| {r['name']} | {fmt_diff({'mean': b['mean'], 'ci95': b['half']})} | "
                          f"{fmt_diff({'mean': r['mean'], 'ci95': r['half']})} ({r['n']} worlds) | {v} |")
     times = values.get("base", {}).get("train_s", {})

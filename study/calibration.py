@@ -7,7 +7,8 @@ agreement (issue 57; the page docs/results/calibration.md, `scripts/publish_cali
   80 % power. ``read: side_vs_front`` is one arm's front camera minus its four side cameras' mean (negative: the
   sides are worse); ``read: metric_vs_median`` one arm's median-scaled figure minus its metric (unscaled) one.
 - Resolved: the interval excludes 0. Agrees: resolved with the real effect's sign. Unresolved anchors count neither
-  way and are listed apart with their MDE.
+  way and are listed apart with their MDE; one whose interval also excludes a tenth of its real effect is said to be
+  *absent* here (the benchmark would have seen it at a tenth of its real size), a disagreement in size, not in sign.
 - Agreement: the same-sign rate over resolved anchors with its Wilson 95 % interval (scipy's ``binomtest``);
   Spearman and Kendall between real and synthetic effects over every measured anchor, with percentile bootstrap
   intervals over anchors; each anchor's synthetic / real size ratio; the mean maximum rank violation of SIMPLER
@@ -51,19 +52,24 @@ def columns(anchors: Anchors) -> set[str]:
 
 
 def arm_values(folder: Path, columns: set[str], method: str) -> dict[int, dict[str, float]]:
-    """{world: {column: value}} of one arm's sweep folder: its results.csv's as-trained rows of ``method`` (the arm's,
-    or a yardstick's: ``constant_reference``, ``flat_road_prior``) that finished ("ok")."""
+    """{world: {column: value}} of one arm's sweep folder: its results.csv's as-trained rows of ``method`` that
+    finished ("ok"), or a yardstick's (``constant_reference``, ``flat_road_prior``) row over every world as world -1."""
     from corelib.readfile import read_text_inside
 
     text = read_text_inside(Path(folder) / "results.csv", Path(folder), MAX_CSV_BYTES)
     out: dict[int, dict[str, float]] = {}
     for row in csv.DictReader(io.StringIO(text)):
-        if row.get("method") != method or row.get("variant", "trained") != "trained" or row.get("status") != "ok":
+        if row.get("method") != method:
             continue
-        try:
-            world = int(row["world"])
-        except (KeyError, ValueError):
-            raise ValueError(f"{folder}/results.csv: a row without an integer world") from None
+        if row.get("status") == "reference" and not row.get("world"):  # a yardstick's row: over every world
+            world = -1
+        elif row.get("variant", "trained") != "trained" or row.get("status") != "ok":
+            continue
+        else:
+            try:
+                world = int(row["world"])
+            except (KeyError, ValueError):
+                raise ValueError(f"{folder}/results.csv: a row without an integer world") from None
         vals = {}
         for c in columns:
             try:
@@ -123,6 +129,9 @@ def read_anchor(anchors: Anchors, a: Anchor, values: dict[str, dict[int, dict[st
             "also": [{"source": f"{x.paper}, {x.table}, {x.dataset}", "real": x.before - x.after} for x in a.also],
             **{k: st[k] for k in ("n", "mean", "sd", "half", "p", "mde", "diffs")},
             "resolved": bool(resolved), "agrees": bool(resolved and syn_sign == (1 if real > 0 else -1)),
+            # unresolved, and its interval excludes a tenth of the real effect: absent here, not merely unseen
+            "absent": bool(not resolved and st["n"] >= 2 and math.isfinite(st["half"])
+                           and abs(real / 10 - st["mean"]) > st["half"]),
             "ratio": st["mean"] / real if st["n"] else float("nan")}
 
 
@@ -197,6 +206,7 @@ def agreement(rows: list[dict], which: str | None = None) -> dict:
             "rate": k / len(resolved) if resolved else float("nan"), "wilson": [lo, hi],
             "ranks": rank_stats(real, syn), "mmrv": mmrv(real, syn),
             "disagree": [r["name"] for r in resolved if not r["agrees"]],
+            "absent": [r["name"] for r in rows if r.get("absent")],
             "unresolved": [r["name"] for r in rows if not r["resolved"]]}
 
 
