@@ -152,7 +152,9 @@ def _clean(work: Path) -> None:
 
 
 def main(argv=None) -> int:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    from corelib.cli import ArgumentParser  # its errors echo the user's words cut and escaped
+
+    ap = ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--quick", action="store_true", help="8 test sequences (12 train, 2 val) and 20 training steps")
     ap.add_argument("--tests", type=int, default=None, help="test sequences of the world (default 32, the recipe's)")
     ap.add_argument("--steps", type=int, default=None, help="training steps per arm (default 200, the recipe's)")

@@ -140,7 +140,9 @@ def scatter(rows_by_point: dict[str, list[dict]], path: Path) -> None:
     plt.close(fig)
 
 
-def build(values: dict) -> str:
+def build(values: dict, plot_dir: Path | None = None) -> str:
+    """The page's text from ``values`` (values.json's content); its scatter plot is written into ``plot_dir``
+    (default docs/results/calibration/)."""
     from study.anchors import load_anchors
     from study.calibration import agreement, read_anchors
     from study.results import fmt_diff
@@ -221,7 +223,7 @@ def build(values: dict) -> str:
         from corelib.readfile import read_text_inside
 
         lines += ["", read_text_inside(pre, DIR, 1 << 20).rstrip("\n")]
-    scatter(rows, DIR / "scatter.png")
+    scatter(rows, (DIR if plot_dir is None else Path(plot_dir)) / "scatter.png")
     return "\n".join(lines) + "\n"
 
 

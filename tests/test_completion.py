@@ -14,7 +14,7 @@ from corelib.presets import list_presets
 from study import cli as mcdp_cli
 from synth import cli as synth_cli
 
-MCDP = ["train", "eval", "predict", "presets", "pretrain", "sweep"]
+MCDP = ["train", "eval", "predict", "presets", "pretrain", "sweep", "calibrate"]
 SYNTH = ["render", "info", "presets", "verify", "preview", "merge", "export", "view"]
 
 

@@ -46,7 +46,7 @@ def test_a_difference_that_rounds_to_zero_is_still_written_and_a_negligible_one_
     assert fmt_diff(tiny, 4) == "+1.5e-05 ± 1.3e-05"  # not '+0.0000 ± 0.0000'
     assert fmt_diff({"mean": -0.0123, "ci95": 0.004, "differs": -1}, 3) == "-0.012 ± 0.004"
     assert fmt_diff({"mean": 0.0, "ci95": 0.0, "differs": 0}, 3) == "+0.000 ± 0.000"
-    assert fmt_diff({"mean": float("nan"), "ci95": float("nan"), "differs": 0}) == "nan ± nan"
+    assert fmt_diff({"mean": float("nan"), "ci95": float("nan"), "differs": 0}) == "—"  # nothing measured
     assert verdict_word(tiny, 0.0005, key="abs_rel").startswith("beyond the interval but negligible")
     assert "worse" in verdict_word(tiny, key="abs_rel")  # without a floor it is a difference
     assert "better" in verdict_word({"mean": -0.01, "ci95": 0.004, "differs": -1}, 0.0005, key="none.mean.abs_rel")
