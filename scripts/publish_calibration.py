@@ -204,15 +204,20 @@ def build(values: dict, plot_dir: Path | None = None) -> str:
         if point not in rows:
             continue
         pr = [r for r in rows[point] if r["n"] >= 2 and (point != "live" or r["set"] == "tuning")]  # live: tuning only
-        lines += [f"\n## {POINT_WORDS[point]}\n", "| anchor | base point | this point | verdict here |",
-                  "|---|---|---|---|"]
+        lines += [f"\n## {POINT_WORDS[point]}\n", "| anchor | base point | this point | verdict here | from the base "
+                  "point |", "|---|---|---|---|---|"]
         by = {r["name"]: r for r in base}
+
+        def word(r: dict) -> str:
+            return ("agrees" if r["agrees"] else "disagrees") if r["resolved"] else \
+                ("absent" if r["absent"] else "unresolved")
+
         for r in pr:
             b = by[r["name"]]
-            v = ("agrees" if r["agrees"] else "disagrees") if r["resolved"] else \
-                (f"absent (MDE {r['mde']:.3f})" if r["absent"] else f"unresolved (MDE {r['mde']:.3f})")
+            v = word(r) + ("" if r["resolved"] else f" (MDE {r['mde']:.3f})")
+            moved = f"stays {word(r)}" if word(r) == word(b) else f"{word(b)} -> {word(r)}"
             lines.append(f"| {r['name']} | {fmt_diff({'mean': b['mean'], 'ci95': b['half']})} | "
-                         f"{fmt_diff({'mean': r['mean'], 'ci95': r['half']})} ({r['n']} worlds) | {v} |")
+                         f"{fmt_diff({'mean': r['mean'], 'ci95': r['half']})} ({r['n']} worlds) | {v} | {moved} |")
     times = values.get("base", {}).get("train_s", {})
     if times:
         tot = sum(sum(v) for v in times.values())
