@@ -98,12 +98,18 @@ def read_inside(path: str | Path, root: str | Path, limit: int = MAX_BYTES) -> b
             raise ReadRefused(f"{path}: is {_kind(st.st_mode)}, not a regular file; refused without reading it")
         if st.st_size > limit:
             raise ReadRefused(f"{path}: {st.st_size} bytes, more than such a file may hold ({limit}); refused")
-        try:
-            data = read_bounded(f, limit)
-        except OSError as exc:
-            raise ReadRefused(f"{path}: not readable ({exc.strerror or exc})") from None
+        return _bounded_bytes(f, path, limit)
+
+
+def _bounded_bytes(f, path, limit: int) -> bytes:
+    """At most ``limit`` bytes of the open file ``f`` (`read_bounded`); `ReadRefused` naming ``path`` when it cannot
+    be read or holds more (it grew while read)."""
+    try:
+        data = read_bounded(f, limit)
+    except OSError as exc:
+        raise ReadRefused(f"{path}: not readable ({exc.strerror or exc})") from None
     if len(data) > limit:
-        raise ReadRefused(f"{path}: more than {limit} bytes; refused")
+        raise ReadRefused(f"{path}: grew past {limit} bytes while read; refused")
     return data
 
 
@@ -176,13 +182,7 @@ def read_file(path: str | Path, root: str | Path | None = None, kind: str = "rec
     path = Path(path)
     limit = LIMITS[kind]
     with open_file(path, root, kind, link_ok) as f:
-        try:
-            data = read_bounded(f, limit)
-        except OSError as exc:
-            raise ReadRefused(f"{path}: not readable ({exc.strerror or exc})") from None
-    if len(data) > limit:
-        raise ReadRefused(f"{path}: grew past {limit} bytes while read; refused")
-    return data
+        return _bounded_bytes(f, path, limit)
 
 
 def read_text_file(path: str | Path, root: str | Path | None = None, kind: str = "page",
@@ -198,12 +198,18 @@ def read_text_file(path: str | Path, root: str | Path | None = None, kind: str =
 def read_json_file(path: str | Path, root: str | Path | None = None, kind: str = "record", link_ok: bool = False):
     """The JSON value of `read_file`'s bytes; `ReadRefused` naming the file for bytes that are not UTF-8 JSON
     (NaN and Infinity are read, as the sweep writes them)."""
-    data = read_file(path, root, kind, link_ok)
+    return decode_json(read_file(path, root, kind, link_ok), path, ReadRefused)
+
+
+def decode_json(data: bytes, path, error: type[Exception]):
+    """The JSON value of ``data`` read from ``path``; ``error`` naming the file for bytes that are not UTF-8 JSON
+    (NaN and Infinity are read), the one decoder of the readers of JSON files (`read_json_file`,
+    `synth.files.read_json`)."""
     try:
         return json.loads(data.decode("utf-8"))
     except UnicodeDecodeError as exc:
-        raise ReadRefused(f"{path}: not UTF-8 text (byte {exc.start}), so not JSON") from None
+        raise error(f"{path}: not UTF-8 text (byte {exc.start}), so not valid JSON") from None
     except json.JSONDecodeError as exc:
-        raise ReadRefused(f"{path}: not valid JSON ({exc})") from None
+        raise error(f"{path}: not valid JSON ({exc})") from None
     except RecursionError:
-        raise ReadRefused(f"{path}: JSON nested too deep") from None
+        raise error(f"{path}: JSON nested too deep") from None

@@ -11,7 +11,6 @@ from __future__ import annotations
 
 import contextlib
 import io
-import json
 import os
 import re
 import stat
@@ -135,16 +134,10 @@ def read_regular(path: str | Path, root: str | Path | None = None, who: str = ""
 def read_json(path: str | Path, root: str | Path | None = None, who: str = ""):
     """The JSON value of the regular file `path` (`read_regular`); bytes that are not UTF-8 JSON are
     refused naming the file."""
+    from corelib.readfile import decode_json
+
     path = Path(path)
-    data = read_regular(path, root, who)
-    try:
-        return json.loads(data.decode("utf-8"))
-    except UnicodeDecodeError as exc:
-        raise DatasetError(f"{path}: not UTF-8 text (byte {exc.start}), so not valid JSON") from None
-    except json.JSONDecodeError as exc:
-        raise DatasetError(f"{path}: not valid JSON ({exc})") from None
-    except RecursionError:
-        raise DatasetError(f"{path}: JSON nested too deep") from None
+    return decode_json(read_regular(path, root, who), path, DatasetError)
 
 
 PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
