@@ -2,11 +2,12 @@
 
 Each condition is one sweep of configs/sweep/cpu_sensor.yaml (the ideal camera, and the same worlds rendered
 with a sensor knob on); conditions share the worlds' geometry, the pretraining and the training seeds, so each
-method's change is paired by world: **condition - ideal, positive = worse** (abs_rel and Dep Con are both
-lower-is-better). Read over the worlds: the mean with its 95 % t interval and the MDE at 80 % power
+method's change is paired by world and follows the project's one sign convention (docs/DESIGN.md): **ideal -
+condition, positive = the condition helps** (abs_rel and Dep Con are both lower-is-better, so a condition that
+hurts reads negative). Read over the worlds: the mean with its 95 % t interval and the MDE at 80 % power
 (`study.power`). The paper's argument, tested directly: FSM's photometric loss between cameras suffers from a
-brightness change and MCDP's depth comparison does not, so FSM's change minus MCDP's change, paired by world,
-is given with its interval.
+brightness change and MCDP's depth comparison does not, so MCDP's change minus FSM's change, paired by world,
+is given with its interval: positive = MCDP (the candidate) suffers less (the same number as FSM's extra cost).
 
 Read from `study.results` only: each condition's results.json (the flat rows of the as-trained evaluation).
 """
@@ -20,7 +21,8 @@ from study.results import flat_of, fmt_diff
 
 #: the figures compared (flat-row keys), each lower-is-better: primary accuracy and cross-camera consistency
 FIGURES = (("median.mean.abs_rel", "abs_rel (median)"), ("dep_con.mean", "Dep Con"))
-#: the pair whose changes are compared: the photometric cross-camera loss against the depth one
+#: the pair whose changes are compared, (reference, candidate): the photometric cross-camera loss against the
+#: depth one; the contrast is the candidate's change - the reference's (positive = the candidate suffers less)
 CONTRAST = ("fsm", "mcdp_m2")
 
 
@@ -45,14 +47,15 @@ def _over_worlds(diffs: dict) -> dict:
 
 
 def _diffs(ideal: dict, cond: dict, method: str, key: str) -> dict:
-    """{world: cond - ideal} of one method and figure, over the worlds both have."""
-    a, b = _by_world(cond, method, key), _by_world(ideal, method, key)
+    """{world: ideal - cond} of one method and figure (lower-is-better: positive = the condition helps), over the
+    worlds both have."""
+    a, b = _by_world(ideal, method, key), _by_world(cond, method, key)
     return {w: a[w] - b[w] for w in set(a) & set(b)}
 
 
 def change(ideal: dict, cond: dict, method: str, key: str) -> dict:
-    """`study.power.nested` of cond - ideal for one method and figure, paired by world, with ``mde80`` and the
-    ideal's mean (``ideal``)."""
+    """`study.design.reading_over_worlds` of ideal - cond (positive = the condition helps) for one method and
+    figure, paired by world, with the ideal's mean (``ideal``)."""
     n = _over_worlds(_diffs(ideal, cond, method, key))
     b = _by_world(ideal, method, key)
     n["ideal"] = math.fsum(b.values()) / len(b) if b else math.nan
@@ -60,9 +63,10 @@ def change(ideal: dict, cond: dict, method: str, key: str) -> dict:
 
 
 def contrast(ideal: dict, cond: dict, key: str, pair: tuple[str, str] = CONTRAST) -> dict:
-    """(pair[0]'s change) - (pair[1]'s change), paired by world: positive = the first suffers more."""
+    """(pair[1]'s change) - (pair[0]'s change), each ideal - cond, paired by world: positive = the candidate
+    (pair[1]) suffers less, i.e. the reference (pair[0]) suffers more."""
     ca, cb = (_diffs(ideal, cond, m, key) for m in pair)
-    return _over_worlds({w: ca[w] - cb[w] for w in set(ca) & set(cb)})
+    return _over_worlds({w: cb[w] - ca[w] for w in set(ca) & set(cb)})
 
 
 def _yardstick(results: dict) -> float:
@@ -76,15 +80,16 @@ def _yardstick(results: dict) -> float:
     return math.fsum(vals) / len(vals) if vals else math.nan
 
 
-def _cell(n: dict) -> str:
+def _cell(n: dict, marks: tuple[str, str] = ("better", "worse")) -> str:
+    """The paired difference with its interval, and ``marks`` (positive, negative) where the interval excludes 0."""
     if not n.get("n_worlds"):
         return "—"
-    mark = " **(worse)**" if n["differs"] == 1 else " **(better)**" if n["differs"] == -1 else ""
+    mark = f" **({marks[0]})**" if n["differs"] == 1 else f" **({marks[1]})**" if n["differs"] == -1 else ""
     return fmt_diff(n, 4) + mark
 
 
 def _pair_table(base: dict, cond: dict, methods: list[str], intro: str) -> list[str]:
-    """Markdown lines: each method's change cond - base per figure (MDE in brackets), then the FSM - MCDP
+    """Markdown lines: each method's change base - cond per figure (MDE in brackets), then the MCDP - FSM
     contrast with its reading on median abs_rel. ``intro``: the sentence above the table."""
     L = [intro + " ± the 95 % t interval over worlds, MDE at 80 % power in brackets.\n",
          "| method | " + " | ".join(label for _, label in FIGURES) + " |",
@@ -97,8 +102,8 @@ def _pair_table(base: dict, cond: dict, methods: list[str], intro: str) -> list[
         L.append(f"| {short_label(m)} | " + " | ".join(cells) + " |")
     if all(m in methods for m in CONTRAST):
         a, b = (short_label(m) for m in CONTRAST)
-        L.append(f"| {a}'s change - {b}'s | " + " | ".join(
-            _cell(contrast(base, cond, k)) for k, _ in FIGURES) + " |")
+        L.append(f"| {b}'s change - {a}'s | " + " | ".join(
+            _cell(contrast(base, cond, k), (f"{a} suffers more", f"{b} suffers more")) for k, _ in FIGURES) + " |")
         n = contrast(base, cond, FIGURES[0][0])
         verdict = (f"{a} suffers more than {b}, beyond the interval" if n["differs"] == 1 else
                    f"{b} suffers more than {a}, beyond the interval" if n["differs"] == -1 else
@@ -128,23 +133,25 @@ def format_sensor(ideal: dict, conditions: list[tuple[str, str, dict]]) -> str:
     for name, what, cond in conditions:
         L.append(f"### {name}: {what}\n")
         L += _pair_table(ideal, cond, methods, f"Constant-depth reference on these worlds: {_yardstick(cond):.4f}. "
-                         "Change from the ideal camera, condition - ideal, paired by world, **positive = worse**;")
+                         "Change from the ideal camera, ideal - condition, paired by world, "
+                         "**positive = the condition helps**;")
     return "\n".join(L)
 
 
 def format_between(base: tuple[str, dict], cond: tuple[str, dict]) -> str:
-    """Markdown: each method's change from one condition to another on the same worlds (``cond - base``, both
-    given as (name, results)), e.g. what ignoring the trigger offsets costs: ``sync: assume`` against
-    ``compensate`` on the same rendered data. A method with no cross-camera warp should read exactly 0."""
+    """Markdown: each method's change from one condition to another on the same worlds (``base - cond``, both
+    given as (name, results): positive = ``cond`` helps), e.g. what ignoring the trigger offsets costs: ``sync:
+    assume`` against ``compensate`` on the same rendered data. A method with no cross-camera warp should read
+    exactly 0."""
     (bn, b), (cn, c) = base, cond
-    return "\n".join(_pair_table(b, c, _methods(b), f"{cn} - {bn}, paired by world, **positive = worse**;"))
+    return "\n".join(_pair_table(b, c, _methods(b), f"{bn} - {cn}, paired by world, **positive = {cn} helps**;"))
 
 
 def _primary_line(n: dict, rank: dict, a: str, b: str) -> str:
     """The follow-up's primary reading: the t interval with its p and MDE, the rank-based reading, the verdict."""
     p = n["p"]  # two-sided t (study.design.t_p_two_sided)
     lo, hi = rank["ci"]
-    line = (f"**Primary: {a}'s change - {b}'s = {fmt_diff(n, 4)}** (95 % t over {n['n_worlds']} "
+    line = (f"**Primary: {b}'s change - {a}'s = {fmt_diff(n, 4)}** (95 % t over {n['n_worlds']} "
             f"worlds, {n['df']} df, p = {p:.3f}; detectable at 80 % power: {n['mde80']:.4f}). Rank-based: "
             f"Wilcoxon p = {rank['p']:.3f}, Hodges-Lehmann {rank['hl']:+.4f} [{lo:+.4f}, {hi:+.4f}] "
             f"({100 * rank['ci_level']:.1f} %).")
@@ -165,7 +172,7 @@ def _primary_line(n: dict, rank: dict, a: str, b: str) -> str:
 
 def format_followup(ideal: dict, cond: dict, planned: int, what: str) -> str:
     """Markdown: the pre-planned follow-up of one condition on more worlds (``planned`` of them, stated in the
-    preset's header before the runs): the primary contrast (FSM's change - MCDP's on median abs_rel) with its
+    preset's header before the runs): the primary contrast (MCDP's change - FSM's on median abs_rel) with its
     t interval, p, MDE and the rank-based reading (`study.design.signed_rank`), each method's change, and the
     per-world values, so that no world is hidden behind the mean."""
     a, b = (short_label(m) for m in CONTRAST)
@@ -177,12 +184,12 @@ def format_followup(ideal: dict, cond: dict, planned: int, what: str) -> str:
          _primary_line(n, rank, a, b) + "\n"]
     methods = _methods(ideal)
     L += _pair_table(ideal, cond, methods, f"Constant-depth reference on these worlds: "
-                     f"{_yardstick(cond):.4f}. Change from the ideal camera, condition - ideal, paired by world, "
-                     "**positive = worse**;")[:-1]  # its verdict sentence: the primary line above replaces it
+                     f"{_yardstick(cond):.4f}. Change from the ideal camera, ideal - condition, paired by world, "
+                     "**positive = the condition helps**;")[:-1]  # its verdict: the primary line above replaces it
     L.append("")
     per = {m: _diffs(ideal, cond, m, key) for m in methods}
-    L += ["Per world, median abs_rel, condition - ideal:\n",
-          "| world | " + " | ".join(short_label(m) for m in methods) + f" | {a} - {b} |",
+    L += ["Per world, median abs_rel, ideal - condition (positive = the condition helps):\n",
+          "| world | " + " | ".join(short_label(m) for m in methods) + f" | {b} - {a} |",
           "|---|" + "---|" * (len(methods) + 1)]
     for w, v in sorted(n["values"], key=lambda wv: wv[0]):
         L.append(f"| {w} | " + " | ".join(f"{per[m][w]:+.4f}" if w in per[m] else "—" for m in methods)

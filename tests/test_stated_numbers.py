@@ -141,7 +141,7 @@ def test_the_sensor_follow_ups_stated_numbers_are_its_committed_results():
     ideal, cond = _results("sensor14_ideal"), _results("sensor14_exposure")
     text = " ".join(line.lstrip("> ") for line in (RESULTS / "sensor" / "preface.md").read_text().splitlines())
     n = contrast(ideal, cond, FIGURES[0][0])
-    assert n["n_worlds"] == 14 and f"MCDP (m = 2)'s on median abs_rel is {n['mean']:+.4f} ± {n['ci95']:.4f}" in text
+    assert n["n_worlds"] == 14 and f"MCDP (m = 2)'s change minus FSM's on median abs_rel is {n['mean']:+.4f} ± {n['ci95']:.4f}" in text
     for m, label in (("mono2", "Mono2"), ("fsm", "FSM"), ("mcdp_m2", "MCDP (m = 2)")):
         c = change(ideal, cond, m, FIGURES[0][0])
         assert f"{label} {c['mean']:+.4f} ± {c['ci95']:.4f}" in text, label

@@ -1,5 +1,5 @@
-"""study/sensor.py: each method's change from the ideal camera, paired by world, and FSM's change against
-MCDP's (the paper's argument about photometric losses between cameras)."""
+"""study/sensor.py: each method's change from the ideal camera, paired by world (ideal - condition: positive = the
+condition helps), and MCDP's change against FSM's (the paper's argument about photometric losses between cameras)."""
 import numpy as np
 
 from study import sensor
@@ -25,13 +25,17 @@ def _results(shift: dict, seed: int = 0, worlds: int = 3) -> dict:
 def test_each_change_is_paired_by_world_and_the_contrast_says_who_suffers():
     ideal, cond = _results({}), _results({"fsm": 0.02, "mcdp_m2": 0.002})
     ch = sensor.change(ideal, cond, "fsm", "median.mean.abs_rel")
-    assert ch["n_worlds"] == 3 and abs(ch["mean"] - 0.02) < 0.002 and ch["differs"] == 1  # the world cancels
+    assert ch["n_worlds"] == 3 and abs(ch["mean"] + 0.02) < 0.002 and ch["differs"] == -1  # the world cancels
     assert abs(sensor.change(ideal, ideal, "mono2", "median.mean.abs_rel")["mean"]) < 1e-12
     c = sensor.contrast(ideal, cond, "median.mean.abs_rel")
-    assert abs(c["mean"] - 0.018) < 0.002 and c["differs"] == 1
+    assert abs(c["mean"] - 0.018) < 0.002 and c["differs"] == 1  # MCDP's change - FSM's: MCDP suffers less
     text = sensor.format_sensor(ideal, [("Exposure", "a spread", cond)])
     assert "FSM suffers more than MCDP (m = 2), beyond the interval" in text
     assert "constant-depth reference scores 0.6000" in text and "**(worse)**" in text
+    assert "ideal - condition, paired by world, **positive = the condition helps**" in text
+    assert "| MCDP (m = 2)'s change - FSM's | +0.018" in text and "**(FSM suffers more)**" in text
+    fsm = [line for line in text.splitlines() if line.startswith("| FSM |")][-1]  # the first: the ideal's level
+    assert fsm.startswith("| FSM | -0.02") and "**(worse)**" in fsm, fsm
     same = sensor.format_sensor(ideal, [("Null", "nothing", _results({}, seed=0))])
     assert "not resolved with 3 worlds" in same
 
@@ -45,11 +49,11 @@ def test_a_failed_run_is_left_out_of_its_pair():
 def test_between_two_conditions_reads_each_methods_change_and_zero_where_nothing_differs():
     compensate, assume = _results({}), _results({"fsm": 0.01, "mcdp_m2": 0.004})
     text = sensor.format_between(("`sync: compensate`", compensate), ("`sync: assume`", assume))
-    assert text.startswith("`sync: assume` - `sync: compensate`, paired by world")
+    assert text.startswith("`sync: compensate` - `sync: assume`, paired by world, **positive = `sync: assume` helps**")
     mono = next(line for line in text.splitlines() if line.startswith("| Mono2 |"))
     assert mono.startswith("| Mono2 | +0.0000") and "(worse)" not in mono  # same results: exactly no change
     fsm = next(line for line in text.splitlines() if line.startswith("| FSM |"))
-    assert fsm.startswith("| FSM | +0.010") and "**(worse)**" in fsm
+    assert fsm.startswith("| FSM | -0.010") and "**(worse)**" in fsm
 
 
 def test_the_follow_up_reads_its_primary_contrast_with_the_rank_based_reading_and_every_world():
@@ -57,7 +61,7 @@ def test_the_follow_up_reads_its_primary_contrast_with_the_rank_based_reading_an
     text = sensor.format_followup(ideal, cond, 14, "primary: the contrast")
     assert "14 worlds, one look at the end, primary: the contrast. Read here: 14 worlds" in text
     primary = next(line for line in text.splitlines() if line.startswith("**Primary:"))
-    assert "FSM's change - MCDP (m = 2)'s = +0.010" in primary and "13 df" in primary, primary
+    assert "MCDP (m = 2)'s change - FSM's = +0.010" in primary and "13 df" in primary, primary
     assert "Wilcoxon p = 0.000" in primary and "beyond the interval; the rank-based reading agrees" in primary
     assert sum(line.startswith("| ") and line[2].isdigit() for line in text.splitlines()) == 14  # a row a world
     # the t interval clears 0 but the ranks do not (a few worlds carry the mean): said, not hidden
