@@ -1,7 +1,8 @@
 """Publish the calibration page, docs/results/calibration.md, from committed data: never edited by hand (issue 57).
 
     python scripts/publish_calibration.py --collect sweeps/calibration [--point x4=sweeps/calibration_x4] \
-        [--point live=sweeps/calibration_live]      # once, after the runs: -> docs/results/calibration/values.json
+        [--point live=sweeps/calibration_live] [--point sensor=sweeps/calibration_sensor]
+        # once, after the runs: -> docs/results/calibration/values.json
     python scripts/publish_calibration.py           # the page from values.json + configs/calibration/anchors.yaml
 
 ``--collect`` reads every arm's sweep folder (`mcdp calibrate`) and keeps, per arm and world, only the columns the
@@ -30,7 +31,15 @@ YARDSTICKS = ("constant_reference", "flat_road_prior")
 #: (GaussianOcc, arXiv 2408.11447, Table 2; computed from its rows, ../shared/calibration/SOURCES.md)
 REAL_TO_REAL = {"spearman": 0.83, "kendall": 0.73}
 POINT_WORDS = {"base": "96x64, 200 steps (the L_con recipe)", "x4": "96x64, 800 steps (4x the compute)",
-               "live": "96x64, 200 steps, the ego body's live appearance (`ego.appearance=live`), tuning worlds"}
+               "live": "96x64, 200 steps, the ego body's live appearance (`ego.appearance=live`), tuning worlds",
+               "sensor": "96x64, 200 steps, the realistic camera's photometry (configs/data/realistic.yaml's exposure, "
+                         "white balance, vignetting, noise, motion blur, JPEG and fog, without its trigger and rolling "
+                         "shutter), tuning worlds"}
+#: points that are diagnostics of a generator setting: they judge tuning anchors only (issue 57 item 6)
+DIAGNOSTICS = ("live", "sensor")
+#: each point's marker in the scatter plot and its legend's words
+MARKERS = {"base": ("o", "200 steps"), "x4": ("s", "800 steps"), "live": ("^", "live ego"),
+           "sensor": ("D", "realistic camera")}
 
 
 def collect(folders: dict[str, Path]) -> dict:
@@ -106,13 +115,12 @@ def scatter(rows_by_point: dict[str, list[dict]], path: Path) -> None:
     import matplotlib.pyplot as plt
 
     fig, ax = plt.subplots(figsize=(7.5, 6))
-    markers = {"base": "o", "x4": "s", "live": "^"}
     colours = {"tuning": "tab:blue", "test": "tab:orange"}
     for point, rows in rows_by_point.items():
         for r in rows:
-            if r["n"] < 2 or (point == "live" and r["set"] != "tuning"):  # the live point judges tuning anchors
+            if r["n"] < 2 or (point in DIAGNOSTICS and r["set"] != "tuning"):  # diagnostics judge tuning anchors
                 continue
-            ax.errorbar(r["real"], r["mean"], yerr=r["half"], fmt=markers.get(point, "o"),
+            ax.errorbar(r["real"], r["mean"], yerr=r["half"], fmt=MARKERS[point][0],
                         color=colours[r["set"]], alpha=0.85, capsize=3, markersize=6)
             if point == "base" and (r["resolved"] or r["absent"] or abs(r["real"]) >= 0.02):  # the crowd at 0 unnamed
                 ax.annotate(r["name"], (r["real"], r["mean"]), fontsize=7, xytext=(4, 3), textcoords="offset points")
@@ -122,11 +130,9 @@ def scatter(rows_by_point: dict[str, list[dict]], path: Path) -> None:
     ax.plot([-lim, lim], [-lim, lim], ls=":", color="grey", lw=0.8, label="synthetic = real")
     for s, c in colours.items():
         ax.plot([], [], "o", color=c, label=f"{s} anchors")
-    for p, m in markers.items():
+    for p, (m, words) in MARKERS.items():
         if p in rows_by_point:
-            ax.plot([], [], m, color="black", label=POINT_WORDS[p].split(",")[0] + (", 800 steps" if p == "x4" else
-                                                                                     ", live ego" if p == "live" else
-                                                                                     ", 200 steps"))
+            ax.plot([], [], m, color="black", label=f"96x64, {words}")
     ax.set_xlabel("real effect (source's before - after; positive = the change helps)")
     ax.set_ylabel("synthetic effect, base - changed, over worlds (95 % t interval)")
     ax.set_title("Does the benchmark reproduce real-data effects? (one point per anchor;\n"
@@ -200,10 +206,10 @@ def build(values: dict, plot_dir: Path | None = None) -> str:
         lines += ["\n### Unresolved (neither agreeing nor disagreeing)\n"]
         lines += [f"- {r['name']}: {fmt_diff({'mean': r['mean'], 'ci95': r['half']})}; detectable at 80 % power: "
                   f"{r['mde']:.3f} (real {_fmt(r['real'])})" for r in unres]
-    for point in ("x4", "live"):
+    for point in ("x4", *DIAGNOSTICS):
         if point not in rows:
             continue
-        pr = [r for r in rows[point] if r["n"] >= 2 and (point != "live" or r["set"] == "tuning")]  # live: tuning only
+        pr = [r for r in rows[point] if r["n"] >= 2 and (point not in DIAGNOSTICS or r["set"] == "tuning")]
         lines += [f"\n## {POINT_WORDS[point]}\n", "| anchor | base point | this point | verdict here | from the base "
                   "point |", "|---|---|---|---|---|"]
         by = {r["name"]: r for r in base}
@@ -237,7 +243,7 @@ def main(argv: list[str] | None = None) -> int:
 
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("--collect", help="the calibration folder of the base point (mcdp calibrate --out)")
-    p.add_argument("--point", action="append", default=[], help="NAME=FOLDER of another point (x4, live)")
+    p.add_argument("--point", action="append", default=[], help="NAME=FOLDER of another point (x4, live, sensor)")
     args = p.parse_args(argv)
     DIR.mkdir(parents=True, exist_ok=True)
     if args.collect:
