@@ -102,6 +102,11 @@ class ModelConfig(StrictModel):
         pose network stays ResNet-18, as Monodepth2's default). A pretraining or ``pretrained`` file of another
         depth is refused naming the layer; train from scratch (``warm_start: false``) against a ResNet-18
         pretraining. An added key.
+    lens: ``rig`` (default) warps through each camera's lens (`mcdp.camera`: the batch carries it); ``pinhole``
+        drops the distortion and treats each camera's K as a pinhole's, in the run's own warps (training, and the
+        network's inference, as ``sync``): the ablation of what ignoring distortion costs. The evaluation's
+        overlap regions and Dep Con always go through the true lens. Refused, naming this key, for a camera whose
+        depth kind is range (kannala_brandt), where z-depth does not exist. Equal on a pinhole rig; an added key.
     """
 
     method: str = Field("mcdp", pattern=r"^[a-z][a-z0-9_]{0,39}$")
@@ -123,6 +128,7 @@ class ModelConfig(StrictModel):
     warm_start: bool = added_key(True)
     encoder_layers: Literal[18, 34, 50] = added_key(18)
     feature_ego_mask: bool = added_key(True)
+    lens: Literal["rig", "pinhole"] = added_key("rig")
 
     @model_validator(mode="after")
     def _check(self) -> "ModelConfig":

@@ -29,6 +29,8 @@ from synth import camera
 FRAME_OFFSETS = (-1, 0, 1)
 #: how cross-camera warps treat cameras that fire at different times (`mcdp.config.ModelConfig.sync`)
 SYNC_MODES = ("compensate", "assume")
+#: which lens the run's warps go through (`mcdp.config.ModelConfig.lens`): each camera's own, or K as a pinhole's
+LENS_MODES = ("rig", "pinhole")
 
 
 def resize_rgb(img: np.ndarray, height: int, width: int) -> np.ndarray:
@@ -82,12 +84,17 @@ def directed_pairs(pairs: Sequence[Sequence[int]]) -> tuple[torch.Tensor, torch.
 class RigReader:
     """Reads rig images/masks of a `synth.dataset` dataset at a fixed size (no torch in the maths).
 
-    Masks and intrinsics are computed once per camera.
+    Masks and intrinsics are computed once per camera. ``lens``: ``model.lens`` (``rig``: ``self.lens`` is the
+    cameras' `mcdp.camera.Lens`, None for a pinhole rig; ``pinhole``: None, K kept as it is, refused for a camera
+    of range depth).
     """
 
-    def __init__(self, ds, height: int, width: int, cache_bytes: int = 256 * 2**20, sync: str = "compensate"):
+    def __init__(self, ds, height: int, width: int, cache_bytes: int = 256 * 2**20, sync: str = "compensate",
+                 lens: str = "rig"):
         if sync not in SYNC_MODES:
             raise ValueError(f"model.sync must be one of {', '.join(SYNC_MODES)}, got {sync!r}")
+        if lens not in LENS_MODES:
+            raise ValueError(f"model.lens must be one of {', '.join(LENS_MODES)}, got {lens!r}")
         self.ds, self.sync = ds, sync
         self._poses: dict[str, tuple[np.ndarray, np.ndarray]] = {}
         self.cache_bytes = int(cache_bytes)
@@ -100,6 +107,13 @@ class RigReader:
         ).astype(np.float32)  # (N, 3, 3)
         self.T_ego_cam = np.stack([np.asarray(c.T_ego_cam, dtype=np.float64) for c in ds.cameras]).astype(np.float32)
         self.lens = Lens.of_cameras(ds.cameras)  # None for a pinhole rig (a resize keeps every distortion parameter)
+        if lens == "pinhole":  # the ablation: K as a pinhole's, the distortion dropped (z-depth rows only)
+            ranged = [f"{c.name} ({c.intrinsics.model})" for c in ds.cameras
+                      if camera.depth_kind(c.intrinsics) != "z_depth"]
+            if ranged:
+                raise ValueError(f"model.lens=pinhole needs z-depth cameras; {', '.join(ranged)[:200]} store range "
+                                 "depth, where z-depth does not exist (use model.lens=rig)")
+            self.lens = None
         self.mask_full = [np.asarray(ds.mask(n), dtype=bool) for n in self.cam_names]  # dataset resolution
         self.mask = np.stack([resize_mask(m, self.height, self.width) for m in self.mask_full])[:, None].astype(
             np.float32
@@ -162,11 +176,13 @@ class RigDataset(torch.utils.data.Dataset):
             through the world, and the odometry of t -/+ 1 composes with it exactly for motion at a constant
             twist) or the static extrinsics (``assume``); equal for a synchronous rig. Each camera's timestamp:
             ``reader.camera_poses(seq)[0]``.
+        lens: ``model.lens``: ``rig`` (a sample holds the cameras' lens, none for a pinhole rig) or ``pinhole``
+            (no lens: every warp treats K as a pinhole's; `RigReader`).
     """
 
     def __init__(self, ds, split: str, height: int, width: int, fields: tuple[InputField, ...] = (),
-                 sync: str = "compensate"):
-        self.reader = RigReader(ds, height, width, sync=sync)
+                 sync: str = "compensate", lens: str = "rig"):
+        self.reader = RigReader(ds, height, width, sync=sync, lens=lens)
         self.split = split
         self.fields = tuple(fields)
         self.seqs = list(ds.split(split))

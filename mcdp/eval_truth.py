@@ -18,11 +18,12 @@ import numpy as np
 
 from mcdp.config import EvalConfig
 from synth.overlap import BAND_NAMES, distance_bands, overlap_union
+from synth import camera
 from synth.protocol import DatasetReader
 
 from . import label_regions as LR
 from .metrics import valid_gt_mask
-from .truth import camera_poses_at
+from .truth import camera_poses_at, overlap_cameras
 
 #: band regions: pixels binned by their distance to the nearest overlap pixel of the same image
 #: (`synth.overlap.distance_bands`; "band0" is the overlap itself)
@@ -31,14 +32,25 @@ REGIONS = ("all", "overlap", "non_overlap") + BANDS
 
 
 class EvalRig:
-    """What `evaluate` reads of the rig once: camera names, sizes, K, T_ego_cam, scene masks, and the ordered
-    neighbour pairs (src j, tgt i) with their relative poses T_ci_cj."""
+    """What `evaluate` reads of the rig once: camera names, sizes, K, each camera's lens (``cams``: its
+    `synth.camera.Intrinsics`; ``kinds``: its depth kind, ``z_depth`` or ``range``; ``lens``: (row names, (N, D)
+    float64 parameters padded to the longest row) for the Dep Con splat, None for a pinhole rig), T_ego_cam, scene
+    masks, and the ordered neighbour pairs (src j, tgt i) with their relative poses T_ci_cj. The overlap regions
+    and Dep Con go through each camera's true lens, whatever a model assumed (``model.lens``)."""
 
     def __init__(self, ds: DatasetReader) -> None:
         self.names = list(ds.camera_names)
         specs = list(ds.cameras)
         self.shapes = [(int(s.height), int(s.width)) for s in specs]
         self.Ks = [np.asarray(s.K, dtype=np.float64) for s in specs]
+        self.cams = [s.intrinsics for s in specs]
+        self.kinds = [camera.depth_kind(c) for c in self.cams]
+        self.overlap_cams = overlap_cameras(specs)  # what synth.overlap takes of each camera
+        self.lens = None
+        if any(c.model != "pinhole" for c in self.cams):
+            D = max(len(c.dist) for c in self.cams)
+            self.lens = (tuple(c.model for c in self.cams),
+                         np.array([list(c.dist) + [0.0] * (D - len(c.dist)) for c in self.cams], np.float64))
         self.Ts = [np.asarray(s.T_ego_cam, dtype=np.float64) for s in specs]
         self.masks = [np.asarray(ds.mask(n), dtype=bool) for n in self.names]
         for c, (m, shp) in enumerate(zip(self.masks, self.shapes)):
@@ -69,7 +81,8 @@ class SampleTruth:
         self.valids = [valid_gt_mask(g, m, cfg.min_depth, cfg.max_depth) for g, m in zip(self.gts, rig.masks)]
         Ts = camera_poses_at(ds, seq, f)  # each camera's own pose at its trigger time: the static rig when synchronous
         self.T_c_c = {(i, j): np.linalg.inv(Ts[i]) @ Ts[j] for j, i in rig.pairs}  # T_ci_cj of this frame (Dep Con)
-        overlaps = [overlap_union(i, self.gts, rig.Ks, Ts, rig.masks, rig.nbrs[i]) for i in range(len(rig.names))]
+        overlaps = [overlap_union(i, self.gts, rig.overlap_cams, Ts, rig.masks, rig.nbrs[i])
+                    for i in range(len(rig.names))]  # through each camera's lens, depths of its kind
         self.g_v = [g[v] for g, v in zip(self.gts, self.valids)]  # 1-D, float64
         self.lg_v = [np.log(g) for g in self.g_v]
         ov_v = [o[v] for o, v in zip(overlaps, self.valids)]

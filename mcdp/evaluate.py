@@ -39,7 +39,16 @@ Protocol (DESIGN.md, "Evaluation protocol"):
 - Dep Con (paper): for every adjacent pair, both directions, the neighbour's
   prediction is splatted with the z-buffer (``geometry.splat_depth``, source
   pixels outside the neighbour's ego mask dropped) into the target camera, and
-  mean |D^i - D_hat^i| / D_gt over target pixels that are valid and hit. It is
+  mean |D^i - D_hat^i| / D_gt over target pixels that are valid and hit.
+- Lenses (issue 59): the overlap split, the bands and Dep Con go through each camera's TRUE lens
+  (`synth.camera`: ``EvalRig.cams``; the overlap's z-test and the splat's z-buffer compare depths of each
+  camera's depth kind), whatever a model assumed in training (``model.lens``). Every metric is computed on
+  the depth kind the dataset stores for the camera: z-depth for pinhole and radtan, RANGE (ray length) for a
+  kannala_brandt camera, where z-depth does not exist beyond 90 degrees; a prediction is read as that kind
+  too. A pixel's range is its z-depth times a factor fixed by the pixel (its ray's length at z = 1), so a pixel's
+  abs_rel, rmse_log and a1-a3 are the same whichever kind it is scored on; sq_rel and rmse are in metres of
+  range there, and the depth range [min_depth, max_depth] applies to range. metrics.json's ``lenses`` says which
+  camera is of which kind. A pinhole rig takes the pinhole path, its numbers unchanged. It is
   computed on UNSCALED (metric, scaling "none", clamped) predictions only:
   median scaling per image would change the very consistency it measures.
   Per pair: mean over images; per camera: mean of the pairs targeting it;
@@ -51,6 +60,8 @@ valid, e.g. a camera without neighbours has NaN overlap metrics)::
     {"split": str, "n_samples": int, "min_depth": float, "max_depth": float,
      "frame_stride": int, "skip_ends": bool, "cameras": [names in rig order],
      "ground_truth": {"kind": "dense z-depth (rendered)" | "lidar", ...},   # ds.ground_truth
+     "lenses": {cam: {"model": row name, "depth_kind": "z_depth" | "range"}},  # only for a rig with a lens
+                                                                             # other than pinhole
      "stages": {stage: {                     # predict_fn's stages + "final" (= last stage)
         "none" | "median" | "rig_median": {
             "mean": {abs_rel, sq_rel, rmse, rmse_log, a1, a2, a3},
@@ -146,9 +157,12 @@ def _as_stack(pred, names, shapes, stage: str) -> list:
     return out
 
 
-def _splat_pairs(depths, pairs, Ks, T_c_c, shapes, scene_masks):
+def _splat_pairs(depths, pairs, Ks, T_c_c, shapes, scene_masks, lens=None):
     """For each ordered pair (j, i): depths[j] splatted into camera i (float64 torch, one batched call).
 
+    ``lens``: None (a pinhole rig: the pinhole path) or (row names (N,), (N, D) parameters) per camera
+    (`EvalRig.lens`): each depth is then of its camera's depth kind, unprojected and projected through the true
+    lenses, and the splatted depth is of the target's kind (`geometry.splat_depth`).
     Returns lists of (H_i, W_i) splatted depth and bool hit, in ``pairs`` order.
     """
     if not pairs:
@@ -156,6 +170,9 @@ def _splat_pairs(depths, pairs, Ks, T_c_c, shapes, scene_masks):
     t = lambda a: torch.as_tensor(np.asarray(a, dtype=np.float64))  # noqa: E731
     same = len({shapes[j] for j, _ in pairs}) == 1 and len({shapes[i] for _, i in pairs}) == 1
     groups = [pairs] if same else [[p] for p in pairs]  # cameras of different sizes: one call per pair
+
+    def lens_of(cams):
+        return None if lens is None else (tuple(lens[0][c] for c in cams), t(lens[1][list(cams)]))
     d_out, h_out = [], []
     for grp in groups:
         Hi, Wi = shapes[grp[0][1]]
@@ -166,6 +183,7 @@ def _splat_pairs(depths, pairs, Ks, T_c_c, shapes, scene_masks):
             torch.stack([t(T_c_c[(i, j)]) for j, i in grp]),
             Hi, Wi,
             valid_src=torch.stack([t(scene_masks[j]) for j, _ in grp])[:, None],
+            lens_src=lens_of([j for j, _ in grp]), lens_tgt=lens_of([i for _, i in grp]),
         )
         d_out += list(d[:, 0].numpy())
         h_out += list(hit[:, 0].numpy() > 0)
@@ -223,7 +241,7 @@ def _score(preds: list, truth: SampleTruth, rig: EvalRig, cfg: EvalConfig) -> _S
             holes[ks, h, 1] += int(n[r])
     # Dep Con: unscaled (metric) predictions, clamped like the "none" metrics
     metric_preds = [clamp_depth(p, cfg.min_depth, cfg.max_depth) for p in preds]
-    d_hats, hits = _splat_pairs(metric_preds, rig.pairs, rig.Ks, truth.T_c_c, rig.shapes, rig.masks)
+    d_hats, hits = _splat_pairs(metric_preds, rig.pairs, rig.Ks, truth.T_c_c, rig.shapes, rig.masks, rig.lens)
     dc = np.array([dep_con(metric_preds[i], d_hat, truth.gts[i], truth.valids[i] & hit)
                    for (j, i), d_hat, hit in zip(rig.pairs, d_hats, hits)], dtype=np.float64)
     return _Scored(vals, dc, spreads, holes)
@@ -379,9 +397,11 @@ def evaluate_passes(ds: DatasetReader, passes: Mapping[str, Callable], split: st
         for name, fn in passes.items():
             state[name].add(seq, f, fn(seq, f), truth, rig, cfg, done)
     seqs = [seq for seq, _ in samples]
+    lenses = {} if rig.lens is None else {"lenses": {n: {"model": c.model, "depth_kind": k}  # what the metrics are of
+                                                     for n, c, k in zip(rig.names, rig.cams, rig.kinds)}}
     return {name: {"split": split, "n_samples": len(samples), "min_depth": float(cfg.min_depth),
                    "max_depth": float(cfg.max_depth), "frame_stride": int(cfg.frame_stride),
                    "skip_ends": bool(cfg.skip_ends), "cameras": list(rig.names),
                    "ground_truth": dict(ds.ground_truth or {"kind": "unknown"}),  # read_depth's provenance
-                   "stages": {s: _summary(rig, regions, p.acc[s], seqs) for s in p.stages}}
+                   **lenses, "stages": {s: _summary(rig, regions, p.acc[s], seqs) for s in p.stages}}
             for name, p in state.items()}

@@ -92,7 +92,8 @@ class Predictor:
         self.network.load_state_dict(ckpt["depth_model"])
         self.network.eval()
         self.fields = fields_of(self.cfg)  # the input fields the network reads (as in training)
-        self.reader = RigReader(ds, self.cfg.train.height, self.cfg.train.width, sync=self.cfg.model.sync)
+        self.reader = RigReader(ds, self.cfg.train.height, self.cfg.train.width, sync=self.cfg.model.sync,
+                                lens=self.cfg.model.lens)  # the network's warps as trained (model.lens)
         self.nbr = neighbour_table(ds.neighbours, len(ds.camera_names)).to(self.device)
         self.K = torch.from_numpy(self.reader.K).to(self.device)[None]
         self.T_ego_cam = torch.from_numpy(self.reader.T_ego_cam).to(self.device)[None]
@@ -164,7 +165,7 @@ def rig_point_cloud(
         v, u = np.mgrid[0:H:stride, 0:W:stride]
         z = d[v, u]
         keep = (z > 0) & (z <= max_depth) & np.asarray(ds.mask(spec.name), bool)[v, u]
-        X = pixel_rays_at(spec.K, u[keep], v[keep]) * z[keep]  # pixel centres at +0.5
+        X = pixel_rays_at(spec.intrinsics, u[keep], v[keep]) * z[keep]  # through its lens: z-depth or range
         T = np.asarray(spec.T_ego_cam if poses is None else poses[c], float)
         pts.append((T[:3, :3] @ X + T[:3, 3:4]).T)
         cols.append(rgbs[c][v[keep], u[keep]])

@@ -31,29 +31,30 @@ if TYPE_CHECKING:
     from synth.protocol import DatasetReader
 
 
-def flat_road_depth(K: np.ndarray, T_ego_cam: np.ndarray, height: int, width: int, far: float) -> np.ndarray:
-    """(height, width) float32 z-depth of the road plane z_ego = 0 seen by one camera, capped at ``far``.
+def flat_road_depth(cam, T_ego_cam: np.ndarray, height: int, width: int, far: float) -> np.ndarray:
+    """(height, width) float32 depth of the road plane z_ego = 0 seen by one camera, capped at ``far``: z-depth, or
+    range for a camera whose depth kind is range (`synth.camera`).
 
     Args:
-        K: (3, 3) intrinsics at (height, width), pixel centres at +0.5.
+        cam: its lens, a `synth.camera.Intrinsics` at (height, width), or a (3, 3) pinhole K; pixel centres at +0.5.
         T_ego_cam: (4, 4) camera -> ego; ego frame z up, the road at z = 0.
         far: metres, depth of every pixel whose ray does not meet the road nearer than it.
     """
     if not (np.isfinite(far) and far > 0):
         raise ValueError(f"far must be a positive finite depth in metres, got {far}")
     v, u = np.mgrid[0:height, 0:width]
-    rays = pixel_rays_at(K, u.ravel(), v.ravel())  # (3, H*W) at z = 1
+    rays = pixel_rays_at(cam, u.ravel(), v.ravel())  # (3, H*W): z = 1, unit for a range row, NaN: no ray
     T = np.asarray(T_ego_cam, np.float64)
-    d = T[:3, :3] @ rays  # ego-frame direction per unit of z-depth
+    d = T[:3, :3] @ rays  # ego-frame direction per unit of the camera's depth
     c_z = T[2, 3]
     with np.errstate(divide="ignore", invalid="ignore"):
-        t = np.where(d[2] < -1e-9, -c_z / d[2], np.inf)  # z-depth where the ray meets z_ego = 0
+        t = np.where(d[2] < -1e-9, -c_z / d[2], np.inf)  # the depth where the ray meets z_ego = 0 (no ray: far)
     return np.minimum(t, far).reshape(height, width).astype(np.float32)
 
 
 def flat_road_predictor(ds, far: float) -> Callable[[str, int], Mapping[str, list]]:
     """A `predict_fn` for `mcdp.evaluate.evaluate`: the flat-road depth of every camera, every frame."""
-    maps = [flat_road_depth(c.K, c.T_ego_cam, int(c.height), int(c.width), far) for c in ds.cameras]
+    maps = [flat_road_depth(c.intrinsics, c.T_ego_cam, int(c.height), int(c.width), far) for c in ds.cameras]
     return lambda seq, frame: {"flat_road": maps}
 
 

@@ -87,7 +87,7 @@ def record_predictions(pred, samples: list[tuple[str, int]], out, point_stride: 
                     mask = np.asarray(ds.mask(cam.name), bool)
                     if cam.name in gt:
                         rec.log(f"{base}/abs_rel", rr.Image(abs_rel_image(dc, gt[cam.name], mask), color_model="L"))
-                    p, v, u = backproject(dc, cam.K, Ts[c], mask, point_stride)
+                    p, v, u = backproject(dc, cam.intrinsics, Ts[c], mask, point_stride)
                     pts.append(p)
                     cols.append(rgb[cam.name][v, u])
                 rec.log(f"world/ego/pred/{stage}/points", rr.Points3D(np.concatenate(pts), colors=np.concatenate(cols),

@@ -53,6 +53,9 @@ def format_tables(metrics: dict, stage: str = "final") -> str:
         f"depth range [{metrics['min_depth']}, {metrics['max_depth']}] m"
         + (f" ground truth: {metrics['ground_truth'].get('kind')}" if "ground_truth" in metrics else "")
     ]
+    ranged = [c for c, v in metrics.get("lenses", {}).items() if v.get("depth_kind") == "range"]
+    if ranged:  # metrics of a range camera are of its stored depth kind (mcdp.evaluate)
+        lines.append(f"range depth (ray length, not z): {', '.join(ranged)}")
     for sc in SCALINGS:
         if sc not in st:
             continue

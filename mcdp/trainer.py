@@ -118,10 +118,12 @@ class Trainer:
         self.optimizer = torch.optim.Adam(groups, lr=tc.lr, betas=(0.9, 0.999), fused=fused)
 
         fields = self.system.fields  # the optional inputs its network reads (e.g. ORACLE-local's ground truth)
-        self.train_set = RigDataset(ds, "train", tc.height, tc.width, fields, sync=cfg.model.sync)
+        self.train_set = RigDataset(ds, "train", tc.height, tc.width, fields, sync=cfg.model.sync,
+                                    lens=cfg.model.lens)
         if len(self.train_set) == 0:
             raise RunError(f"dataset {ds.root}: the train split has no rig sample (sequences need >= 3 frames)")
-        self.val_set = RigDataset(ds, "val", tc.height, tc.width, fields, sync=cfg.model.sync)
+        self.val_set = RigDataset(ds, "val", tc.height, tc.width, fields, sync=cfg.model.sync,
+                                  lens=cfg.model.lens)
 
         self.use_amp, self.amp_dtype = resolve_precision(tc.precision, self.device)
         self.scaler = torch.amp.GradScaler("cuda", enabled=self.use_amp and self.amp_dtype == torch.float16)

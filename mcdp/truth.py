@@ -56,15 +56,23 @@ def camera_poses_at(ds, seq: str, frame: int) -> list[np.ndarray]:
     return list(np.asarray(get(seq)[1][frame], np.float64))
 
 
+def overlap_cameras(cameras) -> list:
+    """What `synth.overlap`'s region functions take of each camera (`synth.protocol.Camera`): its lens, an
+    `synth.camera.Intrinsics` (the depths compared are of each camera's depth kind), or for a pinhole camera its
+    bare K (the table's pinhole row: the arithmetic, and the bytes, of before)."""
+    return [np.asarray(c.K, np.float64) if c.intrinsics.model == "pinhole" else c.intrinsics for c in cameras]
+
+
 def overlap_truth(ds, masks, seq: str, frame: int) -> list:
-    """Per camera, (H, W) float32 at the dataset resolution: the ground-truth depth of its overlap pixels
-    (`synth.overlap.overlap_mask` with every neighbour, as the evaluation splits its regions), 0 elsewhere
-    (a camera without neighbours: 0 everywhere). ORACLE input: it reads ground truth."""
-    names, cams = list(ds.camera_names), list(ds.cameras)
+    """Per camera, (H, W) float32 at the dataset resolution: the ground-truth depth (of the camera's depth kind) of
+    its overlap pixels (`synth.overlap.overlap_mask` with every neighbour through each camera's true lens, as the
+    evaluation splits its regions), 0 elsewhere (a camera without neighbours: 0 everywhere). ORACLE input: it
+    reads ground truth."""
+    names = list(ds.camera_names)
     gts = [np.asarray(ds.read_depth(seq, n, frame), np.float64) for n in names]
-    Ks, Ts = [c.K for c in cams], camera_poses_at(ds, seq, frame)
+    cams, Ts = overlap_cameras(ds.cameras), camera_poses_at(ds, seq, frame)
     nbrs = neighbours_of(ds.neighbours, len(names))
-    return [np.where(overlap_union(i, gts, Ks, Ts, masks, nbrs[i]), gts[i], 0.0).astype(np.float32)
+    return [np.where(overlap_union(i, gts, cams, Ts, masks, nbrs[i]), gts[i], 0.0).astype(np.float32)
             for i in range(len(names))]
 
 

@@ -14,9 +14,10 @@ ROOT = Path(__file__).resolve().parents[1]
 PACKAGES = ("corelib", "scenes", "synth", "mcdp", "study")
 TABLE = {"synth/camera.py", "mcdp/camera.py"}
 PATTERNS = {
-    "K @": re.compile(r"\bK\w*(\[[^\]]*\])?(\.to\([^)]*\))?\s*@|\bnp\.dot\(\s*(K|pad)\b"),
+    "K @": re.compile(r"\bK\w*(\[[^\]]*\])?(\.to\([^)]*\))?\s*@|\bnp\.dot\(\s*(K|pad)\b"
+                      r"|\b(matmul|bmm|mm|einsum)\([^)]*\bK\w*\b|\bK\w*\.(mm|bmm|matmul)\("),
     "@ K": re.compile(r"@\s*(np\.linalg\.inv\(|torch\.linalg\.inv\()?\s*K\w*\b"),
-    "inv(K)": re.compile(r"\binv\(\s*(np\.asarray\()?\s*K\w*"),
+    "inv(K)": re.compile(r"\b(p?inv|inverse|solve)\(\s*(np\.asarray\()?\s*K\w*|\bK\w*\.inverse\("),
     "K.T": re.compile(r"\bK\w*\.T\b"),
     "K^-1 in GLSL": re.compile(r"u_K_inv\s*\*"),
     "a hand resize of K": re.compile(r"diag\(\[\s*s[xy]|\bK\w*\s*\*\s*(S\b|np\.array\(\[\s*s[xy]|torch\.tensor\(\[\s*s[xy])"),
@@ -87,8 +88,12 @@ def test_the_patterns_find_what_they_are_for():
     bad = ["q = p1 @ K.T", "rays = torch.linalg.inv(K.to(depth.dtype)) @ pix", "Kp = K @ p",
            "x = np.linalg.inv(K_j) @ q", "return np.diag([sx, sy, 1.0]) @ K", "u = fx * x / z + cx",
            "Kp = K.to(points.dtype) @ p", "K[0] @ p",
-           "return K * S.view(1, 3, 1)", "K2 = K * np.array([sx, sy, 1.0])[:, None]"]
+           "return K * S.view(1, 3, 1)", "K2 = K * np.array([sx, sy, 1.0])[:, None]",
+           "rays = torch.linalg.solve(K_t, pix)", "Ki = K.inverse()", "Ki = torch.inverse(K)",
+           "x = np.linalg.pinv(K) @ q", "p = torch.matmul(K_src, pts)", "p = torch.bmm(K, pts)",
+           "uv = np.einsum('ij,jn->in', K, p)", "p = K.mm(x)"]
     for line in bad:
         assert any(p.search(line) for p in PATTERNS.values()), line
-    for line in ["T_cam_world = np.linalg.inv(T_world_cam)", "A = inv(X) @ M", "Kx = 3"]:
+    for line in ["T_cam_world = np.linalg.inv(T_world_cam)", "A = inv(X) @ M", "Kx = 3",
+                 "M = torch.matmul(T, p)", "x = np.linalg.solve(A, b)", "Ti = T.inverse()"]:
         assert not any(p.search(line) for p in PATTERNS.values()), line

@@ -5,11 +5,12 @@ from types import SimpleNamespace
 import numpy as np
 
 from mcdp.predict import rig_point_cloud
+from synth.camera import Intrinsics
 
 
 def _ds():
     K = np.array([[10.0, 0, 4], [0, 10.0, 3], [0, 0, 1]])
-    cams = [SimpleNamespace(name=n, K=K, T_ego_cam=np.eye(4)) for n in ("A", "B")]
+    cams = [SimpleNamespace(name=n, K=K, intrinsics=Intrinsics("pinhole", K), T_ego_cam=np.eye(4)) for n in ("A", "B")]
     return SimpleNamespace(cameras=cams, mask=lambda name: np.ones((6, 8), np.uint8))
 
 
