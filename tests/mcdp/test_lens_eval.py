@@ -45,7 +45,7 @@ def room(fake_dataset):
         class Room(fake_dataset):
             def __init__(self):
                 super().__init__(n_frames=3)
-                self.cameras = [CameraSpec(n, W, H, cam.K, T, 100.0, 0.0, 0.0, model, DIST[model])
+                self.cameras = [CameraSpec(n, W, H, np.array(cam.K), T, 100.0, 0.0, 0.0, model, DIST[model])
                                 for n, T in zip(self.camera_names, POSES)]
                 self._hw = {c.name: (H, W) for c in self.cameras}
                 self.depth = {c.name: _render(cam, H, W, T)[0].astype(np.float32) for c, T in zip(self.cameras, POSES)}
@@ -231,3 +231,27 @@ def test_as_if_pinhole_is_refused_for_a_range_camera(room):
                                          r"CAM_FRONT_RIGHT \(kannala_brandt\) store range depth") as e:
         RigDataset(ds, "train", 32, 64, lens="pinhole")
     assert "\n" not in str(e.value)
+
+
+@pytest.mark.parametrize("lens", ["rig", "pinhole"])
+def test_the_trainer_and_its_predictor_read_model_lens(room, tmp_path, lens, one_thread):
+    """The trainer's batches and its predictor's input (the network's warps, as trained) carry the lens under
+    ``rig`` and none under ``pinhole``; the evaluator's rig keeps the true lens either way."""
+    from corelib.configlib import load_config
+    from mcdp.config import RunConfig
+    from mcdp.trainer import Trainer
+
+    from .conftest import TINY, _untrained
+
+    ds = room("radtan")
+    over = [f"model.lens={lens}"]
+    tr = Trainer(load_config(RunConfig, TINY / "mono2.yaml", over), ds, tmp_path / "run", progress=False,
+                 tensorboard=False)
+    try:
+        assert ("lens" in tr.train_set[0]) == (lens == "rig")
+        assert (tr.train_set.reader.lens is None) == (tr.val_set.reader.lens is None) == (lens == "pinhole")
+    finally:
+        tr.close()
+    pred = _untrained(ds, tmp_path / "net.pt", "mcdp_m2", *over)
+    assert (pred.inputs("s0", 1).network_input.lens is None) == (lens == "pinhole")
+    assert EvalRig(ds).lens[0] == ("radtan", "radtan")
