@@ -38,27 +38,84 @@ class SweepEvalConfig(StrictModel):
         return self
 
 
+#: the plan's regions (`SweepPlan.region`) -> the section of a results row's metrics that holds them ("all": every
+#: valid pixel, the metrics' ``mean`` section)
+PLAN_REGIONS = {"all": "mean", "overlap": "overlap", "non_overlap": "non_overlap"}
+#: the plan's scalings (`SweepPlan.scaling`; `study.primary.SCALINGS` reads every one beside the primary)
+PLAN_SCALINGS = ("median", "none", "rig_median")
+#: how the words of a page name a region (`region_words`)
+_REGION_WORDS = {"all": "all pixels", "overlap": "overlap pixels", "non_overlap": "non-overlap pixels"}
+
+
+def region_words(region: str) -> str:
+    """How a page names a plan's region: 'non-overlap pixels', 'all pixels', 'overlap pixels'."""
+    return _REGION_WORDS[region]
+
+
 class SweepPlan(StrictModel):
     """The analysis stated in the preset before the run (issues 47, 60), saved with the run (the resolved config,
-    results.json's ``sweep_config.plan``) and read from there by the report (`study.primary.plan_of`):
+    results.json's ``sweep_config.plan``) and read from there by the report (`study.primary.plan_of`). Every key
+    added after runs were recorded has today's behaviour as its default, so a result recorded before it reads
+    as it was analysed.
 
+    arms: the primary comparison's two arms, [base, changed] (each one of the sweep's ``methods``): the paired
+        difference is base - changed on a lower-is-better metric, **positive = the change helps** (docs/DESIGN.md,
+        the one sign convention). The sensor study compares two arms' changes between conditions: the changed
+        arm's change - the base arm's (`study.sensor`). null: no single primary pair (the page reads its own
+        fixed comparisons, every one exploratory or named in the header).
+    metric: the primary metric (a row of `mcdp.metrics.METRICS`).
+    scaling: the primary scaling (``median``: per-image median scaling; ``none``; ``rig_median``); the page gives the
+        others beside it.
+    region: the pixels the primary metric is read on: ``non_overlap``, ``overlap`` or ``all``.
     overlap: the overlap of the primary comparisons (one of the sweep's ``overlaps``).
-    delta: the equivalence bound of a primary null, median abs_rel (TOST at 95 %).
-    worlds / first_look: how many worlds the primary comparison needs and where the group-sequential design
-        looks first (`study.lcon`: O'Brien-Fleming bounds at both looks); null: one look at the end.
+    delta: the equivalence bound of a primary null, in the primary metric (TOST at 95 %).
+    stopping: ``one_look`` (the primary test read once, at the end) or ``obrien_fleming`` (two looks, at
+        ``first_look`` and ``worlds``, with O'Brien-Fleming bounds: `study.design.sequential_look`);
+        not stated: ``obrien_fleming`` where ``first_look`` is given, as plans recorded before the key were read).
+    worlds / first_look: how many worlds the primary comparison needs, and where the two-look design looks first
+        (only with ``stopping: obrien_fleming``).
+    tuning_worlds: the tuning/test split: the worlds (data seeds) that chose a setting and so are no test of it;
+        empty (default): every world the sweep reads is a test world.
     why: what sized it.
     """
 
+    arms: list[str] | None = added_key(None, min_length=2, max_length=2)
+    metric: str = added_key("abs_rel", min_length=1, max_length=40)
+    scaling: Literal["median", "none", "rig_median"] = added_key("median")
+    region: Literal["all", "overlap", "non_overlap"] = added_key("non_overlap")
     overlap: float = added_key(0.10, ge=0.10, le=0.60, allow_inf_nan=False)
     delta: float = added_key(0.005, gt=0.0, le=1.0, allow_inf_nan=False)
+    stopping: Literal["one_look", "obrien_fleming"] = added_key("one_look")
     worlds: int | None = Field(None, ge=2, le=10_000)
     first_look: int | None = Field(None, ge=2, le=10_000)
+    tuning_worlds: list[int] = added_key(default_factory=list)
     why: str = Field("", max_length=300)
+
+    @model_validator(mode="before")
+    @classmethod
+    def _stopping_of_a_recorded_plan(cls, data):
+        """A plan recorded before ``stopping`` existed that names a first look was read with the two looks."""
+        if isinstance(data, dict) and "stopping" not in data and data.get("first_look") is not None:
+            return {**data, "stopping": "obrien_fleming"}
+        return data
 
     @model_validator(mode="after")
     def _look(self) -> "SweepPlan":
+        from mcdp.metrics import metric_names
+
+        if self.arms is not None and self.arms[0] == self.arms[1]:
+            raise ValueError(f"plan.arms: base and changed arm are both {self.arms[0]!r}; name two methods")
+        if self.metric not in metric_names():
+            raise ValueError(f"plan.metric: {self.metric!r} is not a metric (one of {', '.join(metric_names())})")
         if self.first_look is not None and (self.worlds is None or self.first_look >= self.worlds):
             raise ValueError(f"plan.first_look ({self.first_look}) must be below plan.worlds ({self.worlds})")
+        if self.stopping == "obrien_fleming" and self.first_look is None:
+            raise ValueError("plan.stopping: obrien_fleming needs plan.worlds and plan.first_look (its two looks)")
+        if self.stopping == "one_look" and self.first_look is not None:
+            raise ValueError(f"plan.stopping: one_look, but plan.first_look is {self.first_look} (a first look is "
+                             "the obrien_fleming rule's)")
+        if len(set(self.tuning_worlds)) != len(self.tuning_worlds) or any(w < 0 for w in self.tuning_worlds):
+            raise ValueError(f"plan.tuning_worlds: must be distinct data seeds >= 0, got {self.tuning_worlds}")
         return self
 
 
@@ -94,9 +151,10 @@ class SweepConfig(StrictModel):
         machine's cores); unused when ``RAY_ADDRESS`` names a cluster to join.
     device: training / inference device.
     preview: write a preview sheet of one rig at the smallest and largest overlap.
-    plan: the pre-stated analysis (`SweepPlan`: the primary overlap, the equivalence bound delta, planned
-        worlds and first look); the report reads it from the recorded config (null: today's defaults, 0.10 and
-        0.005, and no sequential reading).
+    plan: the pre-stated analysis (`SweepPlan`: the primary arms, metric, scaling, region and overlap, the
+        equivalence bound delta, the stopping rule with its planned worlds and first look, the tuning/test split);
+        the report reads it from the recorded config (null: today's defaults, 0.10 and 0.005, and no sequential
+        reading).
     pretrain: a shared self-supervised pretraining (`study.pretrain.PretrainConfig`) that every
         run starts from (``model.init_from``), made once into ``SWEEP/pretrain/<hash>/`` and
         reused by its config hash; null = every run from scratch.
@@ -155,6 +213,9 @@ class SweepConfig(StrictModel):
         if self.plan is not None and not any(abs(self.plan.overlap - o) < 1e-9 for o in self.overlaps):
             raise ValueError(f"plan.overlap: {self.plan.overlap:g} is not one of the swept overlaps "
                              f"({', '.join(f'{o:g}' for o in self.overlaps)})")
+        for arm in (self.plan.arms or []) if self.plan is not None else []:
+            if arm not in self.methods:
+                raise ValueError(f"plan.arms: {arm!r} is not one of the methods ({', '.join(self.methods)})")
         return self
 
     @field_validator("overlaps")

@@ -21,6 +21,7 @@ from __future__ import annotations
 import math
 from pathlib import Path
 
+from study.config import PLAN_REGIONS, region_words
 from study.design import reading_over_worlds, sequential_look, worlds_needed
 from study.primary import SCALINGS, has_control, measure, plan_of
 from study.reach import lcon_pairs, local
@@ -34,8 +35,12 @@ DRAWS = 2000
 
 
 def lcon_arms(results: dict) -> tuple[str, str] | None:
-    """(the row without L_con, the row with it) of the first L_con pair whose two rows the sweep trained."""
+    """(the row without L_con, the row with it): the plan's ``arms`` where the run stated them (`plan_of`), else
+    the first L_con pair whose two rows the sweep trained (what a sweep recorded before the key was read with)."""
     methods = set(results.get("methods", []))
+    stated = plan_of(results)["arms"]
+    if stated:
+        return (stated[0], stated[1]) if set(stated) <= methods else None
     for nocon, with_con in lcon_pairs():
         if nocon in methods and with_con in methods:
             return nocon, with_con
@@ -53,9 +58,10 @@ def _world(row: dict, seeds: dict):
     return w if w is not None else seeds.get((row["overlap"], row["seed"]), row["seed"])
 
 
-def _figure(row: dict, sc: str, region: str = REGION) -> float:
+def _figure(row: dict, sc: str, region: str = REGION, metric: str = "abs_rel") -> float:
+    """The row's cut evaluation at scaling ``sc``: ``metric`` on ``region`` (a metrics section: `PLAN_REGIONS`)."""
     m = (row_evaluations(row).get(cut()) or {}).get("metrics") or {}
-    v = ((m.get(sc) or {}).get(region) or {}).get("abs_rel")
+    v = ((m.get(sc) or {}).get(region) or {}).get(metric)
     return float(v) if isinstance(v, (int, float)) else math.nan
 
 
@@ -69,7 +75,9 @@ def pairs(results: dict, o: float | None = None) -> list[dict]:
     arms = lcon_arms(results)
     if arms is None:
         return []
-    o = plan_of(results)["overlap"] if o is None else o
+    plan = plan_of(results)
+    o = plan["overlap"] if o is None else o
+    region, metric = PLAN_REGIONS[plan["region"]], plan["metric"]
     ra, rb = _rows(results, o, arms[0]), _rows(results, o, arms[1])
     seeds = data_seeds(results)
     out = []
@@ -77,7 +85,8 @@ def pairs(results: dict, o: float | None = None) -> list[dict]:
         a, b = ra[s], rb[s]
         steps = (a.get("checkpoint_step"), b.get("checkpoint_step"))
         out.append({"world": _world(a, seeds), "seed": s, "steps": steps, "same_step": steps[0] == steps[1],
-                    "d": {sc: _figure(a, sc) - _figure(b, sc) for sc in SCALINGS}, "rows": (a, b)})
+                    "d": {sc: _figure(a, sc, region, metric) - _figure(b, sc, region, metric) for sc in SCALINGS},
+                    "rows": (a, b), "region": region})
     return out
 
 
@@ -114,7 +123,7 @@ def split_of(ps: list[dict], sc: str, draws: int = DRAWS) -> dict | None:
     """`study.variance.variance_split` of (b) at one scaling, or None without per-sequence records."""
     worlds = {}
     for p in ps:
-        a, b = (_per_seq(r, sc) for r in p["rows"])
+        a, b = (_per_seq(r, sc, p["region"]) for r in p["rows"])
         if not (a and b) or p["world"] in worlds:  # no records, or seeds sharing a world: no per-world split
             return None
         worlds[p["world"]] = (a, b)
@@ -148,7 +157,8 @@ def format_lcon(results: dict, plot_dir: Path | None = None, o: float | None = N
     add("## (b) L_con's training-time effect outside the overlap\n")
     per = int(cfg.get("seeds_per_world", 1) or 1)
     ck = cfg.get("checkpoint", "auto")
-    add("MCDP (w/o L_con, m = 2) cut - MCDP (m = 2) cut, abs_rel on non-overlap pixels, **positive = L_con helps**; "
+    add("MCDP (w/o L_con, m = 2) cut - MCDP (m = 2) cut, "
+        f"{plan['metric']} on {region_words(plan['region'])}, **positive = L_con helps**; "
         + ("one training seed per world" if per == 1 else f"{per} training seeds per world, clustered by world (the "
            "signed-rank test over the world means)") + "; "
         + ("both arms of a world scored at one step, the end of the budget (`checkpoint: last`)" if ck == "last" else
@@ -186,7 +196,7 @@ def format_lcon(results: dict, plot_dir: Path | None = None, o: float | None = N
             sd = n["se"] * math.sqrt(n["n_worlds"])
             add(f"Spread between worlds (median): sd {sd:.4f}; worlds for an MDE of {plan['delta']:g} at 80 % power at "
                 f"this spread: {worlds_needed(sd, plan['delta'])}.\n")
-        if abs(ov - o) < 1e-9 and plan.get("worlds"):
+        if abs(ov - o) < 1e-9 and plan["stopping"] == "obrien_fleming":
             add(_looks(ps, plan))
         sp = split_of(ps, "median")
         if sp is not None:

@@ -42,19 +42,32 @@ COPY_MAX = 0.5
 SCALINGS = ("median", "none", "rig_median")
 
 
-def plan_of(results: dict) -> dict:
-    """The sweep's pre-stated analysis (`study.config.SweepPlan`: ``overlap``, ``delta``, ``worlds``,
-    ``first_look``, ``why``) as its run recorded it (``sweep_config.plan``); a key a sweep recorded before it
-    existed reads as the key's default (the values those sweeps were analysed with: delta 0.005, overlap 0.10,
-    or where the sweep did not run 0.10, its first overlap)."""
+def plan_of(results: dict, defaults: dict | None = None) -> dict:
+    """The sweep's pre-stated analysis (`study.config.SweepPlan`: ``arms``, ``metric``, ``scaling``, ``region``,
+    ``overlap``, ``delta``, ``stopping``, ``worlds``, ``first_look``, ``tuning_worlds``, ``why``) as its run recorded
+    it (``sweep_config.plan``). A key a sweep recorded before it existed reads as what that sweep was analysed
+    with: the page's own value in ``defaults`` (the sensor page: its arms and all pixels), else the key's default
+    (delta 0.005, overlap 0.10, or where the sweep did not run 0.10, its first overlap; ``stopping``
+    ``obrien_fleming`` where a first look was recorded)."""
     from study.config import SweepPlan
 
     rec = (results.get("sweep_config") or {}).get("plan") or {}
-    out = {k: rec.get(k, f.get_default()) for k, f in SweepPlan.model_fields.items()}
+    out = {k: rec.get(k, f.get_default(call_default_factory=True)) for k, f in SweepPlan.model_fields.items()}
+    out.update({k: v for k, v in (defaults or {}).items() if k not in rec})
+    if "stopping" not in rec and out.get("first_look"):
+        out["stopping"] = "obrien_fleming"
     swept = results.get("overlaps") or []
     if "overlap" not in rec and swept and not any(abs(o - out["overlap"]) < 1e-9 for o in swept):
         out["overlap"] = swept[0]
     return out
+
+
+def primary_key(plan: dict) -> str:
+    """The flat-row key of the plan's primary figure: ``<scaling>.<region section>.<metric>`` (e.g.
+    ``median.non_overlap.abs_rel``; region ``all`` is the metrics' ``mean`` section)."""
+    from study.config import PLAN_REGIONS
+
+    return f"{plan['scaling']}.{PLAN_REGIONS[plan['region']]}.{plan['metric']}"
 
 
 def world_of(results: dict):

@@ -19,19 +19,41 @@ from mcdp.methods import short_label
 from study.design import reading_over_worlds
 from study.results import flat_of, fmt_diff
 
-#: the figures compared (flat-row keys), each lower-is-better: primary accuracy and cross-camera consistency
+#: what the sensor sweeps were analysed with before their plan held it (`study.primary.plan_of`'s page defaults):
+#: the pair whose changes are compared, [base, changed] (the photometric cross-camera loss against the depth one;
+#: the contrast is the changed arm's change - the base arm's, positive = the changed arm suffers less), on all pixels
+PLAN_DEFAULTS = {"arms": ["fsm", "mcdp_m2"], "region": "all"}
+#: the figures compared (flat-row keys), each lower-is-better, at the default plan: the primary figure (the plan's
+#: metric, scaling and region: `figures`) and cross-camera consistency, a secondary one
 FIGURES = (("median.mean.abs_rel", "abs_rel (median)"), ("dep_con.mean", "Dep Con"))
-#: the pair whose changes are compared, (reference, candidate): the photometric cross-camera loss against the
-#: depth one; the contrast is the candidate's change - the reference's (positive = the candidate suffers less)
-CONTRAST = ("fsm", "mcdp_m2")
+CONTRAST = tuple(PLAN_DEFAULTS["arms"])
+
+
+def plan(results: dict) -> dict:
+    """The sensor sweep's plan (`study.primary.plan_of` with `PLAN_DEFAULTS`)."""
+    from study.primary import plan_of
+
+    return plan_of(results, PLAN_DEFAULTS)
+
+
+def figures(results: dict) -> tuple[tuple[str, str], ...]:
+    """(flat-row key, label) of the primary figure (the plan's) and of Dep Con."""
+    from study.primary import primary_key
+
+    p = plan(results)
+    return (primary_key(p), f"{p['metric']} ({p['scaling']})"), FIGURES[1]
+
+
+def contrast_arms(results: dict) -> tuple[str, str]:
+    """(base, changed): the plan's arms."""
+    a, b = plan(results)["arms"]
+    return a, b
 
 
 def _by_world(results: dict, method: str, key: str) -> dict:
-    """{world: value} of one method's as-trained runs at the plan's overlap (`study.primary.plan_of`; the row's
-    ``world``, else its seed)."""
-    from study.primary import plan_of
-
-    o = plan_of(results)["overlap"]
+    """{world: value} of one method's as-trained runs at the plan's overlap (`plan`; the row's ``world``, else its
+    seed)."""
+    o = plan(results)["overlap"]
     out = {}
     for f in flat_of(results, o, method):
         v = f.get(key)
@@ -62,9 +84,10 @@ def change(ideal: dict, cond: dict, method: str, key: str) -> dict:
     return n
 
 
-def contrast(ideal: dict, cond: dict, key: str, pair: tuple[str, str] = CONTRAST) -> dict:
+def contrast(ideal: dict, cond: dict, key: str, pair: tuple[str, str] | None = None) -> dict:
     """(pair[1]'s change) - (pair[0]'s change), each ideal - cond, paired by world: positive = the candidate
-    (pair[1]) suffers less, i.e. the reference (pair[0]) suffers more."""
+    (pair[1]) suffers less, i.e. the reference (pair[0]) suffers more. ``pair``: default the plan's arms."""
+    pair = contrast_arms(ideal) if pair is None else pair
     ca, cb = (_diffs(ideal, cond, m, key) for m in pair)
     return _over_worlds({w: cb[w] - ca[w] for w in set(ca) & set(cb)})
 
@@ -91,43 +114,52 @@ def _cell(n: dict, marks: tuple[str, str] = ("better", "worse")) -> str:
 def _pair_table(base: dict, cond: dict, methods: list[str], intro: str) -> list[str]:
     """Markdown lines: each method's change base - cond per figure (MDE in brackets), then the MCDP - FSM
     contrast with its reading on median abs_rel. ``intro``: the sentence above the table."""
+    figs, pair = figures(base), contrast_arms(base)
     L = [intro + " ± the 95 % t interval over worlds, MDE at 80 % power in brackets.\n",
-         "| method | " + " | ".join(label for _, label in FIGURES) + " |",
-         "|---|" + "---|" * len(FIGURES)]
+         "| method | " + " | ".join(label for _, label in figs) + " |",
+         "|---|" + "---|" * len(figs)]
     for m in methods:
         cells = []
-        for k, _ in FIGURES:
+        for k, _ in figs:
             n = change(base, cond, m, k)
             cells.append(f"{_cell(n)} [{n['mde80']:.4f}]" if math.isfinite(n["mde80"]) else _cell(n))
         L.append(f"| {short_label(m)} | " + " | ".join(cells) + " |")
-    if all(m in methods for m in CONTRAST):
-        a, b = (short_label(m) for m in CONTRAST)
+    if all(m in methods for m in pair):
+        a, b = (short_label(m) for m in pair)
         L.append(f"| {b}'s change - {a}'s | " + " | ".join(
-            _cell(contrast(base, cond, k), (f"{a} suffers more", f"{b} suffers more")) for k, _ in FIGURES) + " |")
-        n = contrast(base, cond, FIGURES[0][0])
+            _cell(contrast(base, cond, k), (f"{a} suffers more", f"{b} suffers more")) for k, _ in figs) + " |")
+        n = contrast(base, cond, figs[0][0])
         verdict = (f"{a} suffers more than {b}, beyond the interval" if n["differs"] == 1 else
                    f"{b} suffers more than {a}, beyond the interval" if n["differs"] == -1 else
                    f"not resolved with {n['n_worlds']} worlds (detectable at {n['mde80']:.4f})")
         L.append(f"\nThe paper's argument ({a}'s photometric loss between cameras suffers, {b}'s depth "
-                 f"comparison does not), on median abs_rel: {verdict}.\n")
+                 f"comparison does not), on {_words(base)}: {verdict}.\n")
     else:
         L.append("")
     return L
 
 
+def _words(results: dict) -> str:
+    """The primary figure in words: 'median abs_rel' (all pixels), 'median abs_rel on non-overlap pixels'."""
+    from study.config import region_words
+
+    p = plan(results)
+    return f"{p['scaling']} {p['metric']}" + ("" if p["region"] == "all" else f" on {region_words(p['region'])}")
+
+
 def _methods(results: dict) -> list[str]:
-    return [m for m in results.get("methods", []) if _by_world(results, m, FIGURES[0][0])]
+    return [m for m in results.get("methods", []) if _by_world(results, m, figures(results)[0][0])]
 
 
 def format_sensor(ideal: dict, conditions: list[tuple[str, str, dict]]) -> str:
     """Markdown: per condition (name, what it changes, results), each method's change from the ideal camera
     for every figure, and the FSM - MCDP contrast, beside the ideal's values and the constant-depth yardstick."""
-    methods = _methods(ideal)
-    L = ["| method | " + " | ".join(f"ideal {label}" for _, label in FIGURES) + " |",
-         "|---|" + "---|" * len(FIGURES)]
+    methods, figs = _methods(ideal), figures(ideal)
+    L = ["| method | " + " | ".join(f"ideal {label}" for _, label in figs) + " |",
+         "|---|" + "---|" * len(figs)]
     for m in methods:
         L.append(f"| {short_label(m)} | " + " | ".join(
-            f"{change(ideal, ideal, m, k)['ideal']:.4f}" for k, _ in FIGURES) + " |")
+            f"{change(ideal, ideal, m, k)['ideal']:.4f}" for k, _ in figs) + " |")
     L.append(f"\nYardstick: the constant-depth reference scores {_yardstick(ideal):.4f} (median abs_rel) on the "
              "ideal worlds.\n")
     for name, what, cond in conditions:
@@ -175,8 +207,9 @@ def format_followup(ideal: dict, cond: dict, planned: int, what: str) -> str:
     preset's header before the runs): the primary contrast (MCDP's change - FSM's on median abs_rel) with its
     t interval, p, MDE and the rank-based reading (`study.design.signed_rank`), each method's change, and the
     per-world values, so that no world is hidden behind the mean."""
-    a, b = (short_label(m) for m in CONTRAST)
-    key = FIGURES[0][0]
+    pair = contrast_arms(ideal)
+    a, b = (short_label(m) for m in pair)
+    key = figures(ideal)[0][0]
     n = contrast(ideal, cond, key)
     rank = n["rank"]
     L = [f"Planned before the runs (configs/sweep/cpu_sensor.yaml's header): {planned} worlds, one look at the end, "
@@ -188,7 +221,7 @@ def format_followup(ideal: dict, cond: dict, planned: int, what: str) -> str:
                      "**positive = the condition helps**;")[:-1]  # its verdict: the primary line above replaces it
     L.append("")
     per = {m: _diffs(ideal, cond, m, key) for m in methods}
-    L += ["Per world, median abs_rel, ideal - condition (positive = the condition helps):\n",
+    L += [f"Per world, {_words(ideal)}, ideal - condition (positive = the condition helps):\n",
           "| world | " + " | ".join(short_label(m) for m in methods) + f" | {b} - {a} |",
           "|---|" + "---|" * (len(methods) + 1)]
     for w, v in sorted(n["values"], key=lambda wv: wv[0]):
