@@ -28,13 +28,8 @@ _SOLVED: dict[str, dict] = {}
 
 def geometric_rig(cfg):
     """The `synth.rig.RigConfig` the cameras are built from: ``cfg.rig`` itself (``angle``), or a copy with
-    the solved geometric overlap (``pixels``; not re-validated: it may exceed the knob's 0.60). Every render's
-    rig comes from here, so a lens other than pinhole is refused here in one line: the rasteriser draws pinhole
-    images, and the remap of face renders that forms another lens's image is not built yet (issue 59 item 3)."""
-    lenses = {n: o.model for n, o in cfg.rig.cameras.items() if o.model not in (None, "pinhole")}
-    if lenses:
-        raise ValueError(f"rendering is pinhole only (image formation of other lenses: issue 59 item 3); "
-                         f"rig.cameras {', '.join(f'{n}.model={m}' for n, m in lenses.items())}")
+    the solved geometric overlap (``pixels``; not re-validated: it may exceed the knob's 0.60). Every lens row is
+    calibrated alike: its images are formed as the render forms them (`synth.lens_image`) and measured in pixels."""
     if cfg.rig.overlap_target == "angle":
         return cfg.rig
     return cfg.rig.model_copy(update={"overlap": calibration(cfg)["geometric"], "overlap_target": "angle"})
@@ -85,6 +80,7 @@ def measure(cfg, geometric: float, renderer, scenes) -> float:
     for the layout of geometric overlap `geometric`."""
     from scenes.textures import LAYER
     from synth.gl_backend import LightState
+    from synth.lens_image import render_camera
     from synth.overlap import overlap_fraction_counts, pair_overlaps
     from synth.rig import build_rig, ego_body_mesh
 
@@ -101,7 +97,7 @@ def measure(cfg, geometric: float, renderer, scenes) -> float:
         T_we = scene.T_world_ego[0]
         depths, masks = {}, {}
         for c in rig.cameras:
-            out = renderer.render(c.K, T_we @ c.T_ego_cam, frame=0, light=light, size=(c.width, c.height))
+            out = render_camera(renderer, c, T_we @ c.T_ego_cam, 0, light)  # any lens (synth.lens_image)
             depths[c.name] = out["depth"]
             masks[c.name] = np.where(out["ego"], 0, 255).astype(np.uint8)
         for k, v in overlap_fraction_counts(depths, masks, list(rig.cameras), pairs).items():

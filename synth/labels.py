@@ -6,7 +6,10 @@ moved with what it belongs to (the world for static surfaces; its object's pose 
 camera itself for the ego body) and projected into the same camera at t+1. It is valid where that point
 lands inside the image, in front of the camera, and is what the camera sees there at t+1: the rendered
 depth at one of the four pixel centres around it is within `Z_TOL` of the point's and carries the same
-object id (otherwise the point left the image or is hidden at t+1).
+object id (otherwise the point left the image or is hidden at t+1). Every lens row alike (issue 59): the
+point is the camera table's ray times the depth of the camera's kind, it is projected through the camera
+(`synth.camera.project`: "in front" is where the lens images it) and compared in that kind (z-depth, or range
+for kannala_brandt); flow is recomputed so, never remapped from the faces a lens image is formed from.
 
 Example::
 
@@ -47,19 +50,24 @@ def instance_map(instance: np.ndarray, ego: np.ndarray, depth: np.ndarray) -> np
     return np.where(ego | (depth <= 0), 0, instance).astype(np.uint16)
 
 
-def forward_flow(depth0: np.ndarray, inst0: np.ndarray, ego0: np.ndarray, K: np.ndarray, T_world_cam0: np.ndarray,
+def forward_flow(depth0: np.ndarray, inst0: np.ndarray, ego0: np.ndarray, K, T_world_cam0: np.ndarray,
                  T_world_cam1: np.ndarray, motion: dict[int, np.ndarray], depth1: np.ndarray,
                  inst1: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Forward flow of one camera t -> t+1: ((H, W, 2) float32 pixels (du, dv), (H, W) bool valid).
 
-    depth0 / inst0 / ego0: the camera's z-depth, object ids and ego flag at t; depth1 / inst1 at t+1.
+    depth0 / inst0 / ego0: the camera's depth (of its depth kind), object ids and ego flag at t; depth1 / inst1 at
+    t+1. K: a pinhole (3, 3) K or a `synth.camera.Intrinsics` (any lens row).
     motion: {object id: 4x4 world(t+1) <- world(t)} of the movers (T_world_obj(t+1) inv(T_world_obj(t)));
     every other surface is static, except the ego body, which moves with the camera (flow 0).
     """
     H, W = depth0.shape
     u, v = np.meshgrid(np.arange(W) + 0.5, np.arange(H) + 0.5)  # pixel centres
     z = depth0.astype(np.float64)
-    rays = pixel_rays(K, W, H)
+    pinhole = camera.model(K).name == "pinhole"
+    if pinhole:
+        rays = pixel_rays(K if not isinstance(K, camera.Intrinsics) else K.K, W, H)
+    else:  # z = 1 or unit rays by the depth kind; a pixel without a ray (NaN) has no depth: the point 0
+        rays = np.nan_to_num(np.ascontiguousarray(camera.rays(K, H, W).T).reshape(H, W, 3), nan=0.0)
     p0 = rays * z[..., None]  # camera-frame points at t
     T_c1_w = np.linalg.inv(T_world_cam1)
     M_static = T_c1_w @ T_world_cam0
@@ -70,9 +78,14 @@ def forward_flow(depth0: np.ndarray, inst0: np.ndarray, ego0: np.ndarray, K: np.
             Mo = T_c1_w @ M @ T_world_cam0
             p1[sel] = p0[sel] @ Mo[:3, :3].T + Mo[:3, 3]
     p1[ego0] = p0[ego0]  # the body is fixed to the camera
-    z1 = p1[..., 2]
-    front = z1 > 1e-6
-    uv1, _ = camera.project(K, p1.reshape(-1, 3).T)  # the camera table (front: its validity, z > 1e-6)
+    if pinhole:
+        z1 = p1[..., 2]
+        front = z1 > 1e-6
+        uv1, _ = camera.project(K, p1.reshape(-1, 3).T)  # the camera table (front: its validity, z > 1e-6)
+    else:  # the moved point's depth of the camera's kind; front: where the lens images it
+        z1 = p1[..., 2] if camera.depth_kind(K) == "z_depth" else np.linalg.norm(p1, axis=-1)
+        uv1, ok1 = camera.project(K, p1.reshape(-1, 3).T)
+        front = ok1.reshape(H, W)
     u1 = np.where(front, uv1[0].reshape(H, W), -1.0)
     v1 = np.where(front, uv1[1].reshape(H, W), -1.0)
     flow = np.stack([u1 - u, v1 - v], -1).astype(np.float32)

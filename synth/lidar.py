@@ -102,8 +102,9 @@ def _camera_triangles(cam: CameraSpec, depth: np.ndarray, valid: np.ndarray, T_l
     """Triangles of one camera's depth mesh in the lidar frame: (T, 3, 3) vertices, (T, 3) gray or None,
     (T, 3) label of each vertex's pixel or None."""
     H, W = depth.shape
-    rays = pixel_rays(cam.K, W, H)  # (H, W, 3), z = 1
-    P_cam = rays * depth[..., None].astype(np.float64)
+    rays = pixel_rays(cam.intrinsics, W, H)  # (H, W, 3): z = 1, or unit for a range camera (its depth kind)
+    valid = valid & np.isfinite(rays).all(-1)  # a lens pixel without a ray
+    P_cam = np.nan_to_num(rays) * depth[..., None].astype(np.float64)
     T = T_lidar_ego @ cam.T_ego_cam
     P = P_cam @ T[:3, :3].T + T[:3, 3]
     idx = np.arange(H * W).reshape(H, W)

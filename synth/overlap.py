@@ -4,15 +4,19 @@ split, the preview, the sweep report and `benchmarks/overlap_table.py`.
 A valid pixel of camera i (ground-truth depth > 0, not ego body in i) *overlaps* neighbour j when
 its ground-truth 3-D point
 
-1. lies in front of j (z_j > `EPS_Z`),
+1. lies in front of j (z_j > `EPS_Z`; for a lens, where j's camera-table row images it: `synth.camera.project`),
 2. projects inside j's image (0 <= u < W_j, 0 <= v < H_j; pixel centres at +0.5),
 3. lands on a pixel that j's self-occlusion mask marks as scene, and
 4. passes a z-test against j's ground-truth depth: z_j <= (1 + `Z_TOL`) * max(depth_j over the
-   3x3 pixels around the landing pixel). The 3x3 maximum keeps slanted surfaces (the road far
+   3x3 pixels around the landing pixel), z_j and depth_j of j's depth kind (z-depth; the point's
+   range |p_j| against the range map of a ``range`` camera, e.g. kannala_brandt). The 3x3 maximum keeps slanted surfaces (the road far
    ahead changes depth by metres per pixel row at 96x64) and silhouette edges from failing by
    quantisation; a point hidden behind a nearer object in j fails. Sky (depth 0) never passes.
 
 It is a property of the rig and the scene, never of a model.
+
+Cameras: wherever a function takes a camera's ``K`` it takes a `synth.camera.Intrinsics` as well (a bare K is
+the pinhole row), so every lens row is measured alike; a depth map is of its camera's depth kind.
 
 The summaries every caller shares are here too, so each is written once: who is camera i's neighbour
 (`neighbours_of`), the union over them (`overlap_union`, the evaluator's overlap region; per neighbour:
@@ -47,9 +51,10 @@ def overlap_mask(depth_i, K_i, T_ego_cam_i, depth_j, K_j, T_ego_cam_j, mask_i=No
     """Pixels of camera i that camera j sees (module docstring).
 
     Args:
-        depth_i: (H_i, W_i) ground-truth z-depth of camera i (m), 0 = no surface.
-        K_i: (3, 3) intrinsics of camera i at (H_i, W_i); T_ego_cam_i: (4, 4) camera i -> ego.
-        depth_j: (H_j, W_j) ground-truth z-depth of camera j (m), 0 = no surface.
+        depth_i: (H_i, W_i) ground-truth depth of camera i (m, its depth kind), 0 = no surface.
+        K_i: camera i at (H_i, W_i): a (3, 3) pinhole K or a `synth.camera.Intrinsics` (any lens row);
+            T_ego_cam_i: (4, 4) camera i -> ego.
+        depth_j: (H_j, W_j) ground-truth depth of camera j (m, its depth kind), 0 = no surface.
         K_j, T_ego_cam_j: the same for camera j at (H_j, W_j).
         mask_i, mask_j: optional (H, W) bool scene masks (True = scene, False = ego body).
         z_tol: relative z-test tolerance.
@@ -61,7 +66,7 @@ def overlap_mask(depth_i, K_i, T_ego_cam_i, depth_j, K_j, T_ego_cam_j, mask_i=No
     gj = _arr(depth_j, "depth_j")
     if gi.ndim != 2 or gj.ndim != 2:
         raise ValueError(f"depth_i and depth_j must have shape (H, W), got {gi.shape} and {gj.shape}")
-    Ki, Kj = _arr(K_i, "K_i", (3, 3)), _arr(K_j, "K_j", (3, 3))
+    Ki, Kj = _cam(K_i, "K_i"), _cam(K_j, "K_j")
     Ti, Tj = _arr(T_ego_cam_i, "T_ego_cam_i", (4, 4)), _arr(T_ego_cam_j, "T_ego_cam_j", (4, 4))
     H, W = gi.shape
     valid = gi > 0
@@ -75,9 +80,29 @@ def overlap_mask(depth_i, K_i, T_ego_cam_i, depth_j, K_j, T_ego_cam_j, mask_i=No
     return out
 
 
-def _points(depth: np.ndarray, K: np.ndarray, valid: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def _cam(x, name: str):
+    """A camera argument: a `synth.camera.Intrinsics` of another row as it is; a pinhole one or a bare K as the
+    (3, 3) float64 K (the pinhole path, its arithmetic and cache keys as before lenses)."""
+    if isinstance(x, camera.Intrinsics):
+        return x if x.model != "pinhole" else np.array(x.K)
+    return _arr(x, name, (3, 3))
+
+
+def _lens_of(cam):
+    """The camera of a `synth.rig.CameraSpec` / `synth.protocol.Camera` (its ``intrinsics``; a bare ``K``)."""
+    return _cam(getattr(cam, "intrinsics", None) or cam.K, "K")
+
+
+def _depth_of(cam, p: np.ndarray) -> np.ndarray:
+    """(N,) depth of (3, N) camera-frame points in the camera's depth kind: z, or |p| for ``range``."""
+    return p[2] if camera.depth_kind(cam) == "z_depth" else np.sqrt(p[0] * p[0] + p[1] * p[1] + p[2] * p[2])
+
+
+def _points(depth: np.ndarray, K, valid: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Pixel rows, columns and camera-frame 3-D points (3, N) of the `valid` pixels of a float64 depth map."""
     H, W = depth.shape
+    if isinstance(K, camera.Intrinsics):  # a pixel without a ray (NaN) has no point
+        valid = valid & np.isfinite(_rays(K, H, W)).all(0).reshape(H, W)
     v, u = np.nonzero(valid)
     return v, u, _points_at(K, H, W, v * W + u, depth.ravel())
 
@@ -116,8 +141,8 @@ def _seen_by_j(pts: np.ndarray, T_j_i: np.ndarray, K_j: np.ndarray, near_j: np.n
     """Indices into `pts` (camera i's points) that camera j sees: in front, inside, on scene, z-test."""
     Hj, Wj = near_j.shape
     pj = _apply3(T_j_i[:3, :3], pts, T_j_i[:3, 3])
-    zj = pj[2]
-    (uj, vj), front = camera.project(K_j, pj)  # the camera table's pinhole row: front = z_j > EPS_Z
+    zj = _depth_of(K_j, pj)  # j's depth kind: z (pinhole, radtan) or range
+    (uj, vj), front = camera.project(K_j, pj)  # the camera table: front = z_j > EPS_Z, or where the lens images
     idx = np.flatnonzero(front & (uj >= 0) & (uj < Wj) & (vj >= 0) & (vj < Hj))
     col = np.clip(np.floor(uj[idx]).astype(np.int64), 0, Wj - 1)
     row = np.clip(np.floor(vj[idx]).astype(np.int64), 0, Hj - 1)
@@ -146,21 +171,29 @@ def _cached(key: tuple, make) -> np.ndarray:
     return out
 
 
+def _lens_key(cam) -> tuple:
+    """() for a pinhole camera (its keys as before lenses), else (row name, distortion parameters)."""
+    return () if not isinstance(cam, camera.Intrinsics) else (cam.model, cam.dist)
+
+
 def _cam_key(cam) -> tuple:
+    lens = _lens_of(cam)
     return (int(cam.width), int(cam.height), _arr(cam.K, "K", (3, 3)).tobytes(),
-            _arr(cam.T_ego_cam, "T_ego_cam", (4, 4)).tobytes())
+            _arr(cam.T_ego_cam, "T_ego_cam", (4, 4)).tobytes()) + _lens_key(lens)
 
 
 def _rays(K, H: int, W: int) -> np.ndarray:
-    """(3, H*W) camera-frame rays through the pixel centres at z = 1, K^-1 [u+.5, v+.5, 1] for every pixel
-    (row-major), cached per (K, H, W)."""
-    K = _arr(K, "K", (3, 3))
+    """(3, H*W) camera-frame rays through the pixel centres, for every pixel (row-major), cached per (camera,
+    H, W): K^-1 [u+.5, v+.5, 1] at z = 1 for a pinhole K; the camera table's rays of an `Intrinsics` (z = 1 or
+    unit by its depth kind, NaN where a pixel has no ray)."""
+    K = _cam(K, "K")
+    Kb = (K.K if isinstance(K, camera.Intrinsics) else K).tobytes()
 
     def make():
-        return camera.rays(K, H, W)  # the camera table's pinhole row
+        return camera.rays(K, H, W)  # the camera table
     if H * W > _CACHE_RAYS_MAX_PX:  # 24 bytes a pixel: kept for small images only, remade for large ones
         return make()
-    return _cached(("rays", int(H), int(W), K.tobytes()), make)
+    return _cached(("rays", int(H), int(W), Kb) + _lens_key(K), make)
 
 
 def _candidates(cam_i, cam_j) -> np.ndarray:
@@ -170,7 +203,12 @@ def _candidates(cam_i, cam_j) -> np.ndarray:
 
     The ray p(t) = a + t b (t = depth in camera i, in camera j's frame) meets each of the cone's five
     half-spaces n . p >= 0 (z_j = p_2 >= 0; -m <= u_j <= W_j + m; -m <= v_j <= H_j + m, as u_j z_j = (K_j p)_0)
-    on an interval of t; the pixel is a candidate when the intervals meet for some t > 0."""
+    on an interval of t; the pixel is a candidate when the intervals meet for some t > 0. The cone is pinhole
+    maths: where either camera has another lens, every pixel is a candidate (the exact tests decide)."""
+    if isinstance(_lens_of(cam_i), camera.Intrinsics) or isinstance(_lens_of(cam_j), camera.Intrinsics):
+        return _cached(("all", int(cam_i.height) * int(cam_i.width)),
+                       lambda: np.arange(int(cam_i.height) * int(cam_i.width)))
+
     def make():
         Ti, Tj = _arr(cam_i.T_ego_cam, "T", (4, 4)), _arr(cam_j.T_ego_cam, "T", (4, 4))
         T_j_i = np.linalg.inv(Tj) @ Ti
@@ -221,8 +259,12 @@ def overlap_fraction_counts(depths: dict, masks: dict, cameras: list, neighbours
             (valid, n_valid, z, _, _, Ti), (_, _, _, near_j, mj, Tj) = prep[i], prep[j]
             ci, cj = cameras[i], cameras[j]
             cand = _candidates(ci, cj)
-            pts = _points_at(ci.K, int(ci.height), int(ci.width), cand[valid[cand]], z)
-            seen = _seen_by_j(pts, np.linalg.inv(Tj) @ Ti, _arr(cj.K, "K", (3, 3)), near_j, mj, z_tol)
+            li, lj = _lens_of(ci), _lens_of(cj)
+            keep = cand[valid[cand]]
+            if isinstance(li, camera.Intrinsics):  # a pixel without a ray has no point
+                keep = keep[np.isfinite(_rays(li, int(ci.height), int(ci.width))[0, keep])]
+            pts = _points_at(li, int(ci.height), int(ci.width), keep, z)
+            seen = _seen_by_j(pts, np.linalg.inv(Tj) @ Ti, lj, near_j, mj, z_tol)
             out[f"{ci.name}->{cj.name}"] = [n_valid, int(seen.size)]
     return out
 
@@ -241,8 +283,9 @@ def neighbours_of(neighbours, n_cameras: int) -> list[list[int]]:
 
 def overlaps_by_neighbour(i: int, depths, Ks, Ts, masks, nbrs) -> list[np.ndarray]:
     """Camera ``i``'s overlap with each camera of ``nbrs`` (`overlap_mask`), in that order: (H_i, W_i) bool
-    each. ``depths``, ``Ks``, ``Ts`` (T_ego_cam) and ``masks`` (self-occlusion, True / > 127 = scene; or
-    None) are indexed by camera."""
+    each. ``depths`` (each of its camera's depth kind), ``Ks`` ((3, 3) pinhole K or `synth.camera.Intrinsics`, any
+    lens row), ``Ts`` (T_ego_cam) and ``masks`` (self-occlusion, True / > 127 = scene; or None) are indexed by
+    camera."""
     def m(k):
         return None if masks is None else masks[k]
 
@@ -251,7 +294,8 @@ def overlaps_by_neighbour(i: int, depths, Ks, Ts, masks, nbrs) -> list[np.ndarra
 
 def overlap_union(i: int, depths, Ks, Ts, masks, nbrs) -> np.ndarray:
     """(H_i, W_i) bool: the pixels of camera ``i`` seen by at least one camera of ``nbrs`` (its overlap region;
-    all False without neighbours). Arguments as `overlaps_by_neighbour`."""
+    all False without neighbours). Arguments as `overlaps_by_neighbour`: ``Ks`` may be a list of
+    `synth.camera.Intrinsics` (every lens row; depths of each camera's depth kind)."""
     ov = np.zeros(np.shape(depths[i]), bool)
     for o in overlaps_by_neighbour(i, depths, Ks, Ts, masks, nbrs):
         ov |= o

@@ -1,7 +1,9 @@
 """A sequence's image formation after the render: fog (`synth.weather`), then the sensor (`synth.sensor`).
 
 The renderer's sRGB image is decoded to linear light once, fogged from the exact depth, exposed, white
-balanced, vignetted, made noisy, and encoded back to uint8 sRGB. When `sensor` and `weather` are at their
+balanced, vignetted, made noisy, and encoded back to uint8 sRGB. A lens other than pinhole (`synth.lens_image`)
+fogs by the distance along each pixel's own ray (`synth.weather.ray_distance` of its depth kind); vignetting is
+a falloff with the radius on the sensor, whatever the lens. When `sensor` and `weather` are at their
 defaults `for_sequence` returns None and `synth.render` writes the renderer's bytes untouched.
 
 Example::
@@ -50,7 +52,8 @@ class SequencePhotometry:
         if self.fog_on:
             ray = self._ray.get(cam.name)
             if ray is None or ray.shape != depth.shape:
-                ray = self._ray[cam.name] = ray_distance(np.ones_like(depth), cam.K)  # |K^-1 p| per pixel
+                lens = cam.K if cam.model == "pinhole" else cam.intrinsics  # range per unit depth of its kind
+                ray = self._ray[cam.name] = ray_distance(np.ones_like(depth), lens)  # |K^-1 p| per pixel (pinhole)
             airlight = np.asarray(self.airlight) * np.asarray(light_gain)
             linear = apply_fog(linear, ray * depth, self.density, airlight)
         if not self.sensor_on:

@@ -170,7 +170,8 @@ class LabelFrames:
         if prev is not None:
             (d0, i0, e0, T0, x0), f0 = prev, f.frame - 1
             (k0, p0), (k1, p1) = self._file(flow, name, f0), self._file(valid, name, f0)
-            args = (d0, i0, e0, f.cam.K, T0, f.T_world_cam, mover_motion(self.mover_T, x0, x), depth, f.inst)
+            lens = f.cam.K if f.cam.model == "pinhole" else f.cam.intrinsics  # flow through the camera's lens
+            args = (d0, i0, e0, lens, T0, f.T_world_cam, mover_motion(self.mover_T, x0, x), depth, f.inst)
             self.sink.flow((k0, k1), (p0, p1), self.compression, args)
         self._prev[name] = (depth, f.inst, f.res["ego"], f.T_world_cam, x)
 

@@ -185,7 +185,7 @@ def make_preview(ds: Dataset, out: str | Path, seq: str | None = None, frame: in
     rows = []
     cams = list(ds.cameras)
     titles, Ts = camera_titles(ds, seq, frame)
-    dl, Ks = [depths[c.name] for c in cams], [c.K for c in cams]
+    dl, Ks = [depths[c.name] for c in cams], [c.intrinsics for c in cams]  # any lens row (synth.overlap)
     masks = [ds.mask(c.name) for c in cams]
     for i, cam in enumerate(cams):
         rgb = ds.read_rgb(seq, cam.name, frame)

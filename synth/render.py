@@ -34,6 +34,7 @@ from synth.config import DataConfig
 from corelib.configlib import build_config, config_hash, config_to_dict
 from corelib.hashing import sha256_file
 from synth.files import OutputFolderError, frame_stem, read_json, write_depth_exr, write_json, write_png  # noqa: F401 (re-exported)
+from synth.lens_image import render_camera
 from synth.lighting import draw_sequence_lighting, frame_gains
 from synth.manifest import (MARKER_DIR, RECORD, assign_splits, began_with, complete_sequences,  # noqa: F401
                             finalize, label_kinds, sequence_id)
@@ -94,8 +95,8 @@ def render_masks(cfg: DataConfig, rig: Rig) -> dict[str, np.ndarray]:
     r.load_scene(scene, make_ego_mesh(cfg))
     light = LightState((0, 0, 1), (1, 1, 1), (1, 1, 1), (1, 1, 1), (1, 1, 1), shadows=False)
     masks = {}
-    for cam in rig.cameras:
-        out = r.render(cam.K, cam.T_ego_cam, 0, light, size=(cam.width, cam.height))
+    for cam in rig.cameras:  # a lens other than pinhole: formed from its faces (synth.lens_image)
+        out = render_camera(r, cam, cam.T_ego_cam, 0, light)
         masks[cam.name] = np.where(out["ego"], 0, 255).astype(np.uint8)
     return masks
 
@@ -144,13 +145,13 @@ def render_sequence(cfg_dict: dict, out_dir: str, index: int, progress_queue=Non
             for c, cam in enumerate(rig.cameras):
                 x = f if times is None else times.frame_index(c, f)  # each camera at its own time
                 T_world_cam = (T_world_ego if times is None else times.T_world_ego(c, f)) @ cam.T_ego_cam
+                # a pinhole camera: one render (its bytes as ever); another lens: formed from pinhole faces
                 if shutter is None:
-                    res = r.render(cam.K, T_world_cam, x, seq_light.light, gains[cam.name],
-                                   size=(cam.width, cam.height), labels=bool(kinds))
+                    res = render_camera(r, cam, T_world_cam, x, seq_light.light, gains[cam.name], labels=bool(kinds))
                 else:  # several times per image (synth.shutter): the ego and the movers at each
-                    res = shutter.render(lambda xs, cam=cam, g=gains[cam.name]: r.render(
-                        cam.K, scene.ego_pose_at(xs) @ cam.T_ego_cam, xs, seq_light.light, g,
-                        size=(cam.width, cam.height), labels=bool(kinds)), x, cam.height)
+                    res = shutter.render(lambda xs, cam=cam, g=gains[cam.name]: render_camera(
+                        r, cam, scene.ego_pose_at(xs) @ cam.T_ego_cam, xs, seq_light.light, g,
+                        labels=bool(kinds)), x, cam.height)
                 stem = frame_stem(f)
                 rgb = res["rgb"] if photo is None else photo.apply(c, cam, f, res["rgb"], res["depth"], gains[cam.name])
                 sink.rgb(f"{seq}/{cam.name}/{stem}", partial / cam.name / stem, rgb, cfg.render.png_compression,

@@ -53,11 +53,13 @@ MAX_TRIGGER_MS = 500.0
 
 
 class CameraConfig(StrictModel):
-    """Image size and lens. ``hfov_deg`` is used in ``spacing`` mode (solved in ``fov`` mode)."""
+    """Image size and lens. ``hfov_deg`` is used in ``spacing`` mode (solved in ``fov`` mode); above
+    `MAX_PINHOLE_HFOV` only for a rig whose cameras have a range-depth (fisheye) lens (`build_rig` refuses
+    another, naming the camera)."""
 
     width: int = Field(320, ge=16, le=MAX_CAMERA_PX)
     height: int = Field(192, ge=16, le=MAX_CAMERA_PX)
-    hfov_deg: float = Field(70.0, gt=20.0, le=150.0)
+    hfov_deg: float = Field(70.0, gt=20.0, le=MAX_FISHEYE_HFOV)
 
 
 class CameraOverride(StrictModel):
@@ -148,6 +150,17 @@ class RigConfig(StrictModel):
     trigger: Literal["synchronous", "offsets", "lidar_sweep"] = added_key("synchronous")
     trigger_offsets_ms: list[float] | None = added_key(None)
     lidar_hz: float = added_key(20.0, ge=2.0, le=100.0)
+    # issue 59: the cameras the rig has, a subset of CAMERA_NAMES (null = all six; e.g. four fisheyes); the ring's
+    # pairs join consecutive ones in rig order. Per-camera lists (trigger_offsets_ms, sensor) stay one per name.
+    active_cameras: list[str] | None = added_key(None)
+
+    @field_validator("active_cameras")
+    @classmethod
+    def _active(cls, v):
+        if v is not None and not (len(v) >= 2 and len(set(v)) == len(v) and all(n in CAMERA_NAMES for n in v)):
+            raise ValueError(f"rig.active_cameras must name at least 2 distinct cameras of {', '.join(CAMERA_NAMES)}, "
+                             f"got {str(v)[:200]}")
+        return v
 
     @field_validator("trigger_offsets_ms")
     @classmethod
@@ -172,6 +185,14 @@ class RigConfig(StrictModel):
         if bad:
             raise ValueError(f"unknown camera(s) {', '.join(map(str, bad))[:200]}; the rig's: {', '.join(CAMERA_NAMES)}")
         return v
+
+    @model_validator(mode="after")
+    def _cameras_active(self) -> "RigConfig":
+        off = [k for k in self.cameras if self.active_cameras is not None and k not in self.active_cameras]
+        if off:
+            raise ValueError(f"rig.cameras sets {', '.join(off)[:200]}, not in rig.active_cameras "
+                             f"({', '.join(self.active_cameras)})")
+        return self
 
 
 @dataclass(frozen=True)
@@ -304,20 +325,30 @@ _MOUNTS = {
 }
 
 
+def active_names(rig: RigConfig) -> tuple[str, ...]:
+    """The rig's cameras in rig order: `CAMERA_NAMES`, or those of ``rig.active_cameras``."""
+    return tuple(n for n in CAMERA_NAMES if rig.active_cameras is None or n in rig.active_cameras)
+
+
+def ring_pairs(n: int) -> tuple[tuple[int, int], ...]:
+    """Adjacent pairs of a ring of `n` cameras in rig order: (0, 1) (1, 2) ... (n - 1, 0); one pair for two."""
+    return RING_PAIRS if n == len(CAMERA_NAMES) else ((0, 1),) if n == 2 else tuple((i, (i + 1) % n) for i in range(n))
+
+
 def camera_sizes_of(rig: RigConfig, camera: CameraConfig) -> dict[str, tuple[int, int]]:
     """{camera: (width, height)} in rig order: ``camera.width`` x ``camera.height``, or the camera's own
     ``rig.cameras.<CAM>.width`` / ``.height``."""
     out = {}
-    for name in CAMERA_NAMES:
+    for name in active_names(rig):
         o = rig.cameras.get(name) or CameraOverride()
         out[name] = (camera.width if o.width is None else o.width, camera.height if o.height is None else o.height)
     return out
 
 
 def build_rig(rig: RigConfig, camera: CameraConfig) -> Rig:
-    """The six cameras for a rig config (see module docstring for the layout)."""
+    """The six cameras for a rig config (see module docstring for the layout; ``rig.active_cameras``: those)."""
     hfov, s = solve_layout(rig.overlap, rig.overlap_mode, camera.hfov_deg)
-    if hfov >= 179.0:
+    if rig.overlap_mode == "fov" and hfov >= 179.0:
         raise ValueError(f"rig.overlap={rig.overlap} in fov mode needs hfov {hfov:.1f} deg (max 179)")
     if rig.overlap_mode == "spacing":
         yaws = {"CAM_FRONT": 0.0, "CAM_FRONT_RIGHT": -s, "CAM_BACK_RIGHT": -(180.0 - s), "CAM_BACK": 180.0,
@@ -328,11 +359,14 @@ def build_rig(rig: RigConfig, camera: CameraConfig) -> Rig:
     pitches = {n: 0.0 for n in CAMERA_NAMES}
     pitches["CAM_BACK_RIGHT"] = pitches["CAM_BACK_LEFT"] = rig.side_pitch_deg
     cams, sizes = [], camera_sizes_of(rig, camera)
-    for name in CAMERA_NAMES:
+    for name in active_names(rig):
         o = rig.cameras.get(name) or CameraOverride()
         yaw = yaws[name] if o.yaw_deg is None else o.yaw_deg
         pitch = pitches[name] if o.pitch_deg is None else o.pitch_deg
         h = hfov if o.hfov_deg is None else o.hfov_deg
+        if h > MAX_PINHOLE_HFOV and camera_table.depth_kind(o.model or "pinhole") == "z_depth":
+            raise ValueError(f"camera.hfov_deg {h:g} needs a range-depth (fisheye) camera model; rig.cameras.{name}"
+                             f".model is {o.model or 'pinhole'} (up to {MAX_PINHOLE_HFOV:g} degrees)")
         T = np.eye(4)
         T[:3, :3] = rotation_ego_cam(math.radians(yaw), math.radians(pitch))
         mx, my, mz = _MOUNTS[name]
@@ -340,7 +374,7 @@ def build_rig(rig: RigConfig, camera: CameraConfig) -> Rig:
         w, ht = sizes[name]
         lens = (o.model or "pinhole", tuple(o.dist or ()))
         cams.append(CameraSpec(name, w, ht, intrinsics_for(w, ht, h, *lens), T, h, yaw, pitch, *lens))
-    return Rig(tuple(cams), RING_PAIRS, rig.overlap, rig.overlap_mode, s)
+    return Rig(tuple(cams), ring_pairs(len(cams)), rig.overlap, rig.overlap_mode, s)
 
 
 def ego_body_mesh(layer_body: int, layer_glass: int, layer_tyre: int, camera_height_m: float = 1.6) -> Mesh:

@@ -151,12 +151,15 @@ class CameraSensor:
 
 def draw_camera_sensors(cfg: SensorConfig, seed: int, index: int, names) -> dict[str, CameraSensor]:
     """Each camera's values for sequence `index`: the configured offset / gains times the drawn spread."""
+    from synth.rig import CAMERA_NAMES
+
     out = {}
     for c, name in enumerate(names):
         rng = np.random.default_rng(np.random.SeedSequence([seed, index, SENSOR_DRAWS, c]))
-        ev = cfg.exposure_ev[c] if isinstance(cfg.exposure_ev, list) else cfg.exposure_ev
+        k = CAMERA_NAMES.index(name) if name in CAMERA_NAMES else c  # a list holds one entry per name
+        ev = cfg.exposure_ev[k] if isinstance(cfg.exposure_ev, list) else cfg.exposure_ev
         ev += float(rng.normal(0.0, cfg.exposure_spread_ev)) if cfg.exposure_spread_ev > 0 else 0.0
-        wb = np.asarray(cfg.white_balance[c] if isinstance(cfg.white_balance[0], list) else cfg.white_balance)
+        wb = np.asarray(cfg.white_balance[k] if isinstance(cfg.white_balance[0], list) else cfg.white_balance)
         if cfg.white_balance_spread > 0:
             d = np.exp(rng.normal(0.0, cfg.white_balance_spread, 3))
             wb = wb * d / d[1]

@@ -49,7 +49,9 @@ def trigger_offsets_s(cfg: RigConfig, rig: Rig) -> np.ndarray | None:
     if cfg.trigger == "synchronous":
         return None
     if cfg.trigger == "offsets":
-        return np.asarray(cfg.trigger_offsets_ms, np.float64) / 1000.0
+        from synth.rig import CAMERA_NAMES  # one offset per name: the rig's cameras pick theirs
+
+        return np.asarray(cfg.trigger_offsets_ms, np.float64)[[CAMERA_NAMES.index(c.name) for c in rig.cameras]] / 1000.0
     return np.array([lidar_sweep_offset_s(c.yaw_deg, cfg.lidar_hz) for c in rig.cameras])
 
 

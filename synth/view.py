@@ -187,16 +187,20 @@ def mesh3d(rr, mesh):
                      vertex_colors=mesh.colors)
 
 
-def backproject(depth: np.ndarray, K: np.ndarray, T_ego_cam: np.ndarray, keep: np.ndarray,
+def backproject(depth: np.ndarray, K, T_ego_cam: np.ndarray, keep: np.ndarray,
                 stride: int = 1) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Ego-frame points of the pixels of `depth` ((H, W) z-depth, m) with `keep` and depth > 0, every
-    `stride`-th row and column: ((M, 3) float32 metres, rows (M,), cols (M,)). Pixel centres at +0.5."""
+    """Ego-frame points of the pixels of `depth` ((H, W) depth, m, of the camera's depth kind) with `keep` and
+    depth > 0, every `stride`-th row and column: ((M, 3) float32 metres, rows (M,), cols (M,)). Pixel centres at
+    +0.5. `K`: a pinhole K or a `synth.camera.Intrinsics` (any lens row: its rays, z = 1 or unit by its kind)."""
     H, W = depth.shape
     v, u = np.mgrid[0:H:stride, 0:W:stride]
     z = depth[v, u]
     ok = keep[v, u] & (z > 0)
     v, u, z = v[ok], u[ok], z[ok].astype(np.float64)
     X = pixel_rays_at(K, u, v) * z
+    if not np.isfinite(X).all():  # a lens pixel without a ray (its depth is 0 when written by synth)
+        fin = np.isfinite(X).all(0)
+        X, v, u = X[:, fin], v[fin], u[fin]
     T = np.asarray(T_ego_cam, np.float64)
     return (T[:3, :3] @ X + T[:3, 3:4]).T.astype(np.float32), v, u
 
@@ -232,6 +236,7 @@ class RigRecorder:
             T = np.asarray(cam.T_ego_cam, np.float64)
             if self.times is None:  # else per frame at the camera's own time (`log_frame`)
                 rec.log(path, rr.Transform3D(translation=T[:3, 3], mat3x3=T[:3, :3]), static=True)
+            # Rerun's camera is a pinhole: a lens camera's K draws its frustum (its images are its own, distorted)
             rec.log(path, rr.Pinhole(image_from_camera=np.asarray(cam.K, np.float64),
                                      resolution=[cam.width, cam.height], camera_xyz=rr.ViewCoordinates.RDF,
                                      image_plane_distance=FRUSTUM_M),
@@ -316,12 +321,12 @@ class RigRecorder:
                 continue
             depths[cam.name] = depth
             rec.log(f"{path}/depth", rr.DepthImage(depth, meter=1.0))
-            p, v, u = backproject(depth, cam.K, Ts[c], np.asarray(ds.mask(cam.name), bool), self.stride)
+            p, v, u = backproject(depth, cam.intrinsics, Ts[c], np.asarray(ds.mask(cam.name), bool), self.stride)
             pts.append(p)
             cols.append(rgb[v, u])
         if depths:
             cams = list(ds.cameras)
-            dl, Ks = [depths[c.name] for c in cams], [c.K for c in cams]
+            dl, Ks = [depths[c.name] for c in cams], [c.intrinsics for c in cams]  # any lens row
             masks = [ds.mask(c.name) for c in cams]
             for c, cam in enumerate(cams):
                 code = np.zeros((cam.height, cam.width), np.uint8)

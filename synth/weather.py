@@ -67,12 +67,20 @@ def draw_fog_density(cfg: WeatherConfig, seed: int, index: int) -> float:
     return float(rng.uniform(lo, hi))
 
 
-def ray_distance(depth: np.ndarray, K: np.ndarray) -> np.ndarray:
-    """(H, W) z-depth in metres (0 = no surface) -> (H, W) distance along each pixel centre's ray (0 stays 0)."""
+def ray_distance(depth: np.ndarray, K) -> np.ndarray:
+    """(H, W) depth in metres of the camera's depth kind (0 = no surface) -> (H, W) distance along each pixel
+    centre's ray (0 stays 0). `K`: a pinhole K, or a `synth.camera.Intrinsics` of any lens row (a ``range``
+    camera's depth is the distance itself; a pixel without a ray has none, 0)."""
+    from synth import camera
     from synth.protocol import pixel_rays
 
     H, W = depth.shape
-    rays = pixel_rays(K, W, H)  # (H, W, 3) at z = 1
+    if isinstance(K, camera.Intrinsics) and K.model != "pinhole":
+        if camera.depth_kind(K) == "range":
+            return depth.astype(np.float64)
+        norm = np.linalg.norm(camera.rays(K, H, W), axis=0).reshape(H, W)  # z = 1 rays
+        return depth.astype(np.float64) * np.nan_to_num(norm, nan=0.0)
+    rays = pixel_rays(K.K if isinstance(K, camera.Intrinsics) else K, W, H)  # (H, W, 3) at z = 1
     return depth.astype(np.float64) * np.linalg.norm(rays, axis=-1)
 
 

@@ -1,7 +1,7 @@
 """The camera's lens travels with the data (issue 59 item 1): the rig config's per-camera ``model`` / ``dist``
 (added keys: a pinhole rig keeps its hash), `synth.rig.CameraSpec`'s JSON (a pinhole camera's rig.json entry has
 the same keys and bytes as before lenses), the reader's check of rig.json, and the refusals of what is pinhole
-by its maths or format (rendering until image formation exists; the nuScenes and glTF exports)."""
+by its format (the nuScenes and glTF exports); rendering a lens is formed by `synth.lens_image`."""
 from __future__ import annotations
 
 import json
@@ -76,16 +76,30 @@ def test_a_pinhole_rig_keeps_its_hash_and_a_lens_changes_it():
     assert hashed_dict(lens)["rig"]["cameras"]["CAM_FRONT"]["dist"] == [-0.05, 0.01, 0, 0, 0]
 
 
-def test_rendering_refuses_a_lens_in_one_line():
-    from corelib.configlib import load_config
+def test_a_lens_renders_and_the_rig_refuses_what_it_cannot_form_in_one_line():
+    """Rendering a lens is no longer refused (`synth.lens_image` forms it); a fisheye field of view on a z-depth
+    camera is, naming the camera, and so is a wrong camera subset (rig.active_cameras)."""
+    from corelib.configlib import ConfigError, load_config
     from synth.calibrate import geometric_rig
     from synth.config import DataConfig
+    from synth.render import make_rig
 
     cfg = load_config(DataConfig, overrides=["rig.cameras.CAM_BACK.model=radtan",
                                              "rig.cameras.CAM_BACK.dist=[-0.05,0.01,0,0,0]"])
-    with pytest.raises(ValueError, match=r"^rendering is pinhole only .*issue 59 item 3\); rig.cameras "
-                                         r"CAM_BACK.model=radtan$"):
-        geometric_rig(cfg)
+    assert geometric_rig(cfg) is cfg.rig and make_rig(cfg).cameras[3].model == "radtan"
+    wide = load_config(DataConfig, overrides=["camera.hfov_deg=190", "rig.cameras.CAM_FRONT.model=kannala_brandt",
+                                              "rig.cameras.CAM_FRONT.dist=[0,0,0,0]"])
+    with pytest.raises(ValueError, match=r"^camera.hfov_deg 190 needs a range-depth \(fisheye\) camera model; "
+                                         r"rig.cameras.CAM_FRONT_RIGHT.model is pinhole \(up to 150 degrees\)$"):
+        make_rig(wide)
+    four = load_config(DataConfig, overrides=["rig.active_cameras=[CAM_BACK,CAM_FRONT,CAM_FRONT_LEFT]"])
+    rig = make_rig(four)
+    assert rig.names == ["CAM_FRONT", "CAM_BACK", "CAM_FRONT_LEFT"] and rig.neighbours == ((0, 1), (1, 2), (2, 0))
+    with pytest.raises(ConfigError, match=r"rig.active_cameras must name at least 2 distinct cameras"):
+        load_config(DataConfig, overrides=["rig.active_cameras=[CAM_FRONT,CAM_TOP]"])
+    with pytest.raises(ConfigError, match=r"rig.cameras sets CAM_BACK, not in rig.active_cameras"):
+        load_config(DataConfig, overrides=["rig.active_cameras=[CAM_FRONT,CAM_FRONT_LEFT]",
+                                           "rig.cameras.CAM_BACK.yaw_deg=170"])
 
 
 def test_the_reader_refuses_a_bad_lens_in_rig_json():

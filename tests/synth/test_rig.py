@@ -114,6 +114,7 @@ def test_an_added_key_at_its_default_keeps_every_hash():
     del d["sensor"], d["weather"]  # the sensor model and fog (issue 48): every knob off by default
     del d["ego"]  # the ego body's appearance (issue 57): static by default
     del d["rig"]["trigger"], d["rig"]["trigger_offsets_ms"], d["rig"]["lidar_hz"]  # trigger times (issue 48): synchronous
+    del d["rig"]["active_cameras"]  # a subset of the cameras (issue 59): all six by default
     assert d["scene"]["family_weights"] == {"urban": 1.0, "residential": 1.0, "highway": 1.0}
     d["scene"]["family_weights"] = [1.0, 1.0, 1.0]  # hashed in its positional form of old (SceneConfig.hashed_form)
     assert config_hash(cfg) == json_sha256(d)
@@ -126,10 +127,11 @@ def test_an_added_key_at_its_default_keeps_every_hash():
     for key in ("model", "dist"):  # a camera's lens (issue 59): pinhole by default
         bd["rig"]["cameras"]["CAM_BACK"].pop(key, None)
     del bd["rig"]["overlap_target"], bd["labels"], bd["sensor"], bd["weather"], bd["ego"]
-    del bd["rig"]["trigger"], bd["rig"]["trigger_offsets_ms"], bd["rig"]["lidar_hz"]
+    del bd["rig"]["trigger"], bd["rig"]["trigger_offsets_ms"], bd["rig"]["lidar_hz"], bd["rig"]["active_cameras"]
     bd["scene"]["family_weights"] = [1.0, 1.0, 1.0]
     assert config_hash(back) == json_sha256(bd)
     assert config_hash(load_config(DataConfig, None, ["rig.overlap_target=pixels"])) != config_hash(cfg)
+    assert config_hash(load_config(DataConfig, None, ["rig.active_cameras=[CAM_FRONT,CAM_BACK]"])) != config_hash(cfg)
     assert config_hash(load_config(DataConfig, None, ["labels.flow=true"])) != config_hash(cfg)
     from study.config import SweepConfig
 
