@@ -228,3 +228,30 @@ def format_followup(ideal: dict, cond: dict, planned: int, what: str) -> str:
         L.append(f"| {w} | " + " | ".join(f"{per[m][w]:+.4f}" if w in per[m] else "—" for m in methods)
                  + f" | {v:+.4f} |")
     return "\n".join(L) + "\n"
+
+
+def _values(base: dict, cond: dict) -> dict:
+    """One pair of conditions' figures for a preface (`study.preface`): ``change.<method>`` and ``depcon.<method>``
+    (base - cond), ``contrast`` (the plan's changed arm's change - the base arm's, with ``lo`` / ``hi``, its 95 %
+    bounds, and ``hl_lo`` / ``hl_hi``, the Hodges-Lehmann interval's) and ``depcon_contrast``."""
+    (key, _), (dep, _) = figures(base)
+    ms = _methods(base)
+    n = contrast(base, cond, key)
+    lo, hi = n["rank"]["ci"]
+    return {"change": {m: change(base, cond, m, key) for m in ms},
+            "depcon": {m: change(base, cond, m, dep) for m in ms},
+            "contrast": {**n, "lo": n["mean"] - n["ci95"], "hi": n["mean"] + n["ci95"], "hl_lo": lo, "hl_hi": hi},
+            "depcon_contrast": contrast(base, cond, dep)}
+
+
+def preface_values(ideal: dict, conditions: dict, followup: tuple[dict, dict] | None) -> dict:
+    """The sensor page's preface values (`study.preface.fill`): ``<condition>`` (each of ``conditions``, {name:
+    results}, against the ideal camera: `_values`), ``between`` (``sensor_trigger_compensate`` - its ``_assume``, where
+    both are given: each named by its part, e.g. ``sensor_exposure``) and ``followup`` (the 14-world follow-up's ideal - exposure)."""
+    out = {name: _values(ideal, r) for name, r in conditions.items() if r is not None}
+    a, c = conditions.get("sensor_trigger_assume"), conditions.get("sensor_trigger_compensate")
+    if a is not None and c is not None:
+        out["between"] = _values(c, a)
+    if followup is not None:
+        out["followup"] = _values(*followup)
+    return out

@@ -1,0 +1,113 @@
+"""A results page's preface as a template (issue 60, item 3): every figure a preface states is a field filled from
+the page's committed results when the page is built, never typed by hand.
+
+A field is ``{dotted.path}`` or ``{dotted.path:spec}``, resolved in the page's values (`sweep_values`, and a page's
+own, e.g. `study.sensor.preface_values`): ``spec`` is a `format` spec (``+.4f``) or ``diffN``, a paired difference
+with its interval through the one formatter (`study.results.fmt_diff`, N decimals). Example::
+
+    fill("MCDP (m = 2) gains {gain.mcdp_m2.o030.all:diff3} at 0.30", sweep_values(results))
+    # -> 'MCDP (m = 2) gains +0.005 ± 0.012 at 0.30'
+
+Anything else in braces is left as it is. A field the values do not hold is a `PrefaceError` naming it.
+"""
+from __future__ import annotations
+
+import re
+from typing import Any, Callable, Mapping
+
+#: ``{a.b.c}`` or ``{a.b.c:spec}``: names of letters, digits and underscores
+FIELD = re.compile(r"\{([A-Za-z_]\w*(?:\.\w+)*)(?::([^{}\s]*))?\}")
+#: a figure with its interval typed by hand: a digit, then ± (or +-) and a digit
+TYPED_FIGURE = re.compile(r"\d\s*(?:±|\+-)\s*\d")
+
+
+class PrefaceError(ValueError):
+    """A template field the page's values do not hold, or a spec that does not fit its value; one line."""
+
+
+def _resolve(values: Mapping | Callable, path: list[str], field: str) -> Any:
+    node: Any = values
+    for i, name in enumerate(path):
+        if callable(node) and not isinstance(node, Mapping):  # a family computed on demand: it reads the rest
+            return node(path[i:])
+        if not isinstance(node, Mapping) or name not in node:
+            raise PrefaceError(f"{{{field}}}: no {name!r} here (the page's values hold "
+                               f"{', '.join(sorted(node)) if isinstance(node, Mapping) else 'a value, not a table'})")
+        node = node[name]
+    return node
+
+
+def fill(text: str, values: Mapping, where: str = "preface") -> str:
+    """``text`` with every field filled from ``values``; PrefaceError naming ``where`` and the field."""
+    from study.results import fmt_diff
+
+    def one(m: re.Match) -> str:
+        field, spec = m.group(1), m.group(2) or ""
+        try:
+            v = _resolve(values, field.split("."), field)
+            if spec.startswith("diff"):
+                return fmt_diff(v, int(spec[4:] or 4))
+            return format(v, spec)
+        except PrefaceError as exc:
+            raise PrefaceError(f"{where}: {exc}") from None
+        except (KeyError, TypeError, ValueError) as exc:
+            raise PrefaceError(f"{where}: {{{field}:{spec}}}: {exc}") from None
+
+    return FIELD.sub(one, text)
+
+
+def typed_figures(text: str) -> list[str]:
+    """The figures with an interval typed by hand in a template: each 'x ± y' outside a field."""
+    bare = FIELD.sub("FIELD", text)
+    return [bare[max(0, m.start() - 20):m.end() + 8] for m in TYPED_FIGURE.finditer(bare)]
+
+
+#: the regions a sweep page's gain fields name -> the flat-row key (median scaling)
+GAIN_KEYS = {"all": "median.mean.abs_rel", "overlap": "median.overlap.abs_rel",
+             "non_overlap": "median.non_overlap.abs_rel", "dep_con": "dep_con.mean"}
+
+
+def _overlap(name: str) -> float:
+    """``o030`` -> 0.30."""
+    if not re.fullmatch(r"o\d{3}", name):
+        raise PrefaceError(f"{name!r} is not an overlap field (o010 for 0.10)")
+    return int(name[1:]) / 100.0
+
+
+def sweep_values(results: dict) -> dict:
+    """The values a sweep page's preface reads from its results.json:
+
+    - ``gain.<method>.o<overlap>.<region>``: what ``method`` gains over the baseline, paired (`study.paired.
+      paired_gain`: baseline - method on a lower-is-better figure, positive = helps), at overlap o030 = 0.30, on
+      ``region`` (`GAIN_KEYS`: all, overlap, non_overlap pixels at median scaling, or dep_con);
+    - ``primary.<id>.<method>``: a primary comparison of the propagation experiment (`study.primary.comparisons`,
+      at the plan's overlap, median scaling): ``a.mcdp_m2`` = MCDP (m = 2) cut - as trained, non-overlap pixels;
+    - ``plan``: the sweep's plan (`study.primary.plan_of`), e.g. ``plan.delta``."""
+    from mcdp.methods import baseline
+
+    def gain(path: list[str]) -> dict:
+        if len(path) != 3 or path[2] not in GAIN_KEYS:
+            raise PrefaceError(f"gain.{'.'.join(path)}: want gain.<method>.o<overlap>.<region>, region one of "
+                               f"{', '.join(GAIN_KEYS)}")
+        from study.paired import paired_gain
+
+        method, o, region = path[0], _overlap(path[1]), path[2]
+        if method not in results.get("methods", []):
+            raise PrefaceError(f"gain.{'.'.join(path)}: {method!r} is not one of the sweep's methods")
+        return paired_gain(results, o, baseline(), method, GAIN_KEYS[region])
+
+    def primary(path: list[str]) -> dict:
+        from study.primary import comparisons, measure, plan_of
+        from mcdp.methods import short_label
+
+        if len(path) != 2:
+            raise PrefaceError(f"primary.{'.'.join(path)}: want primary.<id>.<method>")
+        o = plan_of(results)["overlap"]
+        for cid, name, a, b, region in comparisons(results, o):
+            if cid == path[0] and name.startswith(short_label(path[1]) + " "):
+                return measure(results, o, a, b, region)["median"]
+        raise PrefaceError(f"primary.{'.'.join(path)}: no such primary comparison in this sweep")
+
+    from study.primary import plan_of
+
+    return {"gain": gain, "primary": primary, "plan": plan_of(results)}
