@@ -24,6 +24,7 @@ import torch
 
 from mcdp.camera import Lens
 from mcdp.inputs import InputField, RigBatch, read_fields, stack
+from mcdp.runs import RunError
 from synth import camera
 
 FRAME_OFFSETS = (-1, 0, 1)
@@ -111,7 +112,7 @@ class RigReader:
             ranged = [f"{c.name} ({c.intrinsics.model})" for c in ds.cameras
                       if camera.depth_kind(c.intrinsics) != "z_depth"]
             if ranged:
-                raise ValueError(f"model.lens=pinhole needs z-depth cameras; {', '.join(ranged)[:200]} store range "
+                raise RunError(f"model.lens=pinhole needs z-depth cameras; {', '.join(ranged)[:200]} store range "
                                  "depth, where z-depth does not exist (use model.lens=rig)")
             self.lens = None
         self.mask_full = [np.asarray(ds.mask(n), dtype=bool) for n in self.cam_names]  # dataset resolution

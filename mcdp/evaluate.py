@@ -39,20 +39,16 @@ Protocol (DESIGN.md, "Evaluation protocol"):
 - Dep Con (paper): for every adjacent pair, both directions, the neighbour's
   prediction is splatted with the z-buffer (``geometry.splat_depth``, source
   pixels outside the neighbour's ego mask dropped) into the target camera, and
-  mean |D^i - D_hat^i| / D_gt over target pixels that are valid and hit.
-- Lenses (issue 59): the overlap split, the bands and Dep Con go through each camera's TRUE lens
-  (`synth.camera`: ``EvalRig.cams``; the overlap's z-test and the splat's z-buffer compare depths of each
-  camera's depth kind), whatever a model assumed in training (``model.lens``). Every metric is computed on
-  the depth kind the dataset stores for the camera: z-depth for pinhole and radtan, RANGE (ray length) for a
-  kannala_brandt camera, where z-depth does not exist beyond 90 degrees; a prediction is read as that kind
-  too. A pixel's range is its z-depth times a factor fixed by the pixel (its ray's length at z = 1), so a pixel's
-  abs_rel, rmse_log and a1-a3 are the same whichever kind it is scored on; sq_rel and rmse are in metres of
-  range there, and the depth range [min_depth, max_depth] applies to range. metrics.json's ``lenses`` says which
-  camera is of which kind. A pinhole rig takes the pinhole path, its numbers unchanged. It is
+  mean |D^i - D_hat^i| / D_gt over target pixels that are valid and hit. It is
   computed on UNSCALED (metric, scaling "none", clamped) predictions only:
   median scaling per image would change the very consistency it measures.
   Per pair: mean over images; per camera: mean of the pairs targeting it;
   mean: mean over all ordered pairs.
+- Lenses (issue 59): the overlap, the bands and Dep Con go through each camera's true lens (``EvalRig.cams``;
+  z-test and z-buffer in each camera's depth kind), whatever a run assumed (``model.lens``). Metrics are of the
+  depth kind the dataset stores: z-depth (pinhole, radtan) or RANGE (kannala_brandt: no z-depth beyond 90 deg);
+  a pixel's abs_rel, rmse_log and a1-a3 are the same either way, sq_rel and rmse are metres of range
+  (docs/DESIGN.md, "Evaluation protocol"). metrics.json's ``lenses`` names each camera's kind.
 
 metrics.json layout (the returned dict; floats may be NaN where nothing was
 valid, e.g. a camera without neighbours has NaN overlap metrics)::
@@ -60,8 +56,7 @@ valid, e.g. a camera without neighbours has NaN overlap metrics)::
     {"split": str, "n_samples": int, "min_depth": float, "max_depth": float,
      "frame_stride": int, "skip_ends": bool, "cameras": [names in rig order],
      "ground_truth": {"kind": "dense z-depth (rendered)" | "lidar", ...},   # ds.ground_truth
-     "lenses": {cam: {"model": row name, "depth_kind": "z_depth" | "range"}},  # only for a rig with a lens
-                                                                             # other than pinhole
+     "lenses": {cam: {"model": row name, "depth_kind": "z_depth" | "range"}},  # a rig with a lens only
      "stages": {stage: {                     # predict_fn's stages + "final" (= last stage)
         "none" | "median" | "rig_median": {
             "mean": {abs_rel, sq_rel, rmse, rmse_log, a1, a2, a3},
@@ -158,11 +153,9 @@ def _as_stack(pred, names, shapes, stage: str) -> list:
 
 
 def _splat_pairs(depths, pairs, Ks, T_c_c, shapes, scene_masks, lens=None):
-    """For each ordered pair (j, i): depths[j] splatted into camera i (float64 torch, one batched call).
+    """For each ordered pair (j, i): depths[j] splatted into camera i (float64 torch, one batched call), through
+    ``lens`` (`EvalRig.lens`; None: the pinhole path): depths of each camera's kind, the splat of the target's.
 
-    ``lens``: None (a pinhole rig: the pinhole path) or (row names (N,), (N, D) parameters) per camera
-    (`EvalRig.lens`): each depth is then of its camera's depth kind, unprojected and projected through the true
-    lenses, and the splatted depth is of the target's kind (`geometry.splat_depth`).
     Returns lists of (H_i, W_i) splatted depth and bool hit, in ``pairs`` order.
     """
     if not pairs:
