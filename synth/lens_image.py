@@ -165,7 +165,7 @@ def _plan(model: str, K_bytes: bytes, dist: tuple, W: int, H: int) -> LensPlan:
         R.flags.writeable = False
         face[sel] = len(faces)
         faces.append(Face(R, Kf, int(size[0]), int(size[1])))
-        uv[:, sel] = np.stack([f * xy[0] + cx, f * xy[1] + cy])
+        uv[:, sel] = camera.project(Kf, q)[0]  # the face's pinhole row (q: in front of the face)
         # the point at face-z z on this ray: z * (xy, 1) in the face frame; its depth in the camera's kind
         r_face = np.stack([xy[0], xy[1], np.ones(sel.size)])
         scale[sel] = (R @ r_face)[2] if kind == "z_depth" else np.linalg.norm(r_face, axis=0)
