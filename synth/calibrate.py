@@ -82,7 +82,8 @@ def measure(cfg, geometric: float, renderer, scenes) -> float:
     from synth.gl_backend import LightState
     from synth.lens_image import render_camera
     from synth.overlap import overlap_fraction_counts, pair_overlaps
-    from synth.rig import build_rig, ego_body_mesh
+    from synth.ego_body import ego_body_mesh
+    from synth.rig import build_rig
 
     rig = build_rig(cfg.rig.model_copy(update={"overlap": geometric, "overlap_target": "angle"}), cfg.camera)
     ego = ego_body_mesh(LAYER["car_paint"], LAYER["car_glass"], LAYER["tyre"], cfg.rig.camera_height_m)

@@ -45,7 +45,7 @@ from synth.rig import CameraSpec
 # LIDAR_TOP axes in the ego frame: lidar x = ego -y (right), lidar y = ego x (forward), lidar z = ego z.
 R_EGO_LIDAR = np.array([[0.0, 1.0, 0.0], [-1.0, 0.0, 0.0], [0.0, 0.0, 1.0]])
 
-# the ego body's footprint in the ego frame (synth.rig.ego_body_mesh: x -1.0..3.6, |y| <= 0.925), +0.1 m
+# the ego body's footprint in the ego frame (synth.ego_body.ego_body_mesh: x -1.0..3.6, |y| <= 0.925), +0.1 m
 EGO_FOOTPRINT = ((-1.1, 3.7), (-1.03, 1.03))
 
 

@@ -40,7 +40,8 @@ from synth.manifest import (MARKER_DIR, RECORD, assign_splits, began_with, compl
                             finalize, label_kinds, sequence_id)
 from synth.photometry import SequencePhotometry
 from synth.pipeline import FrameSink, LabelFrames, ScenePrefetch, build_sequence_scene
-from synth.rig import Rig, build_rig, ego_body_mesh
+from synth.ego_body import ego_body_mesh
+from synth.rig import Rig, build_rig
 from synth.shutter import Shutter
 from synth.trigger import CameraTimes
 

@@ -1,6 +1,6 @@
 """The rendered self-occlusion mask is the ego mesh's own projection, in every camera of every rig.
 
-A ray cast of `synth.rig.ego_body_mesh` (Moller-Trumbore in float64, one ray per pixel centre) is
+A ray cast of `synth.ego_body.ego_body_mesh` (Moller-Trumbore in float64, one ray per pixel centre) is
 the reference: the renderer's ego mask must equal the pixels whose ray hits the body, up to a few
 pixels on the silhouette, and its z-depth there must be the ray's. Before the near plane moved
 to 1 cm, the roof that the rear-side cameras look down on was clipped (15 % of their pixels).
