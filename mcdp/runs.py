@@ -278,8 +278,9 @@ def find_checkpoint(run_dir: str | Path, which: str = "auto") -> Path:
 
 # --------------------------------------------------------------------------- the rig a run was trained on
 def rig_differences(run: Path, ds) -> list[str] | None:
-    """How the dataset's rig (per camera: size, K, T_ego_cam) differs from the one the run was trained on
-    (``run.json``'s ``rig``; None for a run written before it was recorded): [] when it is the same."""
+    """How the dataset's rig (per camera: size, K, T_ego_cam, lens model and distortion) differs from the one the
+    run was trained on (``run.json``'s ``rig``; None for a run written before it was recorded): [] when it is the
+    same."""
     try:
         trained = read_json_file(run / "run.json", kind="record").get("rig")
     except (OSError, ValueError, AttributeError):
@@ -299,6 +300,13 @@ def rig_differences(run: Path, ds) -> list[str] | None:
             old = np.asarray(c.get(key), np.float64)
             if old.shape != new.shape or not np.allclose(old, new, rtol=1e-6, atol=1e-6):
                 diffs.append(f"{cam.name} {key}")
+        lens = cam.intrinsics  # the lens too (issue 59; a record without one is pinhole): a K alone can agree
+        model, dist = c.get("model", "pinhole"), list((c.get("dist") or {}).values())
+        if model != lens.model:
+            diffs.append(f"{cam.name} lens {model} -> {lens.model}")
+        elif len(dist) != len(lens.dist) or not np.allclose(np.asarray(dist, np.float64), lens.dist, rtol=1e-6,
+                                                             atol=1e-9):
+            diffs.append(f"{cam.name} lens {model} dist")
     return diffs
 
 
