@@ -186,6 +186,12 @@ class LossConfig(StrictModel):
         ones for both (the paper's Table 1 row "Mono2 without the self-occlusion masks"). An added key.
     consistency_ego_mask: default true: L_con skips pixels on either camera's ego body; false: it does not
         (its own switch, for MCDP's row of the same ablation). An added key.
+    temporal_weight: the weight of the temporal photometric term (each camera's reprojection from its own frames
+        t-1 and t+1; default 1, Monodepth2's and vidar FSM's). 0 trains on a method's other terms alone: for FSM,
+        its spatial and spatio-temporal terms (the cross-view-only ablation, OccNeRF arXiv 2312.09243 Table VI;
+        vidar's FSM has no switch for it, so this one scales the term and keeps everything else, smoothness
+        included). For Mono2 and MCDP a weight of 0 leaves only smoothness (and L_con): no depth signal. An added
+        key; at 1 the step is bit-identical to before it (the term is not multiplied).
     """
 
     ssim_alpha: Float = Field(0.85, ge=0.0, le=1.0)
@@ -198,6 +204,7 @@ class LossConfig(StrictModel):
     multiscale: Literal["full_res", "per_scale"] = added_key("full_res")
     photometric_ego_mask: bool = added_key(True)
     consistency_ego_mask: bool = added_key(True)
+    temporal_weight: Float = added_key(1.0, ge=0.0, le=MAX_WEIGHT, allow_inf_nan=False)
 
     @model_validator(mode="after")
     def _check(self) -> "LossConfig":

@@ -233,7 +233,8 @@ class SelfSupervisedSystem(torch.nn.Module):
                                                  cfg.loss.ssim_alpha, cfg.loss.out_of_view, ident=ident,
                                                  reduce=cfg.loss.reprojection)
                 smooth = smoothness_loss(outputs["disp", stage, s].float(), img_s[s], mask_s[s])
-                lp_sum = lp_sum + rep + cfg.loss.smoothness_weight * smooth / (2**s)
+                rep_w = rep if cfg.loss.temporal_weight == 1.0 else cfg.loss.temporal_weight * rep  # 1: not multiplied
+                lp_sum = lp_sum + rep_w + cfg.loss.smoothness_weight * smooth / (2**s)
                 if s == 0:
                     losses[f"reprojection/{stage}"] = rep.detach()
                     losses[f"smoothness/{stage}"] = smooth.detach()

@@ -45,6 +45,12 @@ leaves the section empty keeps its config hash; the reasons for the defaults are
   (1 cm -> 1e-4), so the term only bites on clearly inconsistent motions.
 - temporal term 1 and smoothness 1e-3 / 2^s: the system's Monodepth2 terms, as for ``mono2``.
 
+Each term a switch (the calibration's ablations, issue 57): the temporal term ``loss.temporal_weight=0``
+(`mcdp.config.LossConfig`); the spatial and spatio-temporal terms together ``method_params.spatial_weight=0``;
+the spatio-temporal contexts alone ``method_params.spatio_temporal=false`` (the neighbour at t only); pose
+consistency ``method_params.pose_translation_weight=0`` and ``pose_rotation_weight=0`` (it exists only with a
+pose network). Each default leaves the step bit-identical.
+
 Not taken from vidar: its spatial masks also drop the top 15 % and bottom 25 % of image rows (a
 DDAD-specific crop); our renders have exact ego-body masks instead.
 
@@ -76,6 +82,9 @@ class FsmParams(StrictModel):
     pose consistency's translation (per m^2) and rotation (per rad^2) weights."""
 
     spatial_weight: Float = Field(SPATIAL_WEIGHT, ge=0, le=MAX_WEIGHT, allow_inf_nan=False)
+    #: the neighbours' frames t-1 and t+1 among the spatial term's contexts (``CONTEXTS``); false: the neighbour
+    #: at t alone (the spatial term without its spatio-temporal part). vidar's FSM takes both.
+    spatio_temporal: bool = True
     pose_translation_weight: Float = Field(POSE_TRANSLATION_WEIGHT, ge=0, le=MAX_WEIGHT, allow_inf_nan=False)
     pose_rotation_weight: Float = Field(POSE_ROTATION_WEIGHT, ge=0, le=MAX_WEIGHT, allow_inf_nan=False)
 
@@ -197,7 +206,8 @@ def fsm_loss(outputs: dict, batch, ctx: LossContext) -> dict:
             for s in scales:
                 depth = outputs["depth", stage, s].reshape(B, N, 1, H, W)
                 r = spatial_photometric(depth, rgb, mask, batch.K, batch.T_ego_cam, motions,
-                                        tgt, src, cfg.loss.ssim_alpha, lens=batch.lens)
+                                        tgt, src, cfg.loss.ssim_alpha,
+                                        contexts=CONTEXTS if w.spatio_temporal else (0,), lens=batch.lens)
                 st = st + r["pair"].sum() / N
             total = total + st / len(scales)
         out["fsm/spatial"] = w.spatial_weight * total

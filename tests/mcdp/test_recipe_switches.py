@@ -16,7 +16,7 @@ from .test_model import H, RING, W, N, rig_batch, run_cfg, small_model_cfg
 pytestmark = pytest.mark.usefixtures("one_thread")
 
 SWITCHES = {"loss": {"reprojection": "min", "multiscale": "full_res", "photometric_ego_mask": True,
-                     "consistency_ego_mask": True},
+                     "consistency_ego_mask": True, "temporal_weight": 1.0},
             "model": {"warm_start": True, "feature_ego_mask": True}}
 
 
@@ -175,3 +175,50 @@ def test_encoder_depth_refuses_resnet18_weights_in_another_trunk(tmp_path):
 
     with pytest.raises(NetworkError, match="ResNet-18 weights only, the encoder has 50 layers"):
         ResnetEncoder(1, str(tmp_path / "r18.pth"), 50)
+
+
+def test_temporal_weight_scales_the_temporal_term_and_nothing_else():
+    """loss.temporal_weight: the step's photometric loss is w * reprojection + smoothness (smoothness and the
+    logged reprojection unchanged), so 0 leaves smoothness alone; the default is not multiplied (bit-identical)."""
+    batch = rig_batch()
+    by_w = {w: _step_losses(_mono(loss={"temporal_weight": w}), batch) for w in (0.0, 1.0, 2.5)}
+    rep, smooth = by_w[1.0]["reprojection/init"], by_w[1.0]["smoothness/init"]
+    assert rep > 1e-3
+    for w, losses in by_w.items():
+        assert losses["reprojection/init"] == pytest.approx(rep, rel=1e-6)  # logged unweighted
+        assert losses["smoothness/init"] == pytest.approx(smooth, rel=1e-6)
+    # photometric = mean over scales of (w rep_s + smooth terms): linear in w, with the smoothness part at w = 0
+    p0, p1, p25 = (by_w[w]["photometric/init"] for w in (0.0, 1.0, 2.5))
+    assert p1 - p0 > 1e-3
+    assert p25 - p0 == pytest.approx(2.5 * (p1 - p0), rel=1e-4)
+    assert _step_losses(_mono(), batch) == by_w[1.0]
+
+
+def _fsm(**params) -> RunConfig:
+    return run_cfg({"method": "fsm", "bases": 1, "refine_steps": 0}, scale={"source": "odometry"},
+                   method_params=params)
+
+
+def test_fsm_spatio_temporal_switch_keeps_the_neighbour_at_t_only(monkeypatch):
+    """method_params.spatio_temporal=false: FSM's spatial term warps the neighbour at t alone (contexts (0,)),
+    its default the three contexts; the temporal terms are untouched."""
+    import mcdp.methods.fsm as fsm
+
+    assert fsm.FsmParams().spatio_temporal is True  # an unset key: a run without it keeps its config and hash
+    seen = []
+    real = fsm.spatial_photometric
+
+    def spy(*a, **kw):
+        seen.append(tuple(kw["contexts"]))
+        return real(*a, **kw)
+
+    monkeypatch.setattr(fsm, "spatial_photometric", spy)
+    batch = rig_batch()
+    on = _step_losses(_fsm(), batch)
+    assert set(seen) == {fsm.CONTEXTS}
+    seen.clear()
+    off = _step_losses(_fsm(spatio_temporal=False), batch)
+    assert set(seen) == {(0,)}
+    assert on["reprojection/init"] == pytest.approx(off["reprojection/init"], rel=1e-6)
+    assert off["fsm/spatial"] > 0 and abs(on["fsm/spatial"] - off["fsm/spatial"]) > 1e-6
+    assert "fsm/spatial" not in _step_losses(_fsm(spatial_weight=0.0), batch)
