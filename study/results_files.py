@@ -58,12 +58,17 @@ def write_csv(results: dict, path: Path) -> None:
 def read_results(path) -> dict:
     """A sweep's results.json, or its results.csv (`results_from_csv`), in the current `SCHEMA`: one written
     before the variant field is upgraded on reading (`upgrade_results`)."""
+    from corelib.readfile import read_file, read_json_file
+
     path = Path(path)
     if path.suffix == ".csv":
         return results_from_csv(path)
-    obj = json.loads(path.read_text())
+    obj = read_json_file(path, kind="results")  # the rule of the project's own files (corelib.readfile)
     if isinstance(obj, dict) and RECORDS_KEY in obj:
-        obj = join_results(obj, (path.parent / obj[RECORDS_KEY]["file"]).read_bytes())
+        name = obj[RECORDS_KEY].get("file") if isinstance(obj[RECORDS_KEY], dict) else None
+        if not isinstance(name, str) or Path(name).name != name:
+            raise ValueError(f"{path}: its records file must be a name beside it, got {str(name)[:100]!r}")
+        obj = join_results(obj, read_file(path.parent / name, path.parent, kind="results"))
     return upgrade_results(obj)
 
 
@@ -180,10 +185,11 @@ def results_from_csv(path) -> dict:
     measured overlap and the yardsticks' rows), rebuilt from a results.csv (`write_csv`) for a
     sweep whose results.json was not kept. Empty cells are left out of the rows, as they were absent. A
     results.csv without a ``variant`` column (written before it) is read through `upgrade_results`."""
-    with open(path, newline="") as fh:
-        reader = csv.DictReader(fh)
-        table = [{k: _cell(v) for k, v in r.items() if v != ""} for r in reader]
-        legacy = "variant" not in (reader.fieldnames or [])
+    from corelib.readfile import read_text_file
+
+    reader = csv.DictReader(io.StringIO(read_text_file(path, kind="results"), newline=""))
+    table = [{k: _cell(v) for k, v in r.items() if v != ""} for r in reader]
+    legacy = "variant" not in (reader.fieldnames or [])
     if not table or "method" not in table[0]:
         raise ValueError(f"{path}: not a sweep's results.csv (no rows, or no 'method' column)")
     yard = {name: which for which, _, name in YARDSTICKS}

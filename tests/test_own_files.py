@@ -621,11 +621,6 @@ ALLOWED = {
                                                                            "made a moment before",
     ("scripts/publish_sweep.py", "p.read_bytes()"): "a plot in the temporary folder this process made",
     ("scripts/publish_lcon.py", "p.read_bytes()"): "a plot in the temporary folder this process made",
-    # issue 61: left as they are this round (study/results*.py is another change's); publish_sweep reads a
-    # results.csv by the rule first (`_csv_results`), check_results reads results.json by `read_inside`
-    ("study/results_files.py", "json.loads(path.read_text())"): "pending: read_results, its file owned elsewhere",
-    ("study/results_files.py", '.read_bytes())'): "pending: read_results' records file, owned elsewhere",
-    ("study/results_files.py", "open(path, newline=\"\")"): "pending: results_from_csv, its file owned elsewhere",
 }
 
 
