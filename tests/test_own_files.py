@@ -620,7 +620,6 @@ ALLOWED = {
     ("scripts/publish_sweep.py", '(stage / "results.csv").read_bytes()'): "the temporary folder this process "
                                                                            "made a moment before",
     ("scripts/publish_sweep.py", "p.read_bytes()"): "a plot in the temporary folder this process made",
-    ("scripts/publish_lcon.py", "p.read_bytes()"): "a plot in the temporary folder this process made",
 }
 
 
