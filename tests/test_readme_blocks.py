@@ -43,6 +43,9 @@ PLAN = {
     "mcdp sweep configs/sweep/ci.yaml": ("scale", "overlaps=[0.5] methods=[mono2,mcdp_m2] --no-progress"),
     "synth render configs/data/tiny.yaml --out data/tiny": ("run", ""),
     "synth render configs/data/default.yaml": ("scale", DEFAULT_TINY),
+    # the lens presets (issue 59), written small in the guide: run as written
+    "synth render configs/data/fisheye.yaml": ("run", ""),
+    "synth render configs/data/distorted.yaml": ("run", ""),
     "synth merge": ("run", ""), "synth verify": ("run", ""), "synth preview": ("run", ""), "synth export": ("run", ""),
     ".venv/bin/synth render configs/data/tiny.yaml --out data/w64": ("scale", "dataset.sequences=3 dataset.frames=4"),
     ".venv/bin/mcdp pretrain": ("scale", "'data_overrides=[seed=1000,dataset.frames=4]' "
