@@ -15,7 +15,6 @@ lcon_overlaps ((b) at 0.10 / 0.30 / 0.60 on the pilot's worlds), lcon_budget ((b
 """
 from __future__ import annotations
 
-import os
 import sys
 from pathlib import Path
 
@@ -32,14 +31,10 @@ PARTS = row(NAME).parts
 
 
 def load_part(part: str) -> dict | None:
-    """docs/results/<part>/results.json, checked and upgraded (`publish_sweep.check_results`); None if not published."""
-    from corelib.readfile import read_inside
-    from publish_sweep import check_results
+    """docs/results/<part>/results.json, checked and upgraded; None if not published (`publish_sweep.load_part`)."""
+    from publish_sweep import load_part as load
 
-    path = RESULTS / part / "results.json"
-    if not os.path.lexists(path):
-        return None
-    return check_results(read_inside(path, RESULTS), path)
+    return load(part)
 
 
 def _section(title: str, part: str, results: dict | None, plot_dir: Path, missing: str) -> tuple[list[str], list]:

@@ -63,13 +63,15 @@ def report_text(name: str, results: dict, plots: list[str], previews: list[str] 
     line naming this command, then `study.report.format_report`
     of `results` with `plots` (paths relative to docs/results/) and the rig previews published beside it
     (``previews``: their file names; by default those already in docs/results/<name>/)."""
-    from study.pages import Page, preface
+    from study.pages import preface, sweep_row
     from study.preface import PrefaceError
     from study.report import format_report
 
     out = RESULTS / name
-    try:  # a template: its figures are fields filled from these results (its row: study.pages.Page.sweep)
-        head = preface(Page.sweep(name), results, results=RESULTS)
+    row = sweep_row(name)
+    others = {p: load_part(p) for p in row.parts if p != name}  # the other parts its row names (the page table)
+    try:  # a template: its figures are fields filled from these results (and theirs)
+        head = preface(row, results, others, results=RESULTS) if others else preface(row, results, results=RESULTS)
         head = head + "\n\n" if head else ""
     except PrefaceError as exc:
         raise PublishError(str(exc)) from None
@@ -80,6 +82,15 @@ def report_text(name: str, results: dict, plots: list[str], previews: list[str] 
     shown = dict(results, previews=[f"{name}/{Path(p).name}" for p in results.get("previews") or []
                                     if Path(p).name in published])  # only the previews published beside it
     return head + cmd + format_report(shown, plots)
+
+
+def load_part(part: str) -> dict | None:
+    """docs/results/<part>/results.json, checked and upgraded (`check_results`); None where it is not published (a
+    part of a page that reads several sweeps: its row of `study.pages`)."""
+    from corelib.readfile import read_inside
+
+    path = RESULTS / part / "results.json"
+    return check_results(read_inside(path, RESULTS), path) if os.path.lexists(path) else None
 
 
 def check_results(raw: bytes, path: Path) -> dict:

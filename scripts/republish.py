@@ -71,8 +71,8 @@ def rows(results: Path = RESULTS) -> list:
                                     else "study/pages.py has no row for it"))
         found[doc.stem] = row
     order = list(FAMILIES)
-    out = sorted((r for r in found.values() if r.script in FAMILIES), key=lambda r: (order.index(r.script), r.name))
-    return out + [by_name[p.name] if p.name not in found else found[p.name] for p in PAGES]
+    out = sorted((r for r in found.values() if r.name not in by_name), key=lambda r: (order.index(r.script), r.name))
+    return out + list(PAGES)
 
 
 def pages(results: Path = RESULTS) -> dict[str, str]:

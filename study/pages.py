@@ -97,8 +97,12 @@ class Page:
 
 
 #: the pages read from several published sweeps, or from data of their own, in the order they are rebuilt (after
-#: every sweep's and benchmark's page: they read the sweeps' published results)
+#: every other sweep's and benchmark's page: they read the sweeps' published results); a sweep's page is a row here
+#: when its preface reads other parts than its own (its values function is given each part's results)
 PAGES: tuple[Page, ...] = (
+    Page("propagation", "publish_sweep", "publish_sweep:publish", "sweep",  # a sweep's page whose preface reads more
+         parts=("propagation", "propagation_budget", "lcon_main", "lcon_budget"), preface="propagation/preface.md",
+         values="study.preface:sweep_values"),
     Page("lcon", "publish_lcon", "publish_lcon:build", "stage",
          parts=("lcon_main", "lcon_pilot", "lcon_pilot_auto", "lcon_overlaps", "lcon_budget"),
          preface="lcon/preface.md"),
@@ -123,6 +127,12 @@ def row(name: str) -> Page:
             return p
     raise PageError(f"no page {name!r}: neither committed under docs/results/ (a sweep's or a benchmark's page) nor "
                     f"a row of study/pages.py ({', '.join(p.name for p in PAGES)})")
+
+
+def sweep_row(name: str) -> Page:
+    """A sweep's page: its row of `PAGES` where it has one (a preface that reads other parts too), else
+    `Page.sweep`."""
+    return next((p for p in PAGES if p.name == name and p.call == "sweep"), None) or Page.sweep(name)
 
 
 def scripts() -> tuple[str, ...]:

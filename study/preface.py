@@ -74,16 +74,47 @@ def _overlap(name: str) -> float:
     return int(name[1:]) / 100.0
 
 
-def sweep_values(results: dict) -> dict:
-    """The values a sweep page's preface reads from its results.json:
+#: a band of distance from the overlap (fractions of the image width) a primary field may name -> its column's name
+BANDS = {"band1": "0-0.10", "band2": "0.10-0.20", "band3": "0.20-0.35", "band4": ">0.35"}
+
+
+def _dig(node: Any, rest: list[str], field: str) -> Any:
+    """``node`` followed along ``rest`` (the field's names after a family's own)."""
+    for name in rest:
+        if not isinstance(node, Mapping) or name not in node:
+            raise PrefaceError(f"{field}: no {name!r} here (the value holds "
+                               f"{', '.join(sorted(map(str, node))) if isinstance(node, Mapping) else 'a number'})")
+        node = node[name]
+    return node
+
+
+def _who(a, b) -> str:
+    """The name a primary comparison is read by: the variant it compares against (a hand-built propagator, e.g.
+    ``oracle_spread``), else the method of its first arm (``mcdp_m2``, ``mcdp_m2_nocon`` for (b), ``oracle_local``)."""
+    from study.variants import TRAINED, cut
+
+    return b.variant if b.variant not in (TRAINED, cut()) else a.method
+
+
+def sweep_values(results: dict, parts: Mapping[str, dict] | None = None) -> dict:
+    """The values a sweep page's preface reads from its results.json (and, for a page whose row of `study.pages`
+    names more parts, theirs):
 
     - ``gain.<method>.o<overlap>.<region>``: what ``method`` gains over the baseline, paired (`study.paired.
       paired_gain`: baseline - method on a lower-is-better figure, positive = helps), at overlap o030 = 0.30, on
       ``region`` (`GAIN_KEYS`: all, overlap, non_overlap pixels at median scaling, or dep_con);
-    - ``primary.<id>.<method>``: a primary comparison of the propagation experiment (`study.primary.comparisons`,
-      at the plan's overlap, median scaling): ``a.mcdp_m2`` = MCDP (m = 2) cut - as trained, non-overlap pixels;
+    - ``primary.<id>.<who>[.o<overlap>][.<scaling>][.<band>]``: a primary comparison of the propagation experiment
+      (`study.primary.comparisons`; ``who``: `_who`, e.g. ``a.mcdp_m2`` = MCDP (m = 2) cut - as trained), its
+      `study.design.reading_over_worlds` on non-overlap pixels (or a band of `BANDS`) at the plan's overlap and
+      median scaling unless named; the names after it read into the reading (``.tost.p``, ``.mde80``, ``.rank.hl``);
+    - ``copy.o<overlap>.<scaling>.{filled,base,ratio}``: the positive control's copy test (`study.primary.copy_test`);
+    - ``lcon.<scaling>``: L_con's (b) over the worlds (`study.lcon.reading` of the sweep's pairs);
+    - ``part.<name>``: these values of another part the page's row names, e.g. ``part.lcon_main.lcon.median``;
     - ``plan``: the sweep's plan (`study.primary.plan_of`), e.g. ``plan.delta``."""
     from mcdp.methods import baseline
+    from study.primary import SCALINGS, comparisons, copy_test, measure, plan_of
+
+    plan = plan_of(results)
 
     def gain(path: list[str]) -> dict:
         if len(path) != 3 or path[2] not in GAIN_KEYS:
@@ -96,18 +127,43 @@ def sweep_values(results: dict) -> dict:
             raise PrefaceError(f"gain.{'.'.join(path)}: {method!r} is not one of the sweep's methods")
         return paired_gain(results, o, baseline(), method, GAIN_KEYS[region])
 
-    def primary(path: list[str]) -> dict:
-        from study.primary import comparisons, measure, plan_of
-        from mcdp.methods import short_label
+    def primary(path: list[str]) -> Any:
+        field = "primary." + ".".join(path)
+        if len(path) < 2:
+            raise PrefaceError(f"{field}: want primary.<id>.<who>[.o<overlap>][.<scaling>][.<band>]")
+        rest, o, sc, region = list(path[2:]), plan["overlap"], "median", "non_overlap"
+        if rest and re.fullmatch(r"o\d{3}", rest[0]):
+            o = _overlap(rest.pop(0))
+        if rest and rest[0] in SCALINGS:
+            sc = rest.pop(0)
+        if rest and rest[0] in BANDS:
+            region = BANDS[rest.pop(0)]
+        for cid, _, a, b, _ in comparisons(results, o):
+            if cid == path[0] and _who(a, b) == path[1]:
+                return _dig(measure(results, o, a, b, region)[sc], rest, field)
+        raise PrefaceError(f"{field}: no such primary comparison in this sweep")
 
-        if len(path) != 2:
-            raise PrefaceError(f"primary.{'.'.join(path)}: want primary.<id>.<method>")
-        o = plan_of(results)["overlap"]
-        for cid, name, a, b, region in comparisons(results, o):
-            if cid == path[0] and name.startswith(short_label(path[1]) + " "):
-                return measure(results, o, a, b, region)["median"]
-        raise PrefaceError(f"primary.{'.'.join(path)}: no such primary comparison in this sweep")
+    def copy(path: list[str]) -> Any:
+        field = "copy." + ".".join(path)
+        if len(path) != 3 or path[1] not in SCALINGS or path[2] not in ("filled", "base", "ratio"):
+            raise PrefaceError(f"{field}: want copy.o<overlap>.<scaling>.filled|base|ratio")
+        o = _overlap(path[0])
+        row = next((r for r in copy_test(results) if abs(r["overlap"] - o) < 1e-9), None)
+        if row is None:
+            raise PrefaceError(f"{field}: no copy test at overlap {o:.2f} in this sweep")
+        return row[path[1]][("filled", "base", "ratio").index(path[2])]
 
-    from study.primary import plan_of
+    def lcon(path: list[str]) -> Any:
+        from study.lcon import pairs, reading
 
-    return {"gain": gain, "primary": primary, "plan": plan_of(results)}
+        if not path or path[0] not in SCALINGS:
+            raise PrefaceError(f"lcon.{'.'.join(path)}: want lcon.<scaling> ({', '.join(SCALINGS)})")
+        ps = pairs(results)
+        if not ps:
+            raise PrefaceError(f"lcon.{'.'.join(path)}: this sweep has no L_con pair")
+        return _dig(reading(ps, path[0], plan), path[1:], "lcon." + ".".join(path))
+
+    out = {"gain": gain, "primary": primary, "copy": copy, "lcon": lcon, "plan": plan}
+    if parts:
+        out["part"] = {name: sweep_values(r) for name, r in parts.items() if r is not None}
+    return out

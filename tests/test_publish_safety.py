@@ -75,10 +75,17 @@ def test_the_sweeps_plots_replace_linked_files_of_a_copied_sweep(tmp_path):
 # --------------------------------------------------------------------------- publish_sweep (items 2 and 4)
 @pytest.fixture
 def publish(tmp_path, monkeypatch):
-    """scripts/publish_sweep.py with docs/results/ in a temporary copy holding the committed propagation report."""
+    """scripts/publish_sweep.py with docs/results/ in a temporary copy holding the committed propagation report
+    (and the results of the other parts its preface reads: its row of study/pages.py)."""
+    from study.pages import sweep_row
+
     mod = importlib.import_module("scripts.publish_sweep")
     results = tmp_path / "docs" / "results"
     shutil.copytree(PROP, results / "propagation")
+    for part in sweep_row("propagation").parts[1:]:
+        (results / part).mkdir()
+        for n in ("results.json", "records.json.gz"):
+            shutil.copy(PROP.parent / part / n, results / part / n)
     shutil.copy(PROP.with_suffix(".md"), results / "propagation.md")
     monkeypatch.setattr(mod, "RESULTS", results)
     return mod

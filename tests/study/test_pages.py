@@ -35,7 +35,7 @@ def test_a_row_that_does_not_hold_together_is_one_line():
         Page("x", "publish_x", "publish_x:build", "shell")
     with pytest.raises(PageError, match=r"^page 'x': call 'values' reads its needs file; it names none$"):
         Page("x", "publish_x", "publish_x:build", "values")
-    with pytest.raises(PageError, match=r"no page 'nope': neither committed .* nor a row of study/pages.py \(lcon, "):
+    with pytest.raises(PageError, match=r"no page 'nope': neither committed .* nor a row of study/pages.py \(propagation, lcon, "):
         row("nope")
 
 
