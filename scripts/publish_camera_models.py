@@ -59,12 +59,12 @@ def _distortion_px(data_dir: Path) -> dict:
         K = np.asarray(c["K"], np.float64)
         names = camera.model(c["model"]).dist_names
         cam = camera.Intrinsics(c["model"], K, tuple(float(c["dist"][n]) for n in names))
+        if camera.depth_kind(cam) == "range":  # a fisheye has no pinhole image of its field of view to compare with
+            continue
         W, H = int(c["width"]), int(c["height"])
         r = camera.rays(cam, H, W)
         ok = np.isfinite(r).all(0)
-        if camera.depth_kind(cam) == "range":  # no pinhole image beyond 90 degrees: the angle's pinhole radius
-            ok &= r[2] > 0.05
-        uv, front = camera.project(K, r[:, ok] / r[2:3, ok])
+        uv, front = camera.project(K, r[:, ok])
         v, u = np.divmod(np.flatnonzero(ok), W)
         out[c["name"]] = float(np.hypot(uv[0] - (u + 0.5), uv[1] - (v + 0.5)).max())
     return out
@@ -94,7 +94,7 @@ def collect(folder: Path) -> dict:
             if key not in out["yardsticks"]:
                 out["yardsticks"][key] = {y: arm_values(sub, set(COLUMNS), y).get(-1, {}) for y in YARDSTICKS}
                 data = sorted(p for p in (sub / "data").glob("overlap_*") if (p / "rig.json").is_file())
-                if data:
+                if data and key == "distorted":
                     out["distortion_px"][key] = _distortion_px(data[0])
     return out
 
@@ -173,6 +173,21 @@ def build(values: dict) -> str:
                     cell(_diff(values, "mono2_fisheye", f"{meth}_fisheye", c))
                     for c in ("median.mean.abs_rel", "median.overlap.abs_rel", "median.non_overlap.abs_rel",
                               "dep_con.mean")) + " |")
+    lines += ["\n## Every world (median-scaled abs_rel; a run at or above its rig's constant depth has not learned depth)\n"]
+    for rig, words in RIGS.items():
+        arms = [f"{meth}_{rig}" for meth in METHODS if f"{meth}_{rig}" in values["arms"]]
+        if not arms:
+            continue
+        worlds = sorted({w for a in arms for w in values["arms"][a]}, key=int)
+        const = yard.get("fisheye" if rig == "fisheye" else "distorted", {}).get("constant_reference", {})
+        lines += [f"\n{words}:\n", "| method | " + " | ".join(f"world {w}" for w in worlds) + " |",
+                  "|---|" + "---|" * len(worlds)]
+        for a in arms:
+            v = values["arms"][a]
+            lines.append(f"| {WORDS[a.rsplit('_', 1)[0]]} | " + " | ".join(
+                f"{v[w]['median.mean.abs_rel']:.3f}" if w in v else "—" for w in worlds) + " |")
+        if isinstance(const.get("median.mean.abs_rel"), float):
+            lines.append(f"\n(constant depth, mean over these worlds: {const['median.mean.abs_rel']:.3f})")
     times = values.get("train_s", {})
     if times:
         tot = sum(sum(v) for v in times.values())
