@@ -1,6 +1,6 @@
 """Published results are compact (issue 60, item 5): docs/results/<name>/results.json keeps the summaries and names
 records.json.gz beside it; `read_results` joins them back, and the pages rebuild from them byte for byte
-(tests/test_results_docs.py)."""
+(tests/test_results_docs.py). Their results.csv is published gzip'd (results.csv.gz), the same bytes inside."""
 from __future__ import annotations
 
 import gzip
@@ -10,8 +10,8 @@ from pathlib import Path
 import pytest
 
 from study import lcon
-from study.results_files import (ABS_REL_ONLY, PER_SEQUENCE_KEPT, RECORDS, RECORDS_KEY, compact_results,
-                                 join_results, read_results)
+from study.results_files import (ABS_REL_ONLY, CSV_GZ, PER_SEQUENCE_KEPT, RECORDS, RECORDS_KEY, compact_results,
+                                 gzip_csv, join_results, read_results, results_from_csv, write_csv)
 from study.variants import CUT
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -26,8 +26,37 @@ def test_every_published_sweep_is_compact_and_docs_results_is_small():
         assert summary[RECORDS_KEY]["file"] == RECORDS and (folder / RECORDS).is_file(), folder.name
         assert "rows" not in summary and "flat" not in summary, folder.name
         assert (folder / "results.json").stat().st_size < 60_000, folder.name
+        assert (folder / CSV_GZ).is_file() and not (folder / "results.csv").exists(), folder.name
     total = sum(p.stat().st_size for p in RESULTS.rglob("*") if p.is_file())
-    assert total < 18e6, f"docs/results holds {total / 1e6:.1f} MB (106 MB before issue 60)"
+    assert total < 15e6, f"docs/results holds {total / 1e6:.1f} MB (106 MB before issue 60, 16.8 MB before csv.gz)"
+
+
+def test_the_published_csv_is_the_sweeps_results_csv_gzipped(tmp_path):
+    """results.csv.gz holds, byte for byte, the results.csv `write_csv` writes of the committed results (a fixed
+    gzip time stamp: publishing again gives the same bytes); the standard library reads it as a CSV, and
+    `read_results` reads it as it reads the plain file."""
+    import csv
+
+    folder = RESULTS / "sensor_ideal"
+    write_csv(read_results(folder / "results.json"), tmp_path / "results.csv")
+    plain = (tmp_path / "results.csv").read_bytes()
+    assert gzip.decompress((folder / CSV_GZ).read_bytes()) == plain
+    assert gzip_csv(plain) == (folder / CSV_GZ).read_bytes()
+    with gzip.open(folder / CSV_GZ, "rt", newline="") as f:
+        rows = list(csv.DictReader(f))
+    assert rows and rows[0]["method"] and "world" in rows[0]
+    assert json.dumps(read_results(folder / CSV_GZ), sort_keys=True) == \
+        json.dumps(read_results(tmp_path / "results.csv"), sort_keys=True)
+
+
+def test_a_csv_gz_that_is_not_one_is_refused_naming_it(tmp_path):
+    bad = tmp_path / CSV_GZ
+    bad.write_bytes(b"method,overlap\n")
+    with pytest.raises(ValueError, match=rf"{CSV_GZ}: not gzip of a UTF-8 CSV"):
+        results_from_csv(bad)
+    bad.write_bytes(gzip.compress(b"\xff\xfe,1\n"))
+    with pytest.raises(ValueError, match=rf"{CSV_GZ}: not gzip of a UTF-8 CSV"):
+        results_from_csv(bad)
 
 
 def test_compacting_the_joined_results_gives_the_committed_bytes():

@@ -63,7 +63,7 @@ def _finite(row: dict) -> set[str]:
 def test_results_written_before_a_metric_read_the_same_from_json_and_csv(toy_acc):
     from study.report import format_report
 
-    js, cs = read_results(PROP / "results.json"), read_results(PROP / "results.csv")
+    js, cs = read_results(PROP / "results.json"), read_results(PROP / "results.csv.gz")
     for o in js["overlaps"]:
         for which in ("reference", "prior"):
             a, b = yardstick_row(js, o, which), yardstick_row(cs, o, which)

@@ -65,7 +65,7 @@ def test_make_plots_writes_the_paired_and_absolute_figures(prop, tmp_path):
 
 
 def test_results_csv_rebuilds_the_numbers_the_plots_read(prop):
-    csv = results_from_csv(PROP / "results.csv")
+    csv = results_from_csv(PROP / "results.csv.gz")
     assert csv["overlaps"] == prop["overlaps"] and csv["methods"] == prop["methods"]
     # results.csv holds no design (worlds x seeds): given the sweep's, its paired intervals are clustered by world
     # as results.json's are (issue 49, item 10)
