@@ -98,3 +98,25 @@ def test_a_records_file_that_is_not_one_is_refused_naming_it():
             join_results(summary, gzip.compress(b" " * 5000 + b"{}"))
         finally:
             rf.MAX_RECORDS_BYTES = old
+
+
+@pytest.mark.parametrize("name", ["../records.json.gz", "/etc/passwd", "sub/records.json.gz", 7])
+def test_a_records_file_outside_its_results_folder_is_refused(tmp_path, name):
+    """read_results reads the records file only as a plain name beside results.json (issue 61, c3c0f37)."""
+    from study.results_files import read_results
+
+    summary = json.loads((RESULTS / "sensor_ideal" / "results.json").read_text())
+    summary[RECORDS_KEY] = {**summary[RECORDS_KEY], "file": name}
+    (tmp_path / "results.json").write_text(json.dumps(summary))
+    with pytest.raises(ValueError, match="its records file must be a name beside it"):
+        read_results(tmp_path / "results.json")
+
+
+def test_a_linked_results_json_is_refused_in_one_line(tmp_path):
+    from corelib.readfile import ReadRefused
+    from study.results_files import read_results
+
+    (tmp_path / "real.json").write_text("{}")
+    (tmp_path / "results.json").symlink_to(tmp_path / "real.json")
+    with pytest.raises(ReadRefused, match="symbolic link"):
+        read_results(tmp_path / "results.json")
