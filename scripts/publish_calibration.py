@@ -21,6 +21,7 @@ from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
+sys.path.insert(0, str(ROOT / "scripts"))
 
 RESULTS = ROOT / "docs" / "results"
 DIR = RESULTS / "calibration"
@@ -256,12 +257,9 @@ def main(argv: list[str] | None = None) -> int:
                 return 2
             folders[name] = Path(folder)
         atomic_write_text(VALUES, json.dumps(collect(folders), indent=1, sort_keys=True) + "\n")
-    from corelib.readfile import read_text_inside
+    from republish import publish_one  # the page from its row of study.pages.PAGES, as `republish.py calibration`
 
-    values = json.loads(read_text_inside(VALUES, DIR, 16 << 20))
-    atomic_write_text(RESULTS / "calibration.md", build(values))
-    print(f"wrote {RESULTS / 'calibration.md'}", file=sys.stderr)
-    return 0
+    return publish_one("calibration", "publish_calibration")
 
 
 if __name__ == "__main__":

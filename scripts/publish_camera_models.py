@@ -28,6 +28,7 @@ from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
+sys.path.insert(0, str(ROOT / "scripts"))
 
 RESULTS = ROOT / "docs" / "results"
 DIR = RESULTS / "camera_models"
@@ -203,7 +204,6 @@ def build(values: dict) -> str:
 
 def main(argv: list[str] | None = None) -> int:
     from corelib.atomic import atomic_write_text
-    from corelib.readfile import read_text_inside
 
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("--collect", help="the study's folder: one sweep folder per arm (scripts/camera_models.sh)")
@@ -214,10 +214,9 @@ def main(argv: list[str] | None = None) -> int:
     if not VALUES.is_file():
         print(f"publish_camera_models: {VALUES} is missing; run with --collect FOLDER first", file=sys.stderr)
         return 2
-    values = json.loads(read_text_inside(VALUES, DIR, 16 << 20))
-    atomic_write_text(RESULTS / "camera_models.md", build(values))
-    print(f"wrote {RESULTS / 'camera_models.md'}", file=sys.stderr)
-    return 0
+    from republish import publish_one  # the page from its row of study.pages.PAGES, as `republish.py camera_models`
+
+    return publish_one("camera_models", "publish_camera_models")
 
 
 if __name__ == "__main__":
