@@ -114,8 +114,10 @@ class SweepPlan(StrictModel):
         if self.stopping == "one_look" and self.first_look is not None:
             raise ValueError(f"plan.stopping: one_look, but plan.first_look is {self.first_look} (a first look is "
                              "the obrien_fleming rule's)")
-        if len(set(self.tuning_worlds)) != len(self.tuning_worlds) or any(w < 0 for w in self.tuning_worlds):
-            raise ValueError(f"plan.tuning_worlds: must be distinct data seeds >= 0, got {self.tuning_worlds}")
+        if len(set(self.tuning_worlds)) != len(self.tuning_worlds) or any(
+                not 0 <= w <= 2**32 - 1 for w in self.tuning_worlds):
+            raise ValueError(f"plan.tuning_worlds: must be distinct data seeds in [0, 2^32 - 1], got "
+                             f"{str(self.tuning_worlds)[:200]}")
         return self
 
 

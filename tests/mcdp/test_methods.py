@@ -224,7 +224,8 @@ def test_a_methods_own_weights_live_in_its_method_params_section():
     p = methods.method_params(fsm_cfg("method_params.spatial_weight=0.25"))
     assert (p.spatial_weight, p.pose_rotation_weight) == (0.25, 1.0)
     with pytest.raises(ConfigError, match=r"^method_params\.spatial_wieght: unknown key for method 'fsm' \(its "
-                                          r"parameters: pose_rotation_weight, pose_translation_weight, spatial_weight\)$"):
+                                          r"parameters: pose_rotation_weight, pose_translation_weight, spatial_weight, "
+                                          r"spatio_temporal\)$"):
         methods.check_run(fsm_cfg("method_params.spatial_wieght=0.2"))
     with pytest.raises(ConfigError, match=r"^method_params\.spatial_weight: .*greater than or equal to 0"):
         methods.method_params(fsm_cfg("method_params.spatial_weight=-1"))
