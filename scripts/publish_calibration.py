@@ -45,12 +45,8 @@ MARKERS = {"base": ("o", "200 steps"), "x4": ("s", "800 steps"), "live": ("^", "
 
 def collect(folders: dict[str, Path]) -> dict:
     """{point: {"arms": {arm: {world: {column: value}}}, "yardsticks": {...}, "train_s": {arm: [..]}}}."""
-    import csv
-    import io
-
-    from corelib.readfile import read_text_inside
     from study.anchors import load_anchors
-    from study.calibration import MAX_CSV_BYTES, arm_values, columns
+    from study.calibration import arm_train_seconds, arm_values, columns
 
     anchors = load_anchors(ANCHORS)
     cols = columns(anchors)
@@ -62,9 +58,7 @@ def collect(folders: dict[str, Path]) -> dict:
             if not (sub / "results.csv").is_file():
                 continue
             arms[name] = {str(w): v for w, v in sorted(arm_values(sub, cols, arm.method).items())}
-            text = read_text_inside(sub / "results.csv", sub, MAX_CSV_BYTES)
-            train_s[name] = [float(r["train_s"]) for r in csv.DictReader(io.StringIO(text))
-                             if r.get("method") == arm.method and r.get("variant") == "trained" and r.get("train_s")]
+            train_s[name] = arm_train_seconds(sub, arm.method)
         first = folder / anchors.order[0]
         yard = {}
         if (first / "results.csv").is_file():

@@ -74,11 +74,7 @@ def _distortion_px(data_dir: Path) -> dict:
 def collect(folder: Path) -> dict:
     """{"arms": {arm: {world: {column: value}}}, "yardsticks": {rig: {name: {column: mean over worlds}}},
     "distortion_px": {rig: {camera: px}}, "train_s": {arm: [...]}}."""
-    import csv
-    import io
-
-    from corelib.readfile import read_text_inside
-    from study.calibration import MAX_CSV_BYTES, arm_values
+    from study.calibration import arm_train_seconds, arm_values
 
     out: dict = {"arms": {}, "yardsticks": {}, "distortion_px": {}, "train_s": {}}
     for m in METHODS:
@@ -87,10 +83,7 @@ def collect(folder: Path) -> dict:
             if not (sub / "results.csv").is_file():
                 continue
             out["arms"][f"{m}_{rig}"] = {str(w): v for w, v in sorted(arm_values(sub, set(COLUMNS), m).items())}
-            text = read_text_inside(sub / "results.csv", sub, MAX_CSV_BYTES)
-            out["train_s"][f"{m}_{rig}"] = [float(r["train_s"]) for r in csv.DictReader(io.StringIO(text))
-                                            if r.get("method") == m and r.get("variant") == "trained"
-                                            and r.get("train_s")]
+            out["train_s"][f"{m}_{rig}"] = arm_train_seconds(sub, m)
             key = "fisheye" if rig == "fisheye" else "distorted"
             if key not in out["yardsticks"]:
                 out["yardsticks"][key] = {y: arm_values(sub, set(COLUMNS), y).get(-1, {}) for y in YARDSTICKS}

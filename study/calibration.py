@@ -81,6 +81,16 @@ def arm_values(folder: Path, columns: set[str], method: str) -> dict[int, dict[s
     return out
 
 
+def arm_train_seconds(folder: Path, method: str) -> list[float]:
+    """The training seconds of one arm's runs of ``method`` (results.csv's as-trained rows that have them): what a
+    page states its runs cost."""
+    from corelib.readfile import read_text_inside
+
+    text = read_text_inside(Path(folder) / "results.csv", Path(folder), MAX_CSV_BYTES)
+    return [float(r["train_s"]) for r in csv.DictReader(io.StringIO(text))
+            if r.get("method") == method and r.get("variant") == "trained" and r.get("train_s")]
+
+
 def _one_arm(vals: dict[str, float], read: str, metric: str) -> float:
     if read == "side_vs_front":  # base = the front camera, changed = the side cameras: base - changed
         return float(vals[f"median.camera.{FRONT}.abs_rel"]
