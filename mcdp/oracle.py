@@ -29,7 +29,6 @@ def si_log_error(pred: torch.Tensor, gt: torch.Tensor, valid: torch.Tensor) -> t
     return (d.square().flatten(1).sum(1) / n) - mean.square()
 
 
-@torch.enable_grad()
 def fit_oracle_weights(
     bases: torch.Tensor,
     gt: torch.Tensor,
@@ -39,6 +38,15 @@ def fit_oracle_weights(
     lr: float = 0.1,
 ) -> torch.Tensor:
     """Per-image softmax weights of the bases that best explain the ground truth (ORACLE).
+
+    The fit of `fit_oracle_weights_autograd` (the definition: Adam on the logits, the scale-invariant log error of
+    the combined depth on the valid pixels), computed on what it needs: only the valid pixels of each image (packed
+    into the next power of two of their count, `_width`), the loss's gradient in closed form (no autograd graph), and the ground
+    truth's log read once, not at every step. ``to_depth`` must be the model's affine disparity map (`disp_to_depth`:
+    disp = a + c sig, depth = 1 / disp; checked); another map, or bases and ground truth of different sizes, take
+    the autograd path. The same optimisation summed in another order: the weights agree with the autograd path's
+    to rounding carried through 100 Adam steps (a few 1e-5 relative on the recipe's world; docs/results/world_cost.md,
+    tests/mcdp/test_oracle_fit.py), not bit for bit.
 
     Args:
         bases: (B, n, h, w) sigmoid-space bases (detached; not changed).
@@ -51,6 +59,95 @@ def fit_oracle_weights(
     Returns:
         (B, n) weights (softmax of the fitted logits). An image without a valid pixel keeps 1/n.
     """
+    affine = _affine_disparity(to_depth)
+    if affine is None or tuple(gt.shape[-2:]) != tuple(bases.shape[-2:]):
+        return fit_oracle_weights_autograd(bases, gt, valid, to_depth, steps, lr)
+    a, c = affine
+    bases = bases.detach().float()
+    B, n = bases.shape[:2]
+    keep = valid.reshape(B, -1).to(bases.device)
+    counts = keep.sum(1)
+    widths = [_width(int(k)) for k in counts.tolist()]
+    groups = [_packed(bases, gt.detach().float(), keep, counts, [b for b, x in enumerate(widths) if x == width],
+                      width, a, c) for width in sorted(set(widths) - {0})]
+    logits = torch.zeros(B, n, dtype=torch.float32, device=bases.device, requires_grad=True)
+    opt = torch.optim.Adam([logits], lr=lr)  # elementwise: each image's step is its own
+    grad = torch.zeros_like(logits)
+    with torch.no_grad():
+        for _ in range(int(steps)):
+            w = torch.softmax(logits, 1)
+            for rows, bv, bv_t, nlg, pad, coef in groups:
+                wr = w[rows]
+                disp = torch.bmm(wr[:, None], bv)[:, 0]  # (b, P): a + c sig (the weights sum to 1); padding ~a
+                d = torch.sub(nlg, torch.log(disp)).mul_(pad)  # log depth - log gt, 0 on padding
+                mean = d.sum(1, keepdim=True) * (1.0 / counts[rows, None].float())
+                # loss = sum_b [sum d^2 / m - mean^2]; dloss/ddisp = 2 (d - mean) / m * (-1 / disp)
+                g = d.sub_(mean).mul_(pad).div_(disp).mul_(coef)
+                gw = torch.bmm(g[:, None], bv_t)[:, 0]  # (b, n): the weights' gradient
+                grad[rows] = wr * (gw - (wr * gw).sum(1, keepdim=True))  # through the softmax
+            logits.grad = grad
+            opt.step()
+    w = torch.softmax(logits.detach(), 1)
+    has = counts > 0
+    return torch.where(has[:, None], w, torch.full_like(w, 1.0 / n))
+
+
+def _width(count: int) -> int:
+    """The packed width of an image with ``count`` valid pixels: the next power of two (at least 64), a function of
+    the image alone, so that an image's fit is the same bits whatever else is in its batch (the images of one width
+    are computed together, each row on its own)."""
+    return 0 if count == 0 else max(64, 1 << (count - 1).bit_length())
+
+
+def _packed(bases, gt, keep, counts, rows: list[int], width: int, a: float, c: float) -> tuple:
+    """What the fit reads of the images ``rows`` (all of packed width ``width``): their valid pixels in pixel order,
+    then zeros: (rows, a + c x bases (b, n, P), its transpose (b, P, n), -log gt (b, P), 1 on a valid pixel (b, P),
+    -2 / valid count (b, 1))."""
+    idx = torch.tensor(rows, device=bases.device)
+    b, n = len(rows), bases.shape[1]
+    k = keep[idx]
+    order = torch.sort((~k).to(torch.uint8), dim=1, stable=True).indices  # each image's valid pixels first
+    if order.shape[1] < width:
+        order = torch.cat([order, order[:, :1].expand(b, width - order.shape[1])], 1)
+    order = order[:, :width]
+    m = counts[idx].float()[:, None]
+    pad = (torch.arange(width, device=bases.device)[None] < m).float()
+    bv = (torch.gather(bases[idx].reshape(b, n, -1), 2, order[:, None].expand(b, n, width)) * c + a) * pad[:, None]
+    bv = bv + (1.0 - pad[:, None]) * a  # padding: disp a, a finite log (masked out)
+    nlg = -torch.gather(torch.log(gt[idx].clamp(min=1e-6)).reshape(b, -1), 1, order) * pad
+    return idx, bv, bv.transpose(1, 2).contiguous(), nlg, pad, -2.0 / m
+
+
+def _affine_disparity(to_depth) -> tuple[float, float] | None:
+    """(a, c) when ``to_depth`` maps sig to disp = a + c sig and depth = 1 / disp (`mcdp.methods.base.disp_to_depth`);
+    None for any other map."""
+    sig = torch.tensor([0.0, 0.25, 0.5, 1.0], dtype=torch.float64)
+    try:
+        disp, depth = to_depth(sig)
+    except Exception:  # noqa: BLE001 (a map that takes only float32, or another shape: the autograd path)
+        return None
+    if not (isinstance(disp, torch.Tensor) and isinstance(depth, torch.Tensor) and disp.shape == sig.shape
+            and disp.dtype == torch.float64 and depth.dtype == torch.float64):
+        return None
+    a, c = float(disp[0]), float(disp[3] - disp[0])
+    if not (a > 0 and c > 0) or not torch.allclose(disp, a + c * sig, rtol=1e-12, atol=0.0):
+        return None
+    if not torch.allclose(depth * disp, torch.ones_like(disp), rtol=1e-12, atol=0.0):
+        return None
+    return a, c
+
+
+@torch.enable_grad()
+def fit_oracle_weights_autograd(
+    bases: torch.Tensor,
+    gt: torch.Tensor,
+    valid: torch.Tensor,
+    to_depth,
+    steps: int = 100,
+    lr: float = 0.1,
+) -> torch.Tensor:
+    """`fit_oracle_weights` by its definition: every pixel, autograd through ``to_depth`` (any map), the ground truth
+    upsampled to when sizes differ. The reference the fast path is tested against, and its fallback."""
     bases = bases.detach().float()
     B, n = bases.shape[:2]
     logits = torch.zeros(B, n, dtype=torch.float32, device=bases.device, requires_grad=True)
