@@ -1,6 +1,6 @@
 """Seconds per training step and peak memory of every training preset, with the ratio to mono2.
 
-Feeds: docs/results/train_step.md
+Feeds: docs/results/train_step.md, docs/results/device.md
 Record: ``--record PATH.txt`` also writes the table it prints to PATH, as printed (the text a
 docs/results/<doc>/*.txt holds; `scripts/publish_bench.py` puts it in the doc).
 
@@ -80,8 +80,12 @@ def synthetic_batch(H: int, W: int, n_cams: int = 6, seed: int = 0):
 
 
 def mm_ceiling(dtype, dev, n: int = 1024, reps: int = 5) -> float:
-    """GFLOP/s of an n^3 matrix product in `dtype` on this worker's threads (the best of `reps`)."""
+    """GFLOP/s of an n^3 matrix product in `dtype` on this worker's threads (the best of `reps`); on a GPU at
+    n = 4096 (1024 leaves one far from its ceiling)."""
     import torch
+
+    if dev.type == "cuda":
+        n = max(n, 4096)
 
     a = torch.randn(n, n, device=dev).to(dtype)
     b = torch.randn(n, n, device=dev).to(dtype)
@@ -230,8 +234,9 @@ def main(argv=None) -> int:
         rows = []
         print(f"\ntrain step, 1 rig sample (6 cameras x 3 frames), device {args.device}, "
               f"torch threads {next(iter(results.values()))[0]['threads']}, median of {args.rounds} rounds")
+        per_min = "steps/CPU-min" if args.device == "cpu" else "steps/dev-min"
         hdr = (f"{'preset':14s} {'mode':>6s} {'size':>8s} {'s/step':>8s} {'x mono2':>8s} {'L_con %':>8s} "
-               f"{'peak MiB':>9s} {'GFLOP':>7s} {'GFLOP/s':>8s} {'ceiling':>8s} {'% ceil':>7s} {'steps/CPU-min':>13s} "
+               f"{'peak MiB':>9s} {'GFLOP':>7s} {'GFLOP/s':>8s} {'ceiling':>8s} {'% ceil':>7s} {per_min:>13s} "
                f"{'x before':>8s}")
         print(hdr + "\n" + "-" * len(hdr))
         for size in args.sizes:
@@ -246,7 +251,7 @@ def main(argv=None) -> int:
                     peak = max(r["peak_mb"] for r in rs)
                     gflop = statistics.median(r["gflop"] for r in rs)
                     ceil = statistics.median(r["ceiling_gflops"] for r in rs)
-                    thr = rs[0]["threads"]
+                    thr = rs[0]["threads"] if args.device == "cpu" else 1  # on a GPU: steps per device-minute
                     before = results.get((p, H, W, "before"))
                     speedup = statistics.median(r["step_s"] for r in before) / t if before else float("nan")
                     rows.append({"preset": p, "precision": prec, "H": H, "W": W, "step_s": t, "ratio_mono2": t / base,

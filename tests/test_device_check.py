@@ -29,6 +29,10 @@ def test_the_cpu_path_writes_a_passing_report(tmp_path):
     assert re.search(r"mono2 .*64x96|64x96.*mono2", report) and "mcdp_m2" in report
     assert "agreement: pass (allowed 0)" in report
     assert re.search(r"loss (\S+) \(CPU\) against \1: relative 0\.00e\+00", report)
+    # the yardstick: the CPU against itself at 1 and 2 threads (its sums in another order), a finite figure
+    m = re.search(r"yardstick, the CPU at 1 thread against 2 threads: loss \S+, gradients (\S+), "
+                  r"weights (\S+) ", report)
+    assert m and all(0 <= float(x) < 0.1 for x in m.groups())
 
 
 def test_a_wrong_argument_is_one_line_and_exit_2(tmp_path):
