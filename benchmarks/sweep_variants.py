@@ -33,10 +33,10 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from study.paired import paired_difference  # noqa: E402
-from study.results import evaluations, method_agg  # noqa: E402
-from study.results_files import read_results  # noqa: E402
-from study.variants import CUT, ORACLE, Evaluation  # noqa: E402
+from study.results.paired import paired_difference  # noqa: E402
+from study.results.summary import evaluations, method_agg  # noqa: E402
+from study.results.files import read_results  # noqa: E402
+from study.sweep.variants import CUT, ORACLE, Evaluation  # noqa: E402
 from benchmarks._table import markdown, show  # noqa: E402
 from corelib.text import bounded  # noqa: E402
 
@@ -81,7 +81,7 @@ def run_variant(base: str, root: Path, source: Path | None, name: str, train: li
 
         claim(out, "sweep").release()  # a sweep folder (refused if it is something else), then shared inputs
         share(source, out, link_methods)
-    from study.config import load_sweep_config
+    from study.sweep.config import load_sweep_config
 
     cfg = load_sweep_config(base, sets)
     overrides = list(cfg.train_overrides) + train
@@ -184,7 +184,7 @@ def main(argv=None) -> None:
         name = name.strip()
         rest, _, link = rest.partition("|")
         if link.strip() == "source":  # the source sweep's own runs are this variant (no run: its init_from differs)
-            from study.config import load_sweep_config
+            from study.sweep.config import load_sweep_config
 
             want = load_sweep_config(args.base, args.set)
             src = read_results(args.source / "results.json")

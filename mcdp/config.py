@@ -78,9 +78,9 @@ class ModelConfig(StrictModel):
     weight_conv_channels, weight_fc: widths of the weight network's conv stack and FC layers.
     weight_init_std: std of the normal init of each weight network's last layer (bias 0), so
         a fresh step starts near the previous step's weights (paper: not stated).
-    mono_head: pretraining only (`study.pretrain`): a one-channel Monodepth2 head beside the
+    mono_head: pretraining only (`study.sweep.pretrain`): a one-channel Monodepth2 head beside the
         n bases on the same encoder and decoder trunk (stages "mono" and "init").
-    init_from: path to a shared pretraining's ``pretrained.pt`` (`study.pretrain`), or null. A
+    init_from: path to a shared pretraining's ``pretrained.pt`` (`study.sweep.pretrain`), or null. A
         fresh run copies the encoder and decoder from it (mono2 takes the mono head, mcdp the
         n basis channels); weight networks start fresh. Refused, naming the layer, when the
         architecture differs. The run records the file's path and sha256.

@@ -1,5 +1,5 @@
 """Per-sequence sums of a metric, so a reader can resample a split's sequences (a bootstrap over test
-sequences, `study.variance`) and recompute the split's figure exactly as `mcdp.evaluate` computes it.
+sequences, `study.stats.variance`) and recompute the split's figure exactly as `mcdp.evaluate` computes it.
 
 `mcdp.evaluate` averages a metric over images per camera, then over cameras. A sequence's images share its
 scene, so sequences, not images, are the independent units of a split. For each scaling, region and sequence

@@ -64,7 +64,7 @@ def median_gt_depth(ds: DatasetReader, split: str = "train", cfg: EvalConfig | N
     Uses the same pixels as `evaluate` (depth range, self-occlusion masks, frame stride,
     skip_ends). It reads ground truth, so the constant-depth predictor built on it is a
     *reference* for reading tables (what a depth map without any structure scores), never a
-    method; `study.stages` takes it from the train split and evaluates it on the test split.
+    method; `study.sweep.stages` takes it from the train split and evaluates it on the test split.
 
     Raises:
         ValueError: the split has no evaluable pixel.

@@ -2,7 +2,7 @@
 
 Data, not the ORACLE: every reader here reads ground truth, so whatever uses one is a yardstick and says
 so (an ORACLE-scaled run, `mcdp.methods.oracle_local`'s input field, the ORACLE weights and propagator of
-`mcdp.oracle` and `study.probes`). Nothing in training or inference reads them unless a `mcdp.inputs.InputField`
+`mcdp.oracle` and `study.sweep.probes`). Nothing in training or inference reads them unless a `mcdp.inputs.InputField`
 with ``truth=True`` is declared.
 """
 from __future__ import annotations

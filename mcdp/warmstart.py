@@ -1,6 +1,6 @@
 """Start a run's depth network from a shared pretraining (``model.init_from``).
 
-The pretraining (`study.pretrain`) trains one encoder + decoder trunk with two heads:
+The pretraining (`study.sweep.pretrain`) trains one encoder + decoder trunk with two heads:
 n basis channels and, as the decoder's last channel, a one-channel Monodepth2 head.
 `warm_start` copies the encoder and the decoder trunk into a fresh `DepthModel`; the
 output convolutions (``decoder.dispconv.*``) come from the head the method uses

@@ -45,8 +45,8 @@ MARKERS = {"base": ("o", "200 steps"), "x4": ("s", "800 steps"), "live": ("^", "
 
 def collect(folders: dict[str, Path]) -> dict:
     """{point: {"arms": {arm: {world: {column: value}}}, "yardsticks": {...}, "train_s": {arm: [..]}}}."""
-    from study.anchors import load_anchors
-    from study.calibration import arm_train_seconds, arm_values, columns
+    from study.report.sections.anchors import load_anchors
+    from study.report.sections.calibration import arm_train_seconds, arm_values, columns
 
     anchors = load_anchors(ANCHORS)
     cols = columns(anchors)
@@ -77,7 +77,7 @@ def _fmt(x: float, nd: int = 3) -> str:
 
 
 def _row_cells(r: dict) -> str:
-    from study.results import fmt_diff
+    from study.results.summary import fmt_diff
 
     if r["n"] < 2:
         syn, verdict = "not run", "-"
@@ -144,9 +144,9 @@ def scatter(rows_by_point: dict[str, list[dict]], path: Path) -> None:
 def build(values: dict, plot_dir: Path | None = None) -> str:
     """The page's text from ``values`` (values.json's content); its scatter plot is written into ``plot_dir``
     (default docs/results/calibration/)."""
-    from study.anchors import load_anchors
-    from study.calibration import agreement, read_anchors
-    from study.results import fmt_diff
+    from study.report.sections.anchors import load_anchors
+    from study.report.sections.calibration import agreement, read_anchors
+    from study.results.summary import fmt_diff
 
     anchors = load_anchors(ANCHORS)
     rows = {p: read_anchors(anchors, {a: {int(w): v for w, v in d.items()} for a, d in values[p]["arms"].items()})
@@ -251,7 +251,7 @@ def main(argv: list[str] | None = None) -> int:
                 return 2
             folders[name] = Path(folder)
         atomic_write_text(VALUES, json.dumps(collect(folders), indent=1, sort_keys=True) + "\n")
-    from republish import publish_one  # the page from its row of study.pages.PAGES, as `republish.py calibration`
+    from republish import publish_one  # the page from its row of study.report.pages.PAGES, as `republish.py calibration`
 
     return publish_one("calibration", "publish_calibration")
 

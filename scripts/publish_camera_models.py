@@ -74,7 +74,7 @@ def _distortion_px(data_dir: Path) -> dict:
 def collect(folder: Path) -> dict:
     """{"arms": {arm: {world: {column: value}}}, "yardsticks": {rig: {name: {column: mean over worlds}}},
     "distortion_px": {rig: {camera: px}}, "train_s": {arm: [...]}}."""
-    from study.calibration import arm_train_seconds, arm_values
+    from study.report.sections.calibration import arm_train_seconds, arm_values
 
     out: dict = {"arms": {}, "yardsticks": {}, "distortion_px": {}, "train_s": {}}
     for m in METHODS:
@@ -95,7 +95,7 @@ def collect(folder: Path) -> dict:
 
 def _diff(values: dict, base: str, changed: str, col: str) -> dict:
     """base - changed over the worlds both arms have (positive = the change helps for a lower-better column)."""
-    from study.calibration import paired
+    from study.report.sections.calibration import paired
 
     a, b = values["arms"].get(base, {}), values["arms"].get(changed, {})
     worlds = sorted(set(a) & set(b), key=int)
@@ -109,7 +109,7 @@ def _level(values: dict, arm: str, col: str) -> str:
 
 
 def build(values: dict) -> str:
-    from study.results import fmt_diff
+    from study.results.summary import fmt_diff
 
     def cell(d: dict) -> str:
         if not d["worlds"]:
@@ -207,7 +207,7 @@ def main(argv: list[str] | None = None) -> int:
     if not VALUES.is_file():
         print(f"publish_camera_models: {VALUES} is missing; run with --collect FOLDER first", file=sys.stderr)
         return 2
-    from republish import publish_one  # the page from its row of study.pages.PAGES, as `republish.py camera_models`
+    from republish import publish_one  # the page from its row of study.report.pages.PAGES, as `republish.py camera_models`
 
     return publish_one("camera_models", "publish_camera_models")
 

@@ -8,7 +8,7 @@ Reads docs/results/<part>/results.json for each part below that has been publish
 (what the numbers cannot say: commands, wall times, the machine). Writes docs/results/lcon.md and its forest
 plots under docs/results/lcon/plots/, each built in a temporary folder first (whole files, never through a link).
 
-Its row of the page table (`study.pages.PAGES`) names its parts; ``main`` publishes that row
+Its row of the page table (`study.report.pages.PAGES`) names its parts; ``main`` publishes that row
 (`python scripts/republish.py lcon` does the same). Parts: lcon_main (the primary comparison (b) at overlap 0.10 on the main run's worlds, configs/sweep/cpu_lcon.yaml),
 lcon_pilot (the pilot that sized it), lcon_pilot_auto (the pilot's runs read at each arm's own `auto` checkpoint),
 lcon_overlaps ((b) at 0.10 / 0.30 / 0.60 on the pilot's worlds), lcon_budget ((b) at 1000 steps).
@@ -23,10 +23,10 @@ RESULTS = ROOT / "docs" / "results"
 sys.path.insert(0, str(ROOT))
 sys.path.insert(0, str(ROOT / "scripts"))
 
-from study.pages import row  # noqa: E402
+from study.report.pages import row  # noqa: E402
 
 NAME = "lcon"
-#: the sweeps it reads, in the page's order: its row's (study.pages.PAGES)
+#: the sweeps it reads, in the page's order: its row's (study.report.pages.PAGES)
 PARTS = row(NAME).parts
 
 
@@ -38,7 +38,7 @@ def load_part(part: str) -> dict | None:
 
 
 def _section(title: str, part: str, results: dict | None, plot_dir: Path, missing: str) -> tuple[list[str], list]:
-    from study.lcon import format_lcon
+    from study.report.sections.lcon import format_lcon
 
     if results is None:
         return [f"## {title}\n", f"Not published: {missing}\n"], []
@@ -47,7 +47,7 @@ def _section(title: str, part: str, results: dict | None, plot_dir: Path, missin
     text = text.replace("## (b) L_con's training-time effect outside the overlap\n", "", 1)
     c = results.get("sweep_config", {})
     steps = _steps(results)
-    from study.lcon import pairs
+    from study.report.sections.lcon import pairs
 
     worlds = sorted({p["world"] for o in results["overlaps"] for p in pairs(results, o)})
     span = f"{worlds[0]}-{worlds[-1]}" if worlds and worlds == list(range(worlds[0], worlds[-1] + 1)) else \
@@ -66,22 +66,22 @@ def _steps(results: dict) -> str:
 
 
 def _lc(text: str) -> str:
-    """A sentence of `study.lcon.answer` continued after a colon (its first word in lower case, L_con kept)."""
+    """A sentence of `study.report.sections.lcon.answer` continued after a colon (its first word in lower case, L_con kept)."""
     return text if text.startswith("L_con") else text[:1].lower() + text[1:]
 
 
 def build(stage: Path) -> tuple[str, list[tuple[Path, str]]]:
     """The page's text and its plots [(file in ``stage``, its path under docs/results/)]: its row of
-    `study.pages.PAGES` (call ``stage``)."""
-    from study.pages import preface as fill_preface
-    from study.lcon import answer, format_selection, pairs, reading, selection_effect
-    from study.primary import SCALINGS, plan_of
-    from study.results import fmt_diff
+    `study.report.pages.PAGES` (call ``stage``)."""
+    from study.report.pages import preface as fill_preface
+    from study.report.sections.lcon import answer, format_selection, pairs, reading, selection_effect
+    from study.report.sections.primary import SCALINGS, plan_of
+    from study.results.summary import fmt_diff
 
     parts = {p: load_part(p) for p in PARTS}
     br = None  # (b) at the long budget beside its control: the opening lines and its section read it
     if parts["lcon_budget"] is not None:
-        from study.lcon import budget_reading
+        from study.report.sections.lcon import budget_reading
 
         br = budget_reading(parts["lcon_budget"], parts["lcon_main"])
     L: list[str] = ["# Does training with L_con on a small overlap make depth better outside it?\n"]
@@ -131,7 +131,7 @@ def build(stage: Path) -> tuple[str, list[tuple[Path, str]]]:
         L += text
         plots += pl
         if part == "lcon_budget" and parts[part] is not None:
-            from study.lcon import format_budget
+            from study.report.sections.lcon import format_budget
 
             L.append("### Beside the positive control, and against 200 steps on the same worlds\n")
             L.append(format_budget(br, _steps(parts[part]), _steps(main or {})))
@@ -147,7 +147,7 @@ def build(stage: Path) -> tuple[str, list[tuple[Path, str]]]:
 
 
 def main(argv=None) -> int:
-    """``python scripts/publish_lcon.py``: this page's row of `study.pages.PAGES`, by `republish.publish_one`."""
+    """``python scripts/publish_lcon.py``: this page's row of `study.report.pages.PAGES`, by `republish.publish_one`."""
     from republish import publish_one
 
     if argv:

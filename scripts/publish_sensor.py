@@ -42,16 +42,16 @@ def build() -> str:
     """The page's text."""
     from publish_lcon import load_part
     from publish_sweep import PublishError
-    from study.pages import preface as fill_preface, row
-    from study.preface import PrefaceError
-    from study.sensor import format_between, format_followup, format_sensor
+    from study.report.pages import preface as fill_preface, row
+    from study.report.preface import PrefaceError
+    from study.report.sections.sensor import format_between, format_followup, format_sensor
 
     L = ["# What the camera as a sensor does to cross-camera consistency\n"]
     ideal = load_part(IDEAL)
     parts = {p: load_part(p) for p, _, _ in CONDITIONS}
     fi, fe = load_part(FOLLOWUP[0]), load_part(FOLLOWUP[1])
     page = row(NAME)
-    try:  # a template: its figures are filled from the parts' results (its row's values: study.sensor.preface_values)
+    try:  # a template: its figures are filled from the parts' results (its row's values: study.report.sections.sensor.preface_values)
         text = fill_preface(page, ideal, parts, (fi, fe) if fi is not None and fe is not None else None,
                             results=RESULTS) if ideal is not None else \
             fill_preface(dataclasses.replace(page, values=None), results=RESULTS)  # no ideal: the template unfilled
@@ -89,7 +89,7 @@ def build() -> str:
 
 
 def main(argv=None) -> int:
-    """``python scripts/publish_sensor.py``: this page's row of `study.pages.PAGES`, by `republish.publish_one`."""
+    """``python scripts/publish_sensor.py``: this page's row of `study.report.pages.PAGES`, by `republish.publish_one`."""
     from republish import publish_one
 
     if argv:

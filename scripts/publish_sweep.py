@@ -4,12 +4,12 @@
     python scripts/publish_sweep.py --name propagation                              # rebuild from the committed data
 
 Writes docs/results/<name>/results.json and records.json.gz (the sweep's results, compact:
-`study.results_files.compact_results`; a committed results.json not compact yet is made so) and the rig previews
+`study.results.files.compact_results`; a committed results.json not compact yet is made so) and the rig previews
 (first form only: copied from the sweep), then from those files alone docs/results/<name>/results.csv.gz (the
-results.csv the sweep writes, gzip'd: `study.results_files.gzip_csv`; a plain results.csv left there by an older
+results.csv the sweep writes, gzip'd: `study.results.files.gzip_csv`; a plain results.csv left there by an older
 publish is removed), docs/results/<name>/plots/*.png and docs/results/<name>.md: the
 committed preface docs/results/<name>/preface.md (what the numbers cannot say themselves: the command,
-the measured wall time, the machine), then the sweep's report (`study.report`) with its plot links
+the measured wall time, the machine), then the sweep's report (`study.report.compose`) with its plot links
 pointing into docs/results/<name>/.
 
 Everything is read and checked first (the sweep's results.json and the rig previews it lists: regular files
@@ -18,7 +18,7 @@ and every output is built in a temporary folder; only then is anything written i
 files, never through a link). A mistake is one line naming the file (and the field), exit 2.
 
 A report committed with its results.csv (or results.csv.gz) only (none now: sweep_compare had only one until
-2026-12-03) gets its plots rebuilt from the CSV (`study.results_files.read_results`); its .md is left alone, since its
+2026-12-03) gets its plots rebuilt from the CSV (`study.results.files.read_results`); its .md is left alone, since its
 tables need the full results.json.
 """
 from __future__ import annotations
@@ -61,13 +61,13 @@ class PublishError(ValueError):
 
 
 def report_text(name: str, results: dict, plots: list[str], previews: list[str] | None = None) -> str:
-    """docs/results/<name>.md: its preface (a template whose fields `study.preface.fill` fills from `results`), the
-    line naming this command, then `study.report.format_report`
+    """docs/results/<name>.md: its preface (a template whose fields `study.report.preface.fill` fills from `results`), the
+    line naming this command, then `study.report.compose.format_report`
     of `results` with `plots` (paths relative to docs/results/) and the rig previews published beside it
     (``previews``: their file names; by default those already in docs/results/<name>/)."""
-    from study.pages import preface, sweep_row
-    from study.preface import PrefaceError
-    from study.report import format_report
+    from study.report.pages import preface, sweep_row
+    from study.report.preface import PrefaceError
+    from study.report.compose import format_report
 
     out = RESULTS / name
     row = sweep_row(name)
@@ -89,13 +89,13 @@ def report_text(name: str, results: dict, plots: list[str], previews: list[str] 
     return head + cmd + report
 
 
-#: the last line of a sweep's report.md (`study.report.format_report`): the files in the sweep's folder
+#: the last line of a sweep's report.md (`study.report.compose.format_report`): the files in the sweep's folder
 _SWEEP_FILES = "Every number: `results.csv` (one row per overlap × method × seed) and `results.json`.\n"
 
 
 def _published_files(name: str) -> str:
     """The last line of a published page: the files beside it that hold every number."""
-    from study.results_files import CSV_GZ, RECORDS
+    from study.results.files import CSV_GZ, RECORDS
 
     return (f"Every number: [`{name}/{CSV_GZ}`]({name}/{CSV_GZ}) (one row per overlap × method × seed; a gzip'd CSV, "
             f"read as is by `pandas.read_csv`) and [`{name}/results.json`]({name}/results.json) with its "
@@ -104,7 +104,7 @@ def _published_files(name: str) -> str:
 
 def load_part(part: str) -> dict | None:
     """docs/results/<part>/results.json, checked and upgraded (`check_results`); None where it is not published (a
-    part of a page that reads several sweeps: its row of `study.pages`)."""
+    part of a page that reads several sweeps: its row of `study.report.pages`)."""
     from corelib.readfile import read_inside
 
     path = RESULTS / part / "results.json"
@@ -112,10 +112,10 @@ def load_part(part: str) -> dict | None:
 
 
 def check_results(raw: bytes, path: Path) -> dict:
-    """The results dict of a results.json's bytes, upgraded (`study.results.upgrade_results`); PublishError
+    """The results dict of a results.json's bytes, upgraded (`study.results.summary.upgrade_results`); PublishError
     naming the file and the field of one that is not JSON or not a sweep's results."""
-    from study.results import upgrade_results
-    from study.results_files import RECORDS_KEY
+    from study.results.summary import upgrade_results
+    from study.results.files import RECORDS_KEY
 
     try:
         obj = json.loads(raw.decode("utf-8"))
@@ -207,7 +207,7 @@ def _check_values(obj: dict, path: Path) -> None:
     if plan is not None:  # the L_con page's sequential reading reads it (scripts/publish_lcon.py)
         from pydantic import ValidationError
 
-        from study.config import SweepPlan
+        from study.sweep.config import SweepPlan
 
         try:
             SweepPlan.model_validate(plan)
@@ -228,10 +228,10 @@ def _check_values(obj: dict, path: Path) -> None:
 
 
 def _joined(summary: dict, path: Path) -> dict:
-    """The whole results of a compact results.json (`study.results_files.compact_results`): its records file
+    """The whole results of a compact results.json (`study.results.files.compact_results`): its records file
     read beside it (a regular file inside its folder, `corelib.readfile`); PublishError naming the file."""
     from corelib.readfile import read_inside
-    from study.results_files import RECORDS, join_results
+    from study.results.files import RECORDS, join_results
 
     try:
         return join_results(summary, read_inside(path.parent / RECORDS, path.parent))
@@ -258,8 +258,8 @@ def _read_sweep(sweep: Path) -> tuple[bytes, dict, dict[str, bytes]]:
 
 def _build(name: str, results: dict, stage: Path, previews: list[str] | None) -> tuple[list[Path], str]:
     """results.csv and plots/ into ``stage``, and the report's text: nothing in docs/results/ yet."""
-    from study.outputs import report_plots
-    from study.results_files import write_csv
+    from study.report.outputs import report_plots
+    from study.results.files import write_csv
 
     write_csv(results, stage / "results.csv")
     plots = report_plots(results, stage / "plots")
@@ -293,10 +293,10 @@ def small_png(data: bytes) -> bytes:
 def _csv_results(csv: Path) -> dict:
     """The results of a report committed with its results.csv only: the file checked by the one rule first
     (`corelib.readfile.read_file`: a regular file inside docs/results/, no link, bounded), then parsed
-    (`study.results_files.read_results`); a csv that is not a sweep's is PublishError naming the file and the
+    (`study.results.files.read_results`); a csv that is not a sweep's is PublishError naming the file and the
     column."""
     from corelib.readfile import read_file
-    from study.results_files import read_results
+    from study.results.files import read_results
 
     read_file(csv, root=RESULTS, kind="results")  # ReadRefused, one line, for a link, a FIFO, 3 GB
     try:
@@ -317,7 +317,7 @@ def publish(name: str, sweep: Path | None) -> str:
     `corelib.atomic`); the line to print. PublishError / ReadRefused (one line) before anything is written."""
     from corelib.atomic import atomic_write_bytes, atomic_write_text, make_folder
     from corelib.readfile import read_inside
-    from study.results_files import CSV_GZ, RECORDS, RECORDS_KEY, compact_results, gzip_csv, read_results
+    from study.results.files import CSV_GZ, RECORDS, RECORDS_KEY, compact_results, gzip_csv, read_results
 
     if not _NAME.fullmatch(name):
         raise PublishError(f"--name {name[:80]!r}: not a report name (letters, digits, _ . -, not starting with a dot)")
@@ -334,7 +334,7 @@ def publish(name: str, sweep: Path | None) -> str:
         csv = next((out / n for n in (CSV_GZ, "results.csv") if os.path.lexists(out / n)), None)
         if csv is None:
             raise PublishError(f"{out / 'results.json'}: no such file (nor a {CSV_GZ} or results.csv beside it)")
-        from study.plots import make_plots
+        from study.report.plots import make_plots
 
         plots = make_plots(_csv_results(csv), make_folder(out) / "plots")
         return (f"wrote {len(plots)} plots from docs/results/{name}/{csv.name} (no results.json: "
@@ -344,7 +344,7 @@ def publish(name: str, sweep: Path | None) -> str:
         shown = list(previews) if sweep is not None else None
         plots, text = _build(name, results, stage, shown)
         make_folder(out)
-        if raw is not None:  # committed compact: the summary and its records (study.results_files.compact_results)
+        if raw is not None:  # committed compact: the summary and its records (study.results.files.compact_results)
             summary, blob = compact_results(results)
             atomic_write_bytes(out / RECORDS, blob, fsync=False)
             atomic_write_bytes(out / "results.json", (json.dumps(summary, indent=1, allow_nan=True) + "\n")

@@ -6,7 +6,7 @@ worlds (hard links of its ``pretrain/``, ``data/`` and ``.mcdp/``, made before t
 differ by their switch only and every world is rendered once. The sweeps run one after the other, in the file's
 ``order``, each on the sweep's own engine (its ``jobs`` runs at a time): a session cut short has the first arms.
 A rerun resumes every arm (each sweep skips what it has). The calibration page reads the folders
-(`study.calibration`).
+(`study.report.sections.calibration`).
 
 Example::
 
@@ -76,8 +76,8 @@ def main(argv: list[str] | None = None) -> int:
 
 def run_calibrate(args: argparse.Namespace) -> int:
     """Run ``mcdp calibrate``: 0, or the worst exit status of the arms' sweeps; 2 for a bad file or argument."""
-    from study.anchors import load_anchors
-    from study.config import load_sweep_config
+    from study.report.sections.anchors import load_anchors
+    from study.sweep.config import load_sweep_config
 
     try:
         anchors = load_anchors(args.anchors)

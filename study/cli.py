@@ -15,7 +15,7 @@ import sys
 
 from corelib import exitcodes
 from corelib.cli import Command
-from study import calibration_run, command_common, method_commands
+from study import calibrate_command, command_common, method_commands
 from corelib.presets import complete_presets, preset_path
 
 # the study's modules (and torch, which they import) are imported by the command that runs, once its
@@ -36,7 +36,7 @@ def _pretrain_args(p: argparse.ArgumentParser) -> None:
 
 def run_pretrain_command(args: argparse.Namespace) -> int:
     """Run the ``pretrain`` subcommand (a cached pretraining returns at once); 0 on success."""
-    from study.pretrain import load_pretrain_config, resolved_configs, run_pretrain
+    from study.sweep.pretrain import load_pretrain_config, resolved_configs, run_pretrain
     from synth.config import check_render_size, render_size, size_statement
 
     cfg = load_pretrain_config(preset_path(args.config, "pretrain"), args.overrides)
@@ -64,7 +64,7 @@ def _sweep_args(p: argparse.ArgumentParser) -> None:
                         "docs/SCALING.md)")
     p.add_argument("--yes", action="store_true", help="start a sweep whose renders together are larger than "
                    "synth.config.MAX_RENDER_BYTES (500 GB uncompressed), or whose renders and checkpoints are more "
-                   "than the disk has free (study.disk), without refusing")
+                   "than the disk has free (study.sweep.disk), without refusing")
     p.add_argument("overrides", nargs="*",
                    help="sweep config overrides key=value, e.g. 'overlaps=[0.2,0.5]' seeds=[0,1] "
                         "'train_overrides=[train.steps=100]'")
@@ -73,7 +73,7 @@ def _sweep_args(p: argparse.ArgumentParser) -> None:
 def run_sweep_command(args: argparse.Namespace) -> int:
     """Run the ``sweep`` subcommand; 0 on success, 5 if some run failed (engine ray: retried once, then a
     ``failed`` row), else 3 if some run diverged (the report says which); 2 for a usage / config error."""
-    from study.config import check_nested_configs, load_sweep_config
+    from study.sweep.config import check_nested_configs, load_sweep_config
     from synth.config import check_render_size, size_statement
 
     preset = preset_path(args.preset, "sweep")
@@ -91,11 +91,11 @@ def run_sweep_command(args: argparse.Namespace) -> int:
     print(f"mcdp sweep: its renders: {size_statement(size)}", file=sys.stderr)
     check_render_size(size, args.yes, f"sweep {args.preset}: its renders together",
                       "dataset.sequences / dataset.frames / camera.* in data_overrides (and pretrain.data_overrides)")
-    from study.disk import check_disk
+    from study.sweep.disk import check_disk
 
     print(f"mcdp sweep: its checkpoints: {check_disk(cfg, args.out, size['max_bytes'], args.yes)}", file=sys.stderr)
-    from study.engines import EXIT_RUN_FAILED
-    from study.sweep import run_sweep
+    from study.sweep.engines import EXIT_RUN_FAILED
+    from study.sweep_command import run_sweep
 
     source = str(preset) + (" + " + " ".join(args.overrides) if args.overrides else "")
     results = run_sweep(cfg, args.out, progress=not args.no_progress,  # checked above: resolved once
@@ -114,7 +114,7 @@ COMMANDS = [
             "plots", _sweep_args, run_sweep_command),
     Command("calibrate", "train every arm of a calibration anchors file at a sweep recipe, one sweep folder per arm "
             "(configs/calibration/anchors.yaml; the page: scripts/publish_calibration.py)",
-            calibration_run.calibrate_args, calibration_run.run_calibrate),
+            calibrate_command.calibrate_args, calibrate_command.run_calibrate),
 ]
 
 

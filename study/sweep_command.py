@@ -3,14 +3,14 @@
 For each overlap of a sweep preset (``configs/sweep/*.yaml``) the dataset is
 rendered (``spacing`` mode by default: intrinsics fixed, only the yaw spacing
 changes, so overlap is the only variable), every method preset is trained for
-every seed, evaluated on the test split, and `study.report` writes the tables,
+every seed, evaluated on the test split, and `study.report.compose` writes the tables,
 CSV/JSON and plots::
 
     mcdp sweep configs/sweep/ci.yaml --out SWEEP [key=value ...]
     mcdp sweep configs/sweep/cpu.yaml --out sweeps/cpu "overlaps=[0.2,0.4]" seeds=[0,1]
     mcdp sweep configs/sweep/cpu.yaml --out /shared/sweeps/cpu --engine ray   # Ray tasks (docs/SCALING.md)
 
-Engines (`study.engines`): ``local`` runs the renders in ``workers`` processes and the runs
+Engines (`study.sweep.engines`): ``local`` runs the renders in ``workers`` processes and the runs
 ``jobs`` at a time in processes; ``ray`` makes every rendered sequence and every run a Ray task
 on a local Ray or the cluster at ``RAY_ADDRESS``; a run that fails twice there is a row with
 status ``failed`` and the other runs go on. Rows, counters, resumption and skipping are the same.
@@ -51,13 +51,13 @@ import yaml
 from corelib.atomic import atomic_write_text
 from corelib.logs import logger
 from corelib.configlib import ConfigError, config_hash, config_to_dict, read_yaml
-from study.config import SPLIT, SweepConfig, check_nested_configs, overlap_key, world_of_seed, worlds_of
-from study.outputs import write_all
-from study.results import build_results
-from study.engines import run_all
-from study.progress import SweepProgress, fmt_duration
-from study.stages import Counters, pretrain_stage
-from study.worlds import combine_worlds, reference_stage, render_stage
+from study.sweep.config import SPLIT, SweepConfig, check_nested_configs, overlap_key, world_of_seed, worlds_of
+from study.report.outputs import write_all
+from study.results.summary import build_results
+from study.sweep.engines import run_all
+from study.sweep.progress import SweepProgress, fmt_duration
+from study.sweep.stages import Counters, pretrain_stage
+from study.sweep.worlds import combine_worlds, reference_stage, render_stage
 
 
 def run_sweep(cfg: SweepConfig, out: str | Path, progress: bool = True, log: Callable[[str], None] | None = None,
@@ -69,8 +69,8 @@ def run_sweep(cfg: SweepConfig, out: str | Path, progress: bool = True, log: Cal
     diverged, failed), ``data`` (per overlap), ``rows`` (per overlap x method x seed),
     ``aggregate`` (mean/std over seeds) and ``timing``. Its renders together above
     `synth.config.MAX_RENDER_BYTES`, or renders and checkpoints together above the space free under `out`
-    (`study.disk.check_disk`), are refused (ConfigError) unless `yes`. ``checked``: the caller has resolved and
-    size-checked every nested config and the disk already (`study.config.check_nested_configs`, as the command
+    (`study.sweep.disk.check_disk`), are refused (ConfigError) unless `yes`. ``checked``: the caller has resolved and
+    size-checked every nested config and the disk already (`study.sweep.config.check_nested_configs`, as the command
     line does before it says the sizes), so they are not resolved a second time.
     """
     from corelib.rundir import claim
@@ -78,7 +78,7 @@ def run_sweep(cfg: SweepConfig, out: str | Path, progress: bool = True, log: Cal
     log = log or logger("sweep").info  # stderr (-q hides it) and, during a run, its train.log
     out = Path(out)
     if not checked:  # a typo in an override, a huge render, a disk too small: refused before anything is written
-        from study.disk import check_disk
+        from study.sweep.disk import check_disk
 
         log(f"[sweep] its checkpoints: {check_disk(cfg, out, check_nested_configs(cfg, yes)['max_bytes'], yes)}")
     if cfg.engine == "ray":
@@ -108,7 +108,7 @@ def _run_sweep(cfg: SweepConfig, out: Path, progress: bool, log, config_source: 
     counters = Counters(rendered=0, render_skipped=0, render_resumed=0, trained=0, train_skipped=0, train_resumed=0,
                         evaluated=0, eval_skipped=0, diverged=0, failed=0, reference_evaluated=0, reference_skipped=0)
     t_start = time.perf_counter()
-    # overall progress: a bar on a terminal, else log lines (study.progress)
+    # overall progress: a bar on a terminal, else log lines (study.sweep.progress)
     prog = SweepProgress(n_runs, log, bar=progress and sys.stderr.isatty())
     try:
         prog.stage("pretraining")

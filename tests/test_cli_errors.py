@@ -315,8 +315,8 @@ def test_a_sweep_or_pretraining_removes_killed_writers_temporary_files_when_it_c
                                                                                                  monkeypatch, command):
     """What a killed run, render or checkpoint left anywhere under the sweep's (pretraining's) folder is
     removed when the next run of the command locks it, before it does anything else (here: nothing else)."""
-    import study.pretrain
-    import study.sweep
+    import study.sweep.pretrain
+    import study.sweep_command
     from corelib.rundir import claim
 
     out = tmp_path / command
@@ -324,13 +324,13 @@ def test_a_sweep_or_pretraining_removes_killed_writers_temporary_files_when_it_c
     left = [_killed_writer(out / "runs" / "overlap_0.20" / "mono2_s0" / "checkpoints" / "last.pt"),
             _killed_writer(out / "data" / "seq_00000" / "CAM_FRONT" / "000000.png")]
     if command == "sweep":
-        monkeypatch.setattr(study.sweep, "_run_sweep", lambda *a: {"counters": {}})
-        from study.config import load_sweep_config
+        monkeypatch.setattr(study.sweep_command, "_run_sweep", lambda *a: {"counters": {}})
+        from study.sweep.config import load_sweep_config
 
         cfg = load_sweep_config(ROOT / "configs" / "sweep" / "ci.yaml", ["pretrain=null"])
-        study.sweep.run_sweep(cfg, out, progress=False, log=lambda s: None)
+        study.sweep_command.run_sweep(cfg, out, progress=False, log=lambda s: None)
     else:
-        monkeypatch.setattr(study.pretrain, "_pretrain", lambda *a: {})
-        study.pretrain.run_pretrain(study.pretrain.load_pretrain_config(ROOT / "configs" / "pretrain" / "tiny.yaml"),
+        monkeypatch.setattr(study.sweep.pretrain, "_pretrain", lambda *a: {})
+        study.sweep.pretrain.run_pretrain(study.sweep.pretrain.load_pretrain_config(ROOT / "configs" / "pretrain" / "tiny.yaml"),
                                     out, progress=False, log=lambda s: None)
     assert [p for p in left if p.exists()] == [] and not [p for p in out.rglob("*") if ".tmp" in p.name]

@@ -170,7 +170,7 @@ def test_every_numeric_key_has_a_finite_range(cls, name, ann, bad):
 def test_a_sweep_reads_its_saved_config_with_the_bounds_and_only_notes_one_it_cannot(tmp_path, text, said):
     """SWEEP/sweep_config.yaml (a rerun compares it with the resolved config, for a note) is read with the
     project's loader, as every config is: one it cannot read is a note naming why, and the sweep goes on."""
-    from study.sweep import _note_config_change
+    from study.sweep_command import _note_config_change
 
     prev = tmp_path / "sweep_config.yaml"
     prev.write_text(text)

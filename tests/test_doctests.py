@@ -12,7 +12,7 @@ import pytest
 MODULES = (
     "mcdp.inputs",   # InputField, DepthInput, RigBatch: a method's own input
     "mcdp.metrics",  # Metric, METRICS: a metric and its direction
-    "study.variants",  # Variant, VARIANTS: a way the sweep evaluates a run
+    "study.sweep.variants",  # Variant, VARIANTS: a way the sweep evaluates a run
     "synth.label_kinds",  # LabelKind: a label a render writes
     "synth.camera",  # CameraModel, MODELS: a lens model (project, unproject, resize, JSON)
     "mcdp.camera",  # TorchModel, TORCH_MODELS: the lens models' torch twins

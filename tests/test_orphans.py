@@ -100,9 +100,9 @@ def sweep_data(tmp_path_factory):
     """The sweep's dataset (overlap 0.20), rendered once in process as its render stage does: each test's
     sweep reuses a copy of it and gets to its runs' workers without rendering it again."""
     from corelib.rundir import claim
-    from study.config import load_sweep_config
-    from study.stages import Counters
-    from study.worlds import render_stage
+    from study.sweep.config import load_sweep_config
+    from study.sweep.stages import Counters
+    from study.sweep.worlds import render_stage
 
     sweep_dir = tmp_path_factory.mktemp("orphans") / "s"
     claim(sweep_dir, "sweep").release()  # what the sweep writes first: the marker of a sweep folder

@@ -201,8 +201,8 @@ def test_a_sweep_or_pretraining_refuses_renders_above_the_cap_before_its_folder(
 
 def test_run_sweep_checks_every_render_and_yes_lets_it_through(tmp_path):
     from corelib.configlib import ConfigError
-    from study.config import check_nested_configs, load_sweep_config
-    from study.sweep import run_sweep
+    from study.sweep.config import check_nested_configs, load_sweep_config
+    from study.sweep_command import run_sweep
 
     cfg = load_sweep_config(ROOT / "configs" / "sweep" / "ci.yaml", [f"data_overrides=[{HUGE_WORLD}]"])
     with pytest.raises(ConfigError, match=r"sweep: its 3 world\(s\) \(2 overlap\(s\) of configs/data/tiny.yaml "

@@ -93,7 +93,7 @@ def test_tiny_sensor_noise_refused_naming_key():
 
 def test_tiny_sensor_noise_refused_before_a_sweep_starts():
     from corelib.configlib import ConfigError
-    from study.config import check_nested_configs, load_sweep_config
+    from study.sweep.config import check_nested_configs, load_sweep_config
 
     cfg = load_sweep_config(ROOT / "configs/sweep/ci.yaml", ["data_overrides=[sensor.noise=1e-20]"], None)
     with pytest.raises(ConfigError) as e:  # before: a traceback 45 s in, when the first world rendered
@@ -235,7 +235,7 @@ def _huge(path: Path, size: int = 3 * 2**30) -> Path:
 @pytest.mark.parametrize("name", ["sweep_status.json", "metrics_test.json", "overlap_0.50.status.json"])
 def test_sweep_record_fifo_huge_or_link_refused_in_one_line(tmp_path, name):
     from corelib.readfile import ReadRefused
-    from study.records import read_json
+    from study.sweep.records import read_json
 
     run = tmp_path / "sweep" / "runs" / "overlap_0.50" / "mono2_s0"
     run.mkdir(parents=True)
@@ -267,7 +267,7 @@ def test_sweep_record_fifo_huge_or_link_refused_in_one_line(tmp_path, name):
 
 def test_sweep_record_under_a_linked_folder_refused_with_root(tmp_path):
     from corelib.readfile import ReadRefused
-    from study.records import read_json
+    from study.sweep.records import read_json
 
     sweep, outside = tmp_path / "sweep", tmp_path / "outside"
     (outside / "mono2_s0").mkdir(parents=True)
@@ -394,7 +394,7 @@ def test_publish_csv_only_report_read_by_the_rule(ps, tmp_path, kind):
 
 @pytest.fixture(scope="module")
 def committed_results():
-    from study.results_files import read_results
+    from study.results.files import read_results
 
     return read_results(ROOT / "docs/results/propagation_budget/results.json")
 
@@ -458,15 +458,14 @@ SWEEP_CI = ROOT / "configs/sweep/ci.yaml"
 
 
 def _ci(*overrides):
-    from study.config import load_sweep_config
+    from study.sweep.config import load_sweep_config
 
     return load_sweep_config(SWEEP_CI, list(overrides), None)
 
 
 @pytest.fixture()
 def disk(monkeypatch):
-    from study import disk as mod
-
+    from study.sweep import disk as mod
     monkeypatch.setattr(mod, "checkpoint_bytes", lambda rcfg, n_cameras=6: (300_000_000, 100_000_000))
     return mod
 
@@ -509,7 +508,7 @@ def test_a_sparse_file_is_not_counted_as_written(disk, tmp_path, monkeypatch):
 
 
 def _complete(out: Path, cfg) -> None:
-    from study.config import overlap_key, world_key, worlds_of
+    from study.sweep.config import overlap_key, world_key, worlds_of
 
     for o in cfg.overlaps:
         for w in worlds_of(cfg):

@@ -55,8 +55,8 @@ def test_a_linked_folder_is_refused_in_one_line(tmp_path):
 def test_the_sweeps_plots_replace_linked_files_of_a_copied_sweep(tmp_path):
     """A `cp -a` copy of a sweep folder whose plots are links to the original's: a rerun's plots replace the
     links and leave the original's files as they were."""
-    from study.plots import make_plots
-    from study.results_files import read_results
+    from study.report.plots import make_plots
+    from study.results.files import read_results
 
     orig = tmp_path / "orig"
     orig.mkdir()
@@ -76,8 +76,8 @@ def test_the_sweeps_plots_replace_linked_files_of_a_copied_sweep(tmp_path):
 @pytest.fixture
 def publish(tmp_path, monkeypatch):
     """scripts/publish_sweep.py with docs/results/ in a temporary copy holding the committed propagation report
-    (and the results of the other parts its preface reads: its row of study/pages.py)."""
-    from study.pages import sweep_row
+    (and the results of the other parts its preface reads: its row of study/report/pages.py)."""
+    from study.report.pages import sweep_row
 
     mod = importlib.import_module("scripts.publish_sweep")
     results = tmp_path / "docs" / "results"
@@ -96,7 +96,7 @@ def sweep(tmp_path):
     """A sweep folder as `mcdp sweep` leaves it: results.json and its two rig previews."""
     s = tmp_path / "sweep"
     s.mkdir()
-    from study.results_files import read_results
+    from study.results.files import read_results
 
     for n in ("preview_overlap_0.10.png", "preview_overlap_0.60.png"):
         shutil.copy(PROP / n, s / n)

@@ -46,21 +46,21 @@ def _publish_bench():
 
 
 def _row_text(row) -> str:
-    """The text a row of study/pages.py builds, in memory (its plots into a temporary folder)."""
+    """The text a row of study/report/pages.py builds, in memory (its plots into a temporary folder)."""
     import tempfile
 
-    from study.pages import build
+    from study.report.pages import build
 
     with tempfile.TemporaryDirectory() as tmp:
         return build(row, Path(tmp))[0]
 
 
 def _combined() -> dict:
-    """{page name: (its script, the text its row builds)} of every row of study/pages.py whose data is committed:
+    """{page name: (its script, the text its row builds)} of every row of study/report/pages.py whose data is committed:
     the pages read together from several published sweeps, or from committed values of their own."""
     from functools import partial
 
-    from study.pages import PAGES
+    from study.report.pages import PAGES
 
     return {p.name: (f"{p.script}.py", partial(_row_text, p)) for p in PAGES
             if p.call != "sweep" and p.missing() is None}  # a sweep's page: the test of republish below
@@ -153,13 +153,13 @@ def test_republish_knows_every_committed_page_and_each_sweep_page_rebuilds():
 
     rp = importlib.import_module("scripts.republish")
     ps = importlib.import_module("scripts.publish_sweep")
-    from study.results_files import read_results
+    from study.results.files import read_results
 
     pages = rp.pages()
     results = ROOT / "docs" / "results"
     assert set(pages) == {p.stem for p in results.glob("*.md")}
     assert {n for n, k in pages.items() if k == "publish_bench"} == set(_publish_bench().bench_names())
-    from study.pages import PAGES
+    from study.report.pages import PAGES
 
     combined = [n for n in pages if n in COMBINED]
     assert "lcon" in combined and list(pages)[-len(combined):] == combined

@@ -99,7 +99,7 @@ def test_publish_sweep_refuses_the_schema_1_fixture_in_one_line(publish, tmp_pat
 def test_publish_sweep_names_a_missing_sweep_config_key(publish, tmp_path, capsys):
     sweep = tmp_path / "sweep"
     sweep.mkdir()
-    from study.results_files import read_results
+    from study.results.files import read_results
 
     results = read_results(PROP / "results.json")  # the whole results (the committed file is compact)
     del results["sweep_config"]["eval"], results["previews"]

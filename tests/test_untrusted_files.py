@@ -393,9 +393,9 @@ def _die(*_args):
 
 def test_a_sweep_run_worker_killed_ends_in_one_line_naming_the_runs(tmp_path, monkeypatch):
     from corelib.procs import WorkerLost
-    from study import engines
-    from study.config import load_sweep_config
-    from study.stages import Counters
+    from study.sweep import engines
+    from study.sweep.config import load_sweep_config
+    from study.sweep.stages import Counters
 
     cfg = load_sweep_config(ROOT / "configs/sweep/ci.yaml", ["jobs=2"])
     monkeypatch.setattr(engines, "_stage_job", _die)  # pickled by name: the workers run this module's _die

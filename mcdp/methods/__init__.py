@@ -26,10 +26,10 @@ A method's own inputs: the `mcdp.inputs.InputField`s its network declares (``Dep
 `fields_of` is what a run's data reader fills.
 
 A report reads a method through its row and network class, never its name: ``has_bases`` and
-``fresh_layers(model_config(row))`` (`study.pretrain.warm_start_line`), and the row's report flags: ``baseline``
+``fresh_layers(model_config(row))`` (`study.sweep.pretrain.warm_start_line`), and the row's report flags: ``baseline``
 (the row every other is paired against; a row's ``role``, "baseline", "method" or "yardstick", is derived: a
 row whose network reads ground truth, ``reads_ground_truth()``, is a yardstick), ``short`` (its label in a table column),
-``nocon_of`` (the row it is trained without L_con) and ``reach`` (what `study.reach`, `study.primary` and
+``nocon_of`` (the row it is trained without L_con) and ``reach`` (what `study.report.sections.reach`, `study.report.sections.primary` and
 the distance figure read of it); tests/study/test_method_rows.py registers a toy mechanism that reaches them.
 
 To add a method: write its network (its loss terms, params class and input fields with it) in one
@@ -69,9 +69,9 @@ class Method:
     #: a shorter label where the report names it in a table's column or a comparison (default: ``label``)
     short: str = ""
     #: the name of the row this one is trained without L_con (its twin): the training-time propagation of
-    #: L_con is this row's cut minus that row's cut (`study.reach`, `study.primary`)
+    #: L_con is this row's cut minus that row's cut (`study.report.sections.reach`, `study.report.sections.primary`)
     nocon_of: str | None = None
-    #: what the report's reach section reads of the row (`study.reach`): "mechanism" (a propagation mechanism
+    #: what the report's reach section reads of the row (`study.report.sections.reach`): "mechanism" (a propagation mechanism
     #: the experiment tests: its gain over the baseline, and, evaluated cut, its propagation at inference, in
     #: the tables, the distance figure and the primary comparisons), "reader" (only its propagation at
     #: inference), "global" (its bases give the global yardstick, variant ``oracle_overlap``), "local" (the local

@@ -13,7 +13,7 @@ from the previous weights.
 
 Stages are named "init", "refine1", ..., "refine{m}" (`mcdp.methods.base.stage_names`). Method
 ``mono2`` has one sigmoid channel and only "init" (`MonoDepthModel`). The shared pretraining
-(``model.mono_head``, `study.pretrain`) adds a one-channel Monodepth2 head as the decoder's last
+(``model.mono_head``, `study.sweep.pretrain`) adds a one-channel Monodepth2 head as the decoder's last
 channel: stages "mono" (that head) and "init" (the n bases at weights 1/n), trained together on one
 trunk.
 
@@ -105,7 +105,7 @@ class DepthModel(DepthNetwork):
     @property
     def uses_neighbours(self) -> bool:
         """Whether a camera's depth depends on its neighbours' images at inference (then the sweep also
-        evaluates it with them cut: ``study.probes.Probed(pred, CUT)``): MCDP with refinement steps,
+        evaluates it with them cut: ``study.sweep.probes.Probed(pred, CUT)``): MCDP with refinement steps,
         `mcdp.methods.surround`."""
         return len(self.weight_nets) > 0
 

@@ -3,7 +3,7 @@ RA-L 2022), the method ``fsm``: the rig's overlap used in TRAINING only.
 
 Network and inference are Monodepth2's (`FsmDepthModel` is `mcdp.methods.depth_bases.MonoDepthModel` under
 its own name): one image in, one depth out, no neighbour at inference, so cutting the neighbours
-at inference changes nothing (``study.probes.Probed(pred, CUT)`` predicts the same depth; tested). What
+at inference changes nothing (``study.sweep.probes.Probed(pred, CUT)`` predicts the same depth; tested). What
 makes it FSM is its loss, on top of the system's temporal Monodepth2 term (`mcdp.system`: the
 per-pixel minimum over frames t-1 / t+1 of the same camera, auto-masked, weight 1):
 

@@ -15,7 +15,7 @@ is added to the features through a 1x1 convolution that starts at **zero**, so a
 network is exactly its warm start (the shared pretraining's Monodepth2 head) and what it becomes is
 what the attention learned.
 
-**Cut** (``study.probes.Probed(pred, CUT)``, the neighbour table all -1): attention restricted to each camera
+**Cut** (``study.sweep.probes.Probed(pred, CUT)``, the neighbour table all -1): attention restricted to each camera
 itself (a block-diagonal mask), so as trained - cut is what the other cameras contribute at inference.
 
 Poses (SurroundDepth's joint pose): with ``scale.source=odometry`` (the sweep) the rig motion is given,

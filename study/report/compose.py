@@ -1,11 +1,11 @@
 """Report of an overlap sweep: report.md from measured numbers (`format_report`).
 
-`study.results.build_results` turns the sweep's per-run rows into one JSON-able dict;
-`study.outputs.write_all` writes::
+`study.results.summary.build_results` turns the sweep's per-run rows into one JSON-able dict;
+`study.report.outputs.write_all` writes::
 
     SWEEP/results.json    build_results' dict
     SWEEP/results.csv     one row per (overlap, method, variant, seed), every metric flattened (variant:
-                          trained, cut, oracle, oracle_overlap: `study.variants`), then the yardsticks
+                          trained, cut, oracle, oracle_overlap: `study.sweep.variants`), then the yardsticks
     SWEEP/plots/paired_vs_mono2.png (each method − Mono2, paired), abs_rel_vs_overlap.png, dep_con_vs_overlap.png,
                 overlap_vs_non_overlap_abs_rel.png,
                 measured_overlap.png
@@ -18,7 +18,7 @@ reported as worse, NaN stays NaN.
 
 Example::
 
-    python -c "import study.outputs as o, study.results_files as s; o.write_all(s.read_results('SWEEP/results.json'), 'SWEEP')"
+    python -c "import study.report.outputs as o, study.results.files as s; o.write_all(s.read_results('SWEEP/results.json'), 'SWEEP')"
     # (read_results: also a results.json written before the variant field; write_all writes it anew)
 """
 from __future__ import annotations
@@ -29,19 +29,19 @@ from pathlib import Path
 from mcdp.diagnostics import COLLAPSE_RATIO
 from mcdp.methods import label
 from mcdp.metrics import better_words, metric_names
-from study.mechanisms import format_mechanisms
-from study.lcon import format_lcon
-from study.pretrain import warm_start_line, weights_in_sweep
-from study.primary import format_primary
-from study.propagation import format_propagation
-from study.classes import format_classes
-from study.reach import format_reach
-from study.recorded import fallback_note, run_configs
-from study.verdicts import format_verdicts
-from study.results import (BASELINE, PRIOR_LABEL, REF_LABEL, SCALE_LABEL, YARDSTICKS, method_agg, row_evaluations,
+from study.report.sections.mechanisms import format_mechanisms
+from study.report.sections.lcon import format_lcon
+from study.sweep.pretrain import warm_start_line, weights_in_sweep
+from study.report.sections.primary import format_primary
+from study.report.sections.propagation import format_propagation
+from study.report.sections.classes import format_classes
+from study.report.sections.reach import format_reach
+from study.results.recorded import fallback_note, run_configs
+from study.report.sections.verdicts import format_verdicts
+from study.results.summary import (BASELINE, PRIOR_LABEL, REF_LABEL, SCALE_LABEL, YARDSTICKS, method_agg, row_evaluations,
                            yardstick_agg)
-from study.results import fmt_num as _num
-from study.variants import TRAINED, Evaluation
+from study.results.summary import fmt_num as _num
+from study.sweep.variants import TRAINED, Evaluation
 
 
 def _fmt(a: dict, digits: int = 3) -> str:

@@ -1,20 +1,20 @@
-"""The files a sweep writes, from its results dict (`study.results.build_results`): results.json, results.csv
-(`study.results_files.write_csv`), plots/ and report.md
-(`study.report.format_report`). `scripts/publish_sweep.py` builds the same from a committed results.json.
+"""The files a sweep writes, from its results dict (`study.results.summary.build_results`): results.json, results.csv
+(`study.results.files.write_csv`), plots/ and report.md
+(`study.report.compose.format_report`). `scripts/publish_sweep.py` builds the same from a committed results.json.
 
 Example::
 
-    python -c "import study.outputs as o, study.results_files as s; o.write_all(s.read_results('SWEEP/results.json'), 'SWEEP')"
+    python -c "import study.report.outputs as o, study.results.files as s; o.write_all(s.read_results('SWEEP/results.json'), 'SWEEP')"
 """
 from __future__ import annotations
 
 from pathlib import Path
 
 from corelib.atomic import atomic_write_json, atomic_write_text
-from study.lcon import format_lcon
-from study.plots import distance_plot, make_plots
-from study.report import format_report
-from study.results_files import write_csv
+from study.report.sections.lcon import format_lcon
+from study.report.plots import distance_plot, make_plots
+from study.report.compose import format_report
+from study.results.files import write_csv
 
 
 def write_all(results: dict, out: str | Path) -> None:
@@ -27,7 +27,7 @@ def write_all(results: dict, out: str | Path) -> None:
 
 def report_plots(results: dict, plot_dir: Path) -> list[Path]:
     """Every figure of the report, written into ``plot_dir``: the sweep's plots, the distance figure, and the L_con
-    forest plots (`study.lcon`) where the sweep has them."""
+    forest plots (`study.report.sections.lcon`) where the sweep has them."""
     plots = make_plots(results, plot_dir)
     extra = distance_plot(results, plot_dir)
     return plots + ([extra] if extra is not None else []) + format_lcon(results, plot_dir)[1]

@@ -24,7 +24,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Callable
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 RESULTS = ROOT / "docs" / "results"
 
 #: how a row's ``build`` is called, and what it gives back:
@@ -50,7 +50,7 @@ class Page:
     - ``parts``: the published sweeps it reads (docs/results/<part>/results.json), in the page's order;
     - ``build``, ``call``: the function that builds it and how (`CALLS`);
     - ``preface``: its preface template under docs/results/, None for none;
-    - ``values``: the function (``module:function``) whose values fill the template (`study.preface.fill`), None
+    - ``values``: the function (``module:function``) whose values fill the template (`study.report.preface.fill`), None
       where the preface holds no field;
     - ``needs``: a file under docs/results/ without which the page is not built (skipped, said in one line);
     - ``plots``: (call ``values``) the files its builder writes beside the page, under docs/results/<name>/."""
@@ -75,9 +75,9 @@ class Page:
 
     @classmethod
     def sweep(cls, name: str) -> "Page":
-        """A sweep's own page: its results.json and preface template (`study.preface.sweep_values`)."""
+        """A sweep's own page: its results.json and preface template (`study.report.preface.sweep_values`)."""
         return cls(name, "publish_sweep", "publish_sweep:publish", "sweep", parts=(name,),
-                   preface=f"{name}/preface.md", values="study.preface:sweep_values")
+                   preface=f"{name}/preface.md", values="study.report.preface:sweep_values")
 
     @classmethod
     def bench(cls, name: str) -> "Page":
@@ -102,14 +102,14 @@ class Page:
 PAGES: tuple[Page, ...] = (
     Page("propagation", "publish_sweep", "publish_sweep:publish", "sweep",  # a sweep's page whose preface reads more
          parts=("propagation", "propagation_budget", "lcon_main", "lcon_budget"), preface="propagation/preface.md",
-         values="study.preface:sweep_values"),
+         values="study.report.preface:sweep_values"),
     Page("lcon", "publish_lcon", "publish_lcon:build", "stage",
          parts=("lcon_main", "lcon_pilot", "lcon_pilot_auto", "lcon_overlaps", "lcon_budget"),
          preface="lcon/preface.md"),
     Page("sensor", "publish_sensor", "publish_sensor:build", "text",
          parts=("sensor_ideal", "sensor_exposure", "sensor_trigger_assume", "sensor_trigger_compensate",
                 "sensor14_ideal", "sensor14_exposure"),
-         preface="sensor/preface.md", values="study.sensor:preface_values"),
+         preface="sensor/preface.md", values="study.report.sections.sensor:preface_values"),
     Page("calibration", "publish_calibration", "publish_calibration:build", "values",
          preface="calibration/preface.md", needs="calibration/values.json", plots=("scatter.png",)),
     Page("camera_models", "publish_camera_models", "publish_camera_models:build", "values",
@@ -126,7 +126,7 @@ def row(name: str) -> Page:
         if p.name == name:
             return p
     raise PageError(f"no page {name!r}: neither committed under docs/results/ (a sweep's or a benchmark's page) nor "
-                    f"a row of study/pages.py ({', '.join(p.name for p in PAGES)})")
+                    f"a row of study/report/pages.py ({', '.join(p.name for p in PAGES)})")
 
 
 def sweep_row(name: str) -> Page:
@@ -141,7 +141,7 @@ def scripts() -> tuple[str, ...]:
 
 
 def load(ref: str) -> Callable[..., Any]:
-    """The function ``ref`` names: ``publish_lcon:build`` (scripts/publish_lcon.py) or ``study.sensor:preface_values``."""
+    """The function ``ref`` names: ``publish_lcon:build`` (scripts/publish_lcon.py) or ``study.report.sections.sensor:preface_values``."""
     module, _, func = ref.partition(":")
     if "." not in module:  # a script: scripts/ is no package; its modules import each other by file name
         where = str(ROOT / "scripts")
@@ -151,12 +151,12 @@ def load(ref: str) -> Callable[..., Any]:
 
 
 def preface(page: Page, *args, results: Path = RESULTS) -> str:
-    """The page's preface, its template filled (`study.preface.fill`) with ``values(*args)`` of the row's values
+    """The page's preface, its template filled (`study.report.preface.fill`) with ``values(*args)`` of the row's values
     function; "" when the row names no preface or it is not committed. PrefaceError naming the file and field."""
     import os
 
     from corelib.readfile import read_text_inside
-    from study.preface import fill
+    from study.report.preface import fill
 
     if page.preface is None or not os.path.lexists(results / page.preface):
         return ""

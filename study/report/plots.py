@@ -1,7 +1,7 @@
-"""The sweep's plots (matplotlib, Agg), every one read from `study.results`' dict:
+"""The sweep's plots (matplotlib, Agg), every one read from `study.results.summary`' dict:
 
 - paired_vs_mono2.png: Mono2 − each method, paired over seeds, with its 95 % interval
-  (`study.paired.paired_difference`, the numbers of the report's paired table and verdicts), per overlap:
+  (`study.results.paired.paired_difference`, the numbers of the report's paired table and verdicts), per overlap:
   median-scaled abs_rel on all and on non-overlap pixels, and Dep Con; a filled marker is beyond the interval;
 - abs_rel_vs_overlap.png, dep_con_vs_overlap.png: the absolute numbers, the methods on their own axes and the
   yardsticks (constant depth, flat-road prior) on a panel of their own, so the methods are not squashed;
@@ -17,13 +17,13 @@ import math
 from pathlib import Path
 
 from mcdp.methods import label
-from study.mechanisms import KEYS
-from study.paired import paired_gain
-from study.results import BASELINE, PAIRED_PLOT, PRIOR_LABEL, REF_LABEL, SCALE_LABEL, method_agg, yardstick_agg
-from study.variants import Evaluation, cut
+from study.report.sections.mechanisms import KEYS
+from study.results.paired import paired_gain
+from study.results.summary import BASELINE, PAIRED_PLOT, PRIOR_LABEL, REF_LABEL, SCALE_LABEL, method_agg, yardstick_agg
+from study.sweep.variants import Evaluation, cut
 
 XLABEL = "target overlap (fraction of hfov)"
-#: the paired figure's panels: (results key, title) of `study.mechanisms.KEYS`, in its order
+#: the paired figure's panels: (results key, title) of `study.report.sections.mechanisms.KEYS`, in its order
 PAIRED_KEYS = tuple((k, n) for k, n in KEYS if k in ("median.mean.abs_rel", "median.non_overlap.abs_rel",
                                                      "dep_con.mean"))
 
@@ -68,7 +68,7 @@ def _legend(fig, axes, ncol: int | None = None) -> None:
 
 def x_axis(results: dict) -> tuple[str, list[str]]:
     """The overlap axis of every figure: its label and tick labels "target (measured)", the measured pixel
-    overlap over the pairs at the target (`study.worlds.measured_overlap`) under each target, so the axis
+    overlap over the pairs at the target (`study.sweep.worlds.measured_overlap`) under each target, so the axis
     reads as the overlap the data has. With ``rig.overlap_target=pixels`` the target is itself a pixel
     overlap (the calibrated knob); with ``angle`` it is the shared fraction of the hfov."""
     xs = results["overlaps"]
@@ -253,7 +253,7 @@ def distance_lines(results: dict) -> list[tuple[str, tuple, str]]:
     minus better as on every page (positive = helps): Mono2 − each mechanism, a reading network cut − as trained,
     and the ORACLE-local yardstick emptied − filled."""
     from mcdp.methods import reading, short_label
-    from study.reach import local
+    from study.report.sections.reach import local
 
     have = {Evaluation.of(f) for f in results["flat"]}
     mech, loc = reading("mechanism"), local()
@@ -281,7 +281,7 @@ def distance_figure(results: dict):
     `distance_lines` by distance band (median-scaled abs_rel, positive = helps) with 95 % intervals over the (world,
     seed) pairs; each panel's range from `robust_limit`, a mean beyond it drawn at the edge with its value
     written; the legend below the panels, which use the full width."""
-    from study.reach import band_names, paired
+    from study.report.sections.reach import band_names, paired
 
     bands, lines = band_names(results), distance_lines(results)
     if not bands or not lines:

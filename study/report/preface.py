@@ -2,8 +2,8 @@
 the page's committed results when the page is built, never typed by hand.
 
 A field is ``{dotted.path}`` or ``{dotted.path:spec}``, resolved in the page's values (`sweep_values`, and a page's
-own, e.g. `study.sensor.preface_values`): ``spec`` is a `format` spec (``+.4f``) or ``diffN``, a paired difference
-with its interval through the one formatter (`study.results.fmt_diff`, N decimals). Example::
+own, e.g. `study.report.sections.sensor.preface_values`): ``spec`` is a `format` spec (``+.4f``) or ``diffN``, a paired difference
+with its interval through the one formatter (`study.results.summary.fmt_diff`, N decimals). Example::
 
     fill("MCDP (m = 2) gains {gain.mcdp_m2.o030.all:diff3} at 0.30", sweep_values(results))
     # -> 'MCDP (m = 2) gains +0.005 ± 0.012 at 0.30'
@@ -39,7 +39,7 @@ def _resolve(values: Mapping | Callable, path: list[str], field: str) -> Any:
 
 def fill(text: str, values: Mapping, where: str = "preface") -> str:
     """``text`` with every field filled from ``values``; PrefaceError naming ``where`` and the field."""
-    from study.results import fmt_diff
+    from study.results.summary import fmt_diff
 
     def one(m: re.Match) -> str:
         field, spec = m.group(1), m.group(2) or ""
@@ -91,28 +91,28 @@ def _dig(node: Any, rest: list[str], field: str) -> Any:
 def _who(a, b) -> str:
     """The name a primary comparison is read by: the variant it compares against (a hand-built propagator, e.g.
     ``oracle_spread``), else the method of its first arm (``mcdp_m2``, ``mcdp_m2_nocon`` for (b), ``oracle_local``)."""
-    from study.variants import TRAINED, cut
+    from study.sweep.variants import TRAINED, cut
 
     return b.variant if b.variant not in (TRAINED, cut()) else a.method
 
 
 def sweep_values(results: dict, parts: Mapping[str, dict] | None = None) -> dict:
-    """The values a sweep page's preface reads from its results.json (and, for a page whose row of `study.pages`
+    """The values a sweep page's preface reads from its results.json (and, for a page whose row of `study.report.pages`
     names more parts, theirs):
 
-    - ``gain.<method>.o<overlap>.<region>``: what ``method`` gains over the baseline, paired (`study.paired.
+    - ``gain.<method>.o<overlap>.<region>``: what ``method`` gains over the baseline, paired (`study.results.paired.
       paired_gain`: baseline - method on a lower-is-better figure, positive = helps), at overlap o030 = 0.30, on
       ``region`` (`GAIN_KEYS`: all, overlap, non_overlap pixels at median scaling, or dep_con);
     - ``primary.<id>.<who>[.o<overlap>][.<scaling>][.<band>]``: a primary comparison of the propagation experiment
-      (`study.primary.comparisons`; ``who``: `_who`, e.g. ``a.mcdp_m2`` = MCDP (m = 2) cut - as trained), its
-      `study.design.reading_over_worlds` on non-overlap pixels (or a band of `BANDS`) at the plan's overlap and
+      (`study.report.sections.primary.comparisons`; ``who``: `_who`, e.g. ``a.mcdp_m2`` = MCDP (m = 2) cut - as trained), its
+      `study.stats.design.reading_over_worlds` on non-overlap pixels (or a band of `BANDS`) at the plan's overlap and
       median scaling unless named; the names after it read into the reading (``.tost.p``, ``.mde80``, ``.rank.hl``);
-    - ``copy.o<overlap>.<scaling>.{filled,base,ratio}``: the positive control's copy test (`study.primary.copy_test`);
-    - ``lcon.<scaling>``: L_con's (b) over the worlds (`study.lcon.reading` of the sweep's pairs);
+    - ``copy.o<overlap>.<scaling>.{filled,base,ratio}``: the positive control's copy test (`study.report.sections.primary.copy_test`);
+    - ``lcon.<scaling>``: L_con's (b) over the worlds (`study.report.sections.lcon.reading` of the sweep's pairs);
     - ``part.<name>``: these values of another part the page's row names, e.g. ``part.lcon_main.lcon.median``;
-    - ``plan``: the sweep's plan (`study.primary.plan_of`), e.g. ``plan.delta``."""
+    - ``plan``: the sweep's plan (`study.report.sections.primary.plan_of`), e.g. ``plan.delta``."""
     from mcdp.methods import baseline
-    from study.primary import SCALINGS, comparisons, copy_test, measure, plan_of
+    from study.report.sections.primary import SCALINGS, comparisons, copy_test, measure, plan_of
 
     plan = plan_of(results)
 
@@ -120,7 +120,7 @@ def sweep_values(results: dict, parts: Mapping[str, dict] | None = None) -> dict
         if len(path) != 3 or path[2] not in GAIN_KEYS:
             raise PrefaceError(f"gain.{'.'.join(path)}: want gain.<method>.o<overlap>.<region>, region one of "
                                f"{', '.join(GAIN_KEYS)}")
-        from study.paired import paired_gain
+        from study.results.paired import paired_gain
 
         method, o, region = path[0], _overlap(path[1]), path[2]
         if method not in results.get("methods", []):
@@ -154,7 +154,7 @@ def sweep_values(results: dict, parts: Mapping[str, dict] | None = None) -> dict
         return row[path[1]][("filled", "base", "ratio").index(path[2])]
 
     def lcon(path: list[str]) -> Any:
-        from study.lcon import pairs, reading
+        from study.report.sections.lcon import pairs, reading
 
         if not path or path[0] not in SCALINGS:
             raise PrefaceError(f"lcon.{'.'.join(path)}: want lcon.<scaling> ({', '.join(SCALINGS)})")

@@ -1,7 +1,7 @@
 """A sweep's results on disk: results.csv written (`write_csv`: one row per overlap x method x variant x seed, with
 its world, then the yardsticks) beside its reader (`results_from_csv`), and `read_results`, which reads a
-results.json or a results.csv, also one written before the variant field (`study.results.upgrade_results`).
-results.json is `study.results.build_results`' dict as JSON (`study.outputs.write_all`). A published one
+results.json or a results.csv, also one written before the variant field (`study.results.summary.upgrade_results`).
+results.json is `study.results.summary.build_results`' dict as JSON (`study.report.outputs.write_all`). A published one
 (docs/results/<name>/) is compact (`compact_results`): results.json keeps the summaries (config, timing, counters)
 and names records.json.gz beside it, the per-run and per-world records; `read_results` joins them back. Its
 results.csv is published gzip'd (`CSV_GZ`, `gzip_csv`: the same bytes a sweep writes, at a fixed time stamp);
@@ -22,10 +22,10 @@ import zlib
 from pathlib import Path
 
 from corelib.atomic import atomic_write_text
-from study.results import (LEGACY_ROW_KEYS, SCHEMA, YARDSTICKS, aggregate_flat, evaluations, evaluations_of,
+from study.results.summary import (LEGACY_ROW_KEYS, SCHEMA, YARDSTICKS, aggregate_flat, evaluations, evaluations_of,
                            flat_rows, upgrade_results, yardstick_row)
-from study.variants import CUT
-from study.worlds import data_seeds
+from study.sweep.variants import CUT
+from study.sweep.worlds import data_seeds
 
 
 def write_csv(results: dict, path: Path) -> None:
@@ -109,14 +109,14 @@ RECORDS = "records.json.gz"
 #: the key of a compact results.json that names its records file, and what it holds and left out
 RECORDS_KEY = "records"
 #: the parts of the results that go into the records file; ``flat`` and ``aggregate`` are recomputed on reading
-#: (`study.results.flat_rows`, `aggregate_flat`) where that gives them back exactly, else kept there too
+#: (`study.results.summary.flat_rows`, `aggregate_flat`) where that gives them back exactly, else kept there too
 _HELD = ("data", "rows")
 _DERIVED = ("flat", "aggregate")
-#: the per-sequence records a page reads (the L_con page's variance split, `study.lcon.split_of`: each test
+#: the per-sequence records a page reads (the L_con page's variance split, `study.report.sections.lcon.split_of`: each test
 #: sequence's abs_rel sums of the cut evaluation on non-overlap pixels); every other one is left out
 PER_SEQUENCE_KEPT = (CUT, "non_overlap")
 #: the region splits whose records keep abs_rel only, the one metric of them that results.csv and every page read
-#: (`study.records.flat_row`)
+#: (`study.sweep.records.flat_row`)
 ABS_REL_ONLY = ("bands", "classes", "motion", "road_bands")
 #: at most this many bytes of JSON out of a records file (a gzip bomb is refused, not unpacked)
 MAX_RECORDS_BYTES = 512 * 2**20

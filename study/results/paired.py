@@ -6,8 +6,8 @@ from __future__ import annotations
 
 import math
 
-from study.results import flat_of, mean_std
-from study.variants import Evaluation
+from study.results.summary import flat_of, mean_std
+from study.sweep.variants import Evaluation
 
 
 def paired_difference(results: dict, overlap: float, a: str | Evaluation, b: str | Evaluation, key: str) -> dict:
@@ -28,7 +28,7 @@ def paired_gain(results: dict, overlap: float, ref: str | Evaluation, new: str |
 
 
 def world_of(results: dict) -> dict:
-    """seed -> world id of the sweep (`study.config.world_of_seed`, from the recorded config); with one shared
+    """seed -> world id of the sweep (`study.sweep.config.world_of_seed`, from the recorded config); with one shared
     world, or one seed per world, each seed is its own cluster."""
     cfg = results.get("sweep_config", {}) or {}
     seeds = list(results.get("seeds", []))
@@ -49,7 +49,7 @@ def paired_columns(results: dict, overlap: float, a: tuple[str | Evaluation, str
                    b: tuple[str | Evaluation, str]) -> dict:
     """`paired_difference` of column a[1] of evaluation a[0] minus column b[1] of evaluation b[0] (e.g. a run's
     init stage against its ORACLE-overlap row). In a design with worlds (`clustered`) the interval is the primary
-    comparisons' one, clustered by world (`study.power.nested`: the mean of the world means, t with W - 1 degrees
+    comparisons' one, clustered by world (`study.stats.power.nested`: the mean of the world means, t with W - 1 degrees
     of freedom), so no comparison of the page reads a narrower interval than the primary test; ``n`` is then the
     number of (world, seed) pairs and ``sd`` the spread of the world means."""
     va = {f["seed"]: f.get(a[1]) for f in flat_of(results, overlap, a[0])}
@@ -58,7 +58,7 @@ def paired_columns(results: dict, overlap: float, a: tuple[str | Evaluation, str
                                              for x in (va[s], vb[s]))]
     d = [va[s] - vb[s] for s in keep]
     if clustered(results):
-        from study.power import nested
+        from study.stats.power import nested
 
         wo = world_of(results)
         groups: dict = {}

@@ -1,9 +1,9 @@
-"""What each of a sweep's methods was trained with, read from its results (`study.report` describes the runs from
+"""What each of a sweep's methods was trained with, read from its results (`study.report.compose` describes the runs from
 it, not from the registry's defaults).
 
-A row written by today's sweep records its resolved run config (``run_config``, `study.stages.run_stage`). A
+A row written by today's sweep records its resolved run config (``run_config``, `study.sweep.stages.run_stage`). A
 results.json written before that records only each run's hash (``run_config_hash``, `mcdp.runs.run_hash`): its
-config is re-resolved from the recorded sweep config (`study.config.run_config_for`: the presets, the
+config is re-resolved from the recorded sweep config (`study.sweep.config.run_config_for`: the presets, the
 overrides, the pretraining's sha256) and taken only when it hashes to the recorded hash. Where neither is
 there, the registry's defaults stand in (`mcdp.methods.model_config`), and the method is named as such.
 """
@@ -15,7 +15,7 @@ from typing import Any
 def _rerun_config(results: dict, row: dict) -> dict | None:
     """The run config the recorded sweep config resolves to for this row, if it hashes to the recorded hash."""
     from corelib.configlib import config_hash, config_to_dict, hashed_dict
-    from study.config import SweepConfig, run_config_for
+    from study.sweep.config import SweepConfig, run_config_for
 
     try:
         cfg = SweepConfig.model_validate(results["sweep_config"])

@@ -1,12 +1,12 @@
 """The results of a sweep as one JSON-able dict: flat per-run rows, mean / std and 95 % Student-t
 intervals over seeds, paired differences between methods, and the yardsticks per overlap.
 
-`build_results` turns the per-run rows of `study.stages.run_stage` into that dict; `study.report`
-and `study.plots` only read it. Nothing here chooses or filters numbers: NaN stays NaN.
+`build_results` turns the per-run rows of `study.sweep.stages.run_stage` into that dict; `study.report.compose`
+and `study.report.plots` only read it. Nothing here chooses or filters numbers: NaN stays NaN.
 
-Every flat row and aggregate entry is one evaluation of a run (`study.variants.Evaluation`): its
+Every flat row and aggregate entry is one evaluation of a run (`study.sweep.variants.Evaluation`): its
 ``method`` (the registry name) and ``variant`` (as trained, cut, ORACLE weights, ...); a lookup takes
-either an Evaluation or a method name (that method as trained). `study.results_files.read_results` reads a
+either an Evaluation or a method name (that method as trained). `study.results.files.read_results` reads a
 results.json or results.csv, also one written before the variant field (`upgrade_results`).
 """
 from __future__ import annotations
@@ -16,9 +16,9 @@ import time
 from typing import Any
 
 from mcdp.methods import baseline
-from study.power import t_halfwidth
-from study.records import flat_row
-from study.variants import CUT, ORACLE, ORACLE_OVL, SPREAD, TRAINED, VARIANTS, Evaluation
+from study.stats.power import t_halfwidth
+from study.sweep.records import flat_row
+from study.sweep.variants import CUT, ORACLE, ORACLE_OVL, SPREAD, TRAINED, VARIANTS, Evaluation
 
 
 SCALE_LABEL = {"none": "metric", "median": "median", "rig_median": "rig median"}
@@ -45,7 +45,7 @@ USE_FLOOR = 0.0005
 
 def fmt_diff(pd: dict, digits: int = 3) -> str:
     """The one formatter of a paired difference (every page's tables, verdicts and headlines): 'mean ± half-width'
-    of a dict with ``mean`` and ``ci95`` (`paired_difference`, `study.power.nested`, `study.design.reading_over_worlds`).
+    of a dict with ``mean`` and ``ci95`` (`paired_difference`, `study.stats.power.nested`, `study.stats.design.reading_over_worlds`).
     A non-zero mean that rounds to zero at `digits` is written in scientific notation (so '+0.0000' never stands
     for a difference that is there); a mean without an interval (one world or seed) says so, '+0.0123 (no
     interval)', never '± nan'; nothing measured (no finite mean) is '—'. The sign is the page's, one for the
@@ -82,7 +82,7 @@ def gain_word(pd: dict, floor: float = 0.0) -> str:
 #: the method every other one is compared with (paired differences, the "vs Mono2" columns of the report): the
 #: registry's row with ``baseline=True`` (`mcdp.methods.baseline`)
 BASELINE = baseline()
-#: the file name of the figure of every method's paired gain over the baseline (`study.plots.paired_plot`)
+#: the file name of the figure of every method's paired gain over the baseline (`study.report.plots.paired_plot`)
 PAIRED_PLOT = f"paired_vs_{BASELINE}.png"
 
 
@@ -94,7 +94,7 @@ LEGACY_ROW_KEYS = {TRAINED: ("metrics", "refinement"), CUT: ("metrics_cut", "ref
 
 
 def row_evaluations(row: dict) -> dict[str, dict]:
-    """A run's evaluations, {variant: entry} (`study.variants.entries_of`): ``row["evaluations"]``, or for a row
+    """A run's evaluations, {variant: entry} (`study.sweep.variants.entries_of`): ``row["evaluations"]``, or for a row
     written before it (its legacy keys, `LEGACY_ROW_KEYS`: the one reader of them) the same entries."""
     if "evaluations" in row:
         return row["evaluations"]
@@ -108,7 +108,7 @@ def row_evaluations(row: dict) -> dict[str, dict]:
 
 
 def flat_rows(row: dict) -> list[dict[str, Any]]:
-    """A run's CSV rows, one per evaluation (`study.variants`, in `VARIANTS` order): as trained, and where
+    """A run's CSV rows, one per evaluation (`study.sweep.variants`, in `VARIANTS` order): as trained, and where
     evaluated, e.g. with its neighbours cut at inference (variant ``cut``) and its bases at weights fitted to
     ground truth (``oracle``, ``oracle_overlap``: ORACLE yardsticks); each variant's ``columns`` adds its own."""
     evs = row_evaluations(row)
@@ -187,7 +187,7 @@ def build_results(cfg, data: list[dict], rows: list[dict], counters: dict, total
 
 def evaluations_of(methods, flats: list[dict]) -> list[Evaluation]:
     """The sweep's methods as trained, each followed by those of its other evaluations (cut, ORACLE weights,
-    ...: `study.variants.VARIANTS` order) that have rows."""
+    ...: `study.sweep.variants.VARIANTS` order) that have rows."""
     return [e for m in methods for e in (Evaluation(m, v) for v in VARIANTS)
             if e.variant == TRAINED or any(e.matches(f) for f in flats)]
 
@@ -211,7 +211,7 @@ def aggregate_flat(flats: list[dict], overlaps, evs: list[Evaluation]) -> list[d
 
 
 #: results.json's ``schema``. 2: every flat row and aggregate entry has ``method`` (the registry name) and
-#: ``variant`` (`study.variants`) fields, results.csv a ``variant`` column. A results.json without it, or a
+#: ``variant`` (`study.sweep.variants`) fields, results.csv a ``variant`` column. A results.json without it, or a
 #: results.csv without that column (1), named an evaluation by a suffix on its method ("mcdp_m2@cut"):
 #: `upgrade_results` reads them.
 SCHEMA = 2
@@ -222,7 +222,7 @@ def upgrade_results(results: dict) -> dict:
     (no ``schema``: 1) named each evaluation by a suffix on its method ("mcdp_m2", "mcdp_m2@cut",
     "mcdp_m2@oracle", "mcdp_m2@oracle_overlap"): their flat rows, aggregate and evaluations get the method's
     registry name and a ``variant`` field instead. The one reader of such names; a results.csv's rows come
-    here as ``{"flat": rows}`` (`study.results_files.results_from_csv`)."""
+    here as ``{"flat": rows}`` (`study.results.files.results_from_csv`)."""
     schema = results.get("schema", 1)
     if schema == SCHEMA:
         return results
@@ -274,7 +274,7 @@ YARDSTICKS = (("reference", REF_LABEL, "constant_reference"), ("prior", PRIOR_LA
 def yardstick_row(results: dict, overlap: float, which: str = "reference") -> dict:
     """A yardstick's numbers at one overlap as a flat row (`flat_row`; {} if absent)."""
     for d in results["data"]:
-        if d["overlap"] == overlap and d.get(which):  # "row": already flat (`study.results_files.results_from_csv`)
+        if d["overlap"] == overlap and d.get(which):  # "row": already flat (`study.results.files.results_from_csv`)
             return d[which]["row"] if "row" in d[which] else flat_row({"metrics": d[which]["metrics"]})
     return {}
 

@@ -4,7 +4,7 @@ outlying world cannot carry alone (issue 47; docs/results/lcon.md).
 - `worlds_needed`: the fewest worlds (one paired difference each) for which a two-sided paired t test at
   ``alpha`` detects ``effect`` with ``power``, from the spread ``sd`` of the per-world differences: the
   smallest n with (t_{1-alpha/2, n-1} + t_{power, n-1}) * sd / sqrt(n) <= effect, the same shifted-t formula
-  as `study.power.mde`, so the two agree: mde(sd / sqrt(n), n - 1) <= effect. (34 worlds for effect / sd = 0.5
+  as `study.stats.power.mde`, so the two agree: mde(sd / sqrt(n), n - 1) <= effect. (34 worlds for effect / sd = 0.5
   and 10 for 1, as G*Power's exact noncentral t gives.)
 - `obf_bounds`: the O'Brien-Fleming group-sequential boundaries for two looks, at information fraction ``t1``
   and at the end: |Z| >= c / sqrt(t_k), with c chosen so the two-sided type I error over both looks is
@@ -16,13 +16,13 @@ outlying world cannot carry alone (issue 47; docs/results/lcon.md).
   as its nominal two-sided level (a z boundary b is the nominal level 2 (1 - Phi(b)), and the t test at
   that level with worlds - 1 degrees of freedom: the usual small-sample reading of a z boundary).
 - `reading_over_worlds`: the one reading of a paired difference over worlds that every page gives (lcon,
-  primary, sensor): `study.power.nested` (clustered by world), the two-sided t p-value (`t_p_two_sided`), the MDE
+  primary, sensor): `study.stats.power.nested` (clustered by world), the two-sided t p-value (`t_p_two_sided`), the MDE
   at 80 % power, TOST against the plan's ``delta`` and the signed-rank reading of the world means.
 - `signed_rank`: Wilcoxon's signed-rank test over worlds (exact without ties or zeros and n <= 50, else the
   normal approximation with the tie correction: scipy.stats.wilcoxon's defaults) with the Hodges-Lehmann
   estimate and its confidence interval (the Walsh averages' order statistics at the exact critical value).
 
-Pure Python (`math` and `study.power`'s t distribution), as `study.power`; tests compare with scipy where it
+Pure Python (`math` and `study.stats.power`'s t distribution), as `study.stats.power`; tests compare with scipy where it
 is installed and with the published tables.
 
 Example::
@@ -36,7 +36,7 @@ from __future__ import annotations
 import math
 from collections.abc import Iterable, Mapping, Sequence
 
-from study.power import mde, nested, t_cdf, t_ppf, tost
+from study.stats.power import mde, nested, t_cdf, t_ppf, tost
 
 __all__ = ["worlds_needed", "obf_bounds", "obf_inflation", "sequential_look", "signed_rank", "norm_cdf",
            "norm_ppf", "t_p_two_sided", "reading_over_worlds"]
@@ -169,11 +169,11 @@ def t_p_two_sided(t: float, df: float) -> float:
 
 
 def reading_over_worlds(diffs: Mapping[object, Iterable[float]], plan: Mapping) -> dict:
-    """The one reading of a paired difference over worlds (every page's: `study.lcon`, `study.primary`,
-    `study.sensor`). ``diffs`` maps a world to its seeds' paired differences (`study.power.nested`); ``plan`` is
+    """The one reading of a paired difference over worlds (every page's: `study.report.sections.lcon`, `study.report.sections.primary`,
+    `study.report.sections.sensor`). ``diffs`` maps a world to its seeds' paired differences (`study.stats.power.nested`); ``plan`` is
     the sweep's pre-stated analysis (its ``delta``, the equivalence bound; absent: no TOST).
 
-    Returns `study.power.nested`'s dict (mean, se, df, ci95, the variance split, ``values``: the per-world rows)
+    Returns `study.stats.power.nested`'s dict (mean, se, df, ci95, the variance split, ``values``: the per-world rows)
     with ``p`` (two-sided t, `t_p_two_sided`), ``mde80`` (80 % power), ``tost`` (against ``plan["delta"]``:
     {"p", "equivalent", ...}; p NaN and not equivalent with fewer than 2 worlds or no delta; ``delta``: the bound)
     and ``rank``

@@ -319,7 +319,7 @@ def verdict(nest: Mapping, delta: float, mde80: float | None = None) -> str:
 
 #: two-sided 95 % Student-t quantiles t_0.975(df) for df = 1..30 (beyond: the normal 1.96; t is 2.04 at 31 df,
 #: and a sweep has 3-4 seeds): the rounded table every interval over seeds of a report is computed with
-#: (`study.results.mean_std`; `t_ppf` gives the unrounded quantile, which would move the committed reports' last
+#: (`study.results.summary.mean_std`; `t_ppf` gives the unrounded quantile, which would move the committed reports' last
 #: digits); tests/study/test_results.py checks every entry against scipy where it is installed.
 T975 = (12.706, 4.303, 3.182, 2.776, 2.571, 2.447, 2.365, 2.306, 2.262, 2.228, 2.201, 2.179, 2.160, 2.145,
         2.131, 2.120, 2.110, 2.101, 2.093, 2.086, 2.080, 2.074, 2.069, 2.064, 2.060, 2.056, 2.052, 2.048,

@@ -30,7 +30,7 @@ from collections.abc import Mapping
 import numpy as np
 
 from mcdp.per_sequence import resampled
-from study.power import t_ppf
+from study.stats.power import t_ppf
 
 __all__ = ["world_bootstrap", "variance_split", "forest_plot", "OUTLIER_Z"]
 

@@ -8,8 +8,8 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from study.config import SweepConfig
-from study.records import write_json
+from study.sweep.config import SweepConfig
+from study.sweep.records import write_json
 
 LAST_REASON = ("by the sweep's keep_last: false once the run's best.pt was evaluated (so the run cannot be "
                "resumed; its numbers are in metrics_test.json)")

@@ -16,7 +16,7 @@ from pydantic import Field, field_validator, model_validator
 from corelib.configlib import ConfigError, StrictModel, added_key, config_to_dict, load_config, override_key, resolve_path
 from mcdp.config import EVAL_MAX_DEPTH, EVAL_MIN_DEPTH
 from mcdp.methods import METHODS, PAPER_METHODS, check_run
-from study.pretrain import PretrainConfig
+from study.sweep.pretrain import PretrainConfig
 
 
 
@@ -41,7 +41,7 @@ class SweepEvalConfig(StrictModel):
 #: the plan's regions (`SweepPlan.region`) -> the section of a results row's metrics that holds them ("all": every
 #: valid pixel, the metrics' ``mean`` section)
 PLAN_REGIONS = {"all": "mean", "overlap": "overlap", "non_overlap": "non_overlap"}
-#: the plan's scalings (`SweepPlan.scaling`; `study.primary.SCALINGS` reads every one beside the primary)
+#: the plan's scalings (`SweepPlan.scaling`; `study.report.sections.primary.SCALINGS` reads every one beside the primary)
 PLAN_SCALINGS = ("median", "none", "rig_median")
 #: how the words of a page name a region (`region_words`)
 _REGION_WORDS = {"all": "all pixels", "overlap": "overlap pixels", "non_overlap": "non-overlap pixels"}
@@ -54,14 +54,14 @@ def region_words(region: str) -> str:
 
 class SweepPlan(StrictModel):
     """The analysis stated in the preset before the run (issues 47, 60), saved with the run (the resolved config,
-    results.json's ``sweep_config.plan``) and read from there by the report (`study.primary.plan_of`). Every key
+    results.json's ``sweep_config.plan``) and read from there by the report (`study.report.sections.primary.plan_of`). Every key
     added after runs were recorded has today's behaviour as its default, so a result recorded before it reads
     as it was analysed.
 
     arms: the primary comparison's two arms, [base, changed] (each one of the sweep's ``methods``): the paired
         difference is base - changed on a lower-is-better metric, **positive = the change helps** (docs/DESIGN.md,
         the one sign convention). The sensor study compares two arms' changes between conditions: the changed
-        arm's change - the base arm's (`study.sensor`). null: no single primary pair (the page reads its own
+        arm's change - the base arm's (`study.report.sections.sensor`). null: no single primary pair (the page reads its own
         fixed comparisons, every one exploratory or named in the header).
     metric: the primary metric (a row of `mcdp.metrics.METRICS`).
     scaling: the primary scaling (``median``: per-image median scaling; ``none``; ``rig_median``); the page gives the
@@ -70,7 +70,7 @@ class SweepPlan(StrictModel):
     overlap: the overlap of the primary comparisons (one of the sweep's ``overlaps``).
     delta: the equivalence bound of a primary null, in the primary metric (TOST at 95 %).
     stopping: ``one_look`` (the primary test read once, at the end) or ``obrien_fleming`` (two looks, at
-        ``first_look`` and ``worlds``, with O'Brien-Fleming bounds: `study.design.sequential_look`);
+        ``first_look`` and ``worlds``, with O'Brien-Fleming bounds: `study.stats.design.sequential_look`);
         not stated: ``obrien_fleming`` where ``first_look`` is given, as plans recorded before the key were read).
     worlds / first_look: how many worlds the primary comparison needs, and where the two-look design looks first
         (only with ``stopping: obrien_fleming``).
@@ -139,7 +139,7 @@ class SweepConfig(StrictModel):
     seeds_per_world: with ``worlds: per_seed``, how many training seeds share a world (crossed design:
         the i-th seed of ``seeds`` trains on world i // seeds_per_world, rendered from data seed preset seed +
         that world's index), so the report can split a paired difference's spread into a world part and a
-        seed part (`study.power`). 1 (default): seed k on world k, as above.
+        seed part (`study.stats.power`). 1 (default): seed k on world k, as above.
     eval: evaluation settings for every run.
     checkpoint: which checkpoint is evaluated: ``auto`` (best val loss, else last), ``best``, ``last``.
     workers: rendering processes (engine ``local``).
@@ -147,7 +147,7 @@ class SweepConfig(StrictModel):
         each job ``train.threads`` cores (jobs x threads <= cores). Progress bars are off when > 1.
     engine: ``local`` (this machine: ``workers`` render processes, ``jobs`` run processes) or
         ``ray`` (every sequence of every render and every run is a Ray task, scheduled by Ray;
-        `study.engines`, docs/SCALING.md); ``mcdp sweep --engine`` overrides it. Same results,
+        `study.sweep.engines`, docs/SCALING.md); ``mcdp sweep --engine`` overrides it. Same results,
         resumption and skipping either way.
     ray_cpus: CPUs of the local Ray instance the sweep starts for ``engine: ray`` (null = the
         machine's cores); unused when ``RAY_ADDRESS`` names a cluster to join.
@@ -157,7 +157,7 @@ class SweepConfig(StrictModel):
         equivalence bound delta, the stopping rule with its planned worlds and first look, the tuning/test split);
         the report reads it from the recorded config (null: today's defaults, 0.10 and 0.005, and no sequential
         reading).
-    pretrain: a shared self-supervised pretraining (`study.pretrain.PretrainConfig`) that every
+    pretrain: a shared self-supervised pretraining (`study.sweep.pretrain.PretrainConfig`) that every
         run starts from (``model.init_from``), made once into ``SWEEP/pretrain/<hash>/`` and
         reused by its config hash; null = every run from scratch.
     keep_last: keep every run's ``checkpoints/last.pt`` (weights + Adam state: about three
@@ -349,7 +349,7 @@ def check_nested_configs(cfg: SweepConfig, yes: bool = False) -> dict:
     try:  # every config first, then what the networks need of them (that imports torch)
         worlds = []
         if cfg.pretrain is not None:
-            from study.pretrain import resolved_configs
+            from study.sweep.pretrain import resolved_configs
 
             worlds.append(resolved_configs(cfg.pretrain, check_network=False)[0])
         where = "data_overrides"

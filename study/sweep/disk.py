@@ -24,7 +24,7 @@ bytes land (``data/`` for the renders, ``runs/`` and ``pretrain/`` for the check
 is its own file system); a symbolic link among the sweep's own folders (``data/``, ``pretrain/``, ``plots/``,
 and the folders in the first two) is refused before anything is written (`refuse_own_links`), so no writer
 writes outside ``--out``. (A run folder under ``runs/`` may be a link: another sweep's run reused read only,
-`study.stages`.)
+`study.sweep.stages`.)
 """
 from __future__ import annotations
 
@@ -33,7 +33,7 @@ import shutil
 from pathlib import Path
 
 from corelib.configlib import ConfigError
-from study.config import SweepConfig, run_config_for
+from study.sweep.config import SweepConfig, run_config_for
 
 #: the fraction of a render's uncompressed bound (`synth.config.render_size`) that lands on disk, as the
 #: render's own size line says ("about a third")
@@ -151,7 +151,7 @@ def still_to_write(cfg: SweepConfig, out: Path, est: dict) -> dict:
     the renders), ``checkpoints`` (the runs without their metrics_test.json: those they keep and, ``jobs`` at a
     time, those they delete; the pretraining's unless its pretrain.json is written), their sum ``total``, and the
     counts ``runs_left``, ``worlds_left`` and ``worlds``."""
-    from study.config import overlap_key, world_key, worlds_of
+    from study.sweep.config import overlap_key, world_key, worlds_of
 
     out = Path(out)
     worlds = [(o, w) for o in cfg.overlaps for w in worlds_of(cfg)]

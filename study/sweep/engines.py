@@ -4,7 +4,7 @@ One signature, ``run_all(cfg, todo, out, counters, log, progress, init_from, on_
 rows come back in the order of `todo` (the table order) whatever finishes first, and the
 per-run counters (trained, train_skipped, evaluated, ...) are summed into `counters`, so the
 results, resumption and skipping are the same whichever engine ran them. ``on_done(row)`` is called
-in this process once per finished run with its row, as it finishes (the sweep's progress, `study.progress`).
+in this process once per finished run with its row, as it finishes (the sweep's progress, `study.sweep.progress`).
 
 - ``engine: local``, ``jobs: 1``: one run after the other in this process.
 - ``engine: local``, ``jobs: N``: N spawned processes (`concurrent.futures`); the first failure
@@ -34,8 +34,8 @@ from corelib.cluster import error_line
 from corelib.configlib import ConfigError
 from corelib.logs import logger
 from corelib.readfile import read_file
-from study.config import SweepConfig, run_config_for
-from study.stages import Counters, run_dir_for, run_stage
+from study.sweep.config import SweepConfig, run_config_for
+from study.sweep.stages import Counters, run_dir_for, run_stage
 
 
 EXIT_RUN_FAILED = exitcodes.RUN_FAILED  # `mcdp sweep`: some run failed (engine ray; the report lists it)

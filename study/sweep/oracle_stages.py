@@ -1,5 +1,5 @@
-"""The yardsticks that ride on the as-trained pass as extra stages (`study.probes.Probed`): each reads ground truth,
-so each is a yardstick, never a method. Their rows are in `study.variants` (``adds_stage`` / ``predict_stage``).
+"""The yardsticks that ride on the as-trained pass as extra stages (`study.sweep.probes.Probed`): each reads ground truth,
+so each is a yardstick, never a method. Their rows are in `study.sweep.variants` (``adds_stage`` / ``predict_stage``).
 
 - **ORACLE weights** (a network with bases only): ``oracle``, this run's bases at per-image weights fitted to the
   ground truth on every valid pixel (`mcdp.oracle.fit_oracle_weights`: the best its bases can express), and

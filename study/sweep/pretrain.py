@@ -191,7 +191,7 @@ def warm_start_line(methods: list[str], configs: dict | None = None) -> str:
     layers start fresh (the pretraining has neither MCDP's weight networks nor SurroundDepth's cross-view
     blocks), naming only the sweep's own methods (all registered). Read from each network's declared members
     (``has_bases``, ``fresh_layers``), never from its name, at each method's run config (``configs``:
-    `study.recorded.run_configs`; by default the registry's defaults). The report's setup line (`study.report`)."""
+    `study.results.recorded.run_configs`; by default the registry's defaults). The report's setup line (`study.report.compose`)."""
     from mcdp.methods import METHODS, label, model_config, network_class
 
     mono, bases, fresh = [], [], []

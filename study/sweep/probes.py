@@ -11,12 +11,12 @@ inputs and observes its outputs, so that the predictor knows nothing of the expe
   pixels, training size). Near zero means an inert refinement. A cut probe given the as-trained one as
   ``reference`` (which then keeps its depths: ``keep=True``) also records ``cut_change_m``, the mean
   |as trained - cut| depth of the same images: what cutting the neighbours changes, in metres.
-- **stages** (``stages``: the `study.variants.Variant` rows whose stage rides on this pass, e.g. the ORACLE
-  weights and the hand-built propagator of `study.oracle_stages`): after "final" (= the network's last stage),
+- **stages** (``stages``: the `study.sweep.variants.Variant` rows whose stage rides on this pass, e.g. the ORACLE
+  weights and the hand-built propagator of `study.sweep.oracle_stages`): after "final" (= the network's last stage),
   each variant's ``predict_stage(probe, seq, frame, out, depth)``; a stage may add to the refinement record
   (`Probed.accumulate`, e.g. ``oracle_weight_move``).
 
-This module knows no table: `run_probes` is given the variants (`study.variants.VARIANTS`), which name
+This module knows no table: `run_probes` is given the variants (`study.sweep.variants.VARIANTS`), which name
 `trained_probe` / `cut_probe` and `trained_columns` / `cut_columns` as theirs.
 
 The passes are evaluated together, sample by sample (`mcdp.evaluate.evaluate_passes`): each sample's ground truth is
@@ -37,13 +37,13 @@ import math
 from collections.abc import Iterable, Sequence
 from typing import TYPE_CHECKING
 
-from study.records import number, flat_row
+from study.sweep.records import number, flat_row
 
 if TYPE_CHECKING:  # the report reads the variant table without torch: it is imported where a probe runs
     import numpy as np
     import torch
 
-#: the names of the two passes a `Probed` makes (the variants `trained` and `cut` of `study.variants`)
+#: the names of the two passes a `Probed` makes (the variants `trained` and `cut` of `study.sweep.variants`)
 TRAINED, CUT = "trained", "cut"
 PROBED = (TRAINED, CUT)
 #: a refinement whose refined depth differs from its init stage by < 1 cm on average is inert
@@ -91,13 +91,13 @@ def cut_columns(base: dict, own: dict, entry: dict) -> None:
 
 def run_probes(variants: Iterable, pred, oracle_range: tuple[float, float], evaluate,
                log=lambda line: None, truths=None) -> dict[str, dict]:
-    """The probe loop over ``variants`` (`study.variants.VARIANTS`' values, in order): every variant with a probe of
+    """The probe loop over ``variants`` (`study.sweep.variants.VARIANTS`' values, in order): every variant with a probe of
     its own that applies to the run is a pass, given the stages that ride on it (``stages_on``:
-    `study.variants.stages_on`), and the passes are evaluated together, ``evaluate({variant: probe.predict})`` ->
+    `study.sweep.variants.stages_on`), and the passes are evaluated together, ``evaluate({variant: probe.predict})`` ->
     {variant: metrics} (`mcdp.evaluate.evaluate_passes`: sample by sample, the ground truth read once for all);
     each pass's metrics get its ``refinement``. ``truths``: the evaluation's `mcdp.evaluate.TruthCache`, handed to
     each `Probed` so that its ground-truth stages read the sample's truth from it (None: they read their own).
-    Returns {variant: metrics} (`study.variants.entries_of` makes the run's {variant: entry} of them)."""
+    Returns {variant: metrics} (`study.sweep.variants.entries_of` makes the run's {variant: entry} of them)."""
     variants = list(variants)
     probes: dict = {}
     for v in variants:
@@ -134,14 +134,14 @@ class Probed:
             hand-built propagator); None: no ground truth.
         keep: keep the last stage's depth of each image (at most ``KEEP_BYTES``) for a cut probe's comparison.
         reference: the as-trained probe whose kept depths ``cut_change_m`` is measured against.
-        stages: the variants whose stage this pass predicts after "final" (`study.variants.stages_on`: those that
+        stages: the variants whose stage this pass predicts after "final" (`study.sweep.variants.stages_on`: those that
             ride on it and apply to the run), each by its ``predict_stage``.
     """
 
     #: at most this many bytes of depth maps kept for a cut probe's comparison (``keep=True``)
     KEEP_BYTES = 64 << 20
     #: the evaluation's ground truth of the sample being predicted (`mcdp.evaluate.TruthCache`, set by `run_probes`),
-    #: which a stage reading ground truth takes instead of reading it again (`study.oracle_stages`); None: its own
+    #: which a stage reading ground truth takes instead of reading it again (`study.sweep.oracle_stages`); None: its own
     truths = None
 
     def __init__(self, pred, variant: str = TRAINED, oracle_range: tuple[float, float] | None = None,

@@ -1,7 +1,7 @@
 """Overall progress of a sweep: runs done / total, elapsed, an ETA from the runs finished so far, and the
 current stage (pretraining, render of overlap x, yardsticks, runs, report).
 
-`SweepProgress` is fed by `study.sweep` (stages) and `study.engines.run_all` (one call per finished run,
+`SweepProgress` is fed by `study.sweep_command` (stages) and `study.sweep.engines.run_all` (one call per finished run,
 whichever engine ran it: in process, a local process pool, or Ray). On a terminal it is a tqdm bar;
 with ``--no-progress`` (or no terminal) it writes log lines instead: one at every stage change and one
 per finished run (at most one every `min_interval_s` seconds, the last run always)::
@@ -84,7 +84,7 @@ class SweepProgress:
 
     def run_done(self, row: dict | None = None, n: int = 1) -> None:
         """`n` more runs finished (trained and evaluated, skipped, diverged or failed); ``row``: the run's
-        result row (`study.stages.run_stage`), whose ``train_skipped`` and ``eval_skipped`` both true mean it
+        result row (`study.sweep.stages.run_stage`), whose ``train_skipped`` and ``eval_skipped`` both true mean it
         was skipped: done, but not counted in the time per run."""
         self.done = min(self.done + int(n), self.total)
         skipped = bool(row) and bool(row.get("train_skipped")) and bool(row.get("eval_skipped"))

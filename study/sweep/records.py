@@ -1,6 +1,6 @@
-"""What the sweep's stages share (`study.stages` for the runs, `study.worlds` for the worlds): the sweep's
+"""What the sweep's stages share (`study.sweep.stages` for the runs, `study.sweep.worlds` for the worlds): the sweep's
 small JSON records, the counters of what was done or skipped, and the summary of one metrics.json that the
-report reads, and its flat form (`flat_row`: one CSV row's numbers, `study.results.flat_rows`).
+report reads, and its flat form (`flat_row`: one CSV row's numbers, `study.results.summary.flat_rows`).
 """
 from __future__ import annotations
 

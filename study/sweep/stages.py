@@ -1,6 +1,6 @@
 """The stages of one sweep: make the shared pretraining, and train + evaluate one (overlap, method, seed)
-run; each stage is skipped when its inputs' hashes are unchanged (module docstring of `study.sweep`).
-The worlds (render, measured overlap, yardsticks) are `study.worlds`.
+run; each stage is skipped when its inputs' hashes are unchanged (module docstring of `study.sweep_command`).
+The worlds (render, measured overlap, yardsticks) are `study.sweep.worlds`.
 
 A run's files are written, and its checkpoints deleted, only inside the sweep's own folder: every folder from
 the sweep's down to the file is reached without following a link (`corelib.nolinks`). A run folder that is, or
@@ -17,10 +17,10 @@ from typing import Any
 
 from corelib.configlib import ConfigError, config_hash, config_to_dict
 from corelib.version import code_version, warn_other_code
-from study.cleanup import remove_best, remove_last, removed_line, trim_pretraining
-from study.config import SPLIT, SweepConfig, eval_config_for, overlap_key, run_config_for
-from study.records import Counters, finite, read_json, write_json  # noqa: F401 (re-exported)
-from study.variants import CUT, ORACLE, ORACLE_OVL, SPREAD, TRAINED, VARIANTS, cut, entries_of, having
+from study.sweep.cleanup import remove_best, remove_last, removed_line, trim_pretraining
+from study.sweep.config import SPLIT, SweepConfig, eval_config_for, overlap_key, run_config_for
+from study.sweep.records import Counters, finite, read_json, write_json  # noqa: F401 (re-exported)
+from study.sweep.variants import CUT, ORACLE, ORACLE_OVL, SPREAD, TRAINED, VARIANTS, cut, entries_of, having
 
 
 STATUS = "sweep_status.json"
@@ -30,7 +30,7 @@ def pretrain_stage(cfg: SweepConfig, sweep_dir: Path, progress: bool, log) -> di
     """Make (or reuse) the sweep's shared pretraining; its record with ``weights`` (the path runs start from)."""
     if cfg.pretrain is None:
         return None
-    from study.pretrain import WEIGHTS, resolved_configs, run_pretrain
+    from study.sweep.pretrain import WEIGHTS, resolved_configs, run_pretrain
 
     _, _, h = resolved_configs(cfg.pretrain)
     pdir = sweep_dir / "pretrain" / h[:12]
@@ -46,7 +46,7 @@ EVAL_PROTOCOL = "as-trained+cut+cut-change+oracle-weights+oracle-overlap+bands+l
 
 
 #: the variants `EVAL_PROTOCOL` evaluates (by name: what the protocol string has always covered, so that cached
-#: evaluations keep their key); one registered beyond them (`study.variants`) is part of the eval key
+#: evaluations keep their key); one registered beyond them (`study.sweep.variants`) is part of the eval key
 PROTOCOL_VARIANTS = (TRAINED, CUT, ORACLE, ORACLE_OVL, SPREAD)
 
 
@@ -232,7 +232,7 @@ def _checkpoint_of(run_dir: Path, which: str) -> str:
 
 def _evaluate(run: _Run, row: dict) -> tuple[dict[str, dict], str]:
     """Evaluate the run's checkpoint (or reuse the metrics of the same eval key); ({variant: metrics of its pass}
-    (`study.probes.run_probes`), key)."""
+    (`study.sweep.probes.run_probes`), key)."""
     from mcdp.predict import run_record
     from mcdp.runs import rig_differences
 
@@ -281,7 +281,7 @@ def _evaluate(run: _Run, row: dict) -> tuple[dict[str, dict], str]:
 
 def _fill_row(row: dict, status: dict, passes: dict[str, dict]) -> None:
     """The row's checkpoint and the numbers the report reads: its evaluations, {variant: entry}
-    (`study.variants.entries_of`)."""
+    (`study.sweep.variants.entries_of`)."""
     row["checkpoint"] = status.get("checkpoint")
     row["checkpoint_step"] = status.get("checkpoint_step")
     row["oracle"] = bool(passes[TRAINED].get("run", {}).get("oracle", False))
@@ -305,9 +305,9 @@ def _row_line(tag: str, row: dict) -> str:
 
 
 def evaluate_run(cfg: SweepConfig, run_dir: Path, ds, ecfg, progress: bool, log, tag: str):
-    """Evaluate one run's checkpoint as every variant that applies to it (`study.variants`: as trained with the
+    """Evaluate one run's checkpoint as every variant that applies to it (`study.sweep.variants`: as trained with the
     ORACLE stages of a run with bases, with its neighbours cut for a network that reads them, ...;
-    `study.probes.run_probes`), every pass at once, sample by sample (`mcdp.evaluate.evaluate_passes`): each test
+    `study.sweep.probes.run_probes`), every pass at once, sample by sample (`mcdp.evaluate.evaluate_passes`): each test
     sample's ground truth, overlap, labels and regions are read once and shared by every pass and stage, the
     ORACLE stages' included.
 
@@ -317,7 +317,7 @@ def evaluate_run(cfg: SweepConfig, run_dir: Path, ds, ecfg, progress: bool, log,
 
     from mcdp.evaluate import TruthCache, evaluate_passes
     from mcdp.predict import Predictor
-    from study.probes import run_probes
+    from study.sweep.probes import run_probes
 
     pred = Predictor(run_dir, ds, cfg.checkpoint, cfg.device)
     threads_before = torch.get_num_threads()

@@ -3,9 +3,9 @@
 A sweep evaluates each (overlap, method, seed) run's checkpoint
 
 - ``trained``: as trained;
-- ``cut``: with its neighbours cut at inference (`study.probes`; only a network that reads them);
+- ``cut``: with its neighbours cut at inference (`study.sweep.probes`; only a network that reads them);
 - ``oracle``: its own bases at per-image weights fitted to the ground truth on every valid pixel
-  (`study.oracle_stages`; only a network with bases): a yardstick, it reads ground truth;
+  (`study.sweep.oracle_stages`; only a network with bases): a yardstick, it reads ground truth;
 - ``oracle_overlap``: the same weights fitted on the overlap pixels only;
 - ``oracle_spread``: the hand-built propagator (only a network that reads no other camera): its prediction
   corrected from the overlap's ground truth alone, the overlap's median log ratio everywhere and its local
@@ -20,7 +20,7 @@ row names everything of it, imported, never by a string:
   ``stages``: the variants that ride on it), or a stage of another variant's pass (``on``, as trained by default):
   ``adds_stage(pred, oracle_range)`` says whether it applies to the run, and ``predict_stage(probe, seq, frame,
   out, depth)`` gives its depth (N, 1, h, w) at training size from the network's output ``out`` and the last
-  stage's ``depth`` (the probe: `study.probes.Probed`, whose ``accumulate`` adds to the refinement record);
+  stage's ``depth`` (the probe: `study.sweep.probes.Probed`, whose ``accumulate`` adds to the refinement record);
 - what it adds to the flat rows (``columns(base, own, entry)``: base is the as-trained row, own its own);
 - what a report reads it as (``capabilities``, `having`): "cut" (the network without the other cameras: as
   trained minus it is what reading them gives; one variant at most), "ceiling" (a yardstick: the best the bases
@@ -30,9 +30,9 @@ row names everything of it, imported, never by a string:
   ``label`` (``short`` in a table column), so a new variant with a capability appears in every section that
   reads it.
 
-From the probe loop (`study.probes.run_probes`) to the results a run's evaluations travel as ``{variant: entry}``
+From the probe loop (`study.sweep.probes.run_probes`) to the results a run's evaluations travel as ``{variant: entry}``
 (`entries_of`): ``{"metrics": summary, "refinement": ..., "init": summary}``, the last two only where there
-are; a sweep's row holds them as ``row["evaluations"]``, and `study.results.flat_rows` makes one flat row per
+are; a sweep's row holds them as ``row["evaluations"]``, and `study.results.summary.flat_rows` makes one flat row per
 entry.
 
 To add a variant: one row here (or `register` from your own code; `unregister` removes it, e.g. in a test's
@@ -40,7 +40,7 @@ teardown: tests/study/test_toy_variant.py) plus its probe or stage, and its colu
 
 Example::
 
-    >>> from study.variants import Variant, Evaluation, having, register, unregister
+    >>> from study.sweep.variants import Variant, Evaluation, having, register, unregister
     >>> def twice(probe, seq, frame, out, depth):   # a stage of the as-trained pass: its depth, doubled
     ...     return 2.0 * depth
     >>> v = register(Variant("doubled", "as trained at twice the depth", adds_stage=lambda pred, rng: True,
@@ -52,7 +52,7 @@ Example::
     >>> unregister("doubled") is v
     True
 
-A row of the results (`study.results`: results.json's ``flat`` and ``aggregate``, results.csv) is one
+A row of the results (`study.results.summary`: results.json's ``flat`` and ``aggregate``, results.csv) is one
 `Evaluation`: the method's registry name (`mcdp.methods`) in ``method`` and one of `VARIANTS` in
 ``variant``.
 """
@@ -62,10 +62,10 @@ from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import Callable
 
-from study.oracle_stages import (ORACLE, ORACLE_OVL, SPREAD, has_bases, oracle_columns, oracle_depth,
+from study.sweep.oracle_stages import (ORACLE, ORACLE_OVL, SPREAD, has_bases, oracle_columns, oracle_depth,
                                  oracle_overlap_depth, reads_no_other_camera, spread_depth)
-from study.probes import CUT, TRAINED, cut_columns, cut_probe, trained_columns, trained_probe
-from study.records import summarize_metrics
+from study.sweep.probes import CUT, TRAINED, cut_columns, cut_probe, trained_columns, trained_probe
+from study.sweep.records import summarize_metrics
 
 #: what a report may read a variant as (`Variant.capabilities`); those in `SINGLE` one variant at most has
 CAPABILITIES = ("cut", "ceiling", "overlap_ceiling", "spread")
@@ -142,7 +142,7 @@ def cut() -> str | None:
 
 
 def stages_on(variant: str, pred, oracle_range) -> list[Variant]:
-    """The variants whose stage rides on ``variant``'s pass and applies to this run (`study.probes.Probed`'s
+    """The variants whose stage rides on ``variant``'s pass and applies to this run (`study.sweep.probes.Probed`'s
     ``stages``)."""
     return [v for v in VARIANTS.values() if v.on == variant and v.adds_stage is not None
             and v.adds_stage(pred, oracle_range)]
@@ -192,7 +192,7 @@ class Evaluation:
     def __post_init__(self):
         if self.variant not in VARIANTS:
             raise ValueError(f"variant {self.variant!r} is not one of {', '.join(VARIANTS)}")
-        if "@" in self.method:  # a name of results written before the variant field: study.results_files.read_results
+        if "@" in self.method:  # a name of results written before the variant field: study.results.files.read_results
             raise ValueError(f"method {self.method!r}: the variant is a field (Evaluation(method, variant)), "
                              "not a suffix of the method's name")
 

@@ -13,8 +13,8 @@ from pathlib import Path
 
 from corelib.configlib import ConfigError, config_hash, config_to_dict
 from corelib.version import code_version, warn_other_code
-from study.config import SPLIT, SweepConfig, data_config_for, eval_config_for, world_key
-from study.records import Counters, finite, read_json, summarize_metrics, write_json
+from study.sweep.config import SPLIT, SweepConfig, data_config_for, eval_config_for, world_key
+from study.sweep.records import Counters, finite, read_json, summarize_metrics, write_json
 from synth.overlap import target_pair_mean
 
 def measured_overlap(ov: dict) -> dict:
@@ -89,7 +89,7 @@ def _rendered(out: Path):
 
 def render_stage(cfg: SweepConfig, overlap: float, sweep_dir: Path, counters: Counters, log, progress: bool,
                  world: int | None = None) -> dict:
-    """Render (or reuse / resume) the dataset of one overlap (and world: `study.config.worlds_of`); its record."""
+    """Render (or reuse / resume) the dataset of one overlap (and world: `study.sweep.config.worlds_of`); its record."""
     from synth.open import open_dataset
     from synth.protocol import SPLITS
     from synth.render import render_dataset
@@ -187,7 +187,7 @@ def data_seeds(results: dict) -> dict[tuple[float, int], int]:
                 if "data_seed" in d:
                     out[d["overlap"], s] = d["data_seed"]
                 continue
-            w = s if per == 1 else i // per   # study.config.world_of_seed
+            w = s if per == 1 else i // per   # study.sweep.config.world_of_seed
             rec = next((r for r in worlds if r.get("world") == w), None)
             if rec is not None and "data_seed" in rec:
                 out[d["overlap"], s] = rec["data_seed"]

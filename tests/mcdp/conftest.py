@@ -96,7 +96,7 @@ def eval_frame(ds):
 
 
 def _fake_pretraining(path: Path, bases: int = 8, mono_head: bool = True) -> dict:
-    """A shared pretraining file at `path` as `study.pretrain` writes it (the tiny MCDP m = 0 network with `bases`
+    """A shared pretraining file at `path` as `study.sweep.pretrain` writes it (the tiny MCDP m = 0 network with `bases`
     bases and, with `mono_head`, the mono head; random weights of seed 123, step 7); returns its state dict."""
     from corelib.configlib import config_to_dict, load_config
     from mcdp.config import RunConfig

@@ -11,8 +11,8 @@ import pytest
 
 from mcdp.checkpoint_files import REMOVED, WRITTEN, record_removed, removable, removed_checkpoints
 from mcdp.runs import atomic_torch_save
-from study.config import SweepConfig
-from study.cleanup import remove_best, trim_pretraining
+from study.sweep.config import SweepConfig
+from study.sweep.cleanup import remove_best, trim_pretraining
 
 
 def _write(run: Path, name: str, payload: dict, step: int = 2) -> None:

@@ -1,5 +1,5 @@
 """The evaluation that reads each sample's ground truth once and scores every region and scaling of a camera in one
-array product (`mcdp.evaluate.evaluate_passes`, `study.probes.run_probes` as the sweep runs it) gives the numbers
+array product (`mcdp.evaluate.evaluate_passes`, `study.sweep.probes.run_probes` as the sweep runs it) gives the numbers
 of the evaluation it replaced, kept here as the reference (`reference_evaluate`: per image, per region, per camera,
 a Python loop over dicts; each pass evaluated on its own, the ORACLE stages reading their own ground truth): every
 key of the metrics dict, every value to 1e-6 relative, NaN where the reference has NaN."""
@@ -264,11 +264,11 @@ def perturbed(untrained, ds, tmp_path):
 @pytest.mark.slow  # about 3 s each: every pass twice, four ORACLE fits of 100 steps per sample
 @pytest.mark.parametrize("preset", ["mcdp_m2", "mono2"])
 def test_the_sweeps_passes_give_the_reference_numbers(ds, perturbed, one_thread, preset):
-    """`study.stages.evaluate_run`'s evaluation (every pass sample by sample, the ORACLE stages reading the shared
+    """`study.sweep.stages.evaluate_run`'s evaluation (every pass sample by sample, the ORACLE stages reading the shared
     truth, both ORACLE fits in one batch) against each pass evaluated alone by the reference, on the tiny dataset
     with labels: MCDP (m = 2) as trained (+ ORACLE, ORACLE-overlap) and cut, Mono2 (+ the propagator)."""
-    from study.probes import run_probes
-    from study.variants import VARIANTS
+    from study.sweep.probes import run_probes
+    from study.sweep.variants import VARIANTS
 
     pred = perturbed(preset)
     cfg = EvalConfig(frame_stride=2)
@@ -329,8 +329,8 @@ OLD_STAGES = {"oracle": lambda p, s, f, out, d: _old_fitted(p, s, f, out, False)
 
 def _alone(pred, oracle_range) -> dict:
     """The sweep's probes as the replaced loop made them: each pass evaluated alone, its stages reading the dataset."""
-    from study.probes import CUT, TRAINED, Probed
-    from study.variants import stages_on
+    from study.sweep.probes import CUT, TRAINED, Probed
+    from study.sweep.variants import stages_on
 
     def old(variant):
         return [_Stage(v.name, OLD_STAGES[v.name]) for v in stages_on(variant, pred, oracle_range)]

@@ -185,7 +185,7 @@ def test_the_tiny_fsm_preset_trains_two_steps_and_its_cut_evaluation_equals_its_
     rc = main(["train", str(TINY / "fsm.yaml"), "--data", str(tiny_dataset), "--out", str(run), "--no-progress",
                "train.steps=2"])
     assert rc == 0 and (run / "checkpoints" / "last.pt").is_file()
-    from study.probes import CUT, Probed
+    from study.sweep.probes import CUT, Probed
 
     net = Predictor(run, ds, "last")
     pred = Probed(net, keep=True)

@@ -20,7 +20,7 @@ def test_an_unregistered_model_is_refused_naming_the_key():
     cfg = load_config(RunConfig, ROOT / "configs/train/tiny/mono2.yaml", values={"model.method": "nosuch"})
     with pytest.raises(ConfigError, match="model.method 'nosuch' is not a registered"):
         methods.build_network(cfg.model)
-    from study.config import SweepConfig
+    from study.sweep.config import SweepConfig
 
     with pytest.raises(ConfigError, match="unknown method"):
         load_config(SweepConfig, values={"methods": ["nosuch"]})
@@ -72,7 +72,7 @@ def test_a_method_without_a_preset_trains_from_base_yaml_and_its_row(capsys):
     ``mcdp train base.yaml --method NAME`` prints the same config (no hand-written preset is needed)."""
     import yaml
 
-    from study.config import SweepConfig, run_config_for
+    from study.sweep.config import SweepConfig, run_config_for
     from study.method_commands import main
 
     row = methods.register(methods.Method("presetless", "No preset", {"model.refine_steps": 0,
@@ -196,7 +196,7 @@ def test_a_network_outside_the_contract_is_refused():
 
 def test_inference_knows_no_experiment():
     """`mcdp.predict.Predictor` only predicts: the cut, the ORACLE weights and the refinement record live in
-    `study.probes` (issue 31); nothing of the experiment is an argument or a member of the predictor."""
+    `study.sweep.probes` (issue 31); nothing of the experiment is an argument or a member of the predictor."""
     import inspect
     import re
 

@@ -10,7 +10,7 @@ from mcdp.inputs import DepthInput
 from mcdp.methods.oracle_local import OVERLAP_TRUTH, given_channels
 from mcdp.truth import overlap_truth, overlap_truth_at
 from mcdp.predict import Predictor
-from study.probes import CUT, Probed
+from study.sweep.probes import CUT, Probed
 
 TINY = Path(__file__).resolve().parents[2] / "configs" / "train" / "tiny"
 
@@ -207,7 +207,7 @@ def test_the_copy_test_scores_exactly_the_hinted_pixels(ds):
 
 def test_an_oracle_local_network_passes_the_copy_test(ds, tmp_path, one_thread, untrained):
     """End to end: an ORACLE-local network (random, given-depth layers far from zero) predicted as the sweep evaluates it
-    (`study.probes`) scores ~0 abs_rel (scaling none) on the evaluation's overlap pixels, not elsewhere."""
+    (`study.sweep.probes`) scores ~0 abs_rel (scaling none) on the evaluation's overlap pixels, not elsewhere."""
     from mcdp.evaluate import evaluate
 
     pred = untrained(ds, tmp_path / "o.pt", "oracle_local")

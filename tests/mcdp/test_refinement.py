@@ -14,16 +14,16 @@ from mcdp.methods.base import combine_bases, disp_to_depth
 from mcdp.oracle import fit_oracle_weights, si_log_error
 from mcdp.predict import Predictor
 from mcdp.trainer import Trainer
-from study.probes import CUT, TRAINED, Probed
-from study.variants import stages_on
+from study.sweep.probes import CUT, TRAINED, Probed
+from study.sweep.variants import stages_on
 
 ROOT = Path(__file__).resolve().parents[2]
 TINY = ROOT / "configs" / "train" / "tiny"
 
 
 def probe(run, ds, variant=TRAINED, **kw) -> Probed:
-    """The run's predictor evaluated as one variant of the overlap experiment (`study.probes`), given an
-    ``oracle_range`` with the stages of the variant table that ride on it (`study.variants.stages_on`)."""
+    """The run's predictor evaluated as one variant of the overlap experiment (`study.sweep.probes`), given an
+    ``oracle_range`` with the stages of the variant table that ride on it (`study.sweep.variants.stages_on`)."""
     pred = Predictor(run, ds, device="cpu")
     rng = kw.get("oracle_range")
     return Probed(pred, variant, **kw, stages=stages_on(variant, pred, rng) if rng is not None else ())

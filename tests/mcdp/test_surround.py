@@ -122,7 +122,7 @@ def test_the_tiny_surround_preset_trains_two_steps_and_evaluates_as_trained_and_
     rc = main(["train", str(TINY / "surround.yaml"), "--data", str(tiny_dataset), "--out", str(run), "--no-progress",
                "train.steps=2", "scale.source=odometry", "method_params.d_model=64", "method_params.levels=[4]"])
     assert rc == 0 and (run / "checkpoints" / "last.pt").is_file()
-    from study.probes import CUT, Probed
+    from study.sweep.probes import CUT, Probed
 
     net = Predictor(run, ds, "last")
     pred = Probed(net, keep=True)

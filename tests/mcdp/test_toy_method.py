@@ -46,7 +46,7 @@ def toy_cfg(row, *overrides: str) -> RunConfig:
 
 
 def fake_pretraining(path: Path) -> dict:
-    """A shared pretraining file as `study.pretrain` writes it (8 bases + the mono head), random weights."""
+    """A shared pretraining file as `study.sweep.pretrain` writes it (8 bases + the mono head), random weights."""
     from mcdp.methods.depth_bases import DepthModel
     from mcdp.warmstart import FORMAT, VERSION
 
@@ -162,8 +162,8 @@ def test_a_toy_with_an_input_of_its_own_gets_it_in_training_and_inference(toy_in
 
 def test_the_toy_row_is_what_the_study_and_the_report_read(toy):
     """Sweeps accept it, reports label it in table order and read its network's members for the warm start."""
-    from study.config import SweepConfig
-    from study.pretrain import warm_start_line
+    from study.sweep.config import SweepConfig
+    from study.sweep.pretrain import warm_start_line
 
     assert SweepConfig(methods=["toy", "mono2"]).methods == ["mono2", "toy"]
     assert methods.label("toy") == "Toy net"

@@ -10,8 +10,8 @@ import pytest
 import yaml
 
 from corelib.configlib import ConfigError
-from study.anchors import load_anchors
-from study.calibration import agreement, mmrv, paired, rank_stats, read_anchor, wilson
+from study.report.sections.anchors import load_anchors
+from study.report.sections.calibration import agreement, mmrv, paired, rank_stats, read_anchor, wilson
 
 ANCHORS = Path(__file__).resolve().parents[2] / "configs" / "calibration" / "anchors.yaml"
 
@@ -133,7 +133,7 @@ def test_the_page_builds_from_values_with_its_headline_and_scatter(tmp_path, mon
 
 
 def test_calibrate_dry_run_names_every_arm_in_order_with_its_overrides(capsys, tmp_path):
-    from study.calibration_run import main
+    from study.calibrate_command import main
 
     preset = ANCHORS.parents[1] / "sweep" / "cpu_calibration.yaml"
     assert main([str(ANCHORS), str(preset), "--out", str(tmp_path), "--dry-run", "--extra", "train.steps=800"]) == 0
@@ -147,7 +147,7 @@ def test_calibrate_dry_run_names_every_arm_in_order_with_its_overrides(capsys, t
 
 
 def test_the_scale_point_takes_every_unresolved_or_disagreeing_anchor_and_three_agreeing():
-    from study.calibration import scale_point_arms
+    from study.report.sections.calibration import scale_point_arms
 
     a = load_anchors(ANCHORS)
     rows = [{"name": x.name, "n": 4, "agrees": x.name in ("pretraining_off", "side_cameras", "mcdp_vs_mono2",
@@ -161,7 +161,7 @@ def test_the_scale_point_takes_every_unresolved_or_disagreeing_anchor_and_three_
 
 
 def test_link_shared_hard_links_the_first_arms_folders_and_marker(tmp_path):
-    from study.calibration_run import link_shared
+    from study.calibrate_command import link_shared
 
     first = tmp_path / "mono2"
     (first / "data" / "w").mkdir(parents=True)

@@ -1,9 +1,9 @@
-"""The report's section by class group and motion (study/classes.py), from results alone."""
+"""The report's section by class group and motion (study/report/sections/classes.py), from results alone."""
 from __future__ import annotations
 
 import re
 
-from study.classes import format_classes, has_classes
+from study.report.sections.classes import format_classes, has_classes
 
 
 def _results(moving_hole: float, parked_hole: float) -> dict:

@@ -7,8 +7,8 @@ from pathlib import Path
 
 from corelib.configlib import config_hash
 from corelib.version import code_version
-from study.config import data_config_for, load_sweep_config, overlap_key, run_config_for
-from study.stages import Counters
+from study.sweep.config import data_config_for, load_sweep_config, overlap_key, run_config_for
+from study.sweep.stages import Counters
 
 ROOT = Path(__file__).resolve().parents[2]
 CI = ROOT / "configs" / "sweep" / "ci.yaml"
@@ -27,7 +27,7 @@ def test_code_version_is_the_package_version_and_a_source_digest():
 
 
 def test_a_dataset_made_by_other_code_is_reused_with_one_warning(tmp_path, write_dataset):
-    from study.worlds import render_stage
+    from study.sweep.worlds import render_stage
 
     cfg = load_sweep_config(CI)
     o = cfg.overlaps[0]
@@ -46,7 +46,7 @@ def test_a_dataset_made_by_other_code_is_reused_with_one_warning(tmp_path, write
 
 def test_a_pretraining_made_by_other_code_is_reused_with_one_warning(tmp_path):
     from corelib.hashing import sha256_file
-    from study.pretrain import MARKER, WEIGHTS, load_pretrain_config, resolved_configs, run_pretrain
+    from study.sweep.pretrain import MARKER, WEIGHTS, load_pretrain_config, resolved_configs, run_pretrain
 
     cfg = load_pretrain_config(ROOT / "configs" / "pretrain" / "tiny.yaml")
     h = resolved_configs(cfg)[2]
@@ -63,7 +63,7 @@ def test_a_pretraining_made_by_other_code_is_reused_with_one_warning(tmp_path):
 
 
 def test_a_run_trained_by_other_code_is_skipped_with_one_warning(tmp_path):
-    from study.stages import STATUS, _Run, _train, sweep_run_hash
+    from study.sweep.stages import STATUS, _Run, _train, sweep_run_hash
 
     cfg = load_sweep_config(CI)
     rcfg = run_config_for(cfg, "mono2", 0)[0]

@@ -9,10 +9,10 @@ from pathlib import Path
 
 import pytest
 
-from study import lcon
-from study.results_files import (ABS_REL_ONLY, CSV_GZ, PER_SEQUENCE_KEPT, RECORDS, RECORDS_KEY, compact_results,
+from study.report.sections import lcon
+from study.results.files import (ABS_REL_ONLY, CSV_GZ, PER_SEQUENCE_KEPT, RECORDS, RECORDS_KEY, compact_results,
                                  gzip_csv, join_results, read_results, results_from_csv, write_csv)
-from study.variants import CUT
+from study.sweep.variants import CUT
 
 ROOT = Path(__file__).resolve().parents[2]
 RESULTS = ROOT / "docs" / "results"
@@ -91,7 +91,7 @@ def test_a_records_file_that_is_not_one_is_refused_naming_it():
     with pytest.raises(ValueError, match=r"records\.json\.gz: not gzip of JSON"):
         join_results(summary, b"not gzip")
     with pytest.raises(ValueError, match="more than"):  # a gzip bomb is not unpacked past the bound
-        import study.results_files as rf
+        import study.results.files as rf
 
         old, rf.MAX_RECORDS_BYTES = rf.MAX_RECORDS_BYTES, 1000
         try:
@@ -103,7 +103,7 @@ def test_a_records_file_that_is_not_one_is_refused_naming_it():
 @pytest.mark.parametrize("name", ["../records.json.gz", "/etc/passwd", "sub/records.json.gz", 7])
 def test_a_records_file_outside_its_results_folder_is_refused(tmp_path, name):
     """read_results reads the records file only as a plain name beside results.json (issue 61, c3c0f37)."""
-    from study.results_files import read_results
+    from study.results.files import read_results
 
     summary = json.loads((RESULTS / "sensor_ideal" / "results.json").read_text())
     summary[RECORDS_KEY] = {**summary[RECORDS_KEY], "file": name}
@@ -114,7 +114,7 @@ def test_a_records_file_outside_its_results_folder_is_refused(tmp_path, name):
 
 def test_a_linked_results_json_is_refused_in_one_line(tmp_path):
     from corelib.readfile import ReadRefused
-    from study.results_files import read_results
+    from study.results.files import read_results
 
     (tmp_path / "real.json").write_text("{}")
     (tmp_path / "results.json").symlink_to(tmp_path / "real.json")

@@ -1,13 +1,13 @@
-"""study/design.py: sample size, the two-look O'Brien-Fleming design and the signed-rank reading, against published
-tables and (where installed) scipy; study/variance.py: the noise / heterogeneity split on synthetic numbers."""
+"""study/stats/design.py: sample size, the two-look O'Brien-Fleming design and the signed-rank reading, against published
+tables and (where installed) scipy; study/stats/variance.py: the noise / heterogeneity split on synthetic numbers."""
 import math
 
 import numpy as np
 import pytest
 
-from study.design import obf_bounds, obf_inflation, sequential_look, signed_rank, worlds_needed
-from study.power import mde
-from study.variance import OUTLIER_Z, variance_split, world_bootstrap
+from study.stats.design import obf_bounds, obf_inflation, sequential_look, signed_rank, worlds_needed
+from study.stats.power import mde
+from study.stats.variance import OUTLIER_Z, variance_split, world_bootstrap
 
 
 # --------------------------------------------------------------------------- sample size

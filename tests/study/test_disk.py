@@ -1,4 +1,4 @@
-"""A sweep says what it will write to disk and refuses one the disk cannot hold (`study.disk`)."""
+"""A sweep says what it will write to disk and refuses one the disk cannot hold (`study.sweep.disk`)."""
 from __future__ import annotations
 
 import os
@@ -15,7 +15,7 @@ MONO2 = ROOT / "configs" / "train" / "tiny" / "mono2.yaml"
 
 
 def _cfg(*overrides: str):
-    from study.config import load_sweep_config
+    from study.sweep.config import load_sweep_config
 
     return load_sweep_config(CI, list(overrides), None)
 
@@ -24,7 +24,7 @@ def test_the_estimate_is_the_size_of_a_checkpoint_the_trainer_writes(tiny_datase
     """last.pt of a real one-step run is the meta-device estimate to within 2 % (its config and records)."""
     from mcdp.config import RunConfig
     from corelib.configlib import load_config
-    from study.disk import checkpoint_bytes
+    from study.sweep.disk import checkpoint_bytes
     from study.method_commands import main
 
     run = tmp_path / "run"
@@ -37,8 +37,7 @@ def test_the_estimate_is_the_size_of_a_checkpoint_the_trainer_writes(tiny_datase
 
 
 def test_the_estimate_counts_what_the_keep_keys_keep(monkeypatch):
-    from study import disk
-
+    from study.sweep import disk
     monkeypatch.setattr(disk, "checkpoint_bytes", lambda rcfg, n_cameras=6: (300, 100))
     runs = 2 * 7  # ci.yaml: 2 overlaps x 7 methods x 1 seed
     both = disk.estimate(_cfg("keep_last=true", "keep_best=true"), 3000)
@@ -51,8 +50,7 @@ def test_the_estimate_counts_what_the_keep_keys_keep(monkeypatch):
 
 
 def test_a_sweep_larger_than_the_free_space_is_refused_naming_the_keys(monkeypatch, tmp_path):
-    from study import disk
-
+    from study.sweep import disk
     monkeypatch.setattr(disk, "checkpoint_bytes", lambda rcfg, n_cameras=6: (3_000_000, 1_000_000))
     monkeypatch.setattr(disk, "free_bytes", lambda out: 5_000_000)
     cfg = _cfg("keep_last=true", "keep_best=true")
@@ -72,7 +70,7 @@ def test_a_sweep_larger_than_the_free_space_is_refused_naming_the_keys(monkeypat
 
 
 def test_a_link_under_the_folder_is_not_followed(tmp_path):
-    from study.disk import bytes_under
+    from study.sweep.disk import bytes_under
 
     (tmp_path / "big").write_bytes(b"\0" * 10_000)
     (tmp_path / "sweep").mkdir()

@@ -8,7 +8,7 @@ from pathlib import Path
 import pytest
 
 from study import cli as study_cli
-from study import config as sweep
+from study.sweep import config as sweep
 from synth.cli import main as synth_main
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -35,7 +35,7 @@ def test_engine_ray_without_ray_is_one_clear_line(monkeypatch, tmp_path, capsys)
     assert len(err) == 1 and HINT in err[0] and not data.exists()
 
 
-# a sweep of two runs, jobs=2, whose runs sleep (study.engines._stage_job replaced); its workers import this file as
+# a sweep of two runs, jobs=2, whose runs sleep (study.sweep.engines._stage_job replaced); its workers import this file as
 # they import the `mcdp` script, and are told to take 30 s over it (as a loaded machine takes over torch's import)
 _CTRL_C_SWEEP = '''
 import os, signal, sys, time
@@ -56,9 +56,10 @@ def slow_job(*args):
 if __name__ == "__main__":
     from concurrent.futures import ProcessPoolExecutor
 
-    from study import engines, sweep
+    from study import sweep_command as sweep
+    from study.sweep import engines
     from study.cli import main
-    from study.stages import Counters
+    from study.sweep.stages import Counters
 
     engines._stage_job = slow_job
     submit = ProcessPoolExecutor.submit

@@ -1,5 +1,5 @@
-"""study/lcon.py: (b) read over worlds at one step, its answer sentence, the noise split and the looks; the world
-column of results.csv (study/outputs.py)."""
+"""study/report/sections/lcon.py: (b) read over worlds at one step, its answer sentence, the noise split and the looks; the world
+column of results.csv (study/report/outputs.py)."""
 import csv
 import json
 import math
@@ -8,13 +8,13 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from study import lcon
-from study.results_files import read_results, write_csv
-from study.primary import plan_of
+from study.report.sections import lcon
+from study.results.files import read_results, write_csv
+from study.report.sections.primary import plan_of
 
-PLAN = {"delta": 0.005}  # today's bound (study.config.SweepPlan's default, the committed presets' plan.delta)
+PLAN = {"delta": 0.005}  # today's bound (study.sweep.config.SweepPlan's default, the committed presets' plan.delta)
 DELTA = PLAN["delta"]
-from study.variants import CUT
+from study.sweep.variants import CUT
 
 ROOT = Path(__file__).resolve().parents[2]
 
@@ -82,7 +82,7 @@ def test_results_csv_world_is_the_data_seed_each_run_trained_on(tmp_path):
 def test_the_lcon_presets_score_both_arms_at_one_step_and_state_their_plan():
     """Rule 1 in the presets themselves: every L_con preset evaluates the last checkpoint; the main one states its
     plan (planned worlds, first look at about half) before the run."""
-    from study.config import load_sweep_config
+    from study.sweep.config import load_sweep_config
 
     for name in ("cpu_lcon_pilot", "cpu_lcon", "cpu_lcon_overlaps"):
         cfg = load_sweep_config(str(ROOT / f"configs/sweep/{name}.yaml"), [])
@@ -98,7 +98,7 @@ def test_the_lcon_presets_score_both_arms_at_one_step_and_state_their_plan():
 def test_the_readme_opens_with_the_committed_answer():
     """The README's headline table gives the L_con page's answer, as the committed results give it (its first row);
     the 1000-step reading stands in docs/RESULTS.md, where the README's narrative moved (issue 60)."""
-    from study.results_files import read_results
+    from study.results.files import read_results
 
     res = read_results(ROOT / "docs/results/lcon_main/results.json")
     n = lcon.reading(lcon.pairs(res), "median", plan_of(res))
@@ -123,8 +123,8 @@ def test_the_readme_opens_with_the_committed_answer():
 
 def _with_control(res, emptied, filled):
     """``res`` with an ORACLE-local run per world (filled = as trained, emptied = cut) in its flat rows (the
-    columns `study.primary.measure` reads)."""
-    from study.variants import TRAINED
+    columns `study.report.sections.primary.measure` reads)."""
+    from study.sweep.variants import TRAINED
 
     worlds = sorted({r["seed"]: r["world"] for r in res["rows"]}.items())
     res["flat"] = []

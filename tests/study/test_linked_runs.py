@@ -15,9 +15,9 @@ import pytest
 from corelib.configlib import ConfigError
 from mcdp.checkpoint_files import REMOVED, record_written
 from mcdp.runs import atomic_torch_save
-from study import stages
-from study.config import load_sweep_config
-from study.records import Counters
+from study.sweep import stages
+from study.sweep.config import load_sweep_config
+from study.sweep.records import Counters
 
 ROOT = Path(__file__).resolve().parents[2]
 CI = ROOT / "configs" / "sweep" / "ci.yaml"  # keep_last: false, keep_best: false
@@ -52,7 +52,7 @@ def _sweep_with_linked_run(tmp_path: Path, level: int | None) -> tuple[Path, Pat
 
 
 def _rerun(monkeypatch, sweep: Path, lines: list[str]) -> dict:
-    """`study.stages.run_stage` of the linked run, its training and evaluation found done (their skip paths)."""
+    """`study.sweep.stages.run_stage` of the linked run, its training and evaluation found done (their skip paths)."""
     import synth.open
 
     monkeypatch.setattr(synth.open, "open_dataset", lambda path: None)
@@ -113,7 +113,7 @@ def test_a_linked_run_that_would_be_trained_again_is_refused_naming_the_link(tmp
 
 def test_a_status_or_metrics_write_below_a_link_is_refused_naming_it(tmp_path):
     from corelib.atomic import LinkRefused
-    from study.records import write_json
+    from study.sweep.records import write_json
 
     sweep, other, link = _sweep_with_linked_run(tmp_path, 2)
     status = sweep.joinpath(*RUN, stages.STATUS)

@@ -1,11 +1,11 @@
-"""The report's comparison of the overlap mechanisms (study/mechanisms.py): the 'from which overlap on'
+"""The report's comparison of the overlap mechanisms (study/report/sections/mechanisms.py): the 'from which overlap on'
 verdict and the table, on hand-made results whose answer is known."""
 from __future__ import annotations
 
 import re
 
-from study.mechanisms import format_mechanisms, from_which_overlap
-from study.variants import CUT, TRAINED
+from study.report.sections.mechanisms import format_mechanisms, from_which_overlap
+from study.sweep.variants import CUT, TRAINED
 
 #: a gain over Mono2 (Mono2 - method, issue 49: positive = helps): 1 better, -1 worse
 D = {-1: {"differs": -1}, 0: {"differs": 0}, 1: {"differs": 1}}
@@ -48,7 +48,7 @@ def _results():
 
 
 def test_the_section_states_each_mechanisms_verdict():
-    from study.verdicts import format_verdicts
+    from study.report.sections.verdicts import format_verdicts
 
     name = lambda m: {"fsm": "FSM", "surround": "SurroundDepth"}.get(m, m)  # noqa: E731
     md = format_mechanisms(_results(), name)
@@ -72,7 +72,7 @@ def test_the_section_states_each_mechanisms_verdict():
 def test_the_verdicts_count_their_comparisons_and_never_name_a_yardstick():
     """Issue 41: ORACLE-local (ground truth of the overlap as input) stood in "In one line" as a mechanism that
     gains; a reader saw no count of the comparisons the verdicts rest on."""
-    from study.verdicts import format_verdicts
+    from study.report.sections.verdicts import format_verdicts
 
     res = _results()
     for f in res["flat"]:  # surround's rows become ORACLE-local's: a yardstick, whatever its numbers

@@ -9,11 +9,11 @@ from pathlib import Path
 import pytest
 
 from mcdp import methods
-from study.plots import PAIRED_KEYS, distance_lines, paired_series
-from study.reach import format_reach, quantities, readers
-from study.paired import paired_difference
-from study.results import BASELINE
-from study.results_files import read_results
+from study.report.plots import PAIRED_KEYS, distance_lines, paired_series
+from study.report.sections.reach import format_reach, quantities, readers
+from study.results.paired import paired_difference
+from study.results.summary import BASELINE
+from study.results.files import read_results
 
 ROOT = Path(__file__).resolve().parents[2]
 PROP = ROOT / "docs" / "results" / "propagation" / "results.json"

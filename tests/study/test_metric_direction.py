@@ -9,9 +9,9 @@ from pathlib import Path
 import pytest
 
 from mcdp import metrics as M
-from study.paired import paired_difference, paired_gain
-from study.results import BASELINE, aggregate_flat, evaluations, verdict_word, yardstick_row
-from study.results_files import read_results
+from study.results.paired import paired_difference, paired_gain
+from study.results.summary import BASELINE, aggregate_flat, evaluations, verdict_word, yardstick_row
+from study.results.files import read_results
 
 ROOT = Path(__file__).resolve().parents[2]
 PROP = ROOT / "docs" / "results" / "propagation"
@@ -34,8 +34,7 @@ def _with_toy(res: dict) -> dict:
 
 def test_a_toy_higher_is_better_metric_is_worded_right_in_the_report(toy_acc, monkeypatch):
     from mcdp.methods import label
-    from study import verdicts
-
+    from study.report.sections import verdicts
     res = _with_toy(read_results(PROP / "results.json"))
     o, m = res["overlaps"][0], "mcdp_m2"
     acc, err = paired_gain(res, o, BASELINE, m, "none.mean.toy_acc"), paired_gain(res, o, BASELINE, m, "none.mean.abs_rel")
@@ -61,7 +60,7 @@ def _finite(row: dict) -> set[str]:
 
 
 def test_results_written_before_a_metric_read_the_same_from_json_and_csv(toy_acc):
-    from study.report import format_report
+    from study.report.compose import format_report
 
     js, cs = read_results(PROP / "results.json"), read_results(PROP / "results.csv.gz")
     for o in js["overlaps"]:

@@ -11,8 +11,7 @@ import pytest
 from corelib.configlib import config_hash
 from mcdp.runs import run_hash
 from study import cli as study_cli
-from study import config as sweep
-
+from study.sweep import config as sweep
 pytestmark = pytest.mark.slow  # a whole sweep copied and resumed: `pytest -m "not slow"` skips it
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -62,7 +61,7 @@ def test_a_copied_sweep_folder_resumes_without_redoing_anything(mini_sweep, tmp_
 def test_a_run_recorded_under_the_path_hash_of_its_day_keeps_it(tmp_path):
     """A run whose sweep_status.json holds the earlier key (config_hash, with init_from's path) is reused
     under that key where it lies; any other status gets the path-free key."""
-    from study.stages import sweep_run_hash
+    from study.sweep.stages import sweep_run_hash
 
     w = tmp_path / "pretrained.pt"
     w.write_bytes(b"weights")

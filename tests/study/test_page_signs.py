@@ -10,7 +10,7 @@ from pathlib import Path
 
 import pytest
 
-from study.results import upgrade_results
+from study.results.summary import upgrade_results
 
 ROOT = Path(__file__).resolve().parents[2]
 RESULTS = ROOT / "docs" / "results"
@@ -23,7 +23,7 @@ def _page(name: str) -> str:
 
 
 def _results(name: str) -> dict:
-    from study.results_files import read_results  # a compact results.json joined with its records
+    from study.results.files import read_results  # a compact results.json joined with its records
 
     return upgrade_results(read_results(RESULTS / name / "results.json"))
 
@@ -47,11 +47,11 @@ def _mechanism_cells(text: str) -> dict[tuple[str, str], float]:
 
 @pytest.mark.parametrize("name", PAGES)
 def test_page_tables_and_plot_data_share_one_sign(name):
-    """Item 9: the mechanisms table, the plot's data (`study.plots.paired_series`) and the distance section's
+    """Item 9: the mechanisms table, the plot's data (`study.report.plots.paired_series`) and the distance section's
     "vs Mono2" row give the same quantity (Mono2 - method, non-overlap pixels) the same sign, and the page says
     positive = helps wherever it states a sign."""
     from mcdp.methods import label
-    from study.plots import paired_series
+    from study.report.plots import paired_series
 
     text, res = _page(name), _results(name)
     assert "negative = better" not in text and "below 0 = better" not in text and "lower (better)" not in text
@@ -87,8 +87,8 @@ def test_propagation_reading_neighbours_has_one_sign_in_every_section():
 
 def test_paired_series_is_mono2_minus_method():
     """Item 9: the plot's data is Mono2 - method (the old one was method - Mono2)."""
-    from study.plots import paired_series
-    from study.paired import paired_difference
+    from study.report.plots import paired_series
+    from study.results.paired import paired_difference
 
     res = _results("sweep_cpu")
     pd = paired_series(res)["dep_con.mean"]["mcdp_m2"][0]
@@ -98,9 +98,9 @@ def test_paired_series_is_mono2_minus_method():
 
 def test_every_interval_of_a_design_with_worlds_is_clustered():
     """Item 10: in a design with worlds every paired interval is the primary comparisons' clustered one."""
-    from study.primary import paired_nested
-    from study.paired import paired_columns
-    from study.variants import CUT, Evaluation
+    from study.report.sections.primary import paired_nested
+    from study.results.paired import paired_columns
+    from study.sweep.variants import CUT, Evaluation
 
     res = _results("propagation")
     key = "median.non_overlap.abs_rel"

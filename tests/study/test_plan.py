@@ -1,7 +1,7 @@
 """The pre-stated analysis as validated preset keys (issue 60, item 1): the primary arms, metric, scaling, region
 and overlap, `plan.delta`, the stopping rule and the tuning/test split in every committed sweep preset whose
 results are a page, refused in one line naming the key when inconsistent, saved with
-the run, and read by the report from the recorded config (`study.primary.plan_of`)."""
+the run, and read by the report from the recorded config (`study.report.sections.primary.plan_of`)."""
 from __future__ import annotations
 
 from pathlib import Path
@@ -11,9 +11,9 @@ import pytest
 import yaml
 
 from corelib.configlib import ConfigError, config_to_dict
-from study.config import load_sweep_config
-from study.primary import plan_of
-from study.results_files import read_results
+from study.sweep.config import load_sweep_config
+from study.report.sections.primary import plan_of
+from study.results.files import read_results
 
 ROOT = Path(__file__).resolve().parents[2]
 #: presets without a plan: the smoke sweep (no primary comparison; tests run it at other overlaps and methods) and
@@ -55,8 +55,8 @@ def test_an_inconsistent_plan_is_refused_in_one_line_naming_the_key(overrides, k
 
 
 def test_the_sensor_plan_names_its_arms_and_all_pixels_and_an_old_run_reads_the_pages_defaults():
-    from study import sensor
-    from study.primary import primary_key
+    from study.report.sections import sensor
+    from study.report.sections.primary import primary_key
 
     cfg = load_sweep_config("configs/sweep/cpu_sensor.yaml", [])
     assert cfg.plan.arms == ["fsm", "mcdp_m2"] and cfg.plan.region == "all"

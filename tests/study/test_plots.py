@@ -1,5 +1,5 @@
-"""The sweep's figures (study/plots.py) from committed data: the paired-difference figure draws
-study.results' paired differences, a results.csv alone rebuilds the plots' numbers, and the committed
+"""The sweep's figures (study/report/plots.py) from committed data: the paired-difference figure draws
+study.results.summary' paired differences, a results.csv alone rebuilds the plots' numbers, and the committed
 propagation report is what the code writes from its committed results.json."""
 from __future__ import annotations
 
@@ -8,11 +8,11 @@ from pathlib import Path
 
 import pytest
 
-from study.plots import PAIRED_KEYS, make_plots, paired_plot, paired_series
-from study.report import format_report
-from study.paired import paired_difference
-from study.results import BASELINE, method_agg, yardstick_agg
-from study.results_files import read_results, results_from_csv
+from study.report.plots import PAIRED_KEYS, make_plots, paired_plot, paired_series
+from study.report.compose import format_report
+from study.results.paired import paired_difference
+from study.results.summary import BASELINE, method_agg, yardstick_agg
+from study.results.files import read_results, results_from_csv
 
 ROOT = Path(__file__).resolve().parents[2]
 PROP = ROOT / "docs" / "results" / "propagation"
@@ -113,7 +113,7 @@ def test_a_cut_that_moves_the_depth_by_a_tenth_of_a_millimetre_is_negligible_not
     """sweep_compare's SurroundDepth: cutting its other cameras changes Dep Con by ~1e-8, once beyond its interval;
     the propagation verdict calls that negligible (USE_FLOOR), never better or worse."""
     from mcdp.methods import label
-    from study.propagation import format_propagation
+    from study.report.sections.propagation import format_propagation
 
     results = read_results(ROOT / "docs" / "results" / "sweep_compare" / "results.json")
     lines = [ln for ln in format_propagation(results, label).splitlines() if ", SurroundDepth: propagation" in ln]
@@ -128,9 +128,9 @@ def test_the_verdict_section_says_better_only_where_the_paired_interval_does(pro
     assert "beat Mono2" not in sec and "beats Mono2" not in sec  # no raw-mean comparison with Mono2
     assert "Mono2 − each method (positive = helps), paired over seeds" in sec
     # the words follow the paired intervals (metric scaling, all and non-overlap pixels), whatever the data
-    from study.results import gain_word as verdict_word
+    from study.results.summary import gain_word as verdict_word
 
-    from study.mechanisms import is_yardstick
+    from study.report.sections.mechanisms import is_yardstick
 
     words = [verdict_word(paired_difference(prop, o, BASELINE, m, f"none.{region}.abs_rel"))
              for o in prop["overlaps"] for m in prop["methods"] if m != BASELINE and not is_yardstick(prop, m)
@@ -150,8 +150,8 @@ def test_the_distance_figure_uses_its_canvas_one_sign_and_clips_a_wild_band(prop
     and a band whose mean is far out is drawn at the edge with its value written instead of setting the range."""
     import copy
 
-    from study.plots import distance_figure, distance_lines
-    from study.reach import paired
+    from study.report.plots import distance_figure, distance_lines
+    from study.report.sections.reach import paired
 
     fig = distance_figure(prop)
     assert max(ax.get_position().x1 for ax in fig.axes) > 0.9
@@ -175,7 +175,7 @@ def test_the_distance_figure_uses_its_canvas_one_sign_and_clips_a_wild_band(prop
 def test_overlap_figure_is_one_small_panel_per_method_and_scaling(prop):
     """overlap_vs_non_overlap_abs_rel.png drew 2 x (methods) lines on each of two panels (12 for the propagation
     sweep's rows); now one panel per method and scaling, two lines each."""
-    from study.plots import overlap_figure
+    from study.report.plots import overlap_figure
 
     fig = overlap_figure(prop)
     assert len(fig.axes) == 2 * len(prop["methods"])
@@ -185,7 +185,7 @@ def test_overlap_figure_is_one_small_panel_per_method_and_scaling(prop):
 def test_the_measured_overlap_legend_says_what_is_drawn(prop):
     """With the pixels knob the dotted y = x line is the target pixel overlap, not the geometric one (the legend
     said "target (geometric)"); the geometric overlap of the solved layout is drawn as a line of its own."""
-    from study.plots import measured_figure
+    from study.report.plots import measured_figure
 
     names = [t.get_text() for t in measured_figure(prop).axes[0].get_legend().get_texts()]
     assert names == ["target pixel overlap (the knob; y = x)", "measured pixel overlap",
@@ -201,7 +201,7 @@ def test_committed_reports_have_one_verdict_section_free_of_yardsticks(name):
     MCDP (w/o L_con) better at 0.60 alone "from some overlap on" (sweep_cpu) and the ground-truth yardstick
     ORACLE-local as a mechanism that gains (propagation); sweep_compare said no mechanism gains where its table has
     FSM and MCDP (m = 2) better at 0.30. Whatever results.json is committed, the report says it so."""
-    from study.mechanisms import from_which_overlap, is_yardstick, paired_all
+    from study.report.sections.mechanisms import from_which_overlap, is_yardstick, paired_all
 
     results = read_results(ROOT / "docs" / "results" / name / "results.json")
     text = (ROOT / "docs" / "results" / f"{name}.md").read_text()

@@ -1,4 +1,4 @@
-"""study/power.py: the t distribution against scipy and known values, the nested (worlds x seeds) interval and
+"""study/stats/power.py: the t distribution against scipy and known values, the nested (worlds x seeds) interval and
 variance components on numbers whose answer is known, MDE, TOST and the report's verdict phrases. Pure math:
 fast and deterministic (scipy only where a test says so: the package does not depend on it)."""
 from __future__ import annotations
@@ -8,7 +8,7 @@ import random
 
 import pytest
 
-from study.power import mde, nested, t_cdf, t_ppf, tost, verdict
+from study.stats.power import mde, nested, t_cdf, t_ppf, tost, verdict
 
 DFS = (1, 2, 3, 5, 10.5, 30, 200)
 XS = (-40.0, -12.0, -6.0, -3.5, -2.0, -1.3, -0.7, -0.2, -1e-4, 0.0, 1e-4, 0.2, 0.7, 1.3, 2.0, 3.5, 6.0, 12.0, 40.0)

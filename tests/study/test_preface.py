@@ -1,17 +1,17 @@
 """A preface is a template (issue 60, item 3): its figures are fields filled from the page's committed results
-(`study.preface`), and no preface types a figure with its interval by hand."""
+(`study.report.preface`), and no preface types a figure with its interval by hand."""
 from __future__ import annotations
 
 from pathlib import Path
 
 import pytest
 
-from study.preface import PrefaceError, fill, typed_figures
+from study.report.preface import PrefaceError, fill, typed_figures
 
 ROOT = Path(__file__).resolve().parents[2]
 #: prefaces still holding 'x ± y' figures typed by hand, and how many: a ratchet (a count may only fall; a new
 #: preface starts at none). None left: propagation's 36, the last of issue 60's 61, are fields since its row of
-#: study/pages.py gives its preface the budget and L_con parts too (three figures of an earlier run, which no
+#: study/report/pages.py gives its preface the budget and L_con parts too (three figures of an earlier run, which no
 #: committed results hold, now name the commit whose page quotes them).
 TYPED_LEFT: dict[str, int] = {}
 
@@ -89,7 +89,7 @@ def test_a_primary_field_names_its_overlap_scaling_and_band_in_that_order():
 
     sys.path.insert(0, str(ROOT / "scripts"))
     from publish_sweep import load_part
-    from study.preface import sweep_values
+    from study.report.preface import sweep_values
 
     values = sweep_values(load_part("propagation_budget"))
     got = fill("{primary.c.oracle_local.o010.none.band1.mean:+.4f} {copy.o010.median.ratio:.2f} "

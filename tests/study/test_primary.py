@@ -1,11 +1,11 @@
-"""The propagation report's primary section (study/primary.py) on synthetic results: the copy test, the
+"""The propagation report's primary section (study/report/sections/primary.py) on synthetic results: the copy test, the
 clustered intervals, the verdicts and the headline, including when the control fails."""
 from __future__ import annotations
 
 import random
 
-from study.primary import control_passes, copy_test, format_primary, headline, paired_nested, world_of
-from study.variants import CUT, SPREAD, TRAINED, Evaluation
+from study.report.sections.primary import control_passes, copy_test, format_primary, headline, paired_nested, world_of
+from study.sweep.variants import CUT, SPREAD, TRAINED, Evaluation
 
 SCALINGS = ("none", "median", "rig_median")
 BANDS = ("overlap", "0-0.10", ">0.35")

@@ -1,4 +1,4 @@
-"""The sweep's overall progress (study.progress): runs done / total, elapsed, ETA, stage; and that
+"""The sweep's overall progress (study.sweep.progress): runs done / total, elapsed, ETA, stage; and that
 `run_all` reports every finished run (the CI sweep's own lines are checked in test_sweep.py)."""
 from __future__ import annotations
 
@@ -6,7 +6,7 @@ import re
 
 import pytest
 
-from study.progress import SweepProgress, fmt_duration
+from study.sweep.progress import SweepProgress, fmt_duration
 
 
 class Clock:
@@ -78,9 +78,9 @@ def test_min_interval_thins_lines_but_keeps_the_last_run():
 
 
 def test_run_all_reports_every_run_in_process(monkeypatch, tmp_path):
-    import study.engines as engines
-    from study.config import load_sweep_config
-    from study.stages import Counters
+    import study.sweep.engines as engines
+    from study.sweep.config import load_sweep_config
+    from study.sweep.stages import Counters
     from pathlib import Path
 
     cfg = load_sweep_config(Path(__file__).resolve().parents[2] / "configs" / "sweep" / "ci.yaml", ["jobs=1"])

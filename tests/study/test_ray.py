@@ -23,7 +23,7 @@ import yaml
 pytest.importorskip("ray")
 
 from study import cli as study_cli  # noqa: E402
-from study.engines import EXIT_RUN_FAILED, errors_path  # noqa: E402
+from study.sweep.engines import EXIT_RUN_FAILED, errors_path  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[2]
 CI = ROOT / "configs" / "sweep" / "ci.yaml"

@@ -10,9 +10,9 @@ from pathlib import Path
 import pytest
 
 from study import cli as study_cli
-from study.reach import band_names, format_reach, paired, quantities
-from study.results import evaluations
-from study.variants import CUT, ORACLE_OVL, Evaluation
+from study.report.sections.reach import band_names, format_reach, paired, quantities
+from study.results.summary import evaluations
+from study.sweep.variants import CUT, ORACLE_OVL, Evaluation
 
 ROOT = Path(__file__).resolve().parents[2]
 CI = ROOT / "configs" / "sweep" / "ci.yaml"

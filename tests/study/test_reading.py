@@ -9,8 +9,8 @@ from pathlib import Path
 
 import pytest
 
-from study.design import reading_over_worlds, t_p_two_sided
-from study.results import fmt_diff
+from study.stats.design import reading_over_worlds, t_p_two_sided
+from study.results.summary import fmt_diff
 
 ROOT = Path(__file__).resolve().parents[2]
 #: one paired difference per world (worse minus better: positive = helps), and one world with two seeds
@@ -80,7 +80,7 @@ def test_page_modules_read_over_worlds_and_format_differences_through_one_functi
     """lcon, primary and sensor read over worlds with `reading_over_worlds`; none composes nested + mde + tost
     itself, nor formats 'mean ± half-width' of a paired difference by hand."""
     for name in ("lcon", "primary", "sensor"):
-        src = (ROOT / "study" / f"{name}.py").read_text()
+        src = (ROOT / "study" / "report" / "sections" / f"{name}.py").read_text()
         assert "reading_over_worlds(" in src, name
         assert "tost(" not in src and "mde(" not in src and "2.0 * t_cdf" not in src, name
         assert not re.search(r"\['ci95'\]:\.\d f\}", src) and not re.search(r"\{hw:\.", src), name
@@ -98,7 +98,7 @@ def test_one_sign_convention_positive_helps_stated_once_and_followed():
     for name in OTHER_SIGN:
         assert f"`study/{name}`" in design, name
     worse = set()
-    for path in sorted((ROOT / "study").glob("*.py")):
+    for path in sorted((ROOT / "study").rglob("*.py")):
         said = re.findall(r"positive\s*=\s*([^.;)]{0,40})", path.read_text())
         if any(re.search(r"\bworse\b", x) and "helps" not in x for x in said):
             worse.add(path.name)

@@ -9,9 +9,9 @@ from pathlib import Path
 import pytest
 
 from mcdp.methods import METHODS
-from study.recorded import run_configs
-from study.report import format_report
-from study.results_files import read_results
+from study.results.recorded import run_configs
+from study.report.compose import format_report
+from study.results.files import read_results
 
 ROOT = Path(__file__).resolve().parents[2]
 

@@ -6,8 +6,8 @@ import copy
 import re
 from pathlib import Path
 
-from study.report import format_report
-from study.results_files import read_results
+from study.report.compose import format_report
+from study.results.files import read_results
 
 PROP = Path(__file__).resolve().parents[2] / "docs" / "results" / "propagation" / "results.json"
 

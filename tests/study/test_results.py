@@ -1,4 +1,4 @@
-"""The statistics of the sweep's results (study.results): Student-t intervals and paired differences."""
+"""The statistics of the sweep's results (study.results.summary): Student-t intervals and paired differences."""
 from __future__ import annotations
 
 import json
@@ -7,12 +7,12 @@ from pathlib import Path
 
 import pytest
 
-from study.paired import paired_difference
-from study.power import t_halfwidth
-from study.results import (SCHEMA, aggregate_flat, evaluations, evaluations_of, flat_rows, method_agg,
+from study.results.paired import paired_difference
+from study.stats.power import t_halfwidth
+from study.results.summary import (SCHEMA, aggregate_flat, evaluations, evaluations_of, flat_rows, method_agg,
                            upgrade_results)
-from study.results_files import read_results
-from study.variants import CUT, TRAINED, Evaluation
+from study.results.files import read_results
+from study.sweep.variants import CUT, TRAINED, Evaluation
 
 
 def test_t_halfwidth_matches_the_t_table():
@@ -40,7 +40,7 @@ def test_paired_difference_pairs_by_seed_and_says_which_side():
 
 
 def test_a_difference_that_rounds_to_zero_is_still_written_and_a_negligible_one_is_not_called_better():
-    from study.results import fmt_diff, verdict_word
+    from study.results.summary import fmt_diff, verdict_word
 
     tiny = {"mean": 1.5e-05, "ci95": 1.3e-05, "differs": 1}
     assert fmt_diff(tiny, 4) == "+1.5e-05 ± 1.3e-05"  # not '+0.0000 ± 0.0000'
@@ -56,7 +56,7 @@ def test_a_difference_that_rounds_to_zero_is_still_written_and_a_negligible_one_
 
 
 def test_the_setup_names_only_the_sweeps_methods_and_the_head_each_starts_from():
-    from study.pretrain import warm_start_line
+    from study.sweep.pretrain import warm_start_line
 
     assert warm_start_line(["mono2", "mcdp_m1_nocon", "mcdp_m2"]) == (
         "Mono2 starts from its mono head; MCDP (w/o L_con, m = 1) and MCDP (m = 2) from its basis channels; "
@@ -73,7 +73,7 @@ def test_the_warm_start_line_reads_the_network_not_its_name():
     """A row named nothing like a built-in method gets the line its network's declared members give."""
     from mcdp import methods
     from mcdp.methods.surround import SurroundDepthModel
-    from study.pretrain import warm_start_line
+    from study.sweep.pretrain import warm_start_line
 
     methods.register(methods.Method("xview", "X-View", {"model.method": "surround", "model.refine_steps": 0},
                                     SurroundDepthModel))
@@ -84,7 +84,7 @@ def test_the_warm_start_line_reads_the_network_not_its_name():
 
 
 def test_a_report_names_the_pretraining_inside_its_sweep_folder_not_by_a_machines_path():
-    from study.pretrain import weights_in_sweep as _in_sweep
+    from study.sweep.pretrain import weights_in_sweep as _in_sweep
 
     assert _in_sweep("/work/sweeps/cpu/pretrain/d204638a9d4d/pretrained.pt") == "pretrain/d204638a9d4d/pretrained.pt"
     assert _in_sweep("/x/pretrain/sweep/pretrain/abc/pretrained.pt") == "pretrain/abc/pretrained.pt"  # the last one
@@ -93,10 +93,10 @@ def test_a_report_names_the_pretraining_inside_its_sweep_folder_not_by_a_machine
 
 
 def test_the_t_table_is_scipys_quantile_to_three_decimals():
-    """study.results keeps a 30-entry table instead of depending on scipy (its comment says why); where
+    """study.results.summary keeps a 30-entry table instead of depending on scipy (its comment says why); where
     scipy is installed (the nuScenes devkit pulls it in), every entry is its t.ppf(0.975, df)."""
     stats = pytest.importorskip("scipy.stats")
-    from study.power import T975
+    from study.stats.power import T975
 
     assert len(T975) == 30
     for df, t in enumerate(T975, start=1):
@@ -143,7 +143,7 @@ def test_a_results_csv_written_before_the_variant_field_reads_as_its_current_twi
     same runs; in that one a cut evaluation's row has the registry name as method and variant "cut"."""
     import csv
 
-    from study.results_files import write_csv
+    from study.results.files import write_csv
 
     new = _current(json.loads((DATA / "results_v1.json").read_text()))
     write_csv(new, tmp_path / "results.csv")

@@ -1,9 +1,9 @@
-"""study/sensor.py: each method's change from the ideal camera, paired by world (ideal - condition: positive = the
+"""study/report/sections/sensor.py: each method's change from the ideal camera, paired by world (ideal - condition: positive = the
 condition helps), and MCDP's change against FSM's (the paper's argument about photometric losses between cameras)."""
 import numpy as np
 
-from study import sensor
-from study.variants import TRAINED
+from study.report.sections import sensor
+from study.sweep.variants import TRAINED
 
 
 def _results(shift: dict, seed: int = 0, worlds: int = 3) -> dict:

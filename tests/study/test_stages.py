@@ -1,4 +1,4 @@
-"""`study.worlds.render_stage` reads a rendered dataset through the opened dataset (`synth.dataset.Dataset`:
+"""`study.sweep.worlds.render_stage` reads a rendered dataset through the opened dataset (`synth.dataset.Dataset`:
 config_hash, overlap, split), not raw manifest.json keys: a complete dataset of the same config is reused
 with its splits and measured overlap, one of another config is refused. Nothing is rendered."""
 from __future__ import annotations
@@ -8,9 +8,9 @@ from pathlib import Path
 import pytest
 
 from corelib.configlib import ConfigError, config_hash
-from study.config import data_config_for, load_sweep_config, overlap_key
-from study.stages import Counters
-from study.worlds import render_stage
+from study.sweep.config import data_config_for, load_sweep_config, overlap_key
+from study.sweep.stages import Counters
+from study.sweep.worlds import render_stage
 
 ROOT = Path(__file__).resolve().parents[2]
 

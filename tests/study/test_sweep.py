@@ -11,9 +11,9 @@ import pytest
 
 from corelib.configlib import ConfigError
 from study import cli as study_cli
-from study import config as sweep
-from study.pretrain import load_pretrain_config, resolved_configs
-from study.stages import STATUS
+from study.sweep import config as sweep
+from study.sweep.pretrain import load_pretrain_config, resolved_configs
+from study.sweep.stages import STATUS
 
 
 
@@ -149,7 +149,7 @@ def test_cli_usage_error_returns_2(tmp_path, capsys):
 def test_the_command_line_resolves_the_nested_configs_once(tmp_path, monkeypatch):
     """study/cli.py checks (resolves and sizes) every nested config before it says the size; run_sweep is told
     so and does not resolve them again (issue 42, item 7); called alone, run_sweep checks them itself."""
-    import study.sweep as sw
+    import study.sweep_command as sw
 
     calls, seen = [], {}
     real = sweep.check_nested_configs
@@ -181,7 +181,7 @@ def test_ci_sweep_end_to_end_rerun_and_resume(tmp_path, capsys, mini_sweep):
     cfg = sweep.load_sweep_config(CI, [])
     n = len(cfg.overlaps) * len(cfg.methods) * len(cfg.seeds)
     assert sweep_main([str(CI), "--out", str(out), "--no-progress"]) == 0
-    # overall progress (study.progress; jobs=2: runs reported as they finish): one line per stage and per run
+    # overall progress (study.sweep.progress; jobs=2: runs reported as they finish): one line per stage and per run
     err = capsys.readouterr().err.splitlines()
     prog = [ln for ln in err if ln.startswith("[sweep] progress: ")]
     stages = [ln.rsplit("stage: ", 1)[1] for ln in prog]

@@ -1,5 +1,5 @@
 """A variant with a stage of its own is one row of the variant table (issue 50, item 1): declared here, registered
-through `study.variants.register` (and removed after), it rides on the as-trained pass (`Probed.stages`, its
+through `study.sweep.variants.register` (and removed after), it rides on the as-trained pass (`Probed.stages`, its
 ``predict_stage``), becomes an entry of the run (`entries_of`), and, declaring the capability "spread", reaches
 report.md's reach section and its primary comparisons with no edit of the report."""
 from __future__ import annotations
@@ -9,11 +9,11 @@ from pathlib import Path
 import pytest
 import torch
 
-from study import variants
-from study.probes import TRAINED, Probed
-from study.report import format_report
-from study.results_files import read_results
-from study.variants import Evaluation, Variant, entries_of, having, stages_on
+from study.sweep import variants
+from study.sweep.probes import TRAINED, Probed
+from study.report.compose import format_report
+from study.results.files import read_results
+from study.sweep.variants import Evaluation, Variant, entries_of, having, stages_on
 
 ROOT = Path(__file__).resolve().parents[2]
 PROP = ROOT / "docs" / "results" / "propagation" / "results.json"

@@ -1,4 +1,4 @@
-"""A variant is one entry of study/variants.py plus its probe (issue 42, item 3): from the probe loop to the
+"""A variant is one entry of study/sweep/variants.py plus its probe (issue 42, item 3): from the probe loop to the
 results a run's evaluations travel as {variant: entry}, with no stage name, file suffix or row key in between.
 A toy variant registered here (and removed after) reaches the run's row, the flat rows, the aggregate and the
 results' evaluations of a real sweep without any other edit; rows written before ``row["evaluations"]`` give
@@ -10,9 +10,9 @@ from pathlib import Path
 
 import pytest
 
-from study import variants
-from study.results import flat_rows, row_evaluations
-from study.variants import TRAINED, Evaluation, Variant
+from study.sweep import variants
+from study.results.summary import flat_rows, row_evaluations
+from study.sweep.variants import TRAINED, Evaluation, Variant
 
 ROOT = Path(__file__).resolve().parents[2]
 CI = ROOT / "configs" / "sweep" / "ci.yaml"
@@ -25,7 +25,7 @@ class _Doubled:
     """The toy variant's probe: the as-trained prediction at twice the depth (median scaling undoes it)."""
 
     def __init__(self, pred):
-        from study.probes import Probed
+        from study.sweep.probes import Probed
 
         self.inner = Probed(pred)
 

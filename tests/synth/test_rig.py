@@ -133,7 +133,7 @@ def test_an_added_key_at_its_default_keeps_every_hash():
     assert config_hash(load_config(DataConfig, None, ["rig.overlap_target=pixels"])) != config_hash(cfg)
     assert config_hash(load_config(DataConfig, None, ["rig.active_cameras=[CAM_FRONT,CAM_BACK]"])) != config_hash(cfg)
     assert config_hash(load_config(DataConfig, None, ["labels.flow=true"])) != config_hash(cfg)
-    from study.config import SweepConfig
+    from study.sweep.config import SweepConfig
 
     s = SweepConfig()
     sd = config_to_dict(s)

@@ -3,7 +3,7 @@
 or naming an arm that is not declared, is refused in one line naming the row and the field.
 
 The file holds each source's before (= the base arm's configuration) and after (= the changed arm's) figures; the
-reading (`study.calibration`) takes both effects as base - changed, before - after: positive = the change helps,
+reading (`study.report.sections.calibration`) takes both effects as base - changed, before - after: positive = the change helps,
 the project's one sign convention.
 
 Example::

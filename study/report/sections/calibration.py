@@ -32,7 +32,7 @@ from pathlib import Path
 
 import numpy as np
 
-from study.anchors import Anchor, Anchors
+from study.report.sections.anchors import Anchor, Anchors
 
 #: the sweep's column names (results.csv) this module reads
 SIDE_CAMERAS = ("CAM_FRONT_RIGHT", "CAM_BACK_RIGHT", "CAM_BACK_LEFT", "CAM_FRONT_LEFT")
@@ -102,8 +102,8 @@ def _one_arm(vals: dict[str, float], read: str, metric: str) -> float:
 
 def paired(diffs: list[float]) -> dict:
     """Mean, sd, 95 % t interval (``half``), p (two-sided t), MDE at 80 % power of paired differences, one per world:
-    the project's one reading over worlds (`study.design.reading_over_worlds`), without an equivalence bound."""
-    from study.design import reading_over_worlds
+    the project's one reading over worlds (`study.stats.design.reading_over_worlds`), without an equivalence bound."""
+    from study.stats.design import reading_over_worlds
 
     d = [float(x) for x in diffs]
     n = len(d)
@@ -239,14 +239,14 @@ def scale_point_arms(anchors: Anchors, rows: list[dict]) -> list[str]:
 
 
 def main(argv: list[str] | None = None) -> int:
-    """``python -m study.calibration scale-arms ANCHORS FOLDER``: the second scale point's arms, comma-separated."""
+    """``python -m study.report.sections.calibration scale-arms ANCHORS FOLDER``: the second scale point's arms, comma-separated."""
     import sys
 
-    from study.anchors import load_anchors
+    from study.report.sections.anchors import load_anchors
 
     args = list(sys.argv[1:] if argv is None else argv)
     if len(args) != 3 or args[0] != "scale-arms":
-        print("usage: python -m study.calibration scale-arms ANCHORS FOLDER", file=sys.stderr)
+        print("usage: python -m study.report.sections.calibration scale-arms ANCHORS FOLDER", file=sys.stderr)
         return 2
     anchors = load_anchors(args[1])
     cols = columns(anchors)

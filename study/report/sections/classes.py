@@ -1,6 +1,6 @@
 """The report's section by class group and motion (a sweep whose worlds have semantic labels, `synth.labels`).
 
-Read from `study.results` (nothing is computed from raw files): median-scaled abs_rel of the class groups
+Read from `study.results.summary` (nothing is computed from raw files): median-scaled abs_rel of the class groups
 (road, building, vehicle: parked / moving, vegetation, other) and of static / moving pixels
 (`mcdp.label_regions`), Mono2's value beside the constant-depth yardstick, Mono2 − every other method, paired
 over (world, seed) pairs (positive = helps, the one sign of every page); where a method is better or worse
@@ -12,8 +12,8 @@ from __future__ import annotations
 
 import math
 
-from study.paired import paired_columns
-from study.results import BASELINE, flat_of, fmt_diff, mean_std, yardstick_row
+from study.results.paired import paired_columns
+from study.results.summary import BASELINE, flat_of, fmt_diff, mean_std, yardstick_row
 
 KEY = "median.{kind}.{region}.abs_rel"
 ROWS = (("class", "road", "road"), ("class", "building", "building"), ("class", "vehicle", "vehicle"),

@@ -2,33 +2,33 @@
 overlap make depth better outside it?
 
 Primary comparison (b), named in the presets' headers before their runs: MCDP (w/o L_con) cut - MCDP cut,
-abs_rel on non-overlap pixels at the plan's overlap (`study.primary.plan_of`), median scaling (with ``none`` and
+abs_rel on non-overlap pixels at the plan's overlap (`study.report.sections.primary.plan_of`), median scaling (with ``none`` and
 ``rig_median`` beside it), **positive = L_con helps**, one training seed per world, **both arms scored at one
 pre-stated step** (the sweep's ``checkpoint: last``; a pair scored at two steps is said so). Read:
 
 - over worlds: the mean with its t interval, the MDE at 80 % power, TOST against the plan's ``delta``
-  (`study.power`), and Wilcoxon's signed-rank test with the Hodges-Lehmann estimate and interval
-  (`study.design.signed_rank`), so one outlying world cannot carry the verdict alone;
+  (`study.stats.power`), and Wilcoxon's signed-rank test with the Hodges-Lehmann estimate and interval
+  (`study.stats.design.signed_rank`), so one outlying world cannot carry the verdict alone;
 - where the spread between worlds comes from: each world's bootstrap over its test sequences, the split into
-  test-sampling noise and heterogeneity, and outlying worlds (`study.variance`), with a forest plot;
+  test-sampling noise and heterogeneity, and outlying worlds (`study.stats.variance`), with a forest plot;
 - the sweep's ``plan`` (planned worlds, the first look), stated before the run: the two-look O'Brien-Fleming
-  reading (`study.design.sequential_look`).
+  reading (`study.stats.design.sequential_look`).
 
-Read from `study.results` only (a results.json with per-sequence records: `mcdp.per_sequence`).
+Read from `study.results.summary` only (a results.json with per-sequence records: `mcdp.per_sequence`).
 """
 from __future__ import annotations
 
 import math
 from pathlib import Path
 
-from study.config import PLAN_REGIONS, region_words
-from study.design import reading_over_worlds, sequential_look, worlds_needed
-from study.primary import SCALINGS, has_control, measure, plan_of
-from study.reach import lcon_pairs, local
-from study.results import fmt_diff, row_evaluations
-from study.worlds import data_seeds
-from study.variance import forest_plot, variance_split
-from study.variants import Evaluation, cut
+from study.sweep.config import PLAN_REGIONS, region_words
+from study.stats.design import reading_over_worlds, sequential_look, worlds_needed
+from study.report.sections.primary import SCALINGS, has_control, measure, plan_of
+from study.report.sections.reach import lcon_pairs, local
+from study.results.summary import fmt_diff, row_evaluations
+from study.sweep.worlds import data_seeds
+from study.stats.variance import forest_plot, variance_split
+from study.sweep.variants import Evaluation, cut
 
 REGION = "non_overlap"
 DRAWS = 2000
@@ -71,7 +71,7 @@ def _per_seq(row: dict, sc: str, region: str = REGION):
 
 
 def pairs(results: dict, o: float | None = None) -> list[dict]:
-    """At overlap ``o`` (default: the plan's, `study.primary.plan_of`), per world: {"world", "seed", "steps": (arm a's, arm b's scored step), "same_step", "d": {scaling: a - b}}."""
+    """At overlap ``o`` (default: the plan's, `study.report.sections.primary.plan_of`), per world: {"world", "seed", "steps": (arm a's, arm b's scored step), "same_step", "d": {scaling: a - b}}."""
     arms = lcon_arms(results)
     if arms is None:
         return []
@@ -99,7 +99,7 @@ def world_means(ps: list[dict], sc: str) -> dict:
 
 
 def reading(ps: list[dict], sc: str, plan: dict) -> dict:
-    """(b) over the worlds at one scaling: `study.design.reading_over_worlds` (nested, clustered by world; MDE;
+    """(b) over the worlds at one scaling: `study.stats.design.reading_over_worlds` (nested, clustered by world; MDE;
     TOST against ``plan["delta"]``; the signed-rank test over the world means)."""
     return reading_over_worlds(world_means(ps, sc), plan)
 
@@ -120,7 +120,7 @@ def answer(n: dict) -> str:
 
 
 def split_of(ps: list[dict], sc: str, draws: int = DRAWS) -> dict | None:
-    """`study.variance.variance_split` of (b) at one scaling, or None without per-sequence records."""
+    """`study.stats.variance.variance_split` of (b) at one scaling, or None without per-sequence records."""
     worlds = {}
     for p in ps:
         a, b = (_per_seq(r, sc, p["region"]) for r in p["rows"])
@@ -299,9 +299,9 @@ def budget_reading(budget: dict, short: dict | None, o: float | None = None) -> 
 
     ``budget``: a sweep with the L_con pair and, as the control, the local yardstick (ORACLE-local) trained at the
     same budget; ``short``: a sweep of the same worlds at the shorter budget (or None). Returns {"b": {scaling:
-    `reading`}, "control": `study.primary.measure` of emptied - filled on non-overlap pixels (None without it),
+    `reading`}, "control": `study.report.sections.primary.measure` of emptied - filled on non-overlap pixels (None without it),
     "short": {scaling: `reading` of the shorter budget on the worlds both have}, "change": {scaling:
-    `study.design.reading_over_worlds` of (b) long - (b) short, paired by world}}."""
+    `study.stats.design.reading_over_worlds` of (b) long - (b) short, paired by world}}."""
     plan = plan_of(budget)
     o = plan["overlap"] if o is None else o
     ps = pairs(budget, o)

@@ -12,19 +12,19 @@ Where a method is better than Mono2 (`from_which_overlap`): **at every overlap o
 on** when its gain over Mono2 is positive beyond the paired 95 % interval at x and at every larger overlap, at least two of
 them; **at x only** (or at x and y only) otherwise; **at no overlap of the sweep** when it never is; in a sweep of
 one overlap, **at overlap x**. The
-verdict lines themselves are in the report's one verdict section (`study.verdicts`). A row that reads ground truth
+verdict lines themselves are in the report's one verdict section (`study.report.sections.verdicts`). A row that reads ground truth
 (an ORACLE, `is_yardstick`) is a yardstick: it is in the table, never among the mechanisms' verdicts. Read from
-`study.results` only (nothing computed from raw files here).
+`study.results.summary` only (nothing computed from raw files here).
 """
 from __future__ import annotations
 
 import math
 
-from study.paired import paired_gain
-from study.probes import INERT_M
-from study.results import BASELINE, USE_FLOOR, evaluations, fmt_diff, gain_word, method_agg
-from study.results import fmt_num as _num
-from study.variants import Evaluation, cut
+from study.results.paired import paired_gain
+from study.sweep.probes import INERT_M
+from study.results.summary import BASELINE, USE_FLOOR, evaluations, fmt_diff, gain_word, method_agg
+from study.results.summary import fmt_num as _num
+from study.sweep.variants import Evaluation, cut
 
 #: (results key, column name) of the paired comparisons against Mono2
 #: `from_which_overlap` of a method better than Mono2 nowhere
@@ -195,8 +195,8 @@ def _span(values: list[float]) -> str:
 
 
 def interval_note(results: dict) -> str:
-    """How the page's paired intervals are taken (`study.paired.paired_columns`)."""
-    from study.paired import clustered
+    """How the page's paired intervals are taken (`study.results.paired.paired_columns`)."""
+    from study.results.paired import clustered
 
     return (" (clustered by world, as the primary comparisons: t over the world means)" if clustered(results)
             else " (t over the seeds)")

@@ -4,11 +4,11 @@ A null result is only as strong as its positive control and its power. This sect
 with the control's **copy test**, then gives each comparison named before the run
 (configs/sweep/cpu_propagation.yaml's header) with:
 
-- its mean over the (world, seed) pairs and a 95 % interval **clustered by world** (`study.power.nested`:
+- its mean over the (world, seed) pairs and a 95 % interval **clustered by world** (`study.stats.power.nested`:
   the mean of the world means, t with worlds - 1 degrees of freedom), and the split of its spread into a
   world part and a seed part;
-- its **minimum detectable effect** at 80 % power (`study.power.mde`) from that observed spread;
-- for a null, an **equivalence test** at 95 % (two one-sided tests, `study.power.tost`) against the bound
+- its **minimum detectable effect** at 80 % power (`study.stats.power.mde`) from that observed spread;
+- for a null, an **equivalence test** at 95 % (two one-sided tests, `study.stats.power.tost`) against the bound
   ``delta`` of the sweep's pre-stated plan (`plan_of`: the preset's ``plan``, saved with the run);
 - the figure at ``none`` and ``rig_median`` scaling next to ``median`` (per-image median scaling erases
   a scale-only effect, which is what the overlap is known to carry).
@@ -24,18 +24,18 @@ Every gain is **positive when it helps** (worse minus better). The comparisons, 
 
 The copy test: ORACLE-local filled must score at most `COPY_MAX` x Mono2's median abs_rel on the overlap
 pixels (the pixels it was handed) at every overlap. If it fails, every verdict that leans on the control
-((a), (b) and the control's own gain) reads "inconclusive". Read from `study.results` only.
+((a), (b) and the control's own gain) reads "inconclusive". Read from `study.results.summary` only.
 """
 from __future__ import annotations
 
 import math
 
-from study.design import reading_over_worlds
-from study.power import nested
+from study.stats.design import reading_over_worlds
+from study.stats.power import nested
 from mcdp.methods import baseline, reading, short_label
-from study.reach import band_names, lcon_pairs, local
-from study.results import flat_of, fmt_diff
-from study.variants import Evaluation, cut, having
+from study.report.sections.reach import band_names, lcon_pairs, local
+from study.results.summary import flat_of, fmt_diff
+from study.sweep.variants import Evaluation, cut, having
 
 #: the copy test's bound: ORACLE-local filled / Mono2, median abs_rel on the overlap pixels
 COPY_MAX = 0.5
@@ -43,13 +43,13 @@ SCALINGS = ("median", "none", "rig_median")
 
 
 def plan_of(results: dict, defaults: dict | None = None) -> dict:
-    """The sweep's pre-stated analysis (`study.config.SweepPlan`: ``arms``, ``metric``, ``scaling``, ``region``,
+    """The sweep's pre-stated analysis (`study.sweep.config.SweepPlan`: ``arms``, ``metric``, ``scaling``, ``region``,
     ``overlap``, ``delta``, ``stopping``, ``worlds``, ``first_look``, ``tuning_worlds``, ``why``) as its run recorded
     it (``sweep_config.plan``). A key a sweep recorded before it existed reads as what that sweep was analysed
     with: the page's own value in ``defaults`` (the sensor page: its arms and all pixels), else the key's default
     (delta 0.005, overlap 0.10, or where the sweep did not run 0.10, its first overlap; ``stopping``
     ``obrien_fleming`` where a first look was recorded)."""
-    from study.config import SweepPlan
+    from study.sweep.config import SweepPlan
 
     rec = (results.get("sweep_config") or {}).get("plan") or {}
     out = {k: rec.get(k, f.get_default(call_default_factory=True)) for k, f in SweepPlan.model_fields.items()}
@@ -65,14 +65,14 @@ def plan_of(results: dict, defaults: dict | None = None) -> dict:
 def primary_key(plan: dict) -> str:
     """The flat-row key of the plan's primary figure: ``<scaling>.<region section>.<metric>`` (e.g.
     ``median.non_overlap.abs_rel``; region ``all`` is the metrics' ``mean`` section)."""
-    from study.config import PLAN_REGIONS
+    from study.sweep.config import PLAN_REGIONS
 
     return f"{plan['scaling']}.{PLAN_REGIONS[plan['region']]}.{plan['metric']}"
 
 
 def world_of(results: dict):
-    """seed -> world id of the sweep (`study.paired.world_of`)."""
-    from study.paired import world_of as _world_of
+    """seed -> world id of the sweep (`study.results.paired.world_of`)."""
+    from study.results.paired import world_of as _world_of
 
     return _world_of(results)
 
@@ -104,7 +104,7 @@ def paired_groups(results: dict, o: float, a: tuple, b: tuple) -> dict:
 
 
 def paired_nested(results: dict, o: float, a: tuple, b: tuple) -> dict:
-    """`study.power.nested` of `paired_groups`: a - b per (world, seed) pair, grouped by world."""
+    """`study.stats.power.nested` of `paired_groups`: a - b per (world, seed) pair, grouped by world."""
     return nested(paired_groups(results, o, a, b))
 
 
@@ -180,7 +180,7 @@ def _key(sc: str, region: str) -> str:
 
 
 def measure(results: dict, o: float, a, b, region: str) -> dict:
-    """One comparison at every scaling: {scaling: `study.design.reading_over_worlds` of a - b}."""
+    """One comparison at every scaling: {scaling: `study.stats.design.reading_over_worlds` of a - b}."""
     return {sc: reading_over_worlds(paired_groups(results, o, (a, _key(sc, region)), (b, _key(sc, region))),
                                     plan_of(results)) for sc in SCALINGS}
 

@@ -1,9 +1,9 @@
 """The report's section on the paper's claim itself: does MCDP's refinement act, use the neighbours,
 and carry what it sees in the overlap to the rest of the image?
 
-Read from `study.results` (nothing is computed from raw files here). Per MCDP run with refinement
-the sweep evaluates the same checkpoint twice (`study.stages.evaluate_run`): as trained, and with
-its neighbours cut at inference (variant ``cut``, `study.variants`); and it fits the ORACLE weights of
+Read from `study.results.summary` (nothing is computed from raw files here). Per MCDP run with refinement
+the sweep evaluates the same checkpoint twice (`study.sweep.stages.evaluate_run`): as trained, and with
+its neighbours cut at inference (variant ``cut``, `study.sweep.variants`); and it fits the ORACLE weights of
 the run's own bases to ground truth (variant ``oracle``). Hence, per overlap and method, paired over seeds:
 
 - **propagation** = cut - as trained on NON-overlap pixels (median-scaled abs_rel; positive = the
@@ -19,12 +19,12 @@ from __future__ import annotations
 
 import math
 
-from study.paired import paired_columns, paired_gain
-from study.probes import INERT_M
-from study.results import USE_FLOOR, evaluations, flat_of, fmt_diff, gain_word, method_agg
-from study.results import fmt_num as _num
-from study.mechanisms import interval_note
-from study.variants import Evaluation, cut, having
+from study.results.paired import paired_columns, paired_gain
+from study.sweep.probes import INERT_M
+from study.results.summary import USE_FLOOR, evaluations, flat_of, fmt_diff, gain_word, method_agg
+from study.results.summary import fmt_num as _num
+from study.report.sections.mechanisms import interval_note
+from study.sweep.variants import Evaluation, cut, having
 
 def refined_methods(results: dict) -> list[str]:
     """Methods of the sweep that were also evaluated with their neighbours cut."""

@@ -2,11 +2,11 @@
 could give the rest of the image, the inference-time and training-time propagation of every mechanism
 against them, and all of it by distance from the overlap (docs/results/propagation.md).
 
-Read from `study.results` (nothing is computed from raw files). Median-scaled abs_rel throughout;
-differences are paired over (world, seed) pairs (`study.paired.paired_difference`, clustered by world in a
+Read from `study.results.summary` (nothing is computed from raw files). Median-scaled abs_rel throughout;
+differences are paired over (world, seed) pairs (`study.results.paired.paired_difference`, clustered by world in a
 design with worlds), each a gain: worse minus better, positive = helps.
 
-- **Yardstick, global** (variant ``oracle_overlap``, `study.variants`): a run's own bases at per-image
+- **Yardstick, global** (variant ``oracle_overlap``, `study.sweep.variants`): a run's own bases at per-image
   weights fitted to the ground truth of the OVERLAP pixels only, scored on the non-overlap pixels: what
   MCDP's one weight vector per image could carry from a perfect overlap. Its headroom = init - ORACLE-overlap.
 - **Yardstick, local** (``oracle_local``): Mono2's network given the overlap's ground-truth depth as an
@@ -23,9 +23,9 @@ from __future__ import annotations
 import math
 
 from mcdp.methods import baseline, label, nocon_twins, reading, short_label
-from study.paired import paired_columns
-from study.results import flat_of, fmt_diff, mean_std
-from study.variants import Evaluation, cut, having
+from study.results.paired import paired_columns
+from study.results.summary import flat_of, fmt_diff, mean_std
+from study.sweep.variants import Evaluation, cut, having
 
 NON = "median.non_overlap.abs_rel"
 #: the name of the local yardstick's headroom in `quantities` starts so, and the global one's

@@ -5,21 +5,21 @@ with a sensor knob on); conditions share the worlds' geometry, the pretraining a
 method's change is paired by world and follows the project's one sign convention (docs/DESIGN.md): **ideal -
 condition, positive = the condition helps** (abs_rel and Dep Con are both lower-is-better, so a condition that
 hurts reads negative). Read over the worlds: the mean with its 95 % t interval and the MDE at 80 % power
-(`study.power`). The paper's argument, tested directly: FSM's photometric loss between cameras suffers from a
+(`study.stats.power`). The paper's argument, tested directly: FSM's photometric loss between cameras suffers from a
 brightness change and MCDP's depth comparison does not, so MCDP's change minus FSM's change, paired by world,
 is given with its interval: positive = MCDP (the candidate) suffers less (the same number as FSM's extra cost).
 
-Read from `study.results` only: each condition's results.json (the flat rows of the as-trained evaluation).
+Read from `study.results.summary` only: each condition's results.json (the flat rows of the as-trained evaluation).
 """
 from __future__ import annotations
 
 import math
 
 from mcdp.methods import short_label
-from study.design import reading_over_worlds
-from study.results import flat_of, fmt_diff
+from study.stats.design import reading_over_worlds
+from study.results.summary import flat_of, fmt_diff
 
-#: what the sensor sweeps were analysed with before their plan held it (`study.primary.plan_of`'s page defaults):
+#: what the sensor sweeps were analysed with before their plan held it (`study.report.sections.primary.plan_of`'s page defaults):
 #: the pair whose changes are compared, [base, changed] (the photometric cross-camera loss against the depth one;
 #: the contrast is the changed arm's change - the base arm's, positive = the changed arm suffers less), on all pixels
 PLAN_DEFAULTS = {"arms": ["fsm", "mcdp_m2"], "region": "all"}
@@ -30,15 +30,15 @@ CONTRAST = tuple(PLAN_DEFAULTS["arms"])
 
 
 def plan(results: dict) -> dict:
-    """The sensor sweep's plan (`study.primary.plan_of` with `PLAN_DEFAULTS`)."""
-    from study.primary import plan_of
+    """The sensor sweep's plan (`study.report.sections.primary.plan_of` with `PLAN_DEFAULTS`)."""
+    from study.report.sections.primary import plan_of
 
     return plan_of(results, PLAN_DEFAULTS)
 
 
 def figures(results: dict) -> tuple[tuple[str, str], ...]:
     """(flat-row key, label) of the primary figure (the plan's) and of Dep Con."""
-    from study.primary import primary_key
+    from study.report.sections.primary import primary_key
 
     p = plan(results)
     return (primary_key(p), f"{p['metric']} ({p['scaling']})"), FIGURES[1]
@@ -63,7 +63,7 @@ def _by_world(results: dict, method: str, key: str) -> dict:
 
 
 def _over_worlds(diffs: dict) -> dict:
-    """`study.design.reading_over_worlds` of one paired difference per world (no equivalence bound: the sensor
+    """`study.stats.design.reading_over_worlds` of one paired difference per world (no equivalence bound: the sensor
     study states none)."""
     return reading_over_worlds({w: [diffs[w]] for w in sorted(diffs)}, {})
 
@@ -76,7 +76,7 @@ def _diffs(ideal: dict, cond: dict, method: str, key: str) -> dict:
 
 
 def change(ideal: dict, cond: dict, method: str, key: str) -> dict:
-    """`study.design.reading_over_worlds` of ideal - cond (positive = the condition helps) for one method and
+    """`study.stats.design.reading_over_worlds` of ideal - cond (positive = the condition helps) for one method and
     figure, paired by world, with the ideal's mean (``ideal``)."""
     n = _over_worlds(_diffs(ideal, cond, method, key))
     b = _by_world(ideal, method, key)
@@ -141,7 +141,7 @@ def _pair_table(base: dict, cond: dict, methods: list[str], intro: str) -> list[
 
 def _words(results: dict) -> str:
     """The primary figure in words: 'median abs_rel' (all pixels), 'median abs_rel on non-overlap pixels'."""
-    from study.config import region_words
+    from study.sweep.config import region_words
 
     p = plan(results)
     return f"{p['scaling']} {p['metric']}" + ("" if p["region"] == "all" else f" on {region_words(p['region'])}")
@@ -181,7 +181,7 @@ def format_between(base: tuple[str, dict], cond: tuple[str, dict]) -> str:
 
 def _primary_line(n: dict, rank: dict, a: str, b: str) -> str:
     """The follow-up's primary reading: the t interval with its p and MDE, the rank-based reading, the verdict."""
-    p = n["p"]  # two-sided t (study.design.t_p_two_sided)
+    p = n["p"]  # two-sided t (study.stats.design.t_p_two_sided)
     lo, hi = rank["ci"]
     line = (f"**Primary: {b}'s change - {a}'s = {fmt_diff(n, 4)}** (95 % t over {n['n_worlds']} "
             f"worlds, {n['df']} df, p = {p:.3f}; detectable at 80 % power: {n['mde80']:.4f}). Rank-based: "
@@ -205,7 +205,7 @@ def _primary_line(n: dict, rank: dict, a: str, b: str) -> str:
 def format_followup(ideal: dict, cond: dict, planned: int, what: str) -> str:
     """Markdown: the pre-planned follow-up of one condition on more worlds (``planned`` of them, stated in the
     preset's header before the runs): the primary contrast (MCDP's change - FSM's on median abs_rel) with its
-    t interval, p, MDE and the rank-based reading (`study.design.signed_rank`), each method's change, and the
+    t interval, p, MDE and the rank-based reading (`study.stats.design.signed_rank`), each method's change, and the
     per-world values, so that no world is hidden behind the mean."""
     pair = contrast_arms(ideal)
     a, b = (short_label(m) for m in pair)
@@ -231,7 +231,7 @@ def format_followup(ideal: dict, cond: dict, planned: int, what: str) -> str:
 
 
 def _values(base: dict, cond: dict) -> dict:
-    """One pair of conditions' figures for a preface (`study.preface`): ``change.<method>`` and ``depcon.<method>``
+    """One pair of conditions' figures for a preface (`study.report.preface`): ``change.<method>`` and ``depcon.<method>``
     (base - cond), ``contrast`` (the plan's changed arm's change - the base arm's, with ``lo`` / ``hi``, its 95 %
     bounds, and ``hl_lo`` / ``hl_hi``, the Hodges-Lehmann interval's) and ``depcon_contrast``."""
     (key, _), (dep, _) = figures(base)
@@ -245,7 +245,7 @@ def _values(base: dict, cond: dict) -> dict:
 
 
 def preface_values(ideal: dict, conditions: dict, followup: tuple[dict, dict] | None) -> dict:
-    """The sensor page's preface values (`study.preface.fill`): ``<condition>`` (each of ``conditions``, {name:
+    """The sensor page's preface values (`study.report.preface.fill`): ``<condition>`` (each of ``conditions``, {name:
     results}, against the ideal camera: `_values`), ``between`` (``sensor_trigger_compensate`` - its ``_assume``, where
     both are given: each named by its part, e.g. ``sensor_exposure``) and ``followup`` (the 14-world follow-up's ideal - exposure)."""
     out = {name: _values(ideal, r) for name, r in conditions.items() if r is not None}

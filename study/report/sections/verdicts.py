@@ -1,10 +1,10 @@
 """The report's one verdict section: every verdict line of a sweep's report.md in one place, read from the same
-paired differences as the tables below it (`study.mechanisms.paired_all`, `study.results`).
+paired differences as the tables below it (`study.report.sections.mechanisms.paired_all`, `study.results.summary`).
 
-- the primary comparisons' headline, for a sweep that names them (`study.primary.headline`);
+- the primary comparisons' headline, for a sweep that names them (`study.report.sections.primary.headline`);
 - each mechanism against Mono2, where it is more accurate, on non-overlap pixels, more consistent, and what it
   takes from the other cameras at inference; then the same in metric scaling (`METRIC_KEYS`), where it is better
-  and where worse, so every scaling the report tabulates for the methods stands in a verdict; a row that reads ground truth (`study.mechanisms.is_yardstick`) is a
+  and where worse, so every scaling the report tabulates for the methods stands in a verdict; a row that reads ground truth (`study.report.sections.mechanisms.is_yardstick`) is a
   yardstick and stands in no verdict;
 - "In one line": where each mechanism is more accurate than Mono2 ("at 0.30 only", "from overlap 0.30 on") and
   where it is less accurate, in either scaling;
@@ -19,9 +19,9 @@ from __future__ import annotations
 import math
 
 from mcdp.methods import label as method_label
-from study.mechanisms import KEYS, NOWHERE, from_which_overlap, is_yardstick, paired_all, verdict_line
-from study.paired import paired_gain
-from study.results import BASELINE, PAIRED_PLOT, SCALE_LABEL, fmt_diff, gain_word, method_agg, yardstick_agg
+from study.report.sections.mechanisms import KEYS, NOWHERE, from_which_overlap, is_yardstick, paired_all, verdict_line
+from study.results.paired import paired_gain
+from study.results.summary import BASELINE, PAIRED_PLOT, SCALE_LABEL, fmt_diff, gain_word, method_agg, yardstick_agg
 
 #: the per-comparison level of every interval in the report
 ALPHA = 0.05
@@ -37,7 +37,7 @@ def format_verdicts(results: dict, label) -> str:
          "Con (unscaled); the primary comparisons also read `rig_median`. Every difference is a gain, worse minus "
          f"better: positive = helps. A method is better or worse than {base} only where the paired 95 % interval "
          "excludes 0.\n"]
-    from study.primary import has_control, headline
+    from study.report.sections.primary import has_control, headline
 
     if has_control(results):
         L.append(f"- **Primary comparisons** (the section above): {headline(results)}.")
@@ -92,7 +92,7 @@ def mechanism_lines(results: dict, label) -> list[str]:
 def yardstick_lines(results: dict) -> str:
     """The verdict lines: each method against the yardsticks (their single numbers, so the mean over seeds), and
     against Mono2 only through paired differences and their 95 % interval (`verdict_word`), never raw means: in
-    median scaling those are the lines of the mechanisms' section (`study.mechanisms`), in metric scaling here."""
+    median scaling those are the lines of the mechanisms' section (`study.report.sections.mechanisms`), in metric scaling here."""
     methods = results["methods"]
     base = method_label(BASELINE)
     others = [m for m in methods if m != BASELINE and not is_yardstick(results, m)]

@@ -1,7 +1,7 @@
 """How results_v1.json and results_v1.csv (beside this file) were made: a small sweep's results in the format
 written before the variant field (schema 1: "mcdp_m2@cut", "mcdp_m2@oracle", ... as method names), by the
-code of that day (commit 70c9c30: study.results.flat_rows / evaluation_names / aggregate_flat and
-study.results_files.write_csv), from synthetic per-run rows. Kept as a record; with today's code it no longer runs
+code of that day (commit 70c9c30: study.results.summary.flat_rows / evaluation_names / aggregate_flat and
+study.results.files.write_csv), from synthetic per-run rows. Kept as a record; with today's code it no longer runs
 (those functions changed), which is the point of the fixture:
 
     git archive 70c9c30 study mcdp corelib synth scenes | tar -x -C /tmp/oldcode
@@ -17,8 +17,8 @@ import random
 from pathlib import Path
 
 from mcdp.metrics import metric_names
-from study.results_files import write_csv
-from study.results import aggregate_flat, evaluation_names, flat_rows
+from study.results.files import write_csv
+from study.results.summary import aggregate_flat, evaluation_names, flat_rows
 
 HERE = Path(__file__).resolve().parent
 CAMS = ("CAM_A", "CAM_B")
