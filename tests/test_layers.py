@@ -247,3 +247,22 @@ def test_the_method_library_has_no_command_line():
                      [node.module or ""] if isinstance(node, ast.ImportFrom) else [])
             bad += [f"{m} imports {n}" for n in names if n in ("argparse", "corelib.cli")]
     assert not bad, "\n".join(sorted(bad))
+
+
+#: study's folders by role, bottom-up (docs/DESIGN.md, "Layers"); its commands (study/*.py) stand above them all
+STUDY_ROLES = ["study.stats", "study.sweep", "study.results", "study.report"]
+
+
+def test_study_folders_by_role_point_down():
+    """statistics <- sweep machinery <- results <- report <- commands: a module of a role imports, followed through,
+    only its own role and those below it, and no role module reaches a command."""
+    g = graph()
+
+    def role(m: str) -> int:
+        return next((i for i, r in enumerate(STUDY_ROLES) if m == r or m.startswith(r + ".")), len(STUDY_ROLES))
+
+    study = [m for m in g if m.startswith("study.")]
+    assert {role(m) for m in study} == set(range(len(STUDY_ROLES) + 1))  # every role has modules, and commands
+    bad = [chain for m in study for d, chain in reach(g, [m]).items()
+           if d.startswith("study.") and role(d) > role(m)]
+    assert not bad, "a study module reaches a role above its own:\n" + "\n".join(sorted(bad))
