@@ -31,6 +31,8 @@ Example::
 """
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
 
 from synth import camera
@@ -327,6 +329,29 @@ def target_pair_mean(per_pair: dict, target: float, tol: float = 1e-3) -> tuple[
             if fin(target) and fin(v.get("target")) and abs(v["target"] - target) < tol and fin(v.get("measured"))]
     return (float(np.mean(same)) if same else float("nan")), len(same)
 
+
+
+@dataclass(frozen=True)
+class OverlapKnob:
+    """What a dataset's overlap knob meant (its manifest's ``overlap`` record, `synth.calibrate.overlap_record`):
+    ``knob`` ``angle`` (``target`` is the shared fraction of the hfov, the pairs' geometric target) or ``pixels``
+    (``target`` is a pixel overlap, met by a calibrated layout whose geometric overlap is ``geometric``). A record
+    written before the knob existed reads as ``angle``."""
+    target: float | None
+    knob: str = "angle"
+    geometric: float | None = None
+
+    @classmethod
+    def of(cls, record: dict) -> "OverlapKnob":
+        knob = record.get("knob") or "angle"
+        if knob not in ("angle", "pixels"):
+            raise ValueError(f"overlap record: knob must be angle or pixels, got {str(knob)[:40]!r}")
+        return cls(record.get("target"), knob, record.get("geometric", record.get("target")))
+
+    @property
+    def pair_target(self) -> float | None:
+        """The geometric target the adjacent pairs were laid out at (`target_pair_mean` selects by it)."""
+        return self.geometric if self.knob == "pixels" else self.target
 
 #: upper edges of the distance bands, as fractions of the image width (`distance_bands`)
 BAND_EDGES = (0.10, 0.20, 0.35)

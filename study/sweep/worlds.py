@@ -15,7 +15,7 @@ from corelib.configlib import ConfigError, config_hash, config_to_dict
 from corelib.version import code_version, warn_other_code
 from study.sweep.config import SPLIT, SweepConfig, data_config_for, eval_config_for, world_key
 from study.sweep.records import Counters, finite, read_json, summarize_metrics, write_json
-from synth.overlap import target_pair_mean
+from synth.overlap import OverlapKnob, target_pair_mean
 
 def measured_overlap(ov: dict) -> dict:
     """Target and measured pixel overlap of a dataset (from its overlap record, `synth.dataset.Dataset.overlap`).
@@ -28,13 +28,13 @@ def measured_overlap(ov: dict) -> dict:
     """
     pp = ov.get("per_pair_measured", {})
     target = ov.get("target")
-    geo = ov.get("geometric", target) if ov.get("knob") == "pixels" else target  # pairs' targets are angles
-    mean_at_target, n_at_target = target_pair_mean(pp, geo) if isinstance(pp, dict) else (float("nan"), 0)
+    knob = OverlapKnob.of(ov)
+    mean_at_target, n_at_target = target_pair_mean(pp, knob.pair_target) if isinstance(pp, dict) else (float("nan"), 0)
     allm = [v["measured"] for v in pp.values() if finite(v.get("measured"))]
     return {
         "target": target,
         "mode": ov.get("mode"),
-        "knob": ov.get("knob", "angle"),
+        "knob": knob.knob,
         "geometric": ov.get("geometric", target),
         "hfov_deg": ov.get("hfov_deg"),
         "yaw_spacing_deg": ov.get("yaw_spacing_deg"),

@@ -268,3 +268,18 @@ def test_the_summaries_neighbours_union_and_pair_means():
     assert target_pair_mean(per_pair, 0.3) == (pytest.approx(0.3), 2)  # the gap pair and NaN are left out
     m, n = target_pair_mean(per_pair, 0.5)
     assert np.isnan(m) and n == 0
+
+
+def test_the_overlap_knob_is_a_typed_record_with_the_pairs_target():
+    """`OverlapKnob.of` reads a manifest's overlap record: an angle knob's pairs sit at the target, a pixel knob's
+    at the calibrated layout's geometric overlap; a record from before the knob reads as angle; another knob is
+    one line naming it."""
+    from synth.overlap import OverlapKnob
+
+    assert OverlapKnob.of({"target": 0.3, "knob": "angle", "geometric": 0.3}).pair_target == 0.3
+    px = OverlapKnob.of({"target": 0.2, "knob": "pixels", "geometric": 0.27})
+    assert px.knob == "pixels" and px.pair_target == 0.27 and px.target == 0.2
+    old = OverlapKnob.of({"target": 0.25})
+    assert old.knob == "angle" and old.pair_target == 0.25 and old.geometric == 0.25
+    with pytest.raises(ValueError, match="knob must be angle or pixels, got 'degrees'"):
+        OverlapKnob.of({"target": 0.25, "knob": "degrees"})
