@@ -37,14 +37,14 @@ from synth.files import (RGB_SUFFIXES, DatasetError, frame_stem, is_plain_name, 
                          read_png, read_regular, short_list, within)
 from synth.label_reader import LabelReader, check_labels_record
 from synth.rig import MAX_CAMERA_PX, CameraSpec
-from synth.sizes import camera_sizes, shared_size
+from synth.sizes import SharedSize, camera_sizes
 
 SCHEMA_VERSION = 1
 GENERATOR = "mcdp-synth"
 MANIFEST = "manifest.json"
 # ----------------------------------------------------------------------------- reader
 
-class Dataset(LabelReader):
+class Dataset(LabelReader, SharedSize):
     """Read access to a finished dataset (see module docstring), a `synth.protocol.DatasetReader` (its labels:
     `synth.label_reader`); beyond it, the generator's record: `manifest`, `config_hash`, `overlap`. Never
     reads depth unless asked."""
@@ -62,16 +62,6 @@ class Dataset(LabelReader):
         self.rgb_suffix = rgb_suffix(manifest)  # checked by check_manifest_keys
 
     format = "synth"  # `synth.protocol.DatasetReader.format`
-
-    @property
-    def width(self) -> int:
-        """The image width every camera shares; a rig of several sizes has none (`shared_size`)."""
-        return shared_size(self.root, self.cameras)[0]
-
-    @property
-    def height(self) -> int:
-        """The image height every camera shares (`width`)."""
-        return shared_size(self.root, self.cameras)[1]
 
     @property
     def fps(self) -> float:

@@ -29,6 +29,23 @@ def shared_size(where, cameras) -> tuple[int, int]:
     return first
 
 
+
+class SharedSize:
+    """``width`` / ``height`` of a reader whose cameras share one size (`shared_size`: a DatasetError naming the
+    cameras when they do not): one definition for every reader (`synth.dataset.Dataset`,
+    `synth.nuscenes.dataset.NuScenesDataset`). Not part of `synth.protocol.DatasetReader`, whose sizes are per
+    camera; the class needs ``root`` and ``cameras``."""
+
+    @property
+    def width(self) -> int:
+        """The image width every camera shares; a rig of several sizes has none."""
+        return shared_size(self.root, self.cameras)[0]
+
+    @property
+    def height(self) -> int:
+        """The image height every camera shares (`width`)."""
+        return shared_size(self.root, self.cameras)[1]
+
 def size_keys(default: tuple[int, int], cameras) -> dict:
     """The manifest's size keys: ``image_size`` (the dataset's ``camera.width`` x ``camera.height``) and, when a
     camera's size differs from it (``rig.cameras.<CAM>.width`` / ``.height``), ``camera_sizes``: {camera:

@@ -22,7 +22,7 @@ from synth.label_reader import NoLabels
 from synth.nuscenes.geometry import lidar_xyz, view_points
 from synth.nuscenes.layout import LIDAR_CHANNEL, SPLITS_FILE
 from synth.rig import CameraSpec
-from synth.sizes import shared_size, size_keys
+from synth.sizes import SharedSize, size_keys
 
 RING = tuple((i, (i + 1) % 6) for i in range(6))
 # depth range of the projected LiDAR (SurroundDepth configs/nusc.txt: min_depth 0.1, max_depth 80;
@@ -31,7 +31,7 @@ LIDAR_MIN_DEPTH = 0.1
 LIDAR_MAX_DEPTH = 80.0
 
 
-class NuScenesDataset(NoLabels):
+class NuScenesDataset(NoLabels, SharedSize):
     format = "nuscenes"  # `synth.protocol.DatasetReader.format`
     """A nuScenes dataroot as a `synth.protocol.DatasetReader` (module docstring). Holds plain
     records only (the devkit object is dropped after `open_nuscenes`), so it pickles cheaply."""
@@ -64,16 +64,6 @@ class NuScenesDataset(NoLabels):
         }
 
     # --------------------------------------------------------------- the DatasetReader interface
-    @property
-    def width(self) -> int:
-        """The image width every channel shares; channels of several sizes have none (`synth.sizes.shared_size`)."""
-        return shared_size(self.root, self.cameras)[0]
-
-    @property
-    def height(self) -> int:
-        """The image height every channel shares (`width`)."""
-        return shared_size(self.root, self.cameras)[1]
-
     @property
     def fps(self) -> float:
         return self._fps

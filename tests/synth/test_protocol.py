@@ -91,3 +91,15 @@ def test_an_object_short_of_a_member_is_not_a_reader(fake_dataset):
 
     assert missing_members(NoMask(), DatasetReader) == ["mask"]
     assert not isinstance(object(), DatasetReader)
+
+
+def test_both_readers_take_their_shared_size_from_one_definition():
+    """The dataset-wide width / height (where the cameras share one size) is defined once, `synth.sizes.SharedSize`,
+    not copied into each reader."""
+    from synth.dataset import Dataset
+    from synth.nuscenes.dataset import NuScenesDataset
+    from synth.sizes import SharedSize
+
+    for reader in (Dataset, NuScenesDataset):
+        assert "width" not in vars(reader) and "height" not in vars(reader), reader.__name__
+        assert reader.width is SharedSize.width and reader.height is SharedSize.height
