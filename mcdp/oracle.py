@@ -68,41 +68,48 @@ def fit_oracle_weights(
     keep = valid.reshape(B, -1).to(bases.device)
     counts = keep.sum(1)
     widths = [_width(int(k)) for k in counts.tolist()]
-    groups = [_packed(bases, gt.detach().float(), keep, counts, [b for b, x in enumerate(widths) if x == width],
-                      width, a, c) for width in sorted(set(widths) - {0})]
-    logits = torch.zeros(B, n, dtype=torch.float32, device=bases.device, requires_grad=True)
+    perm = sorted(range(B), key=lambda b: widths[b])  # the images of one width side by side: row ranges, no gathers
+    groups, start = [], 0
+    for width in sorted(set(widths)):
+        rows = [b for b in perm if widths[b] == width]
+        if width > 0:
+            groups.append((slice(start, start + len(rows)),
+                           *_packed(bases, gt.detach().float(), keep, counts, rows, width, a, c)))
+        start += len(rows)
+    logits = torch.zeros(B, n, dtype=torch.float32, device=bases.device, requires_grad=True)  # in ``perm`` order
     opt = torch.optim.Adam([logits], lr=lr)  # elementwise: each image's step is its own
     grad = torch.zeros_like(logits)
     with torch.no_grad():
         for _ in range(int(steps)):
             w = torch.softmax(logits, 1)
-            for rows, bv, bv_t, nlg, pad, coef in groups:
+            for rows, bv, bv_t, nlg, pad, inv_m, coef in groups:
                 wr = w[rows]
                 disp = torch.bmm(wr[:, None], bv)[:, 0]  # (b, P): a + c sig (the weights sum to 1); padding ~a
                 d = torch.sub(nlg, torch.log(disp)).mul_(pad)  # log depth - log gt, 0 on padding
-                mean = d.sum(1, keepdim=True) * (1.0 / counts[rows, None].float())
+                mean = d.sum(1, keepdim=True).mul_(inv_m)
                 # loss = sum_b [sum d^2 / m - mean^2]; dloss/ddisp = 2 (d - mean) / m * (-1 / disp)
                 g = d.sub_(mean).mul_(pad).div_(disp).mul_(coef)
                 gw = torch.bmm(g[:, None], bv_t)[:, 0]  # (b, n): the weights' gradient
                 grad[rows] = wr * (gw - (wr * gw).sum(1, keepdim=True))  # through the softmax
             logits.grad = grad
             opt.step()
-    w = torch.softmax(logits.detach(), 1)
+    w = torch.empty(B, n, dtype=torch.float32, device=bases.device)
+    w[torch.tensor(perm, device=bases.device)] = torch.softmax(logits.detach(), 1)
     has = counts > 0
     return torch.where(has[:, None], w, torch.full_like(w, 1.0 / n))
 
 
 def _width(count: int) -> int:
-    """The packed width of an image with ``count`` valid pixels: the next power of two (at least 64), a function of
+    """The packed width of an image with ``count`` valid pixels: the next power of two (at least 1024), a function of
     the image alone, so that an image's fit is the same bits whatever else is in its batch (the images of one width
     are computed together, each row on its own)."""
-    return 0 if count == 0 else max(64, 1 << (count - 1).bit_length())
+    return 0 if count == 0 else max(1024, 1 << (count - 1).bit_length())
 
 
 def _packed(bases, gt, keep, counts, rows: list[int], width: int, a: float, c: float) -> tuple:
     """What the fit reads of the images ``rows`` (all of packed width ``width``): their valid pixels in pixel order,
-    then zeros: (rows, a + c x bases (b, n, P), its transpose (b, P, n), -log gt (b, P), 1 on a valid pixel (b, P),
-    -2 / valid count (b, 1))."""
+    then zeros: (a + c x bases (b, n, P), its transpose (b, P, n), -log gt (b, P), 1 on a valid pixel (b, P),
+    1 / valid count and -2 / valid count (b, 1))."""
     idx = torch.tensor(rows, device=bases.device)
     b, n = len(rows), bases.shape[1]
     k = keep[idx]
@@ -115,7 +122,7 @@ def _packed(bases, gt, keep, counts, rows: list[int], width: int, a: float, c: f
     bv = (torch.gather(bases[idx].reshape(b, n, -1), 2, order[:, None].expand(b, n, width)) * c + a) * pad[:, None]
     bv = bv + (1.0 - pad[:, None]) * a  # padding: disp a, a finite log (masked out)
     nlg = -torch.gather(torch.log(gt[idx].clamp(min=1e-6)).reshape(b, -1), 1, order) * pad
-    return idx, bv, bv.transpose(1, 2).contiguous(), nlg, pad, -2.0 / m
+    return bv, bv.transpose(1, 2).contiguous(), nlg, pad, 1.0 / m, -2.0 / m
 
 
 def _affine_disparity(to_depth) -> tuple[float, float] | None:
