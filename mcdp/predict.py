@@ -91,7 +91,7 @@ class Predictor:
         self.network = build_network(self.cfg.model, method_params(self.cfg)).to(self.device)
         self.network.load_state_dict(ckpt["depth_model"])
         self.network.eval()
-        for name in ("encoder", "decoder"):  # the cut pass of a sample reuses the as-trained pass's images' features
+        for name in ("encoder", "decoder"):  # a second forward of the same images reuses their features (`SameInputs`)
             module = getattr(self.network, name, None)
             if isinstance(module, torch.nn.Module):
                 module.forward = SameInputs(module.forward)
