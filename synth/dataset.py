@@ -11,7 +11,8 @@ Layout (docs/DATASET.md)::
       masks/<CAM>.png        uint8, 255 = scene, 0 = ego body (each file at its camera's size)
       <seq>/ego.json         per frame: timestamp_s, T_world_ego (4x4), lighting
       <seq>/<CAM>/<frame:06d>.png         RGB uint8 sRGB (.jpg: a JPEG, with the manifest's ``rgb.format`` jpeg)
-      <seq>/<CAM>/<frame:06d>.depth.exr   float32 z-depth in metres (channel "Z"), 0 = no surface
+      <seq>/<CAM>/<frame:06d>.depth.exr   float32 depth in metres (channel "Z"), 0 = no surface: z-depth, or range
+                                          for a lens whose depth kind is range (Kannala-Brandt; `synth.camera`)
       labels (manifest ``labels.kinds``; `synth.label_reader`): <frame>.semantic.png, <frame>.instance.png,
       <seq>/instances.json, <frame>.flow.exr + .flow_valid.png (frames 0..F-2), <frame>.movers.png (the last
       three only with labels.flow=true, off by default), <seq>/world_mesh.npz (labels.mesh=true, off by default)
@@ -149,8 +150,8 @@ class Dataset(LabelReader, SharedSize):
         return self._sized(read_png(p) if self.rgb_suffix == ".png" else read_image(p), p, "the image", cam)
 
     def read_depth(self, seq: str, cam: str, frame: int) -> np.ndarray:
-        """(H, W) float32 z-depth in metres at the camera's size, 0 = no surface; finite and >= 0, else
-        DatasetError."""
+        """(H, W) float32 depth in metres at the camera's size, of its lens's depth kind (z-depth; range for
+        Kannala-Brandt: `synth.camera.depth_kind`), 0 = no surface; finite and >= 0, else DatasetError."""
         p = self.inside(self.depth_path(seq, cam, frame))
         d = self._sized(read_depth_exr(p, self._size(cam)), p, "the depth map", cam)
         if not np.isfinite(d).all() or (d < 0).any():
@@ -171,8 +172,13 @@ class Dataset(LabelReader, SharedSize):
 
     @property
     def ground_truth(self) -> dict:
-        """Provenance of `read_depth` (the evaluator copies it into metrics.json)."""
-        return {"kind": "dense z-depth (rendered)", "source": "<seq>/<CAM>/<frame>.depth.exr"}
+        """Provenance of `read_depth` (the evaluator copies it into metrics.json): "dense z-depth (rendered)", or,
+        where a camera's lens gives range (`synth.camera.depth_kind`), "dense depth (rendered; z-depth or range by
+        each camera's lens)"."""
+        kinds = {camera.depth_kind(c.intrinsics) for c in self.cameras}
+        kind = "dense z-depth (rendered)" if kinds == {"z_depth"} else \
+            "dense depth (rendered; z-depth or range by each camera's lens)"
+        return {"kind": kind, "source": "<seq>/<CAM>/<frame>.depth.exr"}
 
 
 def _plain(name, field: str, mpath: Path) -> str:

@@ -103,3 +103,18 @@ def test_both_readers_take_their_shared_size_from_one_definition():
     for reader in (Dataset, NuScenesDataset):
         assert "width" not in vars(reader) and "height" not in vars(reader), reader.__name__
         assert reader.width is SharedSize.width and reader.height is SharedSize.height
+
+
+def test_the_ground_truth_kind_says_range_where_a_lens_gives_range(tmp_path):
+    """A rendered dataset's ground-truth provenance is "dense z-depth (rendered)" on pinhole cameras, and names the
+    range where a Kannala-Brandt lens gives it (the evaluator copies it into metrics.json)."""
+    from types import SimpleNamespace
+
+    from synth import camera
+    from synth.dataset import Dataset
+
+    K = [[50.0, 0, 48], [0, 50.0, 32], [0, 0, 1]]
+    pin = SimpleNamespace(intrinsics=camera.Intrinsics("pinhole", K, ()))
+    kb = SimpleNamespace(intrinsics=camera.Intrinsics("kannala_brandt", K, (0.0, 0.0, 0.0, 0.0)))
+    assert Dataset.ground_truth.fget(SimpleNamespace(cameras=[pin, pin]))["kind"] == "dense z-depth (rendered)"
+    assert "range" in Dataset.ground_truth.fget(SimpleNamespace(cameras=[pin, kb]))["kind"]
