@@ -36,12 +36,21 @@ OVERLAP, WORLD = 0.10, 0  # the recipe's one overlap; world 0's render (data see
 TEST_FRACTION, VAL_FRACTION = 0.3636, 0.0909
 
 
+def _study(name: str):
+    """The sweep's module ``name`` (config, records, worlds, stages) of the checkout on the path: ``study.sweep.<name>``
+    since study was laid out by role, ``study.<name>`` in a checkout from before (a ``--before`` copy)."""
+    import importlib
+
+    try:
+        return importlib.import_module(f"study.sweep.{name}")
+    except ModuleNotFoundError:
+        return importlib.import_module(f"study.{name}")
+
+
 def sweep_config(tests: int, steps: int, code: Path = ROOT):
     """The recipe's sweep config (as the checkout ``code`` has it) with ``tests`` test sequences (the train split
     scaled with them, as in the recipe) and ``steps`` training steps."""
-    from study.config import load_sweep_config
-
-    cfg = load_sweep_config(code / RECIPE.relative_to(ROOT))
+    cfg = _study("config").load_sweep_config(code / RECIPE.relative_to(ROOT))
     sequences = max(3, round(tests / TEST_FRACTION))
     data = list(cfg.data_overrides) + [f"dataset.sequences={sequences}"]
     train = list(cfg.train_overrides) + [f"train.steps={steps}", f"train.ckpt_every={steps}",
@@ -61,19 +70,19 @@ def run_part(part: str, work: Path, tests: int, steps: int, code: Path = ROOT) -
     {"wall_s", "cpu_s"} of its work (imports excluded)."""
     import torch  # noqa: F401 (imported before the clock starts, as a sweep's worker has it)
 
-    from study.records import Counters
-
+    Counters = _study("records").Counters
     cfg = sweep_config(tests, steps, code)
     log = (lambda line: None)
     what, _, method = part.partition(":")
     if what == "render":
-        from study.worlds import render_stage
-
+        render_stage = _study("worlds").render_stage
         t0, c0 = time.perf_counter(), _cpu_s()
         d = render_stage(cfg, OVERLAP, work / "sweep", Counters(), log, False, WORLD)
         out = {"splits": d["splits"]}
     else:
-        from study.config import data_config_for, eval_config_for, run_config_for, world_key
+        sc = _study("config")
+        data_config_for, eval_config_for, run_config_for, world_key = (
+            sc.data_config_for, sc.eval_config_for, sc.run_config_for, sc.world_key)
         from synth.open import open_dataset
         from corelib.configlib import config_hash
 
@@ -82,8 +91,7 @@ def run_part(part: str, work: Path, tests: int, steps: int, code: Path = ROOT) -
              "config_hash": config_hash(data_config_for(cfg, OVERLAP, WORLD))}
         ds = open_dataset(data)
         if what == "yardsticks":
-            from study.worlds import reference_stage
-
+            reference_stage = _study("worlds").reference_stage
             side = work / f"yardsticks_{os.getpid()}"
             (side / "data").mkdir(parents=True)
             t0, c0 = time.perf_counter(), _cpu_s()
@@ -100,8 +108,7 @@ def run_part(part: str, work: Path, tests: int, steps: int, code: Path = ROOT) -
             finally:
                 tr.close()
         elif what == "eval":
-            from study.stages import evaluate_run
-
+            evaluate_run = _study("stages").evaluate_run
             run_dir = work / "runs" / method
             t0, c0 = time.perf_counter(), _cpu_s()
             evaluate_run(cfg, run_dir, ds, eval_config_for(cfg), False, log, method)
