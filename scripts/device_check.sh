@@ -20,7 +20,10 @@
 #   3. takes one training step on the CPU and one on the device from the same weights and batch (TF32 off) and
 #      compares the loss, every gradient and the weights after one Adam step: within STEP_TOL relative (--device cpu:
 #      the CPU against itself, which must be exact);
-#   4. writes OUT/device.md (the device's name, torch's version, each figure) and exits 1 if a check failed.
+#   4. runs the smoke sweep (configs/sweep/ci.yaml: render, pretraining, 14 runs trained and evaluated) with
+#      device=cuda (--device cpu: on the CPU; --tiny: one method at one overlap): the sweep's whole path on the
+#      device, its data loader, checkpoints and evaluation included; passes when results.json has every run;
+#   5. writes OUT/device.md (the device's name, torch's version, each figure) and exits 1 if a check failed.
 #
 # A part that fails (no EGL on the device, a training worker that dies) is reported as FAIL in device.md with its
 # last line of error, and the other parts still run: one lent device run gives every answer it can.
@@ -38,7 +41,7 @@ while [ $# -gt 0 ]; do
         --tiny) TINY=1; shift ;;
         --out) OUT="${2:?--out needs a folder}"; shift 2 ;;
         --reference) REFERENCE="${2:?--reference needs a rendered dataset folder}"; shift 2 ;;
-        -h|--help) sed -n '2,31p' "$0"; exit 0 ;;
+        -h|--help) sed -n '2,34p' "$0"; exit 0 ;;
         *) echo "device_check: unknown argument '$1' (--device cpu|cuda, --tiny, --out DIR, --reference DIR)" >&2
            exit 2 ;;
     esac
@@ -66,7 +69,7 @@ else
 fi
 if [ "$DEVICE" = cuda ]; then DEVICE_BACKEND=egl; else DEVICE_BACKEND=auto; fi
 
-echo "device_check: 1/3 render ($PRESET) on the device (render.backend=$DEVICE_BACKEND) and on the CPU (osmesa)" >&2
+echo "device_check: 1/4 render ($PRESET) on the device (render.backend=$DEVICE_BACKEND) and on the CPU (osmesa)" >&2
 rm -rf "$OUT/render_device" "$OUT/render_cpu" "$OUT"/*.err
 render() {  # render(FOLDER, BACKEND): seconds on stdout, or "nan" with the error in FOLDER.err
     local t0 t1
@@ -86,14 +89,27 @@ else
     RENDER_CPU_S=$(render "$OUT/render_cpu" osmesa)
 fi
 
-echo "device_check: 2/3 training steps (benchmarks/train_step.py)" >&2
+echo "device_check: 2/4 training steps (benchmarks/train_step.py)" >&2
 "$PY" benchmarks/train_step.py --device "$DEVICE" --tiny --sizes "${SIZES[@]}" --presets mono2 mcdp_m2 \
     --modes "${MODES[@]}" --rounds 1 --steps "$STEPS" --threads "$THREADS" --set scale.source=odometry \
     --record "$OUT/train_step.txt" >/dev/null 2>"$OUT/train_step.err" \
     || echo "device_check: the training steps failed: $(tail -n 1 "$OUT/train_step.err")" >&2
 
-echo "device_check: 3/3 one CPU step against one $DEVICE step, and the report" >&2
-"$PY" - "$OUT" "$DEVICE" "$TINY" "$RENDER_DEVICE_S" "$RENDER_CPU_S" "$DEPTH_TOL" "$DEPTH_SHARE" "$STEP_TOL" <<'EOF'
+echo "device_check: 3/4 the smoke sweep (configs/sweep/ci.yaml, device=$DEVICE)" >&2
+rm -rf "$OUT/sweep"
+SWEEP_SET=("device=$DEVICE")
+if [ "$TINY" = 1 ]; then SWEEP_SET+=("methods=[mono2]" "overlaps=[0.2]"); fi
+t0=$(date +%s.%N)
+if "$PY" -m mcdp sweep configs/sweep/ci.yaml --out "$OUT/sweep" "${SWEEP_SET[@]}" --no-progress -q \
+        >"$OUT/sweep.log" 2>&1; then
+    SWEEP_S=$(awk -v a="$t0" -v b="$(date +%s.%N)" 'BEGIN { printf "%.1f\n", b - a }')
+else
+    SWEEP_S=nan; echo "device_check: the smoke sweep failed: $(tail -n 1 "$OUT/sweep.log")" >&2
+fi
+
+echo "device_check: 4/4 one CPU step against one $DEVICE step, and the report" >&2
+"$PY" - "$OUT" "$DEVICE" "$TINY" "$RENDER_DEVICE_S" "$RENDER_CPU_S" "$DEPTH_TOL" "$DEPTH_SHARE" "$STEP_TOL" \
+    "$SWEEP_S" <<'EOF'
 import datetime, platform, sys
 from pathlib import Path
 
@@ -103,7 +119,7 @@ import torch
 if sys.argv[3] == "1":
     torch.set_num_threads(1)
 out, device, tiny = Path(sys.argv[1]), sys.argv[2], sys.argv[3] == "1"
-render_dev_s, render_cpu_s, depth_tol, depth_share, step_tol = map(float, sys.argv[4:9])
+render_dev_s, render_cpu_s, depth_tol, depth_share, step_tol, sweep_s = map(float, sys.argv[4:10])
 sys.path.insert(0, ".")
 from synth.open import open_dataset
 
@@ -185,6 +201,20 @@ train_ok = train_table.is_file() and train_table.stat().st_size > 0
 train_text = train_table.read_text().strip("\n") if train_ok else (
     "FAIL: " + ((out / "train_step.err").read_text().strip().splitlines() or ["no output"])[-1][:300])
 
+# --- the smoke sweep: every run of its plan in results.json
+sweep_runs, sweep_expected, sweep_error = 0, 0, None
+if sweep_s != sweep_s:
+    lines_ = (out / "sweep.log").read_text(errors="replace").strip().splitlines() if (out / "sweep.log").is_file() \
+        else []
+    sweep_error = (lines_ or ["no output"])[-1][:300]
+else:
+    import json
+
+    res = json.loads((out / "sweep" / "results.json").read_text())
+    sweep_runs = len(res.get("rows", []))
+    sweep_expected = len(res.get("methods", [])) * len(res.get("overlaps", [])) * len(res.get("seeds", [0]) or [0])
+sweep_ok = sweep_error is None and sweep_runs > 0 and sweep_runs == sweep_expected
+
 # --- 4. the report
 if device == "cuda":
     name = torch.cuda.get_device_name(0)
@@ -214,6 +244,12 @@ else:
         f"{'pass' if render_ok else 'FAIL'}",
     ]
 lines += ["", "## Training steps", "", "```", train_text, "```", "",
+          f"## The smoke sweep on the {device} (configs/sweep/ci.yaml{', one method, one overlap' if tiny else ''})",
+          "",
+          (f"- FAIL: {sweep_error}" if sweep_error is not None else
+           f"- {sweep_runs} of {sweep_expected} runs trained and evaluated, results.json written, in {sweep_s:.0f} s "
+           f"(render, pretraining, runs and report): {'pass' if sweep_ok else 'FAIL'}"),
+          "",
           f"## One CPU step against one {device} step (MCDP (m = 2), 96x64, same weights and batch, TF32 off)", ""]
 if step_error is not None:
     lines += [f"- FAIL: {step_error}"]
@@ -230,5 +266,5 @@ else:
 lines.append("")
 (out / "device.md").write_text("\n".join(lines))
 print("\n".join(lines))
-sys.exit(0 if render_ok and step_ok and train_ok else 1)
+sys.exit(0 if render_ok and step_ok and train_ok and sweep_ok else 1)
 EOF

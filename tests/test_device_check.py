@@ -14,7 +14,7 @@ import pytest
 ROOT = Path(__file__).resolve().parents[1]
 
 
-@pytest.mark.slow  # two tiny renders, four training-step workers and two steps: about a minute on 2 cores
+@pytest.mark.slow  # two tiny renders, two training-step workers, a one-run smoke sweep and four steps: ~40 s
 def test_the_cpu_path_writes_a_passing_report(tmp_path):
     out = tmp_path / "dc"
     env = {**os.environ, "PYTHON": sys.executable, "TMPDIR": str(tmp_path)}
@@ -28,6 +28,8 @@ def test_the_cpu_path_writes_a_passing_report(tmp_path):
     assert "0.0000% of valid pixels beyond" in report
     assert re.search(r"mono2 .*64x96|64x96.*mono2", report) and "mcdp_m2" in report
     assert "agreement: pass (allowed 0)" in report
+    # the smoke sweep's whole path (one method at one overlap on the CPU path): every run of its plan
+    assert re.search(r"- 1 of 1 runs trained and evaluated, results\.json written, in \d+ s .*: pass", report)
     assert re.search(r"loss (\S+) \(CPU\) against \1: relative 0\.00e\+00", report)
     # the yardstick: the CPU against itself at 1 and 2 threads (its sums in another order), a finite figure
     m = re.search(r"yardstick, the CPU at 1 thread against 2 threads: loss \S+, gradients (\S+), "
