@@ -74,7 +74,7 @@ def build(stage: Path) -> tuple[str, list[tuple[Path, str]]]:
     """The page's text and its plots [(file in ``stage``, its path under docs/results/)]: its row of
     `study.report.pages.PAGES` (call ``stage``)."""
     from study.report.pages import preface as fill_preface
-    from study.report.sections.lcon import answer, format_selection, pairs, reading, selection_effect
+    from study.report.sections.lcon import answer, format_selection, levels, pairs, reading, selection_effect
     from study.report.sections.primary import SCALINGS, plan_of
     from study.results.summary import fmt_diff
 
@@ -95,7 +95,8 @@ def build(stage: Path) -> tuple[str, list[tuple[Path, str]]]:
                  f"worlds, positive = L_con helps; both arms at one step). Without scaling: {_lc(answer(n['none']))}. At "
                  f"`rig_median`: {_lc(answer(n['rig_median']))}. Hodges-Lehmann (median): "
                  f"{n['median']['rank']['hl']:+.4f} [{n['median']['rank']['ci'][0]:+.4f}, "
-                 f"{n['median']['rank']['ci'][1]:+.4f}], Wilcoxon p = {n['median']['rank']['p']:.3f}.\n")
+                 f"{n['median']['rank']['ci'][1]:+.4f}], Wilcoxon p = {n['median']['rank']['p']:.3f}. "
+                 f"{levels(main, ps, 'median')}\n")
         budget = parts["lcon_budget"]
         if budget is not None:  # secondary: six of the main run's worlds at 1000 steps, beside the control
             b, c = br["b"]["median"], br["control"]

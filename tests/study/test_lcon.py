@@ -156,3 +156,29 @@ def test_the_budget_reading_puts_b_beside_its_control_and_pairs_it_with_the_shor
     assert "does not propagate" in lcon.format_budget(lcon.budget_reading(flat, None), "1000", "200")
     bare = {**_results([0.004, 0.006]), "flat": []}  # no ORACLE-local run
     assert "No positive control" in lcon.format_budget(lcon.budget_reading(bare, None), "1000", "200")
+
+
+def test_the_headline_stands_beside_its_arms_level_and_the_yardsticks():
+    """issue 60 item 2: the L_con headline's arms' levels are the figures its difference is made of (their
+    difference is the headline's mean), beside the yardsticks that use no training, read from the committed run."""
+    import re
+
+    from study.report.sections.lcon import levels, pairs, reading
+    from study.report.sections.primary import plan_of
+    from study.results.files import read_results
+    from study.results.summary import yardstick_agg
+
+    r = read_results(ROOT / "docs" / "results" / "lcon_main" / "results.json")
+    ps = pairs(r)
+    text = levels(r, ps, "median")
+    m = re.search(r"w/o L_con (\d\.\d{4}), with L_con (\d\.\d{4}) .* over the (\d+) worlds\); .*a constant depth "
+                  r"(\d\.\d{4}), the flat-road prior (\d\.\d{4})", text)
+    assert m, text
+    a, b, n, ref, prior = float(m[1]), float(m[2]), int(m[3]), float(m[4]), float(m[5])
+    plan = plan_of(r)
+    assert n == len(ps) == reading(ps, "median", plan)["n_worlds"] == 14
+    assert abs((a - b) - reading(ps, "median", plan)["mean"]) < 1.5e-4  # the levels make the difference
+    assert ref == round(yardstick_agg(r, plan["overlap"], "median.non_overlap.abs_rel")["mean"], 4)
+    assert prior == round(yardstick_agg(r, plan["overlap"], "median.non_overlap.abs_rel", "prior")["mean"], 4)
+    assert max(a, b) < prior < ref  # trained depth beats both yardsticks here
+    assert levels(r, [], "median") == ""

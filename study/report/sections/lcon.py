@@ -90,6 +90,23 @@ def pairs(results: dict, o: float | None = None) -> list[dict]:
     return out
 
 
+def levels(results: dict, ps: list[dict], sc: str) -> str:
+    """The level beside (b): each arm's figure (mean over the pairs' worlds) and the yardsticks that use no
+    training (a constant depth, the flat-road prior) on the same region, scaling and overlap; "" without pairs."""
+    from study.results.summary import yardstick_agg
+
+    if not ps:
+        return ""
+    plan = plan_of(results)
+    a, b = ([_figure(p["rows"][k], sc, p["region"], plan["metric"]) for p in ps] for k in (0, 1))
+    key = f"{sc}.{PLAN_REGIONS[plan['region']]}.{plan['metric']}"
+    ref, prior = (yardstick_agg(results, plan["overlap"], key, which)["mean"] for which in ("reference", "prior"))
+    mean = (lambda v: math.fsum(v) / len(v))
+    return (f"The arms' level: w/o L_con {mean(a):.4f}, with L_con {mean(b):.4f} ({sc} {plan['metric']} on "
+            f"{region_words(plan['region'])}, mean over the {len(ps)} worlds); the yardsticks that use no "
+            f"training: a constant depth {_f(ref).lstrip('+')}, the flat-road prior {_f(prior).lstrip('+')}.")
+
+
 def world_means(ps: list[dict], sc: str) -> dict:
     """{world: [its pairs' differences]} at one scaling (one pair per world unless seeds share a world)."""
     out: dict = {}
