@@ -145,6 +145,11 @@ def build(values: dict) -> str:
                      "Positive = modelling the lens helps (as-if-pinhole - through the lens), the project's one sign "
                      "convention; ± the 95 % t interval over worlds; every arm is evaluated through the true lens.\n")
         lines.append(_power_line(p["diffs"]))
+        ref = values.get("yardsticks", {}).get("distorted", {}).get("constant_reference", {}).get(col)
+        lines.append(f"Its level: {WORDS[m]} through the lens {_level(values, f'{m}_lens', col)}, as if pinhole "
+                     f"{_level(values, f'{m}_pinhole', col)} (mean over the worlds); a constant depth on the same rig "
+                     + (f"{ref:.3f}" if isinstance(ref, float) and math.isfinite(ref) else "—")
+                     + " (no training; the table below has every level).\n")
     dist = values.get("distortion_px", {})
     if dist.get("distorted"):
         px = dist["distorted"]

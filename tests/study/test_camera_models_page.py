@@ -34,3 +34,18 @@ def test_the_primary_states_its_mde_and_equivalence_test_as_scipy_computes_them(
     assert float(m.group(4)) == round(p_tost, 3)
     assert abs(float(m.group(1)) - mde) < 1e-4
     assert (m.group(2) == "equivalent") == (p_tost < 0.05)
+
+
+def test_the_primary_stands_beside_its_level_and_a_yardstick():
+    sys.path.insert(0, str(ROOT / "scripts"))
+    pcm = importlib.import_module("publish_camera_models")
+    values = json.loads((ROOT / "docs" / "results" / "camera_models" / "values.json").read_text())
+    page = pcm.build(values)
+    m = re.search(r"Its level: Mono2 through the lens (\d\.\d{3}), as if pinhole (\d\.\d{3}) .*a constant depth on "
+                  r"the same rig (\d\.\d{3})", page)
+    assert m, page[:1500]
+    lens, pin = (np.mean([x["median.mean.abs_rel"] for x in values["arms"][a].values()])
+                 for a in ("mono2_lens", "mono2_pinhole"))
+    assert (float(m[1]), float(m[2])) == (round(lens, 3), round(pin, 3))
+    assert float(m[3]) > max(lens, pin)  # trained depth beats a constant
+    assert abs((pin - lens) - 0.005) < 0.001  # the level's difference is the primary's mean (+0.005)
