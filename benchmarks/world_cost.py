@@ -1,6 +1,6 @@
 """Wall and CPU time of one world of the L_con recipe (configs/sweep/cpu_lcon.yaml), part by part: its render, its
-yardsticks, each arm's training and each arm's evaluation (the sweep's own stages: `study.worlds.render_stage`,
-`study.worlds.reference_stage`, `mcdp.trainer.Trainer`, `study.stages.evaluate_run`), with this checkout's code and,
+yardsticks, each arm's training and each arm's evaluation (the sweep's own stages: `study.sweep.worlds.render_stage`,
+`study.sweep.worlds.reference_stage`, `mcdp.trainer.Trainer`, `study.sweep.stages.evaluate_run`), with this checkout's code and,
 with ``--before DIR``, with another checkout's (e.g. ``git archive <commit> | tar -x -C DIR``) on the same world.
 
 Feeds: docs/results/world_cost.md

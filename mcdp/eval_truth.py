@@ -1,6 +1,6 @@
 """What the evaluation (`mcdp.evaluate`) reads once: of the rig (`EvalRig`) and of each test sample (`SampleTruth`, held
 by `TruthCache` and shared by every pass and stage scored on the sample, and by the ORACLE stages that read the same
-ground truth, `study.oracle_stages`).
+ground truth, `study.sweep.oracle_stages`).
 
 A sample's regions (all, overlap, non_overlap, the distance bands, and with semantic labels the class groups, motion
 and the road by band; `mcdp.evaluate`'s module docstring) are kept as one float 0/1 matrix per camera over its valid
@@ -106,7 +106,7 @@ class SampleTruth:
 class TruthCache:
     """The ground truth of the sample under evaluation (`SampleTruth`), read once and shared by every pass and stage that
     `evaluate_passes` scores on it, and by a stage of a predictor that reads the same ground truth (the ORACLE
-    stages, `study.oracle_stages`, through ``get``). Holds one sample: the passes are scored sample by sample."""
+    stages, `study.sweep.oracle_stages`, through ``get``). Holds one sample: the passes are scored sample by sample."""
 
     def __init__(self, ds: DatasetReader, cfg: EvalConfig) -> None:
         self.ds, self.cfg, self.rig = ds, cfg, EvalRig(ds)

@@ -11,7 +11,7 @@ ORACLE-local is given the overlap's ground-truth depth (its field reads it).
 
 Inference only predicts. Its steps are public so that an experiment can change an input or
 observe the outputs without the predictor knowing the experiment (the overlap experiment's cut,
-ORACLE weights and refinement statistics: `study.probes`)::
+ORACLE weights and refinement statistics: `study.sweep.probes`)::
 
     inp = pred.inputs(seq, frame)      # `Inputs`: what the network reads of one rig sample
     out = pred.forward(inp.cut())      # the network's outputs, here with the neighbours cut
