@@ -94,7 +94,7 @@ class SampleTruth:
         if rig.labels is not None:  # class groups and motion, on the valid pixels
             sels = [rig.labels.selectors(np.asarray(ds.read_semantic(seq, n, f))[v])
                     for n, v in zip(rig.names, self.valids)]
-            for r in LR.REGIONS:
+            for r in rig.labels.regions:
                 sel[r] = [s[r] for s in sels]
             for b in BANDS:  # the road alone by distance to the overlap: what the neighbours share most
                 sel[f"road_{b}"] = [bd & s["class_road"] for bd, s in zip(sel[b], sels)]

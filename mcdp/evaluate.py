@@ -289,7 +289,7 @@ def _summary(rig: EvalRig, regions: tuple, st: _Stage, seqs: list) -> dict:
                    "bands": {name: mean(b) for b, name in zip(BANDS, BAND_NAMES)},
                    "per_sequence": per_sequence_arrays({r: ps[:, k, j] for j, r in enumerate(PS_REGIONS)}, seqs)}
         if rig.labels is not None:
-            out[sc]["classes"] = {g: mean(f"class_{g}") for g in LR.GROUPS}
+            out[sc]["classes"] = {g: mean(f"class_{g}") for g in rig.labels.groups}
             out[sc]["motion"] = {m: mean(m) for m in LR.MOTIONS}
             out[sc]["holes"] = LR.hole_summary({kind: st.holes[k, h].tolist() for h, kind in enumerate(LR.HOLE_KINDS)})
             out[sc]["road_bands"] = {name: mean(f"road_{b}") for b, name in zip(BANDS, BAND_NAMES)}

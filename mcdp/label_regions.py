@@ -1,8 +1,9 @@
 """Evaluation regions that come from a dataset's semantic labels (`synth.protocol.DatasetReader.read_semantic`):
 the class groups, static against moving pixels, and the "infinite depth" hole on moving objects.
 
-Groups are those of the dataset's class table (``classes[].group``: road, building, vehicle, vegetation,
-other; sky has no depth and the ego body is masked, so neither is evaluated), with vehicles also split
+Groups are those of the dataset's own class table (``classes[].group``, in the table's order; a rendered
+dataset's: road, other, building, vegetation, vehicle; `NOT_EVALUATED`: sky has no depth and the ego body is
+masked), so the evaluation knows no generator's class list; road and vehicle must be there. Vehicles are also split
 into parked and moving (classes ``parked_vehicle`` / ``moving_vehicle``). Motion: ``moving`` = the pixels
 of moving objects (class ``moving_vehicle``, exactly the movers' pixels), ``static`` = every other valid
 pixel.
@@ -21,13 +22,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from scenes.labels import GROUPS as CLASS_GROUPS
-
-#: the class table's evaluation groups (`scenes.labels.GROUPS`), the vehicles also split parked / moving
-GROUPS = tuple(g for group in CLASS_GROUPS for g in (group, *(("vehicle_parked", "vehicle_moving")
-                                                              if group == "vehicle" else ())))
+#: groups of a class table that are never evaluated (docs/DATASET.md): sky has no depth, the ego body is masked
+NOT_EVALUATED = ("sky", "ego")
 MOTIONS = ("static", "moving")
-REGIONS = tuple(f"class_{g}" for g in GROUPS) + MOTIONS
 HOLE_RATIO = 2.0
 HOLE_KINDS = ("moving", "parked")
 #: the region of each hole kind (`HOLE_KINDS` order)
@@ -45,7 +42,17 @@ class LabelIndex:
         def of(pred) -> np.ndarray:
             return np.array([bool(pred(i)) for i in range(n)] + [False], bool)  # +1: an index beyond the table
 
-        self.lut = {f"class_{g}": of(lambda i, g=g: group[i] == g) for g in CLASS_GROUPS}
+        #: the table's evaluation groups in its order (a group of several classes once), the vehicles split too
+        self.groups = tuple(g for group_ in dict.fromkeys(group) if group_ and group_ not in NOT_EVALUATED
+                            for g in (group_, *(("vehicle_parked", "vehicle_moving") if group_ == "vehicle" else ())))
+        missing = [g for g in ("road", "vehicle") if g not in self.groups]
+        if missing:
+            raise ValueError(f"the dataset's class table has no {' or '.join(map(repr, missing))} group: the "
+                             "evaluation's road bands and vehicle holes read them (its groups: "
+                             f"{', '.join(map(str, dict.fromkeys(group)))[:200]})")
+        #: the regions this table gives: a class group's pixels, then the motions
+        self.regions = tuple(f"class_{g}" for g in self.groups) + MOTIONS
+        self.lut = {f"class_{g}": of(lambda i, g=g: group[i] == g) for g in self.groups}
         self.lut["class_vehicle_parked"] = of(lambda i: names[i] == "parked_vehicle")
         self.lut["class_vehicle_moving"] = of(lambda i: names[i] == "moving_vehicle")
         self.lut["moving"] = self.lut["class_vehicle_moving"]
@@ -59,7 +66,7 @@ class LabelIndex:
     def selectors(self, sem: np.ndarray) -> dict[str, np.ndarray]:
         """{region: bool array like `sem`} for class indices `sem` (any shape)."""
         idx = np.minimum(sem.astype(np.int64), self.n)
-        out = {r: self.lut[r][idx] for r in REGIONS if r != "static"}
+        out = {r: self.lut[r][idx] for r in self.regions if r != "static"}
         out["static"] = ~out["moving"]
         return out
 

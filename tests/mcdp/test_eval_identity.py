@@ -65,7 +65,7 @@ def _truth(ds, rig, seq, f, cfg) -> dict:
         sel[name] = [b == k for b in bands_v]
     if rig.labels is not None:
         sels = [rig.labels.selectors(np.asarray(ds.read_semantic(seq, n, f))[v]) for n, v in zip(rig.names, t["valids"])]
-        for r in LR.REGIONS:
+        for r in rig.labels.regions:
             sel[r] = [s[r] for s in sels]
         for b in BANDS:
             sel[f"road_{b}"] = [bd & s["class_road"] for bd, s in zip(sel[b], sels)]
@@ -117,7 +117,7 @@ def _summary(rig, acc, dc_acc, spreads, holes, seqs) -> dict:
                   "bands": {name: _mean_dicts(per[b].values()) for b, name in zip(BANDS, BAND_NAMES)},
                   "per_sequence": _per_sequence(acc[sc], seqs)}
         if rig.labels is not None:
-            st[sc]["classes"] = {g: _mean_dicts(per[f"class_{g}"].values()) for g in LR.GROUPS}
+            st[sc]["classes"] = {g: _mean_dicts(per[f"class_{g}"].values()) for g in rig.labels.groups}
             st[sc]["motion"] = {m: _mean_dicts(per[m].values()) for m in LR.MOTIONS}
             st[sc]["holes"] = LR.hole_summary(holes.get(sc, {}))
             st[sc]["road_bands"] = {name: _mean_dicts(per[f"road_{b}"].values()) for b, name in zip(BANDS, BAND_NAMES)}
@@ -133,7 +133,7 @@ def reference_evaluate(ds, predict_fn, split="test", cfg=None) -> dict:
     cfg = cfg or EvalConfig()
     rig = E.EvalRig(ds)
     samples = [(seq, f) for seq in ds.split(split) for f in E.eval_frames(ds.n_frames(seq), cfg)]
-    regions = E.REGIONS + ((LR.REGIONS + tuple(f"road_{b}" for b in BANDS)) if rig.labels is not None else ())
+    regions = E.REGIONS + ((rig.labels.regions + tuple(f"road_{b}" for b in BANDS)) if rig.labels is not None else ())
     stages, acc, dc_acc, spread_acc, hole_acc = None, {}, {}, {}, {}
     for seq, f in samples:
         t = _truth(ds, rig, seq, f, cfg)
