@@ -43,7 +43,9 @@ def _study(name: str):
 
     try:
         return importlib.import_module(f"study.sweep.{name}")
-    except ModuleNotFoundError:
+    except ModuleNotFoundError as e:
+        if e.name not in (f"study.sweep.{name}", "study.sweep"):  # a missing import inside it: say that one
+            raise
         return importlib.import_module(f"study.{name}")
 
 

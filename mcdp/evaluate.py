@@ -55,7 +55,7 @@ valid, e.g. a camera without neighbours has NaN overlap metrics)::
 
     {"split": str, "n_samples": int, "min_depth": float, "max_depth": float,
      "frame_stride": int, "skip_ends": bool, "cameras": [names in rig order],
-     "ground_truth": {"kind": "dense z-depth (rendered)" | "lidar", ...},   # ds.ground_truth
+     "ground_truth": {"kind": "dense z-depth (rendered)" | "dense depth (...range...)" | "lidar", ...},  # ds
      "lenses": {cam: {"model": row name, "depth_kind": "z_depth" | "range"}},  # a rig with a lens only
      "stages": {stage: {                     # predict_fn's stages + "final" (= last stage)
         "none" | "median" | "rig_median": {

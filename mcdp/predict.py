@@ -189,6 +189,13 @@ class SameInputs:
             return a.keys() == b.keys() and all(SameInputs._same(a[k], b[k]) for k in a)
         return type(a) is type(b) and a == b
 
+    def _weights(self) -> list[int]:
+        """The version of every parameter and buffer: weights changed in place (a load, an optimiser step under
+        no_grad) make the kept output stale."""
+        if self.module is None:
+            return []
+        return [t._version for t in (*self.module.parameters(), *self.module.buffers())]
+
     @staticmethod
     def _copy(x):
         if isinstance(x, torch.Tensor):
@@ -201,18 +208,20 @@ class SameInputs:
 
     def __call__(self, *args, **kwargs):
         self.calls += 1
-        if torch.is_grad_enabled() or (self.module is not None and self.module.training):
+        if (torch.is_grad_enabled() or torch.is_inference_mode_enabled()  # inference tensors keep no version
+                or (self.module is not None and self.module.training)):
             self._last = None
             return self.forward(*args, **kwargs)
         last = self._last
         if last is not None and self._same(last[0], (args, kwargs)):
             out, versions = last[1], last[2]
-            if [t._version for t in self._tensors(out)] == versions:
+            if [t._version for t in self._tensors(out)] + self._weights() == versions:
                 self.hits += 1
                 return dict(out) if isinstance(out, dict) else list(out) if isinstance(out, list) else out
         out = self.forward(*args, **kwargs)
         tensors = self._tensors(out)
-        self._last = None if tensors is None else (self._copy((args, kwargs)), out, [t._version for t in tensors])
+        self._last = None if tensors is None else (self._copy((args, kwargs)), out,
+                                                   [t._version for t in tensors] + self._weights())
         return dict(out) if isinstance(out, dict) else list(out) if isinstance(out, list) else out
 
 

@@ -115,6 +115,8 @@ def _power_line(diffs: list[float]) -> str:
     from study.sweep.config import load_sweep_config
 
     delta = load_sweep_config(ROOT / "configs" / "sweep" / "cpu_camera_models.yaml").plan.delta
+    if len(diffs) < 2:
+        return f"What the primary could see: not measured ({len(diffs)} world; an interval needs 2).\n"
     r = reading_over_worlds({w: [x] for w, x in enumerate(diffs)}, {"delta": delta})
     t = r["tost"]
     verdict = (f"equivalent to 0 within ±{delta:g}" if t["equivalent"] else
@@ -148,7 +150,7 @@ def build(values: dict) -> str:
         ref = values.get("yardsticks", {}).get("distorted", {}).get("constant_reference", {}).get(col)
         lines.append(f"Its level: {WORDS[m]} through the lens {_level(values, f'{m}_lens', col)}, as if pinhole "
                      f"{_level(values, f'{m}_pinhole', col)} (mean over the worlds); a constant depth on the same rig "
-                     + (f"{ref:.3f}" if isinstance(ref, float) and math.isfinite(ref) else "—")
+                     + (f"{ref:.3f}" if isinstance(ref, (int, float)) and math.isfinite(ref) else "—")
                      + " (no training; the table below has every level).\n")
     dist = values.get("distortion_px", {})
     if dist.get("distorted"):

@@ -330,7 +330,6 @@ def target_pair_mean(per_pair: dict, target: float, tol: float = 1e-3) -> tuple[
     return (float(np.mean(same)) if same else float("nan")), len(same)
 
 
-
 @dataclass(frozen=True)
 class OverlapKnob:
     """What a dataset's overlap knob meant (its manifest's ``overlap`` record, `synth.calibrate.overlap_record`):
@@ -352,6 +351,7 @@ class OverlapKnob:
     def pair_target(self) -> float | None:
         """The geometric target the adjacent pairs were laid out at (`target_pair_mean` selects by it)."""
         return self.geometric if self.knob == "pixels" else self.target
+
 
 #: upper edges of the distance bands, as fractions of the image width (`distance_bands`)
 BAND_EDGES = (0.10, 0.20, 0.35)

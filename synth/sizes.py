@@ -46,6 +46,7 @@ class SharedSize:
         """The image height every camera shares (`width`)."""
         return shared_size(self.root, self.cameras)[1]
 
+
 def size_keys(default: tuple[int, int], cameras) -> dict:
     """The manifest's size keys: ``image_size`` (the dataset's ``camera.width`` x ``camera.height``) and, when a
     camera's size differs from it (``rig.cameras.<CAM>.width`` / ``.height``), ``camera_sizes``: {camera:

@@ -82,16 +82,15 @@ def _numeric_fields():
     section (every `StrictModel` subclass of the five packages). Every module of the five is imported first,
     so the set is the same whether this file is collected alone or after others (issue 42, item 8)."""
     import importlib
-    import pkgutil
     import typing
 
     from corelib.configlib import StrictModel
 
-    for pkg in ("corelib", "scenes", "synth", "mcdp", "study"):
-        root = importlib.import_module(pkg)
-        for info in pkgutil.walk_packages(root.__path__, f"{pkg}."):
-            if not info.name.endswith("__main__"):
-                importlib.import_module(info.name)
+    for pkg in ("corelib", "scenes", "synth", "mcdp", "study"):  # by file: study's folders have no __init__.py,
+        for path in sorted((ROOT / pkg).rglob("*.py")):             # which pkgutil.walk_packages does not enter
+            parts = path.relative_to(ROOT).with_suffix("").parts
+            if parts[-1] != "__main__":
+                importlib.import_module(".".join(parts[:-1] if parts[-1] == "__init__" else parts))
 
     def numeric(ann) -> bool:
         return ann in (int, float) or any(numeric(a) for a in typing.get_args(ann))

@@ -17,6 +17,7 @@ from study.sweep.config import SPLIT, SweepConfig, data_config_for, eval_config_
 from study.sweep.records import Counters, finite, read_json, summarize_metrics, write_json
 from synth.overlap import OverlapKnob, target_pair_mean
 
+
 def measured_overlap(ov: dict) -> dict:
     """Target and measured pixel overlap of a dataset (from its overlap record, `synth.dataset.Dataset.overlap`).
 

@@ -75,3 +75,24 @@ def test_reuse_only_without_gradients_and_unchanged_outputs():
     memo(y)
     memo(y)  # with gradients: always run
     assert len(calls) == 6
+
+
+def test_no_reuse_after_the_weights_change_or_under_inference_mode():
+    """The kept outputs are stale once the module's weights change in place (a load, a step under no_grad), and
+    inference mode (whose tensors keep no version counter) always runs."""
+    lin = torch.nn.Linear(3, 2).eval()  # a module in training mode always runs
+    memo = SameInputs(lin.forward)
+    x = torch.randn(4, 3)
+    with torch.no_grad():
+        a = memo(x)
+        assert memo(x) is a and memo.hits == 1
+        lin.weight.add_(1.0)  # the weights moved: the same input gives another output
+        b = memo(x)
+        assert memo.hits == 1 and not torch.equal(a, b) and torch.equal(b, lin(x))
+        lin.load_state_dict({k: v.clone() for k, v in lin.state_dict().items()})  # a load bumps them too
+        memo(x)
+        assert memo.hits == 1
+    with torch.inference_mode():
+        c = memo(x)
+        d = memo(x)
+    assert memo.hits == 1 and torch.equal(c, d)

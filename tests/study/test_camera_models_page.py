@@ -49,3 +49,10 @@ def test_the_primary_stands_beside_its_level_and_a_yardstick():
     assert (float(m[1]), float(m[2])) == (round(lens, 3), round(pin, 3))
     assert float(m[3]) > max(lens, pin)  # trained depth beats a constant
     assert abs((pin - lens) - 0.005) < 0.001  # the level's difference is the primary's mean (+0.005)
+
+
+def test_one_world_says_it_has_no_interval():
+    sys.path.insert(0, str(ROOT / "scripts"))
+    pcm = importlib.import_module("publish_camera_models")
+    line = pcm._power_line([0.01])
+    assert "not measured (1 world" in line and "nan" not in line

@@ -98,12 +98,15 @@ def levels(results: dict, ps: list[dict], sc: str) -> str:
     if not ps:
         return ""
     plan = plan_of(results)
-    a, b = ([_figure(p["rows"][k], sc, p["region"], plan["metric"]) for p in ps] for k in (0, 1))
+    mean = (lambda v: math.fsum(v) / len(v))
+    by_world: dict = {}  # a world's mean over its seeds, as the reading clusters them
+    for p in ps:
+        by_world.setdefault(p["world"], []).append([_figure(r, sc, p["region"], plan["metric"]) for r in p["rows"]])
+    a, b = ([mean([x[k] for x in v]) for v in by_world.values()] for k in (0, 1))
     key = f"{sc}.{PLAN_REGIONS[plan['region']]}.{plan['metric']}"
     ref, prior = (yardstick_agg(results, plan["overlap"], key, which)["mean"] for which in ("reference", "prior"))
-    mean = (lambda v: math.fsum(v) / len(v))
     return (f"The arms' level: w/o L_con {mean(a):.4f}, with L_con {mean(b):.4f} ({sc} {plan['metric']} on "
-            f"{region_words(plan['region'])}, mean over the {len(ps)} worlds); the yardsticks that use no "
+            f"{region_words(plan['region'])}, mean over the {len(by_world)} worlds); the yardsticks that use no "
             f"training: a constant depth {_f(ref).lstrip('+')}, the flat-road prior {_f(prior).lstrip('+')}.")
 
 
