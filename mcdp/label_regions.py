@@ -42,9 +42,10 @@ class LabelIndex:
         def of(pred) -> np.ndarray:
             return np.array([bool(pred(i)) for i in range(n)] + [False], bool)  # +1: an index beyond the table
 
-        #: the table's evaluation groups in its order (a group of several classes once), the vehicles split too
-        self.groups = tuple(g for group_ in dict.fromkeys(group) if group_ and group_ not in NOT_EVALUATED
-                            for g in (group_, *(("vehicle_parked", "vehicle_moving") if group_ == "vehicle" else ())))
+        table_groups = [g for g in dict.fromkeys(group) if g and g not in NOT_EVALUATED]  # its order, each once
+        #: the table's evaluation groups, the vehicles also split parked / moving
+        self.groups = tuple(g for t in table_groups
+                            for g in (t, *(("vehicle_parked", "vehicle_moving") if t == "vehicle" else ())))
         missing = [g for g in ("road", "vehicle") if g not in self.groups]
         if missing:
             raise ValueError(f"the dataset's class table has no {' or '.join(map(repr, missing))} group: the "
@@ -52,7 +53,7 @@ class LabelIndex:
                              f"{', '.join(map(str, dict.fromkeys(group)))[:200]})")
         #: the regions this table gives: a class group's pixels, then the motions
         self.regions = tuple(f"class_{g}" for g in self.groups) + MOTIONS
-        self.lut = {f"class_{g}": of(lambda i, g=g: group[i] == g) for g in self.groups}
+        self.lut = {f"class_{g}": of(lambda i, g=g: group[i] == g) for g in table_groups}
         self.lut["class_vehicle_parked"] = of(lambda i: names[i] == "parked_vehicle")
         self.lut["class_vehicle_moving"] = of(lambda i: names[i] == "moving_vehicle")
         self.lut["moving"] = self.lut["class_vehicle_moving"]

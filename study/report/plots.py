@@ -21,6 +21,7 @@ from study.report.sections.mechanisms import KEYS
 from study.results.paired import paired_gain
 from study.results.summary import BASELINE, PAIRED_PLOT, PRIOR_LABEL, REF_LABEL, SCALE_LABEL, method_agg, yardstick_agg
 from study.sweep.variants import Evaluation, cut
+from synth.overlap import OverlapKnob
 
 XLABEL = "target overlap (fraction of hfov)"
 #: the paired figure's panels: (results key, title) of `study.report.sections.mechanisms.KEYS`, in its order
@@ -74,7 +75,7 @@ def x_axis(results: dict) -> tuple[str, list[str]]:
     xs = results["overlaps"]
     data = results.get("data") or []
     meas = [(d.get("measured") or {}).get("measured_mean") for d in data]
-    knobs = {(d.get("measured") or {}).get("knob") or "angle" for d in data}
+    knobs = {OverlapKnob.of(d.get("measured") or {}).knob for d in data}
     label = ("pixel overlap: target (measured)" if knobs == {"pixels"}
              else f"{XLABEL} (measured pixel overlap)")
     if len(meas) != len(xs) or not all(isinstance(m, (int, float)) and math.isfinite(m) for m in meas):
@@ -191,7 +192,7 @@ def measured_figure(results: dict):
     plt = _plt()
     xs = results["overlaps"]
     measured = [d["measured"] for d in results["data"]]
-    pixels = {m.get("knob") or "angle" for m in measured} == {"pixels"}
+    pixels = {OverlapKnob.of(m).knob for m in measured} == {"pixels"}
     fig, ax = plt.subplots(figsize=(5, 4))
     ax.plot(xs, xs, "k:", label="target pixel overlap (the knob; y = x)" if pixels else
             "target = geometric overlap, shared fraction of hfov (y = x)")

@@ -16,11 +16,16 @@ from scipy import stats
 ROOT = Path(__file__).resolve().parents[2]
 
 
-def test_the_primary_states_its_mde_and_equivalence_test_as_scipy_computes_them():
+def _page() -> tuple[dict, str]:
+    """The committed values.json and the page `publish_camera_models.build` makes of it."""
     sys.path.insert(0, str(ROOT / "scripts"))
     pcm = importlib.import_module("publish_camera_models")
     values = json.loads((ROOT / "docs" / "results" / "camera_models" / "values.json").read_text())
-    page = pcm.build(values)
+    return values, pcm.build(values)
+
+
+def test_the_primary_states_its_mde_and_equivalence_test_as_scipy_computes_them():
+    values, page = _page()
     m = re.search(r"an effect of ±(\d\.\d{4}) at 80 % power; (not shown equivalent|equivalent) to 0 within "
                   r"±([\d.]+) \(two one-sided tests, p = (\d\.\d{3})", page)
     assert m, page[:800]
@@ -37,10 +42,7 @@ def test_the_primary_states_its_mde_and_equivalence_test_as_scipy_computes_them(
 
 
 def test_the_primary_stands_beside_its_level_and_a_yardstick():
-    sys.path.insert(0, str(ROOT / "scripts"))
-    pcm = importlib.import_module("publish_camera_models")
-    values = json.loads((ROOT / "docs" / "results" / "camera_models" / "values.json").read_text())
-    page = pcm.build(values)
+    values, page = _page()
     m = re.search(r"Its level: Mono2 through the lens (\d\.\d{3}), as if pinhole (\d\.\d{3}) .*a constant depth on "
                   r"the same rig (\d\.\d{3})", page)
     assert m, page[:1500]
